@@ -1,0 +1,1 @@
+"""Seeded, pure stages: motion, objects, hand, interception, scene and recipe."""

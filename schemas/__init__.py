@@ -1,0 +1,1 @@
+"""Dyana's data contract: validated frozen dataclasses, Arrow schemas, versions."""

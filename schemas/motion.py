@@ -1,0 +1,284 @@
+"""Motion tokens: the vocabulary that drives every target (paper 3.1, A.6).
+
+Positions live in the table's XZ plane as ``(x, z)`` pairs in scene units
+(1 unit = 10 cm); angles are radians measured from +X toward +Z; times are seconds.
+
+A :class:`Track` is a time-ordered sequence of tokens that meet end to start.
+Position continuity at joins holds by construction: every token after the first is
+translated so that it begins where the previous one ended (its own position
+parameters then fix its shape and phase, not its absolute place). A clothoid
+``C`` inherits position, heading, speed and curvature from the token before it,
+which makes the join G2.
+
+A :class:`Motion` is a base track plus optional overlay tracks. An overlay acts on
+its own interval ``[start, start + duration]`` and adds its displacement since its
+start, so overlays compose different degrees of freedom (say a harmonic sway on top
+of a line) without breaking continuity (Allen's "during"/"overlaps" relations).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import MISSING, dataclass, field, fields
+from typing import Any, ClassVar, Union
+
+from schemas.errors import SpecError
+
+Vec2 = tuple[float, float]
+
+
+def _finite(owner: str, name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SpecError(f"{owner}.{name} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise SpecError(f"{owner}.{name} must be finite, got {value!r}")
+    return value
+
+
+def _vec2(owner: str, name: str, value: Any) -> Vec2:
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise SpecError(f"{owner}.{name} must be a pair [x, z], got {value!r}")
+    return (_finite(owner, f"{name}[0]", value[0]), _finite(owner, f"{name}[1]", value[1]))
+
+
+def _positive(owner: str, name: str, value: Any) -> float:
+    value = _finite(owner, name, value)
+    if value <= 0:
+        raise SpecError(f"{owner}.{name} must be > 0, got {value!r}")
+    return value
+
+
+def _non_negative(owner: str, name: str, value: Any) -> float:
+    value = _finite(owner, name, value)
+    if value < 0:
+        raise SpecError(f"{owner}.{name} must be >= 0, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class LineToken:
+    """``L``: straight line, r(t) = start + u * (speed t + acceleration t^2 / 2)."""
+
+    start: Vec2
+    direction: float
+    speed: float
+    acceleration: float
+    duration: float
+    type: ClassVar[str] = "L"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start", _vec2("L", "start", self.start))
+        object.__setattr__(self, "direction", _finite("L", "direction", self.direction))
+        object.__setattr__(self, "speed", _non_negative("L", "speed", self.speed))
+        object.__setattr__(self, "acceleration", _finite("L", "acceleration", self.acceleration))
+        object.__setattr__(self, "duration", _positive("L", "duration", self.duration))
+
+
+@dataclass(frozen=True)
+class ArcToken:
+    """``A``: circular arc about ``centre``; ``turn`` +1 turns from +X toward +Z, -1 the other way.
+
+    r(t) = centre + radius * (cos th, sin th), th = start_angle + turn * angular_velocity * t.
+    """
+
+    centre: Vec2
+    radius: float
+    angular_velocity: float
+    start_angle: float
+    turn: int
+    duration: float
+    type: ClassVar[str] = "A"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "centre", _vec2("A", "centre", self.centre))
+        object.__setattr__(self, "radius", _positive("A", "radius", self.radius))
+        object.__setattr__(self, "angular_velocity", _non_negative("A", "angular_velocity", self.angular_velocity))
+        object.__setattr__(self, "start_angle", _finite("A", "start_angle", self.start_angle))
+        if self.turn not in (1, -1) or isinstance(self.turn, bool):
+            raise SpecError(f"A.turn must be +1 or -1, got {self.turn!r}")
+        object.__setattr__(self, "turn", int(self.turn))
+        object.__setattr__(self, "duration", _positive("A", "duration", self.duration))
+
+
+@dataclass(frozen=True)
+class HarmonicToken:
+    """``H``: simple harmonic motion along ``axis`` (an angle) with optional drift.
+
+    r(t) = centre + (cos axis, sin axis) * amplitude * sin(2 pi frequency t + phase) + drift * t.
+    """
+
+    centre: Vec2
+    axis: float
+    amplitude: float
+    frequency: float
+    phase: float
+    duration: float
+    drift: Vec2 = (0.0, 0.0)
+    type: ClassVar[str] = "H"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "centre", _vec2("H", "centre", self.centre))
+        object.__setattr__(self, "axis", _finite("H", "axis", self.axis))
+        object.__setattr__(self, "amplitude", _non_negative("H", "amplitude", self.amplitude))
+        object.__setattr__(self, "frequency", _positive("H", "frequency", self.frequency))
+        object.__setattr__(self, "phase", _finite("H", "phase", self.phase))
+        object.__setattr__(self, "duration", _positive("H", "duration", self.duration))
+        object.__setattr__(self, "drift", _vec2("H", "drift", self.drift))
+
+
+@dataclass(frozen=True)
+class ClothoidToken:
+    """``C``: clothoid connector, curvature changing linearly with arc length.
+
+    kappa(s) = curvature + curvature_slope * s at constant speed. After another token it
+    inherits position, heading, speed and curvature (a G2 join) and ignores ``start``,
+    ``heading``, ``speed`` and ``curvature``; those apply only when it opens a track.
+    """
+
+    curvature_slope: float
+    duration: float
+    start: Vec2 = (0.0, 0.0)
+    heading: float = 0.0
+    speed: float = 1.0
+    curvature: float = 0.0
+    type: ClassVar[str] = "C"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "curvature_slope", _finite("C", "curvature_slope", self.curvature_slope))
+        object.__setattr__(self, "duration", _positive("C", "duration", self.duration))
+        object.__setattr__(self, "start", _vec2("C", "start", self.start))
+        object.__setattr__(self, "heading", _finite("C", "heading", self.heading))
+        object.__setattr__(self, "speed", _non_negative("C", "speed", self.speed))
+        object.__setattr__(self, "curvature", _finite("C", "curvature", self.curvature))
+
+
+Token = Union[LineToken, ArcToken, HarmonicToken, ClothoidToken]
+TOKEN_TYPES: dict[str, type] = {cls.type: cls for cls in (LineToken, ArcToken, HarmonicToken, ClothoidToken)}
+
+
+def token_to_dict(token: Token) -> dict[str, Any]:
+    """JSON-ready dict with ``type`` first; pairs become lists."""
+    out: dict[str, Any] = {"type": token.type}
+    for f in fields(token):
+        value = getattr(token, f.name)
+        out[f.name] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
+def token_from_dict(data: Any) -> Token:
+    """Validate and build a token from its dict; names the bad field on error."""
+    if not isinstance(data, dict):
+        raise SpecError(f"a token must be an object, got {data!r}")
+    kind = data.get("type")
+    cls = TOKEN_TYPES.get(kind) if isinstance(kind, str) else None
+    if cls is None:
+        raise SpecError(f"unknown token type {kind!r} (expected one of {sorted(TOKEN_TYPES)})")
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - names - {"type"})
+    if unknown:
+        raise SpecError(f"{kind} token has unknown field(s) {unknown}")
+    required = [f.name for f in fields(cls) if f.default is MISSING]
+    missing = [n for n in required if n not in data]
+    if missing:
+        raise SpecError(f"{kind} token is missing field(s) {missing}")
+    return cls(**{k: v for k, v in data.items() if k != "type"})
+
+
+@dataclass(frozen=True)
+class Track:
+    """Tokens that meet end to start, beginning at ``start`` seconds."""
+
+    tokens: tuple[Token, ...]
+    start: float = 0.0
+
+    def __post_init__(self) -> None:
+        tokens = tuple(self.tokens) if isinstance(self.tokens, (tuple, list)) else self.tokens
+        if not isinstance(tokens, tuple) or not tokens:
+            raise SpecError(f"a track needs at least one token, got {self.tokens!r}")
+        for token in tokens:
+            if not isinstance(token, tuple(TOKEN_TYPES.values())):
+                raise SpecError(f"not a motion token: {token!r}")
+        object.__setattr__(self, "tokens", tokens)
+        object.__setattr__(self, "start", _non_negative("track", "start", self.start))
+
+    @property
+    def duration(self) -> float:
+        return math.fsum(t.duration for t in self.tokens)
+
+    @property
+    def end(self) -> float:
+        return self.start + self.duration
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A base track starting at t = 0 plus additive overlay tracks."""
+
+    base: Track
+    overlays: tuple[Track, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.base, Track):
+            raise SpecError(f"motion.base must be a Track, got {self.base!r}")
+        if self.base.start != 0.0:
+            raise SpecError(f"motion.base must start at 0, got start={self.base.start!r}")
+        overlays = tuple(self.overlays)
+        for overlay in overlays:
+            if not isinstance(overlay, Track):
+                raise SpecError(f"motion overlay must be a Track, got {overlay!r}")
+        object.__setattr__(self, "overlays", overlays)
+
+    @classmethod
+    def of(cls, *tokens: Token) -> "Motion":
+        """A single-track motion."""
+        return cls(Track(tuple(tokens)))
+
+    @property
+    def duration(self) -> float:
+        """The base track's duration: the motion is defined on [0, duration]."""
+        return self.base.duration
+
+    @property
+    def token_types(self) -> str:
+        """E.g. ``"L"`` or ``"LCA"``: the base track's token letters."""
+        return "".join(t.type for t in self.base.tokens)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "base": [token_to_dict(t) for t in self.base.tokens],
+            "overlays": [{"start": o.start, "tokens": [token_to_dict(t) for t in o.tokens]} for o in self.overlays],
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any) -> "Motion":
+        if isinstance(data, list):
+            data = {"base": data}
+        if not isinstance(data, dict):
+            raise SpecError(f"motion must be an object with 'base', got {data!r}")
+        unknown = sorted(set(data) - {"base", "overlays"})
+        if unknown:
+            raise SpecError(f"motion has unknown field(s) {unknown}")
+        if "base" not in data:
+            raise SpecError("motion is missing field 'base'")
+        base = data["base"]
+        if not isinstance(base, list):
+            raise SpecError(f"motion.base must be a list of tokens, got {base!r}")
+        overlays = []
+        for i, item in enumerate(data.get("overlays", [])):
+            if not isinstance(item, dict) or "tokens" not in item:
+                raise SpecError(f"motion.overlays[{i}] must be an object with 'tokens', got {item!r}")
+            overlays.append(Track(tuple(token_from_dict(t) for t in item["tokens"]), item.get("start", 0.0)))
+        return cls(Track(tuple(token_from_dict(t) for t in base)), tuple(overlays))
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_json(cls, text: str) -> "Motion":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SpecError(f"motion is not valid JSON: {exc}") from exc
+        return cls.from_dict(data)

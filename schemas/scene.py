@@ -1,0 +1,43 @@
+"""Scene conventions shared by every stage (DESIGN.md, "Scene conventions").
+
+World frame: X right, Y up, Z forward (away from the camera); the table top is Y = 0.
+1 unit = 10 cm. Episodes run at :data:`schemas.versions.FPS` frames per second.
+"""
+
+from __future__ import annotations
+
+#: Fixed egocentric camera, looking forward and down at the workspace.
+CAMERA_EYE = (0.0, 9.0, -3.0)
+CAMERA_TARGET = (0.0, 0.0, 4.5)
+CAMERA_UP = (0.0, 1.0, 0.0)
+CAMERA_FOV_DEG = 60.0
+CAMERA_NEAR = 0.5
+CAMERA_FAR = 40.0
+DEFAULT_RESOLUTION = 224
+
+#: Where an object's centre may be, on the table, during a whole episode.
+WORKSPACE_X = (-3.5, 3.5)
+WORKSPACE_Z = (1.5, 7.5)
+#: The table's top, larger than the workspace.
+TABLE_X = (-6.0, 6.0)
+TABLE_Z = (-1.0, 10.0)
+
+#: The palm's rest pose (x, y, z, roll, pitch, yaw): near the camera edge, palm down.
+PALM_REST = (0.0, 3.0, 0.5, 0.0, 0.0, 0.0)
+#: Palm centre height above the object's top while hovering and grasping.
+PALM_HOVER = 0.35
+
+#: Localization tolerance in the XZ plane (paper A.5) and the grasp ratio.
+LOC_TOLERANCE = 0.3
+GRASP_RATIO = 0.8
+
+#: Interception settings: seconds from the first acting frame to arrival.
+INTERCEPT_SECONDS = {"fast": 0.5, "medium": 1.0, "slow": 1.5}
+#: Frames to close the fingers after arrival, then frames of hold.
+GRASP_FRAMES = 6
+HOLD_FRAMES = 4
+
+PHASES = ("observe", "approach", "grasp", "hold")
+MOTION_TYPES = ("linear", "circular", "harmonic")
+ROLLOUT_FORMATS = ("observe-before-act", "direct-act")
+HANDS = ("right", "left")

@@ -1,0 +1,189 @@
+"""EpisodeSpec: everything that determines one episode, and its JSON form.
+
+A spec comes from the recipe (``generators.recipe``) or from a researcher's JSONL
+file. It is validated on construction; ``from_json``/``from_dict`` name the bad field.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from schemas.errors import SpecError
+from schemas.motion import Motion
+from schemas.objects import object_category
+from schemas.scene import GRASP_FRAMES, HANDS, INTERCEPT_SECONDS, MOTION_TYPES, ROLLOUT_FORMATS
+from schemas.versions import FPS
+
+SPEC_FIELDS = (
+    "slice",
+    "episode_index",
+    "seed",
+    "motion_type",
+    "motion",
+    "object",
+    "object_size",
+    "hand",
+    "rollout_format",
+    "intercept_setting",
+    "observe_frames",
+    "num_frames",
+    "text",
+)
+
+_MOTION_TYPES = MOTION_TYPES + ("custom",)
+
+
+def _int(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        else:
+            raise SpecError(f"spec.{name} must be an integer, got {value!r}")
+    if value < minimum:
+        raise SpecError(f"spec.{name} must be >= {minimum}, got {value!r}")
+    return value
+
+
+def _choice(name: str, value: Any, options: tuple[str, ...]) -> str:
+    if value not in options:
+        raise SpecError(f"spec.{name} must be one of {list(options)}, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One episode: the target's motion, the object, the hand and the timing.
+
+    Frames: ``observe`` for ``observe_frames``, ``approach`` until ``intercept_frame``
+    (arrival, ``intercept_time_s`` after the first acting frame), ``grasp`` for
+    ``GRASP_FRAMES``, then ``hold`` until ``num_frames``.
+    """
+
+    slice: str
+    episode_index: int
+    seed: int
+    motion_type: str
+    motion: Motion
+    object: str
+    object_size: float
+    hand: str
+    rollout_format: str
+    intercept_setting: str
+    observe_frames: int
+    num_frames: int
+    text: str
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.slice, str) or not self.slice:
+            raise SpecError(f"spec.slice must be a non-empty string, got {self.slice!r}")
+        object.__setattr__(self, "episode_index", _int("episode_index", self.episode_index, 0))
+        object.__setattr__(self, "seed", _int("seed", self.seed, 0))
+        _choice("motion_type", self.motion_type, _MOTION_TYPES)
+        if not isinstance(self.motion, Motion):
+            raise SpecError(f"spec.motion must be a Motion, got {self.motion!r}")
+        object_category(self.object)
+        size = self.object_size
+        if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) or size <= 0:
+            raise SpecError(f"spec.object_size must be a finite number > 0, got {size!r}")
+        object.__setattr__(self, "object_size", float(size))
+        _choice("hand", self.hand, HANDS)
+        _choice("rollout_format", self.rollout_format, ROLLOUT_FORMATS)
+        _choice("intercept_setting", self.intercept_setting, tuple(INTERCEPT_SECONDS))
+        object.__setattr__(self, "observe_frames", _int("observe_frames", self.observe_frames, 0))
+        if self.rollout_format == "direct-act" and self.observe_frames != 0:
+            raise SpecError(f"spec.observe_frames must be 0 for direct-act, got {self.observe_frames!r}")
+        if self.rollout_format == "observe-before-act" and self.observe_frames < 1:
+            raise SpecError(f"spec.observe_frames must be >= 1 for observe-before-act, got {self.observe_frames!r}")
+        minimum = self.intercept_frame + GRASP_FRAMES + 1
+        object.__setattr__(self, "num_frames", _int("num_frames", self.num_frames, minimum))
+        needed = (self.num_frames - 1) / FPS
+        if self.motion.duration + 1e-9 < needed:
+            raise SpecError(
+                f"spec.motion lasts {self.motion.duration:.3f} s but {self.num_frames} frames need {needed:.3f} s"
+            )
+        if not isinstance(self.text, str):
+            raise SpecError(f"spec.text must be a string, got {self.text!r}")
+
+    @property
+    def fps(self) -> int:
+        return FPS
+
+    @property
+    def episode_id(self) -> str:
+        return f"{self.slice}:{self.episode_index:06d}"
+
+    @property
+    def intercept_time_s(self) -> float:
+        return INTERCEPT_SECONDS[self.intercept_setting]
+
+    @property
+    def approach_frames(self) -> int:
+        return round(self.intercept_time_s * FPS)
+
+    @property
+    def intercept_frame(self) -> int:
+        """Frame at which the palm arrives over the object."""
+        return self.observe_frames + self.approach_frames
+
+    @property
+    def rolling(self) -> bool:
+        return object_category(self.object).rolling
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {name: getattr(self, name) for name in SPEC_FIELDS}
+        out["motion"] = self.motion.to_dict()
+        return out
+
+    def to_json(self) -> str:
+        """Canonical JSON: sorted keys, no spaces; the input of :attr:`spec_hash`."""
+        return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+    @property
+    def spec_hash(self) -> str:
+        return hashlib.sha256(self.to_json().encode()).hexdigest()
+
+    @classmethod
+    def from_dict(cls, data: Any) -> "EpisodeSpec":
+        if not isinstance(data, dict):
+            raise SpecError(f"a spec must be a JSON object, got {data!r}")
+        missing = [n for n in SPEC_FIELDS if n not in data]
+        if missing:
+            raise SpecError(f"spec is missing field(s) {missing}")
+        unknown = sorted(set(data) - set(SPEC_FIELDS))
+        if unknown:
+            raise SpecError(f"spec has unknown field(s) {unknown}")
+        values = dict(data)
+        values["motion"] = Motion.from_dict(data["motion"])
+        return cls(**values)
+
+    @classmethod
+    def from_json(cls, text: str) -> "EpisodeSpec":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SpecError(f"spec is not valid JSON: {exc}") from exc
+        return cls.from_dict(data)
+
+
+def read_specs_jsonl(path: str) -> list[EpisodeSpec]:
+    """Load and validate a JSONL file of specs; errors name the file and line."""
+    specs: list[EpisodeSpec] = []
+    try:
+        handle = open(path, encoding="utf-8")
+    except OSError as exc:
+        raise SpecError(f"cannot read specs file {path}: {exc.strerror}") from exc
+    with handle:
+        for lineno, line in enumerate(handle, start=1):
+            if not line.strip():
+                continue
+            try:
+                specs.append(EpisodeSpec.from_json(line))
+            except SpecError as exc:
+                raise SpecError(f"{path}:{lineno}: {exc}") from exc
+    if not specs:
+        raise SpecError(f"specs file {path} holds no spec")
+    return specs
