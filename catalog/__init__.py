@@ -1,0 +1,1 @@
+"""The store: shard writers and readers, manifests, hashes, verify, the dataloader."""

@@ -1,0 +1,1 @@
+"""Composition and execution: the episode stage, the Dask build, the closed loop, the CLI."""

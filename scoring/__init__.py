@@ -1,0 +1,1 @@
+"""Pure metrics over recorded rollouts, reports and plots."""
