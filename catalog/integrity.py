@@ -1,0 +1,128 @@
+"""The integrity half of ``catalog verify``: every file a manifest lists is present,
+has its recorded size and sha256, and opens as what it claims to be; no temp file
+of an unfinished write and no unlisted shard file lies in the folder.
+
+(The other half, rebuilding shards and comparing bytes, lives in the pipeline.)
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from catalog.atomic import find_stray_temps
+from catalog.hashing import sha256_file
+from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
+from catalog.mcap_io import check_mcap
+from catalog.parquet_io import check_parquet, open_parquet, table_kind
+from catalog.records import SHARDS_DIR, ShardRecord
+from schemas.errors import ShardError
+
+#: Problem kinds, in the order a file is checked.
+KINDS = ("missing", "size", "sha256", "unreadable", "stray-temp", "unlisted")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One bad file: its path relative to the folder, what is wrong, and details."""
+
+    path: str
+    kind: str
+    detail: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.detail}"
+
+
+def _check_file(root: Path, shard: ShardRecord, kind: str, full: bool) -> Problem | None:
+    record = shard.files[kind]
+    path = root / record.path
+    if not path.is_file():
+        return Problem(record.path, "missing", "file is missing")
+    size = path.stat().st_size
+    if size != record.size:
+        state = "truncated" if size < record.size else "longer than recorded"
+        return Problem(record.path, "size", f"{state}: {size} bytes, catalog.json says {record.size}")
+    digest = sha256_file(path)
+    if digest != record.sha256:
+        return Problem(record.path, "sha256", f"content changed: sha256 {digest}, catalog.json says {record.sha256}")
+    try:
+        if kind == "frames":
+            check_parquet(path, "frames", rows=shard.frames)
+        elif kind == "episodes":
+            with open_parquet(path) as parquet:
+                found = table_kind(parquet)
+            check_parquet(path, found if found != "frames" else "episodes", rows=shard.num_episodes)
+        else:
+            check_mcap(path, frames=shard.frames, full=full)
+    except ShardError as exc:
+        detail = str(exc)
+        prefix = f"{os.fspath(path)}: "
+        return Problem(record.path, "unreadable", detail[len(prefix) :] if detail.startswith(prefix) else detail)
+    return None
+
+
+def check_files(
+    directory: str | os.PathLike[str],
+    manifest: Manifest,
+    sample: int | None = None,
+    rng: np.random.Generator | None = None,
+    *,
+    full: bool = False,
+) -> list[Problem]:
+    """Every problem found, shards in manifest order, then stray and unlisted files.
+
+    ``sample`` checks only that many shards (all three files each), drawn without
+    replacement by ``rng`` (default ``numpy.random.default_rng(0)``, a fixed choice).
+    ``full`` also reads every MCAP chunk and checks its CRCs (the sha256 already
+    covers every byte; this guards against a manifest written over bad files).
+    """
+    root = Path(directory)
+    shards = list(manifest.shards)
+    if sample is not None:
+        if isinstance(sample, bool) or not isinstance(sample, int) or sample < 1:
+            raise ShardError(f"--sample must be an integer >= 1, got {sample!r}")
+        if sample < len(shards):
+            generator = np.random.default_rng(0) if rng is None else rng
+            chosen = np.sort(generator.choice(len(shards), size=sample, replace=False))
+            shards = [shards[i] for i in chosen]
+    problems = []
+    for shard in shards:
+        for kind in shard.files:
+            problem = _check_file(root, shard, kind, full)
+            if problem is not None:
+                problems.append(problem)
+    for temp in find_stray_temps(root):
+        rel = temp.relative_to(root).as_posix()
+        problems.append(Problem(rel, "stray-temp", "temporary file of an unfinished write (remove it or rebuild)"))
+    listed = {path for path, _, _ in manifest.files()}
+    shard_dir = root / SHARDS_DIR
+    if shard_dir.is_dir():
+        for path in sorted(shard_dir.iterdir()):
+            rel = path.relative_to(root).as_posix()
+            if rel not in listed and not path.name.startswith("."):
+                problems.append(Problem(rel, "unlisted", f"not listed in {MANIFEST_NAME}"))
+    return problems
+
+
+def verify_files(
+    directory: str | os.PathLike[str],
+    sample: int | None = None,
+    rng: np.random.Generator | None = None,
+    *,
+    full: bool = False,
+) -> Manifest:
+    """Load the manifest and check the files; ShardError naming the first bad file.
+
+    Returns the manifest when everything is intact.
+    """
+    manifest = load_manifest(directory)
+    problems = check_files(directory, manifest, sample, rng, full=full)
+    if problems:
+        first = problems[0]
+        more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
+        raise ShardError(f"{os.path.join(os.fspath(directory), first.path)}: {first.detail}{more}")
+    return manifest

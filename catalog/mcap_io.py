@@ -1,0 +1,516 @@
+"""The shard's MCAP file: Foxglove's well-known protobuf schemas, so Foxglove opens
+it without configuration, written byte-for-byte reproducibly; and readers.
+
+Channels, registered once in this order at the start of every file:
+
+=====================  ============================  ====================================
+topic                  schema                        content (one message per frame)
+=====================  ============================  ====================================
+``/camera/image``      ``foxglove.CompressedImage``  the frame, ``format`` jpeg or png
+``/camera/calibration`` ``foxglove.CameraCalibration`` pinhole intrinsics of the camera
+``/tf``                ``foxglove.FrameTransforms``  world->camera, world->object, world->palm
+``/object/pose``       ``foxglove.PoseInFrame``      the object's pose in ``world``
+``/hand/palm``         ``foxglove.PoseInFrame``      the palm's pose in ``world``
+``/hand/keypoints``    ``foxglove.PosesInFrame``     5 fingertips + wrist in ``world``
+``/hand/joints``       ``foxglove.PosesInFrame``     the 15 finger joints in ``world``
+=====================  ============================  ====================================
+
+Axes: Dyana's world is X right, Y up, Z forward (left-handed); Foxglove's frames are
+right-handed with Z up. The MCAP ``world`` frame therefore has ``x = Dyana x``
+(right), ``y = Dyana z`` (forward), ``z = Dyana y`` (up): a reflection, under which
+positions swap their y and z and a rotation quaternion ``(qx, qy, qz, qw)`` becomes
+``(-qx, -qz, -qy, qw)``. Euler angles ``(roll, pitch, yaw)`` are read in pybullet's
+convention ``R = Rz(yaw) Ry(pitch) Rx(roll)`` in Dyana's axes, then reflected the same
+way. The ``camera`` frame is the optical frame (x right, y down, z forward in the image).
+
+Time: frame ``f`` of episode ``e`` is logged and published at
+``e * EPISODE_PERIOD_NS + f * (10**9 // fps)`` nanoseconds (episode e starts at
+``e * 100 s``; at 20 FPS frame f is at ``f * 50 ms``), the same value as every message's
+``timestamp``; an episode may have at most ``EPISODE_PERIOD_NS // frame period`` frames
+(2000 at 20 FPS). ``sequence`` is the frame index.
+
+Records beside the messages: a ``dyana.shard`` metadata record first (settings,
+versions, episode range, axes, time layout) and one ``dyana.episode`` metadata record
+per episode (index, id, start time, canonical spec JSON, and for rollouts the
+policy, status and error).
+
+Pinned: the header ``library`` (``dyana/<code version>``) and empty ``profile``; no
+compression (JPEG payloads dominate, and the bytes then do not depend on a zstd
+build); chunk size :data:`CHUNK_SIZE`; all indexes, statistics, summary offsets and
+repeated schemas/channels; summary and data-section CRCs; protobuf serialisation in
+deterministic mode. The schema records are the ``FileDescriptorSet`` of the
+installed ``foxglove-schemas-protobuf``, so the bytes depend on that package's
+version (and on ``mcap``'s record layout), which the lock file pins.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import Counter
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, BinaryIO
+
+import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
+from google.protobuf.timestamp_pb2 import Timestamp
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.well_known import MessageEncoding
+from mcap.writer import CompressionType, IndexType
+from mcap.writer import Writer as _McapWriter
+from mcap_protobuf.decoder import DecoderFactory
+from mcap_protobuf.schema import register_schema
+
+from catalog.hashing import canonical_json
+from schemas.errors import ShardError
+from schemas.frames import EpisodeFrames
+from schemas.scene import CAMERA_EYE, CAMERA_FOV_DEG, CAMERA_TARGET
+from schemas.versions import CODE_VERSION, FPS, SCHEMA_VERSION
+
+LIBRARY = f"dyana/{CODE_VERSION}"
+PROFILE = ""
+CHUNK_SIZE = 4 * 1024 * 1024
+EPISODE_PERIOD_NS = 100 * 10**9
+WORLD_FRAME = "world"
+CAMERA_FRAME = "camera"
+IMAGE_TOPIC = "/camera/image"
+IMAGE_SCHEMA = "foxglove.CompressedImage"
+
+#: Topic -> message class, in channel registration order.
+CHANNELS: dict[str, type] = {
+    IMAGE_TOPIC: CompressedImage,
+    "/camera/calibration": CameraCalibration,
+    "/tf": FrameTransforms,
+    "/object/pose": PoseInFrame,
+    "/hand/palm": PoseInFrame,
+    "/hand/keypoints": PosesInFrame,
+    "/hand/joints": PosesInFrame,
+}
+_IMAGE_MAGIC = {"jpeg": b"\xff\xd8\xff", "png": b"\x89PNG\r\n\x1a\n"}
+
+
+# --- time and axes --------------------------------------------------------------------
+
+
+def frame_period_ns(fps: int = FPS) -> int:
+    if isinstance(fps, bool) or not isinstance(fps, int) or fps <= 0 or 10**9 % fps:
+        raise ShardError(f"fps must be a positive integer dividing 10**9, got {fps!r}")
+    return 10**9 // fps
+
+
+def max_frames(fps: int = FPS) -> int:
+    """The most frames an episode may have in the MCAP time layout."""
+    return EPISODE_PERIOD_NS // frame_period_ns(fps)
+
+
+def log_time_ns(episode_index: int, frame_index: int, fps: int = FPS) -> int:
+    """``episode_index * EPISODE_PERIOD_NS + frame_index * 10**9 // fps`` (integers only)."""
+    return episode_index * EPISODE_PERIOD_NS + frame_index * frame_period_ns(fps)
+
+
+def to_foxglove_position(xyz: np.ndarray) -> np.ndarray:
+    """Dyana (x, y, z) -> Foxglove world (x, z, y), for arrays (..., 3)."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    return xyz[..., [0, 2, 1]]
+
+
+def to_foxglove_quaternion(q: np.ndarray) -> np.ndarray:
+    """A Dyana rotation (qx, qy, qz, qw) -> the same rotation in Foxglove's axes, (..., 4)."""
+    q = np.asarray(q, dtype=np.float64)
+    return np.stack([-q[..., 0], -q[..., 2], -q[..., 1], q[..., 3]], axis=-1)
+
+
+def euler_to_quaternion(rpy: np.ndarray) -> np.ndarray:
+    """(roll, pitch, yaw) (..., 3) -> (qx, qy, qz, qw) of ``Rz(yaw) Ry(pitch) Rx(roll)``."""
+    rpy = np.asarray(rpy, dtype=np.float64)
+    cr, sr = np.cos(rpy[..., 0] / 2), np.sin(rpy[..., 0] / 2)
+    cp, sp = np.cos(rpy[..., 1] / 2), np.sin(rpy[..., 1] / 2)
+    cy, sy = np.cos(rpy[..., 2] / 2), np.sin(rpy[..., 2] / 2)
+    return np.stack(
+        [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ],
+        axis=-1,
+    )
+
+
+def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
+    """A 3x3 rotation matrix -> (qx, qy, qz, qw) with qw >= 0."""
+    m = np.asarray(m, dtype=np.float64)
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
+    elif m[1, 1] >= m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
+    q = np.array(q)
+    return -q if q[3] < 0 else q
+
+
+def camera_pose() -> tuple[np.ndarray, np.ndarray]:
+    """The camera optical frame in Foxglove's world: position (3,) and quaternion (4,)."""
+    eye = to_foxglove_position(np.array(CAMERA_EYE))
+    forward = to_foxglove_position(np.array(CAMERA_TARGET)) - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    return eye, matrix_to_quaternion(np.stack([right, down, forward], axis=1))
+
+
+def camera_calibration(width: int, height: int) -> dict[str, Any]:
+    """Pinhole intrinsics of the camera for an image of ``width`` x ``height`` (no distortion)."""
+    f = (height / 2.0) / math.tan(math.radians(CAMERA_FOV_DEG) / 2.0)
+    cx, cy = width / 2.0, height / 2.0
+    return {
+        "width": width,
+        "height": height,
+        "distortion_model": "plumb_bob",
+        "D": [0.0] * 5,
+        "K": [f, 0.0, cx, 0.0, f, cy, 0.0, 0.0, 1.0],
+        "R": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        "P": [f, 0.0, cx, 0.0, 0.0, f, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+    }
+
+
+# --- writing --------------------------------------------------------------------------
+
+
+def _timestamp(ns: int) -> Timestamp:
+    return Timestamp(seconds=ns // 10**9, nanos=ns % 10**9)
+
+
+def _pose(position: np.ndarray, quaternion: np.ndarray) -> Pose:
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in position)
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in quaternion)
+    return pose
+
+
+def _transform(stamp: Timestamp, child: str, position: np.ndarray, quaternion: np.ndarray) -> FrameTransform:
+    out = FrameTransform(timestamp=stamp, parent_frame_id=WORLD_FRAME, child_frame_id=child)
+    out.translation.x, out.translation.y, out.translation.z = (float(v) for v in position)
+    out.rotation.x, out.rotation.y, out.rotation.z, out.rotation.w = (float(v) for v in quaternion)
+    return out
+
+
+def _six_dof(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(..., 6) Dyana x y z roll pitch yaw -> Foxglove positions and quaternions."""
+    values = np.asarray(values, dtype=np.float64)
+    return to_foxglove_position(values[..., :3]), to_foxglove_quaternion(euler_to_quaternion(values[..., 3:]))
+
+
+class McapShardWriter:
+    """Writes the MCAP file of one shard: :meth:`add_episode` in order, then :meth:`close`."""
+
+    def __init__(
+        self,
+        stream: BinaryIO,
+        *,
+        first_episode: int,
+        end_episode: int,
+        settings: Mapping[str, Any],
+        rollout: bool = False,
+    ) -> None:
+        self._fps = int(settings.get("fps", FPS))
+        self._period = frame_period_ns(self._fps)
+        self._format = str(settings.get("image_format", "jpeg"))
+        if self._format not in _IMAGE_MAGIC:
+            raise ShardError(f"image_format must be one of {sorted(_IMAGE_MAGIC)}, got {self._format!r}")
+        resolution = settings.get("resolution")
+        self._calibration = None
+        if resolution is not None:
+            if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution <= 0:
+                raise ShardError(f"resolution must be a positive integer, got {resolution!r}")
+            self._calibration = camera_calibration(resolution, resolution)
+        self._camera = camera_pose()
+        self._writer = _McapWriter(
+            stream,
+            chunk_size=CHUNK_SIZE,
+            compression=CompressionType.NONE,
+            index_types=IndexType.ALL,
+            repeat_channels=True,
+            repeat_schemas=True,
+            use_chunking=True,
+            use_statistics=True,
+            use_summary_offsets=True,
+            enable_crcs=True,
+            enable_data_crcs=True,
+        )
+        self._writer.start(profile=PROFILE, library=LIBRARY)
+        self._writer.add_metadata(
+            "dyana.shard",
+            {
+                "schema_version": SCHEMA_VERSION,
+                "code_version": CODE_VERSION,
+                "episodes": f"[{first_episode}, {end_episode})",
+                "rollout": "true" if rollout else "false",
+                "settings": canonical_json(dict(settings)),
+                "world_axes": "x = dyana x (right), y = dyana z (forward), z = dyana y (up)",
+                "log_time": f"episode_index * {EPISODE_PERIOD_NS} + frame_index * {self._period} ns",
+            },
+        )
+        schema_ids: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        for topic, cls in CHANNELS.items():
+            name = cls.DESCRIPTOR.full_name
+            if name not in schema_ids:
+                schema_ids[name] = register_schema(self._writer, cls)
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_ids[name], metadata={}
+            )
+        self.frames = 0
+
+    def _write(self, topic: str, message: Any, time_ns: int, sequence: int) -> None:
+        self._writer.add_message(
+            channel_id=self._channels[topic],
+            log_time=time_ns,
+            publish_time=time_ns,
+            data=message.SerializeToString(deterministic=True),
+            sequence=sequence,
+        )
+
+    def check_episode(self, episode_index: int, frames: EpisodeFrames, images: Sequence[bytes]) -> None:
+        """Refuse an episode before anything is written: too long, or images not of the format."""
+        n = frames.num_frames
+        if n > max_frames(self._fps):
+            raise ShardError(f"episode {episode_index}: {n} frames exceed the MCAP limit of {max_frames(self._fps)}")
+        if len(images) != n:
+            raise ShardError(f"episode {episode_index}: {len(images)} images for {n} frames")
+        magic = _IMAGE_MAGIC[self._format]
+        for i, image in enumerate(images):
+            if bytes(image[: len(magic)]) != magic:
+                raise ShardError(f"episode {episode_index}: image of frame {i} is not a {self._format} image")
+
+    def add_episode(
+        self,
+        episode_index: int,
+        frames: EpisodeFrames,
+        images: Sequence[bytes],
+        metadata: Mapping[str, str],
+    ) -> None:
+        """All messages of one episode plus its ``dyana.episode`` metadata record."""
+        self.check_episode(episode_index, frames, images)
+        n = frames.num_frames
+        start = log_time_ns(episode_index, 0, self._fps)
+        record = {"episode_index": str(episode_index), "start_time_ns": str(start), **metadata}
+        self._writer.add_metadata("dyana.episode", {key: str(record[key]) for key in sorted(record)})
+
+        object_pos = to_foxglove_position(np.asarray(frames.object_pose, dtype=np.float64)[:, :3])
+        object_rot = to_foxglove_quaternion(np.asarray(frames.object_pose, dtype=np.float64)[:, 3:])
+        palm_pos, palm_rot = _six_dof(frames.palm_pose)
+        key_pos, key_rot = _six_dof(np.asarray(frames.keypoints).reshape(n, 6, 6))
+        joint_pos, joint_rot = _six_dof(np.asarray(frames.joint_poses).reshape(n, 15, 6))
+        camera_pos, camera_rot = self._camera
+        for f in range(n):
+            t = start + f * self._period
+            stamp = _timestamp(t)
+            self._write(
+                IMAGE_TOPIC,
+                CompressedImage(timestamp=stamp, frame_id=CAMERA_FRAME, data=bytes(images[f]), format=self._format),
+                t,
+                f,
+            )
+            if self._calibration is not None:
+                self._write(
+                    "/camera/calibration",
+                    CameraCalibration(timestamp=stamp, frame_id=CAMERA_FRAME, **self._calibration),
+                    t,
+                    f,
+                )
+            transforms = FrameTransforms(
+                transforms=[
+                    _transform(stamp, CAMERA_FRAME, camera_pos, camera_rot),
+                    _transform(stamp, "object", object_pos[f], object_rot[f]),
+                    _transform(stamp, "palm", palm_pos[f], palm_rot[f]),
+                ]
+            )
+            self._write("/tf", transforms, t, f)
+            self._write(
+                "/object/pose",
+                PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(object_pos[f], object_rot[f])),
+                t,
+                f,
+            )
+            self._write(
+                "/hand/palm",
+                PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(palm_pos[f], palm_rot[f])),
+                t,
+                f,
+            )
+            self._write(
+                "/hand/keypoints",
+                PosesInFrame(
+                    timestamp=stamp, frame_id=WORLD_FRAME, poses=[_pose(p, q) for p, q in zip(key_pos[f], key_rot[f])]
+                ),
+                t,
+                f,
+            )
+            self._write(
+                "/hand/joints",
+                PosesInFrame(
+                    timestamp=stamp,
+                    frame_id=WORLD_FRAME,
+                    poses=[_pose(p, q) for p, q in zip(joint_pos[f], joint_rot[f])],
+                ),
+                t,
+                f,
+            )
+        self.frames += n
+
+    def close(self) -> None:
+        """Write the last chunk, the summary and the footer (the stream stays open)."""
+        self._writer.finish()
+
+
+# --- reading --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class McapSummary:
+    """What the summary section says: header, per-topic (schema, count), metadata count."""
+
+    library: str
+    profile: str
+    message_count: int
+    topics: Mapping[str, tuple[str, int]]
+    metadata_count: int
+
+    def count(self, schema_name: str) -> int:
+        """Messages of ``schema_name`` over all topics."""
+        return sum(n for name, n in self.topics.values() if name == schema_name)
+
+
+@dataclass(frozen=True)
+class McapMessage:
+    topic: str
+    schema: str
+    log_time_ns: int
+    publish_time_ns: int
+    sequence: int
+    message: Any
+
+
+def _fail(path: str | os.PathLike[str], exc: BaseException) -> ShardError:
+    reason = f"{type(exc).__name__}: {exc}"
+    return ShardError(f"{os.fspath(path)}: not a readable MCAP file (truncated or corrupt): {reason}")
+
+
+def _open(path: str | os.PathLike[str]) -> BinaryIO:
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise ShardError(f"{os.fspath(path)}: file is missing") from None
+    except OSError as exc:
+        raise ShardError(f"{os.fspath(path)}: cannot open: {exc.strerror}") from None
+
+
+def mcap_summary(path: str | os.PathLike[str]) -> McapSummary:
+    """Read the header and summary section (cheap: no chunk is decompressed)."""
+    with _open(path) as stream:
+        try:
+            reader = make_reader(stream)
+            header = reader.get_header()
+            summary = reader.get_summary()
+            if summary is None or summary.statistics is None:
+                raise ShardError(f"{os.fspath(path)}: MCAP file has no summary statistics")
+            stats = summary.statistics
+            topics = {}
+            for channel_id, channel in sorted(summary.channels.items()):
+                schema = summary.schemas.get(channel.schema_id)
+                topics[channel.topic] = (schema.name if schema else "", stats.channel_message_counts.get(channel_id, 0))
+        except ShardError:
+            raise
+        except Exception as exc:  # any parse failure of a damaged file
+            raise _fail(path, exc) from None
+    return McapSummary(header.library, header.profile, stats.message_count, topics, stats.metadata_count)
+
+
+def iter_messages(
+    path: str | os.PathLike[str], topics: Sequence[str] | None = None, decode: bool = True
+) -> Iterator[McapMessage]:
+    """Every message in file order, reading the whole file linearly and validating CRCs.
+
+    With ``decode`` the protobuf payload is decoded, else ``message`` holds the raw bytes.
+    A truncated or corrupt file raises ShardError naming it (after the intact messages).
+    """
+    wanted = None if topics is None else set(topics)
+    decoders: dict[int, Any] = {}
+    factory = DecoderFactory()
+    with _open(path) as stream:
+        try:
+            reader = NonSeekingReader(stream, validate_crcs=True)
+            for schema, channel, message in reader.iter_messages():
+                if wanted is not None and channel.topic not in wanted:
+                    continue
+                payload: Any = message.data
+                if decode:
+                    if channel.schema_id not in decoders:
+                        decoders[channel.schema_id] = factory.decoder_for(channel.message_encoding, schema)
+                    decoder = decoders[channel.schema_id]
+                    if decoder is None:
+                        raise ShardError(f"{os.fspath(path)}: no protobuf decoder for topic {channel.topic!r}")
+                    payload = decoder(message.data)
+                yield McapMessage(
+                    channel.topic,
+                    schema.name if schema else "",
+                    message.log_time,
+                    message.publish_time,
+                    message.sequence,
+                    payload,
+                )
+        except ShardError:
+            raise
+        except Exception as exc:
+            raise _fail(path, exc) from None
+
+
+def count_messages(path: str | os.PathLike[str]) -> dict[tuple[str, str], int]:
+    """(topic, schema) -> number of messages, counted by reading the whole file (CRCs checked)."""
+    return dict(sorted(Counter((m.topic, m.schema) for m in iter_messages(path, decode=False)).items()))
+
+
+def read_episode_metadata(path: str | os.PathLike[str]) -> list[dict[str, str]]:
+    """The ``dyana.episode`` metadata records, in file order."""
+    with _open(path) as stream:
+        try:
+            reader = make_reader(stream)
+            return [dict(m.metadata) for m in reader.iter_metadata() if m.name == "dyana.episode"]
+        except Exception as exc:
+            raise _fail(path, exc) from None
+
+
+def check_mcap(path: str | os.PathLike[str], frames: int | None = None, full: bool = False) -> McapSummary:
+    """Structural check: the summary is readable, written by us, with one image per frame.
+
+    ``full`` also reads every chunk and checks the CRCs and that the counted images
+    agree with the summary.
+    """
+    summary = mcap_summary(path)
+    if not summary.library.startswith("dyana/"):
+        raise ShardError(f"{os.fspath(path)}: MCAP written by {summary.library!r}, not by dyana")
+    images = summary.count(IMAGE_SCHEMA)
+    if frames is not None and images != frames:
+        raise ShardError(f"{os.fspath(path)}: {images} {IMAGE_SCHEMA} messages for {frames} frames")
+    if full:
+        counted = sum(n for (_, schema), n in count_messages(path).items() if schema == IMAGE_SCHEMA)
+        if counted != images:
+            raise ShardError(f"{os.fspath(path)}: {counted} {IMAGE_SCHEMA} messages read, summary says {images}")
+    return summary

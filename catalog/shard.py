@@ -1,0 +1,218 @@
+"""ShardWriter: writes one shard (a fixed range of episodes) as its three files.
+
+The frames Parquet and the MCAP are streamed episode by episode into temporary
+files beside their destinations; the episodes Parquet is written at the end. Only
+:meth:`ShardWriter.finish` renames the three temps to their final names (a shard
+is complete once its files exist; the slice is complete once ``catalog.json`` lists
+them). Any exception inside the ``with`` block, or a shard missing episodes,
+deletes the temps: nothing half-written remains under a final name.
+
+Usage::
+
+    with ShardWriter(slice_dir, 0, 128, settings) as shard:
+        for spec, frames, images in episodes:      # increasing episode_index
+            shard.add_episode(spec, frames, images)
+    record = shard.record                           # or: record = shard.finish()
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from catalog import atomic
+from catalog.hashing import FILE_KINDS, canonical_json, sha256_file
+from catalog.mcap_io import McapShardWriter
+from catalog.parquet_io import TableWriter, episode_row, episodes_table, frames_table, write_table
+from catalog.records import FileRecord, ShardRecord, shard_paths
+from schemas.errors import ShardError
+from schemas.frames import EpisodeFrames
+from schemas.spec import EpisodeSpec
+from schemas.versions import FPS
+
+__all__ = ["FileRecord", "ShardRecord", "ShardWriter"]
+
+
+class ShardWriter:
+    """Writes episodes ``[first_episode, last_episode_exclusive)`` of a slice folder.
+
+    ``settings`` are the slice's settings (as in ``catalog.json``): ``fps`` (default 20)
+    times the rows, ``image_format`` (``jpeg`` default, or ``png``) names the image
+    encoding and ``resolution`` (square images) sets the MCAP camera calibration.
+    ``rollout`` shards store the rollout episodes schema (``policy``, ``status``, ``error``).
+    Every episode of the range must be added, in increasing order.
+    """
+
+    def __init__(
+        self,
+        root_dir: str | os.PathLike[str],
+        first_episode: int,
+        last_episode_exclusive: int,
+        settings: Mapping[str, Any],
+        rollout: bool = False,
+    ) -> None:
+        self.root = Path(root_dir)
+        self.first, self.end = first_episode, last_episode_exclusive
+        self.paths = shard_paths(first_episode, last_episode_exclusive)
+        canonical_json(dict(settings))  # refuse settings that cannot go into the manifest
+        self.settings = dict(settings)
+        self.fps = self.settings.get("fps", FPS)
+        self.rollout = rollout
+        self._finals = {kind: self.root / rel for kind, rel in self.paths.items()}
+        self._temps = {kind: atomic.temp_path(path) for kind, path in self._finals.items()}
+        self._frames_writer: TableWriter | None = None
+        self._mcap_stream: BinaryIO | None = None
+        self._mcap: McapShardWriter | None = None
+        self._rows: list[dict[str, Any]] = []
+        self._next = first_episode
+        self._frames = 0
+        self._state = "new"  # new -> open -> finished | aborted (or failed, then aborted)
+        self.record: ShardRecord | None = None
+
+    # --- lifecycle ----------------------------------------------------------------------
+
+    def start(self) -> "ShardWriter":
+        """Open the temporary files."""
+        if self._state != "new":
+            raise ShardError(f"shard {self.paths['frames']}: start() called twice")
+        self._state = "open"
+        try:
+            self._finals["frames"].parent.mkdir(parents=True, exist_ok=True)
+            self._frames_writer = TableWriter(self._temps["frames"], "frames")
+            self._mcap_stream = open(self._temps["mcap"], "wb")
+            self._mcap = McapShardWriter(
+                self._mcap_stream,
+                first_episode=self.first,
+                end_episode=self.end,
+                settings=self.settings,
+                rollout=self.rollout,
+            )
+        except BaseException:
+            self.abort()
+            raise
+        return self
+
+    def __enter__(self) -> "ShardWriter":
+        return self.start()
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is not None:
+            self.abort()
+        elif self._state == "open":
+            self.finish()
+
+    def add_episode(
+        self,
+        spec: EpisodeSpec,
+        frames: EpisodeFrames,
+        images: Sequence[bytes],
+        *,
+        grasp_angles: np.ndarray | None = None,
+        policy: str | None = None,
+        status: str | None = None,
+        error: str | None = None,
+    ) -> None:
+        """Append one episode: its frames rows, MCAP messages and episodes row.
+
+        ``grasp_angles`` defaults to ``frames.grasp_angles``. Rollout shards need
+        ``policy`` and ``status`` (and ``error`` when status is ``error``) and accept
+        fewer frames than ``spec.num_frames`` (an episode cut short by a policy error).
+        """
+        where = self.paths["frames"]
+        if self._state != "open":
+            raise ShardError(f"shard {where}: add_episode() on a writer that is {self._state}, not open")
+        index = spec.episode_index
+        if not self.first <= index < self.end:
+            raise ShardError(f"shard {where}: episode {index} is outside [{self.first}, {self.end})")
+        if index < self._next:
+            raise ShardError(
+                f"shard {where}: episode {index} added after episode {self._next - 1} (order must increase)"
+            )
+        n = frames.num_frames
+        if self.rollout:
+            if n > spec.num_frames:
+                raise ShardError(f"episode {spec.episode_id}: {n} frames, more than the spec's {spec.num_frames}")
+            if policy is None or status is None:
+                raise ShardError(f"episode {spec.episode_id}: a rollout shard needs policy and status")
+        else:
+            if n != spec.num_frames:
+                raise ShardError(f"episode {spec.episode_id}: {n} frames, the spec says {spec.num_frames}")
+            if policy is not None or status is not None or error is not None:
+                raise ShardError(f"episode {spec.episode_id}: policy/status/error belong to rollout shards only")
+        angles = frames.grasp_angles if grasp_angles is None else grasp_angles
+        row = episode_row(spec, angles, policy=policy, status=status, error=error)
+        table = frames_table(index, frames, images, fps=self.fps)
+        self._mcap.check_episode(index, frames, images)
+        metadata = {"episode_id": spec.episode_id, "spec": spec.to_json()}
+        if self.rollout:
+            metadata.update(policy=row["policy"], status=row["status"], error=row["error"])
+        try:
+            self._mcap.add_episode(index, frames, images, metadata)
+            self._frames_writer.write(table)
+        except BaseException:
+            self._state = "failed"
+            raise
+        self._rows.append(row)
+        self._frames += n
+        self._next = index + 1
+
+    def finish(self) -> ShardRecord:
+        """Complete the three files, rename them into place and return their record."""
+        if self._state == "finished":
+            return self.record
+        if self._state != "open":
+            raise ShardError(f"shard {self.paths['frames']}: finish() on a writer that is {self._state}")
+        try:
+            added = [row["episode_index"] for row in self._rows]
+            if added != list(range(self.first, self.end)):
+                missing = sorted(set(range(self.first, self.end)) - set(added))
+                shown = missing[:5] + (["..."] if len(missing) > 5 else [])
+                raise ShardError(
+                    f"shard {self.paths['frames']}: {len(missing)} episode(s) of [{self.first}, {self.end}) "
+                    f"were not added: {shown}"
+                )
+            self._frames_writer.close()
+            self._frames_writer = None
+            self._mcap.close()
+            self._mcap_stream.close()
+            self._mcap, self._mcap_stream = None, None
+            write_table(self._temps["episodes"], episodes_table(self._rows, self.rollout), self._kind)
+            files = {}
+            for kind in FILE_KINDS:
+                temp = self._temps[kind]
+                files[kind] = FileRecord(self.paths[kind], sha256_file(temp), temp.stat().st_size)
+            for kind in FILE_KINDS:
+                atomic.commit(self._temps[kind], self._finals[kind])
+        except BaseException:
+            self.abort()
+            raise
+        self._state = "finished"
+        self.record = ShardRecord((self.first, self.end), self._frames, files)
+        return self.record
+
+    def abort(self) -> None:
+        """Close and delete the temporary files; nothing reaches a final name."""
+        if self._state in ("finished", "aborted"):
+            return
+        self._state = "aborted"
+        if self._frames_writer is not None:
+            self._frames_writer.abort()
+            self._frames_writer = None
+        if self._mcap_stream is not None:
+            self._mcap_stream.close()
+        self._mcap, self._mcap_stream = None, None
+        for temp in self._temps.values():
+            atomic.discard(temp)
+
+    @property
+    def _kind(self) -> str:
+        return "rollout_episodes" if self.rollout else "episodes"
+
+    @property
+    def frames(self) -> int:
+        """Frames added so far."""
+        return self._frames

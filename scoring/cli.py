@@ -1,0 +1,80 @@
+"""The ``scoring`` command: ``scoring eval RUN [RUN ...] [--json] [--plot FILE.png]
+[--markdown FILE.md] [--csv FILE.csv]``.
+
+Reads recorded shards only (never the simulator). Bad input (not a run folder, a
+missing column, an empty run) prints one line on stderr and exits with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+
+from catalog.atomic import atomic_open
+from schemas.errors import DyanaError
+from scoring.io import load_run
+from scoring.report import RunReport, csv_text, default_label, format_table, markdown, report_dict, score_run, unique_labels
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="scoring", description="Score recorded rollouts with the paper's metrics.")
+    commands = parser.add_subparsers(dest="command", required=True)
+    evaluate = commands.add_parser("eval", help="score one or more runs (or built slices for the GT row)")
+    evaluate.add_argument("runs", nargs="+", metavar="RUN", help="a folder with catalog.json and its shards")
+    evaluate.add_argument("--json", action="store_true", help="print JSON (an object for one run, a list for several)")
+    evaluate.add_argument("--plot", metavar="FILE.png", help="write a radar chart and per-motion bars")
+    evaluate.add_argument("--markdown", metavar="FILE.md", help="write the tables as Markdown")
+    evaluate.add_argument("--csv", metavar="FILE.csv", help="write every summary row as CSV")
+    return parser
+
+
+def evaluate(runs: Sequence[str]) -> list[RunReport]:
+    """Load and score each run; labels are made unique across the runs."""
+    data = [load_run(run) for run in runs]
+    labels = unique_labels([default_label(d) for d in data], [d.name for d in data])
+    return [score_run(d, label) for d, label in zip(data, labels)]
+
+
+def _write(path: str, text: str) -> None:
+    try:
+        with atomic_open(path, "w") as handle:
+            handle.write(text)
+    except OSError as exc:
+        raise DyanaError(f"{path}: cannot write: {exc.strerror or exc}") from None
+
+
+def _run_eval(args: argparse.Namespace) -> None:
+    reports = evaluate(args.runs)
+    if args.json:
+        payload = [report_dict(r) for r in reports]
+        print(json.dumps(payload[0] if len(payload) == 1 else payload, indent=2, allow_nan=False))
+    else:
+        sys.stdout.write(format_table(reports))
+    if args.markdown:
+        _write(args.markdown, markdown(reports))
+    if args.csv:
+        _write(args.csv, csv_text(reports))
+    if args.plot:
+        from scoring.plot import plot_runs
+
+        try:
+            plot_runs(reports, args.plot)
+        except OSError as exc:
+            raise DyanaError(f"{args.plot}: cannot write: {exc.strerror or exc}") from None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "eval":
+            _run_eval(args)
+    except DyanaError as exc:
+        print(f"scoring: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

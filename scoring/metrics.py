@@ -1,0 +1,271 @@
+"""The paper's metrics (section 4.2, A.5) as pure, vectorised functions.
+
+Every function works on the *acting* frames of many episodes concatenated in
+episode order, delimited by ``offsets`` (``n + 1`` non-decreasing integers,
+``offsets[0] == 0``): episode ``i`` owns rows ``offsets[i]:offsets[i + 1]``.
+Reductions use ``numpy.ufunc.reduceat`` and ``numpy.bincount``, never a Python
+loop over frames or episodes. The definitions are written out in the README.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from schemas.scene import GRASP_RATIO, LOC_TOLERANCE
+
+#: Steps no longer than this are dropped before measuring smoothness.
+STEP_MIN = 1e-4
+#: Segments (and chords) no longer than this have no direction.
+SEGMENT_MIN = 1e-8
+#: The seven metrics of the paper's Table 3, in its column order.
+METRIC_NAMES = ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
+#: Two-sided 95% normal quantile.
+Z95 = 1.959963984540054
+
+
+def _check_offsets(offsets: np.ndarray, rows: int) -> np.ndarray:
+    offsets = np.asarray(offsets, dtype=np.int64)
+    if offsets.ndim != 1 or len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != rows:
+        raise ValueError(f"offsets must run from 0 to {rows}, got {offsets[:3]}...{offsets[-3:]}")
+    if np.any(np.diff(offsets) < 0):
+        raise ValueError("offsets must be non-decreasing")
+    return offsets
+
+
+def _segment_min(values: np.ndarray, offsets: np.ndarray, empty: float) -> np.ndarray:
+    """Minimum of ``values`` over each segment; ``empty`` for segments without rows."""
+    counts = np.diff(offsets)
+    out = np.full(len(counts), empty, dtype=values.dtype if values.dtype.kind == "f" else np.int64)
+    nonempty = counts > 0
+    if nonempty.any():
+        out[nonempty] = np.minimum.reduceat(values, offsets[:-1][nonempty])
+    return out
+
+
+def path_quality(offsets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(Q_smooth, Q_line)`` of each path (points ``offsets[i]:offsets[i + 1]``, shape (m, 3)).
+
+    Steps ``|P[k+1] - P[k]|`` longer than :data:`STEP_MIN` give
+    ``Q_smooth = 1 / (1 + std / mean)`` (population std; 1 if no step remains).
+    ``Q_line`` is the mean cosine between each segment longer than :data:`SEGMENT_MIN`
+    and the chord ``P[-1] - P[0]``; 0 when the chord is shorter than that or no
+    segment is long enough. Hence a path of 0 or 1 point gets (1, 0) and one of 2
+    points (1, 1), or (1, 0) if they coincide.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    offsets = _check_offsets(offsets, len(points))
+    n = len(offsets) - 1
+    counts = np.diff(offsets)
+    owner = np.repeat(np.arange(n), counts)
+
+    same = owner[1:] == owner[:-1]
+    steps = (points[1:] - points[:-1])[same]
+    step_owner = owner[1:][same]
+    length = np.linalg.norm(steps, axis=1)
+
+    kept = length > STEP_MIN
+    kept_owner = step_owner[kept]
+    kept_count = np.bincount(kept_owner, minlength=n)
+    safe_count = np.maximum(kept_count, 1)
+    mean = np.bincount(kept_owner, weights=length[kept], minlength=n) / safe_count
+    spread = length[kept] - mean[kept_owner]
+    std = np.sqrt(np.bincount(kept_owner, weights=spread * spread, minlength=n) / safe_count)
+    q_smooth = np.ones(n)
+    has_steps = kept_count > 0
+    q_smooth[has_steps] = 1.0 / (1.0 + std[has_steps] / mean[has_steps])
+
+    chord = np.zeros((n, 3))
+    nonempty = counts > 0
+    chord[nonempty] = points[offsets[1:][nonempty] - 1] - points[offsets[:-1][nonempty]]
+    chord_length = np.linalg.norm(chord, axis=1)
+    directed = chord_length >= SEGMENT_MIN
+    seg = (length > SEGMENT_MIN) & directed[step_owner]
+    seg_owner = step_owner[seg]
+    cosine = np.einsum("ij,ij->i", steps[seg], chord[seg_owner]) / (length[seg] * chord_length[seg_owner])
+    seg_count = np.bincount(seg_owner, minlength=n)
+    q_line = np.zeros(n)
+    has_segments = seg_count > 0
+    q_line[has_segments] = np.bincount(seg_owner, weights=cosine, minlength=n)[has_segments] / seg_count[has_segments]
+    return q_smooth, q_line
+
+
+@dataclass(frozen=True)
+class EpisodeMetrics:
+    """Per-episode facts read off the acting frames (arrays of length ``n``).
+
+    ``t_loc``/``t_gra`` count from the first acting frame and are -1 when the event
+    never happens; ``e_loc``/``e_gra`` are NaN for an episode without acting frames;
+    ``q_smooth``/``q_line`` are NaN unless the episode localized; ``r_time`` is 0
+    unless both events happened. Statuses are not applied here (see :func:`aggregate`).
+    """
+
+    acting_frames: np.ndarray
+    t_loc: np.ndarray
+    t_gra: np.ndarray
+    e_loc: np.ndarray
+    e_gra: np.ndarray
+    q_smooth: np.ndarray
+    q_line: np.ndarray
+    r_time: np.ndarray
+
+    @property
+    def localized(self) -> np.ndarray:
+        return self.t_loc >= 0
+
+    @property
+    def grasped(self) -> np.ndarray:
+        return self.t_gra >= 0
+
+    def __len__(self) -> int:
+        return len(self.t_loc)
+
+
+def episode_metrics(
+    offsets: np.ndarray,
+    palm_xyz: np.ndarray,
+    object_xyz: np.ndarray,
+    joint_angles: np.ndarray,
+    fingertip_distance: np.ndarray,
+    grasp_angles: np.ndarray,
+) -> EpisodeMetrics:
+    """Per-episode metrics from the acting frames of ``n`` episodes.
+
+    ``palm_xyz``/``object_xyz`` (m, 3), ``joint_angles`` (m, 15), ``fingertip_distance``
+    (m,) are the acting frames in order; ``grasp_angles`` (n, 15) the episodes' ground
+    truth. Distances are computed in float64 from the recorded values.
+    """
+    palm = np.asarray(palm_xyz, dtype=np.float64)
+    obj = np.asarray(object_xyz, dtype=np.float64)
+    joints = np.asarray(joint_angles, dtype=np.float64)
+    tips = np.asarray(fingertip_distance, dtype=np.float64)
+    grasp = np.asarray(grasp_angles, dtype=np.float64)
+    m = len(palm)
+    offsets = _check_offsets(offsets, m)
+    n = len(offsets) - 1
+    if obj.shape != (m, 3) or palm.shape != (m, 3):
+        raise ValueError(f"palm_xyz and object_xyz must have shape ({m}, 3), got {palm.shape} and {obj.shape}")
+    if joints.shape[0] != m or tips.shape != (m,):
+        raise ValueError(f"joint_angles and fingertip_distance must have {m} rows")
+    if grasp.shape != (n, joints.shape[1]):
+        raise ValueError(f"grasp_angles must have shape ({n}, {joints.shape[1]}), got {grasp.shape}")
+
+    counts = np.diff(offsets)
+    owner = np.repeat(np.arange(n), counts)
+    local = np.arange(m, dtype=np.int64) - offsets[:-1][owner]
+    never = np.iinfo(np.int64).max
+
+    d_xz = np.hypot(palm[:, 0] - obj[:, 0], palm[:, 2] - obj[:, 2])
+    e_loc = _segment_min(d_xz, offsets, np.nan)
+    e_gra = _segment_min(tips, offsets, np.nan)
+    first_loc = _segment_min(np.where(d_xz <= LOC_TOLERANCE, local, never), offsets, never)
+    closed = np.all(joints >= GRASP_RATIO * grasp[owner], axis=1)
+    first_gra = _segment_min(np.where(closed, local, never), offsets, never)
+    t_loc = np.where(first_loc == never, -1, first_loc)
+    t_gra = np.where(first_gra == never, -1, first_gra)
+
+    localized = t_loc >= 0
+    on_path = local <= t_loc[owner]
+    path_counts = np.bincount(owner[on_path], minlength=n)
+    path_offsets = np.concatenate([[0], np.cumsum(path_counts)])
+    q_smooth, q_line = path_quality(path_offsets, palm[on_path])
+    q_smooth = np.where(localized, q_smooth, np.nan)
+    q_line = np.where(localized, q_line, np.nan)
+
+    both = localized & (t_gra >= 0)
+    done = np.maximum(t_loc, t_gra) + 1
+    r_time = np.where(both, 1.0 - done / np.maximum(counts, 1), 0.0)
+    return EpisodeMetrics(counts, t_loc, t_gra, e_loc, e_gra, q_smooth, q_line, r_time)
+
+
+def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion, as fractions in [0, 1].
+
+    With ``n == 0`` nothing is known and the interval is (0, 1).
+    """
+    if n < 0 or successes < 0 or successes > n:
+        raise ValueError(f"need 0 <= successes <= n, got successes={successes}, n={n}")
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    z2 = z * z
+    denominator = 1.0 + z2 / n
+    centre = (p + z2 / (2 * n)) / denominator
+    half = z * math.sqrt(p * (1.0 - p) / n + z2 / (4.0 * n * n)) / denominator
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def mean_interval(values: np.ndarray, z: float = Z95) -> tuple[float, float] | None:
+    """Normal-approximation interval of a mean (sample std); None with fewer than 2 values."""
+    values = np.asarray(values, dtype=np.float64)
+    if len(values) < 2:
+        return None
+    mean = float(values.mean())
+    half = z * float(values.std(ddof=1)) / math.sqrt(len(values))
+    return mean - half, mean + half
+
+
+@dataclass(frozen=True)
+class Summary:
+    """The seven metrics over a set of episodes, with counts and 95% intervals.
+
+    ``metrics`` maps :data:`METRIC_NAMES` to a float or None (success rates in
+    percent); ``intervals`` maps each to ``(low, high)`` or None, success rates by
+    Wilson (percent), the means by the normal approximation.
+    """
+
+    episodes: int
+    errors: int
+    localized: int
+    grasped: int
+    metrics: dict[str, float | None]
+    intervals: dict[str, tuple[float, float] | None]
+
+
+def _mean(values: np.ndarray) -> float | None:
+    return float(values.mean()) if len(values) else None
+
+
+def aggregate(per: EpisodeMetrics, error: np.ndarray, select: np.ndarray | None = None, z: float = Z95) -> Summary:
+    """Summarise episodes (all, or those where ``select`` is true).
+
+    An episode whose status is ``error`` counts as a failure in both success rates
+    (and so scores ``R_time`` 0 and is left out of ``Q_smooth``/``Q_line``) whatever
+    its recorded frames show; its recorded acting frames still count in ``E_loc``
+    and ``E_gra``. Episodes without acting frames are left out of those two means.
+    ``Q_smooth``/``Q_line`` average over successfully localized episodes (None if none).
+    """
+    error = np.asarray(error, dtype=bool)
+    if error.shape != (len(per),):
+        raise ValueError(f"error must have shape ({len(per)},), got {error.shape}")
+    keep = np.ones(len(per), dtype=bool) if select is None else np.asarray(select, dtype=bool)
+    n = int(keep.sum())
+    loc = per.localized & ~error & keep
+    gra = per.grasped & ~error & keep
+    n_loc, n_gra = int(loc.sum()), int(gra.sum())
+    measured = keep & (per.acting_frames > 0)
+    r_time = np.where(error, 0.0, per.r_time)[keep]
+    values = {
+        "S_loc": 100.0 * n_loc / n if n else None,
+        "E_loc": per.e_loc[measured],
+        "S_gra": 100.0 * n_gra / n if n else None,
+        "E_gra": per.e_gra[measured],
+        "Q_smooth": per.q_smooth[loc],
+        "Q_line": per.q_line[loc],
+        "R_time": r_time,
+    }
+    metrics: dict[str, float | None] = {}
+    intervals: dict[str, tuple[float, float] | None] = {}
+    for name in METRIC_NAMES:
+        value = values[name]
+        if name in ("S_loc", "S_gra"):
+            metrics[name] = value
+            k = n_loc if name == "S_loc" else n_gra
+            low, high = wilson_interval(k, n, z)
+            intervals[name] = (100.0 * low, 100.0 * high) if n else None
+        else:
+            metrics[name] = _mean(value)
+            intervals[name] = mean_interval(value, z)
+    return Summary(n, int((error & keep).sum()), n_loc, n_gra, metrics, intervals)

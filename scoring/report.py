@@ -1,0 +1,245 @@
+"""Score loaded runs and present the results: JSON dict, terminal table, Markdown, CSV.
+
+The JSON keys follow DESIGN.md (``episodes``, ``errors``, ``metrics`` with the seven
+metrics, ``by_motion``, ``by_speed``) and add ``intervals``, ``by_object`` and counts.
+Success rates are percentages; a metric with nothing to average over is ``null``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from schemas.objects import OBJECTS
+from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
+from scoring.io import RunData
+from scoring.metrics import METRIC_NAMES, EpisodeMetrics, Summary, aggregate, episode_metrics
+
+#: Breakdowns: JSON key, the episode attribute grouped on, canonical group order, title.
+BREAKDOWNS = (
+    ("by_motion", "motion_type", MOTION_TYPES, "motion type"),
+    ("by_speed", "intercept_setting", tuple(INTERCEPT_SECONDS), "interception setting"),
+    ("by_object", "object", tuple(OBJECTS), "object"),
+)
+#: Groups always present in the JSON, even when empty, so that keys are stable.
+ALWAYS_LISTED = {"by_motion", "by_speed"}
+SUCCESS_RATES = ("S_loc", "S_gra")
+
+
+@dataclass(frozen=True)
+class RunReport:
+    """A scored run: its label, overall summary and one summary per group of each breakdown."""
+
+    label: str
+    name: str
+    slice: str
+    policy: str | None
+    overall: Summary
+    breakdowns: dict[str, dict[str, Summary]]
+
+    @property
+    def ground_truth(self) -> bool:
+        return self.policy is None
+
+
+def _groups(values: np.ndarray, canonical: Sequence[str], always: bool) -> list[str]:
+    present = set(values.tolist())
+    ordered = [g for g in canonical if always or g in present]
+    return ordered + sorted(present - set(canonical))
+
+
+def score_run(data: RunData, label: str | None = None) -> RunReport:
+    """Per-episode metrics of every episode, then the overall and grouped summaries."""
+    per: EpisodeMetrics = episode_metrics(
+        data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles
+    )
+    breakdowns: dict[str, dict[str, Summary]] = {}
+    for key, attribute, canonical, _ in BREAKDOWNS:
+        values = getattr(data, attribute)
+        breakdowns[key] = {
+            group: aggregate(per, data.error, values == group)
+            for group in _groups(values, canonical, key in ALWAYS_LISTED)
+        }
+    return RunReport(
+        label=label or default_label(data),
+        name=data.name,
+        slice=data.slice,
+        policy=data.policy,
+        overall=aggregate(per, data.error),
+        breakdowns=breakdowns,
+    )
+
+
+def default_label(data: RunData) -> str:
+    """The policy's name for rollouts; ``GT (<folder>)`` for a built ground-truth slice."""
+    return data.policy if data.policy else f"GT ({data.name})"
+
+
+def unique_labels(labels: Sequence[str], names: Sequence[str]) -> list[str]:
+    """Labels made distinct: a clash gets the folder name, then a counter if still needed."""
+    out = [lab if labels.count(lab) == 1 else f"{lab} ({name})" for lab, name in zip(labels, names)]
+    seen: dict[str, int] = {}
+    result = []
+    for lab in out:
+        seen[lab] = seen.get(lab, 0) + 1
+        result.append(lab if out.count(lab) == 1 else f"{lab} #{seen[lab]}")
+    return result
+
+
+# --- JSON -------------------------------------------------------------------------
+
+
+def _interval(value: tuple[float, float] | None) -> list[float] | None:
+    return None if value is None else [float(value[0]), float(value[1])]
+
+
+def summary_dict(summary: Summary) -> dict[str, Any]:
+    """A group's entry: counts, the seven metrics (flat) and their intervals."""
+    out: dict[str, Any] = {
+        "episodes": summary.episodes,
+        "errors": summary.errors,
+        "localized": summary.localized,
+        "grasped": summary.grasped,
+    }
+    out.update(summary.metrics)
+    out["intervals"] = {name: _interval(summary.intervals[name]) for name in METRIC_NAMES}
+    return out
+
+
+def report_dict(report: RunReport) -> dict[str, Any]:
+    """The ``scoring eval --json`` object of one run."""
+    overall = report.overall
+    out: dict[str, Any] = {
+        "label": report.label,
+        "run": report.name,
+        "slice": report.slice,
+        "policy": report.policy,
+        "ground_truth": report.ground_truth,
+        "episodes": overall.episodes,
+        "errors": overall.errors,
+        "localized": overall.localized,
+        "grasped": overall.grasped,
+        "metrics": dict(overall.metrics),
+        "intervals": {name: _interval(overall.intervals[name]) for name in METRIC_NAMES},
+    }
+    for key, *_ in BREAKDOWNS:
+        out[key] = {group: summary_dict(s) for group, s in report.breakdowns[key].items()}
+    return out
+
+
+# --- tables -----------------------------------------------------------------------
+
+MAIN_HEADERS = (
+    "Run", "Episodes", "Errors", "S_loc (%) ^", "S_loc 95% CI", "E_loc v", "S_gra (%) ^", "S_gra 95% CI",
+    "E_gra v", "Q_smooth ^", "Q_line ^", "R_time ^",
+)
+GROUP_HEADERS = ("Run", "Group", "Episodes", "Errors", "S_loc (%)", "E_loc", "S_gra (%)", "E_gra", "Q_smooth", "Q_line", "R_time")
+LEGEND = "^ higher is better, v lower is better; CI: 95% Wilson interval; - : nothing to average over."
+
+
+def _num(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
+def _ci(value: tuple[float, float] | None) -> str:
+    return "-" if value is None else f"[{value[0]:.1f}, {value[1]:.1f}]"
+
+
+def _main_row(report: RunReport) -> list[str]:
+    s = report.overall
+    m = s.metrics
+    return [
+        report.label, str(s.episodes), str(s.errors),
+        _num(m["S_loc"]), _ci(s.intervals["S_loc"]), _num(m["E_loc"]),
+        _num(m["S_gra"]), _ci(s.intervals["S_gra"]), _num(m["E_gra"]),
+        _num(m["Q_smooth"]), _num(m["Q_line"]), _num(m["R_time"]),
+    ]
+
+
+def _group_rows(reports: Sequence[RunReport], key: str) -> list[list[str]]:
+    rows = []
+    for report in reports:
+        for group, s in report.breakdowns[key].items():
+            rows.append([report.label, group, str(s.episodes), str(s.errors)] + [_num(s.metrics[n]) for n in METRIC_NAMES])
+    return rows
+
+
+def _aligned(headers: Sequence[str], rows: Sequence[Sequence[str]], text_columns: int = 1) -> str:
+    """Text columns left-aligned, numbers right-aligned, two spaces apart."""
+    widths = [max(len(str(c)) for c in column) for column in zip(headers, *rows)]
+
+    def line(cells: Sequence[str]) -> str:
+        padded = [str(c).ljust(w) if i < text_columns else str(c).rjust(w) for i, (c, w) in enumerate(zip(cells, widths))]
+        return "  ".join(padded).rstrip()
+
+    rule = "  ".join("-" * w for w in widths)
+    return "\n".join([line(headers), rule, *(line(r) for r in rows)])
+
+
+def format_table(reports: Sequence[RunReport]) -> str:
+    """The terminal report: one row per run (the paper's Table 3), then by motion and by interception."""
+    parts = [_aligned(MAIN_HEADERS, [_main_row(r) for r in reports]), LEGEND]
+    for key, _, _, title in BREAKDOWNS[:2]:
+        parts += ["", f"By {title}:", _aligned(GROUP_HEADERS, _group_rows(reports, key), text_columns=2)]
+    return "\n".join(parts) + "\n"
+
+
+def _markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    def line(cells: Sequence[str]) -> str:
+        return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+
+    align = ["---"] + ["---:"] * (len(headers) - 1)
+    return "\n".join([line(headers), "|" + "|".join(align) + "|", *(line(r) for r in rows)])
+
+
+def markdown(reports: Sequence[RunReport]) -> str:
+    """Markdown export: the main table and every breakdown."""
+    headers = [h.replace(" ^", " ↑").replace(" v", " ↓") for h in MAIN_HEADERS]
+    parts = ["## Scores", "", _markdown_table(headers, [_main_row(r) for r in reports]), "",
+             "↑ higher is better, ↓ lower is better. CI: 95% Wilson interval. -: nothing to average over.", ""]
+    for key, _, _, title in BREAKDOWNS:
+        parts += [f"### By {title}", "", _markdown_table(GROUP_HEADERS, _group_rows(reports, key)), ""]
+    return "\n".join(parts)
+
+
+CSV_FIELDS = ["label", "run", "slice", "policy", "breakdown", "group", "episodes", "errors", "localized", "grasped"] + [
+    f"{name}{suffix}" for name in METRIC_NAMES for suffix in ("", "_low", "_high")
+]
+
+
+def _csv_value(value: Any) -> Any:
+    if value is None:
+        return ""
+    return repr(float(value)) if isinstance(value, float) else value
+
+
+def _csv_row(report: RunReport, breakdown: str, group: str, s: Summary) -> dict[str, Any]:
+    row: dict[str, Any] = {
+        "label": report.label, "run": report.name, "slice": report.slice, "policy": report.policy or "",
+        "breakdown": breakdown, "group": group, "episodes": s.episodes, "errors": s.errors,
+        "localized": s.localized, "grasped": s.grasped,
+    }
+    for name in METRIC_NAMES:
+        interval = s.intervals[name]
+        row[name] = _csv_value(s.metrics[name])
+        row[f"{name}_low"] = _csv_value(None if interval is None else float(interval[0]))
+        row[f"{name}_high"] = _csv_value(None if interval is None else float(interval[1]))
+    return row
+
+
+def csv_text(reports: Sequence[RunReport]) -> str:
+    """CSV export in long form: one row per (run, breakdown, group), ``all`` for the overall row."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=CSV_FIELDS, lineterminator="\n")
+    writer.writeheader()
+    for report in reports:
+        writer.writerow(_csv_row(report, "all", "all", report.overall))
+        for key, *_ in BREAKDOWNS:
+            for group, s in report.breakdowns[key].items():
+                writer.writerow(_csv_row(report, key.removeprefix("by_"), group, s))
+    return buffer.getvalue()

@@ -1,0 +1,177 @@
+"""Standard readers open the shards; damaged files are reported by name."""
+
+import shutil
+
+import duckdb
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from catalog.atomic import temp_path
+from catalog.integrity import check_files, verify_files
+from catalog.manifest import load_manifest
+from catalog.mcap_io import iter_messages, mcap_summary
+from catalog.parquet_io import check_parquet, read_frames
+from schemas.errors import ShardError
+from schemas.tables import FRAMES_SCHEMA
+
+
+def _paths(slice_dir, shard=0):
+    manifest = load_manifest(slice_dir)
+    return {kind: slice_dir / f.path for kind, f in manifest.shards[shard].files.items()}
+
+
+def _flip(path, offset):
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def test_duckdb_reads_the_contract_columns(slice_dir):
+    manifest = load_manifest(slice_dir)
+    glob = f"{slice_dir}/shards/*.frames.parquet"
+    columns = duckdb.sql(f"DESCRIBE SELECT * FROM read_parquet('{glob}')").fetchall()
+    assert [c[0] for c in columns] == FRAMES_SCHEMA.names
+    types = dict((c[0], c[1]) for c in columns)
+    assert types["episode_index"] == "BIGINT" and types["frame_index"] == "INTEGER" and types["image"] == "BLOB"
+    assert types["joint_poses"].startswith("FLOAT[")
+    rows = duckdb.sql(
+        f"SELECT count(*), count(DISTINCT episode_index), max(len(joint_poses)) FROM read_parquet('{glob}')"
+    ).fetchall()[0]
+    assert rows == (manifest.frames, manifest.episodes, 90)
+    query = f"SELECT timestamp FROM read_parquet('{glob}') WHERE episode_index = 2 AND frame_index = 7"
+    stamp = duckdb.sql(query).fetchall()
+    assert stamp == [(7 / 20,)]
+    n = duckdb.sql(f"SELECT count(*) FROM read_parquet('{slice_dir}/shards/*.episodes.parquet')").fetchall()[0][0]
+    assert n == manifest.episodes
+
+
+def test_pyarrow_dataset_reads_every_shard(slice_dir):
+    import pyarrow.dataset as ds
+
+    table = ds.dataset(sorted(str(p) for p in (slice_dir / "shards").glob("*.frames.parquet"))).to_table()
+    assert table.schema.equals(FRAMES_SCHEMA) and table.num_rows == load_manifest(slice_dir).frames
+
+
+def test_intact_folder_verifies(slice_dir):
+    manifest = verify_files(slice_dir, full=True)
+    assert check_files(slice_dir, manifest) == []
+
+
+def test_tampered_file_is_named(slice_dir):
+    paths = _paths(slice_dir, 1)
+    _flip(paths["mcap"], paths["mcap"].stat().st_size // 2)
+    problems = check_files(slice_dir, load_manifest(slice_dir))
+    assert [(p.path, p.kind) for p in problems] == [("shards/000002-000003.mcap", "sha256")]
+    with pytest.raises(ShardError, match=r"shards/000002-000003\.mcap: content changed"):
+        verify_files(slice_dir)
+
+
+def test_truncated_missing_stray_and_unlisted_files(slice_dir):
+    paths = _paths(slice_dir)
+    paths["frames"].write_bytes(paths["frames"].read_bytes()[:-100])
+    paths["episodes"].unlink()
+    temp_path(slice_dir / "shards" / "000004-000004.mcap", pid=999999).write_bytes(b"x")
+    shutil.copy(paths["mcap"], slice_dir / "shards" / "000009-000009.mcap")
+    problems = check_files(slice_dir, load_manifest(slice_dir))
+    assert [(p.path, p.kind) for p in problems] == [
+        ("shards/000000-000001.frames.parquet", "size"),
+        ("shards/000000-000001.episodes.parquet", "missing"),
+        ("shards/.000004-000004.mcap.tmp-999999", "stray-temp"),
+        ("shards/000009-000009.mcap", "unlisted"),
+    ]
+    assert "truncated" in problems[0].detail
+    with pytest.raises(ShardError, match=r"000000-000001\.frames\.parquet: truncated.*\(and 3 more problem\(s\)\)"):
+        verify_files(slice_dir)
+
+
+def test_sample_checks_k_whole_shards(slice_dir):
+    manifest = load_manifest(slice_dir)
+    paths = _paths(slice_dir, 0)
+    _flip(paths["episodes"], 10)
+    found = set()
+    for seed in range(12):
+        problems = check_files(slice_dir, manifest, sample=1, rng=np.random.default_rng(seed))
+        found.add(tuple(p.path for p in problems))
+    assert found == {(), ("shards/000000-000001.episodes.parquet",)}
+    assert len(check_files(slice_dir, manifest, sample=10)) == 1
+    with pytest.raises(ShardError, match="--sample"):
+        check_files(slice_dir, manifest, sample=0)
+
+
+def test_readers_name_truncated_and_foreign_files(slice_dir, tmp_path):
+    paths = _paths(slice_dir)
+    cut = tmp_path / "cut.frames.parquet"
+    cut.write_bytes(paths["frames"].read_bytes()[:-50])
+    with pytest.raises(ShardError, match=r"cut\.frames\.parquet: not a readable Parquet file"):
+        read_frames(cut)
+    junk = tmp_path / "junk.parquet"
+    junk.write_bytes(b"PAR1" + bytes(100))
+    with pytest.raises(ShardError, match="junk.parquet: not a readable Parquet"):
+        read_frames(junk)
+    with pytest.raises(ShardError, match="missing.parquet: file is missing"):
+        read_frames(tmp_path / "missing.parquet")
+    with pytest.raises(ShardError, match="table kind is 'episodes', expected 'frames'"):
+        read_frames(paths["episodes"])
+
+    table = read_frames(paths["frames"])
+    pq.write_table(table.drop_columns(["image"]), tmp_path / "noimage.parquet")
+    with pytest.raises(ShardError, match="noimage.parquet: missing column 'image'"):
+        read_frames(tmp_path / "noimage.parquet")
+    assert read_frames(tmp_path / "noimage.parquet", ["episode_index"]).num_rows == table.num_rows
+    wrong = table.set_column(2, pa.field("timestamp", pa.float32()), table["timestamp"].cast(pa.float32()))
+    pq.write_table(wrong, tmp_path / "wrong.parquet")
+    with pytest.raises(ShardError, match="column 'timestamp' has type float, expected double"):
+        read_frames(tmp_path / "wrong.parquet")
+    check_parquet(paths["episodes"], "episodes", rows=2)
+    with pytest.raises(ShardError, match="has 2 rows, expected 3"):
+        check_parquet(paths["episodes"], "episodes", rows=3)
+
+
+def test_page_checksums_catch_corrupt_image_bytes(slice_dir, tmp_path):
+    paths = _paths(slice_dir)
+    meta = pq.ParquetFile(paths["frames"]).metadata
+    image = meta.row_group(0).column(FRAMES_SCHEMA.get_field_index("image"))
+    bad = tmp_path / "bad.frames.parquet"
+    shutil.copy(paths["frames"], bad)
+    _flip(bad, image.data_page_offset + image.total_compressed_size // 2)
+    read_frames(bad, ["episode_index"])  # other columns stay readable
+    with pytest.raises(ShardError, match=r"bad\.frames\.parquet: corrupt Parquet data"):
+        read_frames(bad, ["image"])
+
+
+def test_mcap_damage_is_named(slice_dir, tmp_path):
+    paths = _paths(slice_dir)
+    data = paths["mcap"].read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ShardError, match=r"cut\.mcap: not a readable MCAP file"):
+        mcap_summary(cut)
+    with pytest.raises(ShardError, match=r"cut\.mcap: not a readable MCAP file"):
+        list(iter_messages(cut, decode=False))
+    flipped = tmp_path / "flipped.mcap"
+    flipped.write_bytes(data)
+    _flip(flipped, len(data) // 3)
+    with pytest.raises(ShardError, match=r"flipped\.mcap"):
+        list(iter_messages(flipped, decode=False))
+
+
+def test_manifest_over_wrong_files_is_caught_by_the_structural_check(slice_dir):
+    """sha256 and size match (the manifest was written over bad files): the content check names them."""
+    from dataclasses import replace
+
+    from catalog.hashing import sha256_file
+    from catalog.manifest import Manifest, write_manifest
+
+    manifest = load_manifest(slice_dir)
+    paths = _paths(slice_dir)
+    shutil.copy(paths["episodes"], paths["frames"])
+    shard = manifest.shards[0]
+    files = dict(shard.files)
+    files["frames"] = replace(files["frames"], sha256=sha256_file(paths["frames"]), size=paths["frames"].stat().st_size)
+    shards = (replace(shard, files=files),) + manifest.shards[1:]
+    write_manifest(slice_dir, Manifest.create(manifest.slice, manifest.seed, manifest.settings, shards, manifest.code))
+    problems = check_files(slice_dir, load_manifest(slice_dir))
+    assert [(p.path, p.kind) for p in problems] == [("shards/000000-000001.frames.parquet", "unreadable")]
+    assert "table kind is 'episodes', expected 'frames'" in problems[0].detail

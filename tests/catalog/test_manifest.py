@@ -1,0 +1,133 @@
+import json
+import re
+import subprocess
+from dataclasses import replace
+
+import pytest
+
+from catalog.hashing import canonical_json, sha256_bytes, sha256_file, slice_hash
+from catalog.manifest import CodeInfo, Manifest, compute_hash, git_commit, load_manifest, write_manifest
+from catalog.records import FileRecord, ShardRecord, shard_paths
+from schemas.errors import ShardError
+
+from .conftest import CODE, SETTINGS
+
+
+def _shard(first, end, frames, tag):
+    paths = shard_paths(first, end)
+    files = {k: FileRecord(paths[k], sha256_bytes(f"{tag}-{k}".encode()), 10 + i) for i, k in enumerate(paths)}
+    return ShardRecord((first, end), frames, files)
+
+
+SHARDS = (_shard(0, 2, 40, "a"), _shard(2, 3, 21, "b"))
+
+
+def test_sha256_file_streams(tmp_path):
+    data = bytes(range(256)) * 10000
+    (tmp_path / "f").write_bytes(data)
+    assert sha256_file(tmp_path / "f") == sha256_bytes(data)
+
+
+def test_slice_hash_definition():
+    hashes = [h for s in SHARDS for h in s.file_hashes()]
+    payload = '{"files":[' + ",".join(f'"{h}"' for h in hashes) + '],"settings":' + canonical_json(SETTINGS) + "}"
+    assert compute_hash(SETTINGS, SHARDS) == slice_hash(SETTINGS, hashes) == sha256_bytes(payload.encode())
+    assert [h for h in SHARDS[0].file_hashes()] == [SHARDS[0].files[k].sha256 for k in ("frames", "episodes", "mcap")]
+
+
+def test_hash_changes_with_any_file_hash_or_setting():
+    base = compute_hash(SETTINGS, SHARDS)
+    assert compute_hash(dict(SETTINGS), list(SHARDS)) == base
+    seen = {base}
+    for i, shard in enumerate(SHARDS):
+        for kind, record in shard.files.items():
+            files = dict(shard.files)
+            files[kind] = replace(record, sha256=sha256_bytes(b"other"))
+            shards = list(SHARDS)
+            shards[i] = replace(shard, files=files)
+            seen.add(compute_hash(SETTINGS, shards))
+    for key, value in [("fps", 10), ("resolution", 64), ("jpeg_quality", 91), ("extra", True)]:
+        seen.add(compute_hash({**SETTINGS, key: value}, SHARDS))
+    seen.add(compute_hash(SETTINGS, SHARDS[::-1]))
+    assert len(seen) == 1 + 6 + 4 + 1
+
+
+def test_manifest_round_trip_is_canonical(tmp_path):
+    manifest = Manifest.create("linear-fast", 7, SETTINGS, SHARDS[::-1], code=CODE, extra={"policy": "scripted"})
+    assert [s.first for s in manifest.shards] == [0, 2]
+    assert (manifest.episodes, manifest.frames) == (3, 61)
+    path = write_manifest(tmp_path, manifest)
+    text = path.read_text()
+    assert text.endswith("}\n") and text == manifest.to_json()
+    data = json.loads(text)
+    assert list(data) == sorted(data)
+    assert data["policy"] == "scripted" and data["code"] == {"version": "0.1.0", "commit": CODE.commit}
+    assert data["shards"][0]["files"]["mcap"]["path"] == "shards/000000-000001.mcap"
+    loaded = load_manifest(tmp_path)
+    assert loaded == manifest
+    assert loaded.to_json() == text
+    assert [p.name for p in tmp_path.iterdir()] == ["catalog.json"]
+
+
+def test_manifest_accepts_code_as_dict():
+    manifest = Manifest.create("x", 1, SETTINGS, SHARDS, code=CODE)
+    again = Manifest(
+        slice="x", seed=1, episodes=3, frames=61, code={"version": "0.1.0", "commit": CODE.commit},
+        settings=SETTINGS, shards=list(SHARDS), hash=manifest.hash,
+    )
+    assert again == manifest
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda d: d.pop("hash"), "missing key"),
+        (lambda d: d.update(frames=60), "frames is 60"),
+        (lambda d: d["settings"].update(fps=30), "does not match"),
+        (lambda d: d["shards"][0]["files"]["frames"].update(sha256="0" * 64), "does not match"),
+        (lambda d: d["shards"][0]["files"]["frames"].update(path="../x.parquet"), "path"),
+        (lambda d: d["shards"][1].update(episodes=[1, 2]), "must be 'shards/000001-000001.frames.parquet'"),
+        (lambda d: d["shards"].reverse(), "ordered and disjoint"),
+        (lambda d: d["code"].update(commit="abc-dirty"), "commit"),
+    ],
+)
+def test_load_refuses_bad_manifest_naming_it(tmp_path, mutate, message):
+    data = Manifest.create("linear-fast", 7, SETTINGS, SHARDS, code=CODE).to_dict()
+    mutate(data)
+    (tmp_path / "catalog.json").write_text(json.dumps(data))
+    with pytest.raises(ShardError, match=message) as info:
+        load_manifest(tmp_path)
+    assert str(tmp_path / "catalog.json") in str(info.value)
+
+
+def test_load_missing_or_invalid_json(tmp_path):
+    with pytest.raises(ShardError, match="no catalog.json"):
+        load_manifest(tmp_path)
+    (tmp_path / "catalog.json").write_text('{"slice": ')
+    with pytest.raises(ShardError, match="not valid JSON"):
+        load_manifest(tmp_path)
+
+
+def test_shard_record_checks_names():
+    with pytest.raises(ShardError, match="must be 'shards/000000-000001.mcap'"):
+        files = dict(SHARDS[0].files)
+        files["mcap"] = replace(files["mcap"], path="shards/other.mcap")
+        ShardRecord((0, 2), 40, files)
+    assert ShardRecord.from_dict(SHARDS[0].to_dict()) == SHARDS[0]
+
+
+def test_git_commit(tmp_path):
+    assert git_commit(tmp_path) is None
+    subprocess.run(["git", "init", "-q", str(tmp_path)], check=True)
+    (tmp_path / "f").write_text("x")
+    env = {"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@e", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@e"}
+    subprocess.run(["git", "-C", str(tmp_path), "add", "f"], check=True)
+    commit = ["git", "-C", str(tmp_path), "commit", "-q", "-m", "m"]
+    subprocess.run(commit, check=True, env={**env, "PATH": "/usr/bin:/bin"})
+    sha = git_commit(tmp_path)
+    assert sha and re.fullmatch(r"[0-9a-f]{40}", sha)
+    (tmp_path / "f").write_text("dirty")
+    assert git_commit(tmp_path) == sha
+    own = git_commit()
+    assert own is None or re.fullmatch(r"[0-9a-f]{40}", own)
+    assert CodeInfo.current().commit == own

@@ -1,0 +1,206 @@
+"""`scoring eval` end to end on tiny run folders written in the shard contract."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import numpy as np
+import pytest
+
+from scoring.cli import main
+from scoring.io import load_run
+from tests.scoring.rollouts import CLOSED, Ep, write_run
+
+OPEN = np.zeros(15, np.float32)
+
+
+def closing(k: int, at: int) -> np.ndarray:
+    """Joint angles open until frame ``at``, then closed."""
+    joints = np.tile(OPEN, (k, 1))
+    joints[at:] = CLOSED
+    return joints
+
+
+def xs(*values):
+    return [[v, 2.0, 0.0] for v in values]
+
+
+# Observe frames sit right on the object (d = 0) and are closed: they must not count.
+# Acting frames 0..3: d = 2, 1, 0.2, 0.1 -> t_loc 2, E_loc 0.1; grasp from acting frame 3.
+GOOD = dict(
+    phases=["observe", "observe", "approach", "approach", "grasp", "hold"],
+    palm=xs(0.0, 0.0, 2.0, 1.0, 0.2, 0.1),
+    joints=np.concatenate([np.tile(CLOSED, (2, 1)), closing(4, 3)]),
+    tips=[0.0, 0.0, 0.9, 0.5, 0.15, 0.05],
+)
+# Never within 0.3 while acting, never closed.
+MISS = dict(phases=["observe", "approach", "approach", "hold"], palm=xs(0.0, 3.0, 2.0, 1.0), tips=[0.0, 0.8, 0.6, 0.7])
+
+
+def run_main(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def run(tmp_path):
+    episodes = [
+        Ep(**GOOD, motion_type="linear", intercept_setting="fast"),
+        Ep(**MISS, motion_type="circular", intercept_setting="slow", object="mug"),
+        Ep(**GOOD, motion_type="harmonic", intercept_setting="fast", status="error"),
+    ]
+    return write_run(tmp_path / "oracle-run", episodes, policy="oracle")
+
+
+def test_json_keys_and_values(capsys, run):
+    code, out, err = run_main(capsys, "eval", str(run), "--json")
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["episodes"] == 3 and result["errors"] == 1
+    assert result["label"] == "oracle" and result["policy"] == "oracle" and not result["ground_truth"]
+    m = result["metrics"]
+    assert list(m) == ["S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time"]
+    # the error episode is a failure although its frames equal GOOD's
+    assert m["S_loc"] == pytest.approx(100 / 3)
+    assert m["S_gra"] == pytest.approx(100 / 3)
+    assert m["E_loc"] == pytest.approx((0.1 + 1.0 + 0.1) / 3, rel=1e-6)
+    assert m["E_gra"] == pytest.approx((0.05 + 0.6 + 0.05) / 3, rel=1e-6)
+    steps = np.array([1.0, 0.8])  # palm 2 -> 1 -> 0.2
+    assert m["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()), rel=1e-6)
+    assert m["Q_line"] == pytest.approx(1.0)
+    assert m["R_time"] == pytest.approx((1 - 4 / 4) / 3 + 0 + 0)  # T = max(2, 3) + 1 = 4 of N = 4
+    low, high = result["intervals"]["S_loc"]
+    assert 0 < low < 100 / 3 < high < 100
+    assert set(result["by_motion"]) == {"linear", "circular", "harmonic"}
+    assert list(result["by_speed"]) == ["fast", "medium", "slow"]
+    assert result["by_speed"]["medium"]["episodes"] == 0 and result["by_speed"]["medium"]["S_loc"] is None
+    fast = result["by_speed"]["fast"]
+    assert (fast["episodes"], fast["errors"], fast["S_loc"]) == (2, 1, 50.0)
+    assert result["by_motion"]["circular"]["S_gra"] == 0.0
+    assert result["by_motion"]["circular"]["Q_smooth"] is None
+    assert list(result["by_object"]) == ["tennis_ball", "mug"]
+
+
+def test_r_time_counts_only_acting_frames(tmp_path, capsys):
+    ep = Ep(phases=["observe"] * 3 + ["approach"] * 4 + ["grasp"] * 4, palm=xs(*[0.0] * 3, 3, 2, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1),
+            joints=np.concatenate([np.tile(CLOSED, (3, 1)), closing(8, 4)]))
+    folder = write_run(tmp_path / "r", [ep])
+    code, out, _ = run_main(capsys, "eval", str(folder), "--json")
+    result = json.loads(out)
+    assert result["metrics"]["R_time"] == pytest.approx(1 - 5 / 8)  # t_loc 2, t_gra 4 -> T 5 of N 8
+
+
+def test_ground_truth_slice(tmp_path, capsys):
+    folder = write_run(tmp_path / "linear-fast", [Ep(**GOOD), Ep(**GOOD)], policy=None)
+    code, out, _ = run_main(capsys, "eval", str(folder), "--json")
+    result = json.loads(out)
+    assert code == 0
+    assert result["ground_truth"] and result["policy"] is None and result["errors"] == 0
+    assert result["label"] == "GT (linear-fast)"
+    assert result["metrics"]["S_loc"] == 100.0 and result["metrics"]["S_gra"] == 100.0
+
+
+def test_several_runs_give_a_list_and_one_table_row_each(tmp_path, capsys, run):
+    gt = write_run(tmp_path / "gt", [Ep(**GOOD)], policy=None)
+    code, out, _ = run_main(capsys, "eval", str(gt), str(run), "--json")
+    result = json.loads(out)
+    assert isinstance(result, list) and [r["label"] for r in result] == ["GT (gt)", "oracle"]
+    code, out, _ = run_main(capsys, "eval", str(gt), str(run))
+    assert code == 0
+    lines = out.splitlines()
+    assert lines[0].startswith("Run") and "S_loc (%)" in lines[0] and "R_time" in lines[0]
+    assert lines[2].startswith("GT (gt)") and "100.00" in lines[2]
+    assert lines[3].startswith("oracle") and "33.33" in lines[3]
+    assert "By motion type:" in out and "By interception setting:" in out
+
+
+def test_same_policy_twice_gets_distinct_labels(tmp_path, capsys):
+    a = write_run(tmp_path / "a", [Ep(**GOOD)])
+    b = write_run(tmp_path / "b", [Ep(**MISS)])
+    code, out, _ = run_main(capsys, "eval", str(a), str(b), "--json")
+    assert [r["label"] for r in json.loads(out)] == ["oracle (a)", "oracle (b)"]
+
+
+def test_plot_markdown_and_csv(tmp_path, capsys, run):
+    png, md, table = tmp_path / "out.png", tmp_path / "out.md", tmp_path / "out.csv"
+    code, _, err = run_main(capsys, "eval", str(run), "--plot", str(png), "--markdown", str(md), "--csv", str(table))
+    assert code == 0, err
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    text = md.read_text()
+    assert "| oracle | 3 | 1 | 33.33 |" in text and "### By object" in text
+    rows = list(csv.DictReader(io.StringIO(table.read_text())))
+    overall = rows[0]
+    assert (overall["breakdown"], overall["group"], overall["episodes"]) == ("all", "all", "3")
+    assert float(overall["S_loc"]) == pytest.approx(100 / 3)
+    assert float(overall["S_loc_low"]) < float(overall["S_loc"]) < float(overall["S_loc_high"])
+    medium = next(r for r in rows if r["breakdown"] == "speed" and r["group"] == "medium")
+    assert medium["S_loc"] == "" and medium["episodes"] == "0"
+
+
+def test_multi_shard_run_loads_in_episode_order(tmp_path):
+    eps = [Ep(**GOOD), Ep(**MISS), Ep(**MISS), Ep(**GOOD), Ep(**MISS)]
+    data = load_run(write_run(tmp_path / "many", eps, shard_size=2))
+    assert list(data.episode_index) == [0, 1, 2, 3, 4]
+    assert list(np.diff(data.offsets)) == [4, 3, 3, 4, 3]
+    assert data.palm_xyz.shape == (17, 3) and data.joint_angles.shape == (17, 15)
+    assert data.palm_xyz[0, 0] == pytest.approx(2.0)  # first acting frame, not an observe frame
+
+
+# --- bad input ----------------------------------------------------------------------
+
+
+def test_not_a_rollout_folder(tmp_path, capsys):
+    (tmp_path / "photos").mkdir()
+    code, out, err = run_main(capsys, "eval", str(tmp_path / "photos"))
+    assert code == 2 and out == ""
+    assert "photos" in err and "catalog.json" in err and len(err.strip().splitlines()) == 1
+
+
+def test_missing_folder(tmp_path, capsys):
+    code, _, err = run_main(capsys, "eval", str(tmp_path / "nowhere"))
+    assert code == 2 and "nowhere" in err and "no such folder" in err
+
+
+def test_missing_column(tmp_path, capsys):
+    folder = write_run(tmp_path / "bad", [Ep(**GOOD)], drop_frame_column="fingertip_distance")
+    code, _, err = run_main(capsys, "eval", str(folder))
+    assert code == 2
+    assert "missing column 'fingertip_distance'" in err and "frames.parquet" in err
+    assert "Traceback" not in err
+
+
+def test_empty_run(tmp_path, capsys):
+    folder = write_run(tmp_path / "empty", [])
+    code, _, err = run_main(capsys, "eval", str(folder), "--json")
+    assert code == 2 and "empty" in err and "the run is empty" in err
+
+
+def test_corrupt_manifest(tmp_path, capsys, run):
+    (run / "catalog.json").write_text("{not json")
+    code, _, err = run_main(capsys, "eval", str(run))
+    assert code == 2 and "catalog.json" in err
+
+
+def test_usage_error_exits_2(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["eval"])
+    assert exc.value.code == 2
+
+
+def test_non_finite_state_is_refused(tmp_path, capsys):
+    palm = xs(0.0, 3.0, float("nan"), 1.0)
+    folder = write_run(tmp_path / "nan", [Ep(**GOOD), Ep(phases=MISS["phases"], palm=palm)])
+    code, _, err = run_main(capsys, "eval", str(folder))
+    assert code == 2 and "non-finite palm_pose" in err and "episode 1" in err
+
+
+def test_unknown_status_and_phase_are_refused(tmp_path, capsys):
+    folder = write_run(tmp_path / "status", [Ep(**GOOD, status="crashed")])
+    code, _, err = run_main(capsys, "eval", str(folder))
+    assert code == 2 and "unknown episode status 'crashed'" in err
+    folder = write_run(tmp_path / "phase", [Ep(phases=["observe", "dance", "hold", "hold"], palm=MISS["palm"])])
+    code, _, err = run_main(capsys, "eval", str(folder))
+    assert code == 2 and "unknown phase 'dance'" in err

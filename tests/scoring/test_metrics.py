@@ -1,0 +1,344 @@
+"""Each metric on hand-made trajectories whose answers are worked out by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from scoring.metrics import (
+    METRIC_NAMES,
+    aggregate,
+    episode_metrics,
+    mean_interval,
+    path_quality,
+    wilson_interval,
+)
+
+OPEN = np.zeros(15)
+CLOSED = np.ones(15)
+
+
+def episode(palm, obj=None, joints=None, tips=None):
+    """One episode's acting frames: palm (k, 3), object (k, 3) default at the origin."""
+    palm = np.asarray(palm, dtype=np.float64).reshape(-1, 3)
+    k = len(palm)
+    obj = np.zeros((k, 3)) if obj is None else np.asarray(obj, dtype=np.float64).reshape(k, 3)
+    joints = np.tile(OPEN, (k, 1)) if joints is None else np.asarray(joints, dtype=np.float64)
+    tips = np.full(k, 1.0) if tips is None else np.asarray(tips, dtype=np.float64)
+    return palm, obj, joints, tips
+
+
+def score(*episodes, grasp=None):
+    """episode_metrics over the given episodes, all with grasp_angles CLOSED by default."""
+    offsets = np.concatenate([[0], np.cumsum([len(e[0]) for e in episodes])])
+    cat = [np.concatenate([e[i] for e in episodes]) if episodes else np.zeros((0, 3)) for i in range(4)]
+    grasp = np.tile(CLOSED, (len(episodes), 1)) if grasp is None else np.asarray(grasp)
+    return episode_metrics(offsets, cat[0], cat[1], cat[2].reshape(-1, 15), cat[3].reshape(-1), grasp)
+
+
+def xs(*values, y=2.0):
+    """Palm points along X at height y (Z = 0)."""
+    return [[v, y, 0.0] for v in values]
+
+
+def quality(points):
+    q_smooth, q_line = path_quality(np.array([0, len(points)]), np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    return q_smooth[0], q_line[0]
+
+
+# --- localization -----------------------------------------------------------------
+
+
+def test_localization_first_frame_within_tolerance_and_min_distance():
+    per = score(episode(xs(1.0, 0.5, 0.29, 0.1, 0.2)))
+    assert per.t_loc[0] == 2
+    assert per.localized[0]
+    assert per.e_loc[0] == pytest.approx(0.1)
+
+
+def test_localization_tolerance_is_inclusive_and_in_the_xz_plane():
+    # d = 0.3 exactly; the palm is far above the object (Y is ignored).
+    at = score(episode([[0.3, 9.0, 0.0]]))
+    assert at.localized[0] and at.e_loc[0] == pytest.approx(0.3)
+    beyond = score(episode([[0.18, 0.0, 0.2401]]))
+    assert not beyond.localized[0] and beyond.t_loc[0] == -1
+    diagonal = score(episode([[1.0, 0.0, 1.0], [0.1, 0.0, -0.2]], obj=[[0, 0, 0], [0.0, 5.0, 0.0]]))
+    assert diagonal.t_loc[0] == 1
+    assert diagonal.e_loc[0] == pytest.approx(math.hypot(0.1, 0.2))
+
+
+def test_localization_tracks_a_moving_object():
+    palm = xs(0.0, 0.0, 0.0)
+    obj = [[2.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.2, 0.0, 0.1]]
+    per = score(episode(palm, obj=obj))
+    assert per.t_loc[0] == 2
+    assert per.e_loc[0] == pytest.approx(math.hypot(0.2, 0.1))
+
+
+# --- grasp ------------------------------------------------------------------------
+
+
+def test_grasp_needs_every_joint_at_80_percent_of_ground_truth():
+    grasp = np.linspace(0.5, 1.5, 15)
+    joints = np.tile(0.85 * grasp, (4, 1))
+    joints[0] = 0.0
+    joints[1, 7] = 0.79 * grasp[7]  # one joint short: not yet a grasp
+    joints[3] = grasp
+    per = score(episode(xs(3, 3, 3, 3), joints=joints, tips=[0.9, 0.4, 0.05, 0.2]), grasp=grasp[None])
+    assert per.t_gra[0] == 2
+    assert per.grasped[0]
+    assert per.e_gra[0] == pytest.approx(0.05)
+
+
+def test_grasp_never_reached():
+    joints = np.tile(0.5 * CLOSED, (3, 1))
+    per = score(episode(xs(0, 0, 0), joints=joints, tips=[0.3, 0.2, 0.25]))
+    assert not per.grasped[0] and per.t_gra[0] == -1
+    assert per.e_gra[0] == pytest.approx(0.2)
+
+
+# --- trajectory quality -----------------------------------------------------------
+
+
+def test_q_smooth_is_one_over_one_plus_cv_of_steps():
+    assert quality(xs(0, 1, 2, 3))[0] == pytest.approx(1.0)
+    # steps 1 and 3: mean 2, population std 1 -> 1 / (1 + 1/2)
+    assert quality(xs(0, 1, 4))[0] == pytest.approx(2 / 3)
+
+
+def test_q_smooth_drops_steps_of_at_most_1e_4():
+    # the 5e-5 and 9e-5 steps are dropped, leaving steps 1 and 3
+    assert quality(xs(0, 1, 1 + 5e-5, 1 + 14e-5, 4 + 14e-5))[0] == pytest.approx(2 / 3)
+    # nothing but tiny steps: no step remains -> 1
+    assert quality(xs(0, 5e-5, 1e-4))[0] == 1.0
+
+
+def test_q_line_mean_cosine_to_the_chord():
+    # an L: both segments at 45 degrees to the chord
+    assert quality([[0, 0, 0], [1, 0, 0], [1, 0, 1]])[1] == pytest.approx(math.sqrt(0.5))
+    # overshoot and come back: cosines +1 and -1
+    assert quality(xs(0, 2, 1))[1] == pytest.approx(0.0)
+    assert quality(xs(0, 1, 2, 3))[1] == pytest.approx(1.0)
+
+
+def test_q_line_ignores_segments_of_at_most_1e_8():
+    points = xs(0, 1, 1 + 5e-9, 2)
+    assert quality(points)[1] == pytest.approx(1.0)
+
+
+def test_q_line_zero_when_the_path_returns_to_its_start():
+    assert quality(xs(0, 1, 0))[1] == 0.0
+    assert quality(xs(0, 1, 2e-9))[1] == 0.0
+
+
+def test_paths_of_zero_and_one_point():
+    assert quality(np.zeros((0, 3))) == (1.0, 0.0)
+    assert quality(xs(5)) == (1.0, 0.0)
+
+
+def test_paths_of_two_points():
+    assert quality(xs(0, 1)) == (1.0, 1.0)
+    assert quality(xs(0, 5e-5)) == (1.0, 1.0)  # no step kept for smoothness, still a direction
+    assert quality(xs(1, 1)) == (1.0, 0.0)
+
+
+def test_quality_uses_palm_path_up_to_t_loc_inclusive():
+    # palm: 0 -> 1 -> 4 -> 4.8 (localized at x=4.8 with the object at 5), then wanders off
+    palm = xs(0, 1, 4, 4.8, 0, 9)
+    obj = [[5.0, 0.0, 0.0]] * 6
+    per = score(episode(palm, obj=obj))
+    assert per.t_loc[0] == 3
+    steps = np.array([1.0, 3.0, 0.8])
+    assert per.q_smooth[0] == pytest.approx(1 / (1 + steps.std() / steps.mean()))
+    assert per.q_line[0] == pytest.approx(1.0)
+
+
+def test_quality_edge_cases_through_episode_metrics():
+    obj = [[0.0, 0.0, 0.0]] * 3
+    first = score(episode(xs(0.1, 2, 3), obj=obj))  # localized on the first acting frame: N_p = 1
+    assert (first.t_loc[0], first.q_smooth[0], first.q_line[0]) == (0, 1.0, 0.0)
+    second = score(episode(xs(1, 0.2, 3), obj=obj))  # N_p = 2
+    assert (second.t_loc[0], second.q_smooth[0], second.q_line[0]) == (1, 1.0, 1.0)
+    still = score(episode([[0.2, 0, 0], [0.2, 0, 0]]))  # N_p = 1, coincident later frame not included
+    assert (still.q_smooth[0], still.q_line[0]) == (1.0, 0.0)
+    missed = score(episode(xs(1, 2, 3), obj=obj))
+    assert np.isnan(missed.q_smooth[0]) and np.isnan(missed.q_line[0])
+
+
+def test_two_coincident_points_on_the_path():
+    # palm stays at x=1 for one frame, then localizes: P = [1, 1, 0.1] -> steps 0 and 0.9
+    per = score(episode(xs(1, 1, 0.1)))
+    assert per.t_loc[0] == 2
+    assert per.q_smooth[0] == 1.0  # the zero step is dropped; one step remains
+    assert per.q_line[0] == pytest.approx(1.0)
+
+
+# --- time score -------------------------------------------------------------------
+
+
+def test_r_time_uses_the_later_event():
+    joints = np.tile(OPEN, (10, 1))
+    joints[5:] = CLOSED
+    palm = xs(3, 3, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1)
+    per = score(episode(palm, joints=joints))
+    assert (per.t_loc[0], per.t_gra[0]) == (2, 5)
+    assert per.r_time[0] == pytest.approx(1 - 6 / 10)
+    # the grasp before the localization: T from t_loc
+    joints = np.tile(CLOSED, (10, 1))
+    palm = xs(3, 3, 3, 3, 3, 3, 3, 0.1, 0.1, 0.1)
+    assert score(episode(palm, joints=joints)).r_time[0] == pytest.approx(1 - 8 / 10)
+
+
+def test_r_time_zero_when_either_success_is_missing():
+    assert score(episode(xs(0.1, 0.1))).r_time[0] == 0.0  # localized, never grasped
+    assert score(episode(xs(3, 3), joints=np.tile(CLOSED, (2, 1)))).r_time[0] == 0.0  # grasped only
+
+
+# --- many episodes ----------------------------------------------------------------
+
+
+def test_episode_without_acting_frames():
+    per = score(episode(np.zeros((0, 3))), episode(xs(0.1)), episode(np.zeros((0, 3))))
+    assert list(per.acting_frames) == [0, 1, 0]
+    assert list(per.t_loc) == [-1, 0, -1]
+    assert np.isnan(per.e_loc[0]) and np.isnan(per.e_gra[2])
+    assert per.e_loc[1] == pytest.approx(0.1)
+    assert list(per.r_time) == [0.0, 0.0, 0.0]
+
+
+def naive(palm, obj, joints, tips, grasp):
+    """Frame-by-frame reference implementation of the written definitions."""
+    n = len(palm)
+    d = [float(np.hypot(palm[t][0] - obj[t][0], palm[t][2] - obj[t][2])) for t in range(n)]
+    t_loc = next((t for t in range(n) if d[t] <= 0.3), -1)
+    t_gra = next((t for t in range(n) if all(joints[t][j] >= 0.8 * grasp[j] for j in range(15))), -1)
+    q_smooth = q_line = float("nan")
+    if t_loc >= 0:
+        p = [np.asarray(palm[t], dtype=float) for t in range(t_loc + 1)]
+        segs = [p[k + 1] - p[k] for k in range(len(p) - 1)]
+        steps = [float(np.linalg.norm(s)) for s in segs if np.linalg.norm(s) > 1e-4]
+        q_smooth = 1.0 / (1.0 + float(np.std(steps)) / float(np.mean(steps))) if steps else 1.0
+        chord = p[-1] - p[0]
+        cn = float(np.linalg.norm(chord))
+        cos = [float(s @ chord) / (float(np.linalg.norm(s)) * cn) for s in segs if np.linalg.norm(s) > 1e-8]
+        q_line = float(np.mean(cos)) if cn >= 1e-8 and cos else 0.0
+    r_time = 1 - (max(t_loc, t_gra) + 1) / n if t_loc >= 0 and t_gra >= 0 else 0.0
+    e_loc = min(d) if n else float("nan")
+    e_gra = float(min(tips)) if n else float("nan")
+    return t_loc, t_gra, e_loc, e_gra, q_smooth, q_line, r_time
+
+
+coord = st.floats(-1.0, 1.0, allow_nan=False).map(lambda v: round(v, 2))
+
+
+@st.composite
+def episodes(draw):
+    k = draw(st.integers(0, 8))
+    palm = [[draw(coord), draw(coord), draw(coord)] for _ in range(k)]
+    obj = [[draw(coord), 0.0, draw(coord)] for _ in range(k)]
+    grasp = np.full(15, 1.0)
+    joints = [np.full(15, draw(st.sampled_from([0.0, 0.5, 0.8, 1.0]))) for _ in range(k)]
+    tips = [abs(draw(coord)) for _ in range(k)]
+    return palm, obj, joints, tips, grasp
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(episodes(), min_size=1, max_size=6))
+def test_vectorised_matches_the_frame_by_frame_definitions(eps):
+    arrays = [
+        episode(np.asarray(p).reshape(-1, 3), obj=np.asarray(o).reshape(-1, 3),
+                joints=np.asarray(j).reshape(-1, 15), tips=np.asarray(t).reshape(-1))
+        for p, o, j, t, _ in eps
+    ]
+    per = score(*arrays, grasp=np.stack([g for *_, g in eps]))
+    for i, (p, o, j, t, g) in enumerate(eps):
+        expected = naive(p, o, j, t, g)
+        got = (per.t_loc[i], per.t_gra[i], per.e_loc[i], per.e_gra[i], per.q_smooth[i], per.q_line[i], per.r_time[i])
+        assert got[:2] == expected[:2]
+        np.testing.assert_allclose(got[2:], expected[2:], rtol=1e-9, atol=1e-12, equal_nan=True)
+
+
+def test_bad_offsets_are_rejected():
+    with pytest.raises(ValueError, match="offsets"):
+        episode_metrics(np.array([0, 2]), np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 15)), np.zeros(3),
+                        np.zeros((1, 15)))
+
+
+# --- aggregates -------------------------------------------------------------------
+
+
+def test_aggregate_means_and_percentages():
+    hit = episode(xs(1, 0.2, 0.2), joints=np.tile(CLOSED, (3, 1)), tips=[0.5, 0.1, 0.3])  # t_loc 1, t_gra 0
+    miss = episode(xs(2, 1), tips=[0.7, 0.3])
+    per = score(hit, miss)
+    summary = aggregate(per, np.zeros(2, dtype=bool))
+    assert summary.episodes == 2 and summary.errors == 0
+    assert summary.metrics["S_loc"] == pytest.approx(50.0)
+    assert summary.metrics["S_gra"] == pytest.approx(50.0)
+    assert summary.metrics["E_loc"] == pytest.approx((0.2 + 1.0) / 2)
+    assert summary.metrics["E_gra"] == pytest.approx((0.1 + 0.3) / 2)
+    assert summary.metrics["Q_smooth"] == pytest.approx(1.0)  # only the localized episode counts
+    assert summary.metrics["Q_line"] == pytest.approx(1.0)
+    assert summary.metrics["R_time"] == pytest.approx((1 - 2 / 3 + 0.0) / 2)
+    assert tuple(summary.metrics) == METRIC_NAMES
+    low, high = summary.intervals["S_loc"]
+    assert low < 50.0 < high
+
+
+def test_no_localized_episode_gives_null_quality():
+    per = score(episode(xs(2, 3)), episode(xs(4)))
+    summary = aggregate(per, np.zeros(2, dtype=bool))
+    assert summary.metrics["S_loc"] == 0.0
+    assert summary.metrics["Q_smooth"] is None and summary.metrics["Q_line"] is None
+    assert summary.intervals["Q_smooth"] is None
+
+
+def test_error_episodes_are_failures_everywhere_but_keep_their_distances():
+    good = episode(xs(1, 0.1, 0.1), joints=np.tile(CLOSED, (3, 1)), tips=[0.4, 0.2, 0.3])
+    per = score(good, good)
+    summary = aggregate(per, np.array([False, True]))
+    assert summary.errors == 1
+    assert summary.metrics["S_loc"] == pytest.approx(50.0)
+    assert summary.metrics["S_gra"] == pytest.approx(50.0)
+    assert per.r_time[0] == pytest.approx(1 / 3)
+    assert summary.metrics["R_time"] == pytest.approx(per.r_time[0] / 2)
+    assert summary.metrics["E_loc"] == pytest.approx(0.1)
+    assert summary.metrics["Q_smooth"] == pytest.approx(1.0)
+    # an error episode that recorded no frame is left out of the error means only
+    per = score(good, episode(np.zeros((0, 3))))
+    summary = aggregate(per, np.array([False, True]))
+    assert summary.metrics["E_gra"] == pytest.approx(0.2)
+    assert summary.metrics["S_loc"] == pytest.approx(50.0)
+
+
+def test_aggregate_selection():
+    per = score(episode(xs(0.1)), episode(xs(5)), episode(xs(0.2)))
+    summary = aggregate(per, np.zeros(3, dtype=bool), select=np.array([True, True, False]))
+    assert summary.episodes == 2 and summary.metrics["S_loc"] == pytest.approx(50.0)
+    empty = aggregate(per, np.zeros(3, dtype=bool), select=np.zeros(3, dtype=bool))
+    assert empty.episodes == 0
+    assert all(value is None for value in empty.metrics.values())
+    assert all(value is None for value in empty.intervals.values())
+
+
+def test_wilson_interval_known_values():
+    low, high = wilson_interval(5, 10)
+    assert (low, high) == (pytest.approx(0.2366, abs=1e-4), pytest.approx(0.7634, abs=1e-4))
+    low, high = wilson_interval(0, 10)
+    assert low == 0.0 and high == pytest.approx(0.2775, abs=1e-4)
+    low, high = wilson_interval(1000, 1000)
+    assert high == pytest.approx(1.0) and low == pytest.approx(0.99617, abs=1e-5)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+    with pytest.raises(ValueError):
+        wilson_interval(3, 2)
+
+
+def test_mean_interval():
+    assert mean_interval(np.array([1.0])) is None
+    low, high = mean_interval(np.array([1.0, 3.0]))
+    half = 1.959963984540054 * math.sqrt(2) / math.sqrt(2)
+    assert (low, high) == (pytest.approx(2 - half), pytest.approx(2 + half))
