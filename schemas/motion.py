@@ -171,7 +171,9 @@ def token_from_dict(data: Any) -> Token:
     """Validate and build a token from its dict; names the bad field on error."""
     if not isinstance(data, dict):
         raise SpecError(f"a token must be an object, got {data!r}")
-    kind = data.get("type")
+    if "type" not in data:
+        raise SpecError(f"token is missing field 'type' (one of {sorted(TOKEN_TYPES)}), got {data!r}")
+    kind = data["type"]
     cls = TOKEN_TYPES.get(kind) if isinstance(kind, str) else None
     if cls is None:
         raise SpecError(f"unknown token type {kind!r} (expected one of {sorted(TOKEN_TYPES)})")
@@ -265,10 +267,18 @@ class Motion:
         base = data["base"]
         if not isinstance(base, list):
             raise SpecError(f"motion.base must be a list of tokens, got {base!r}")
+        items = data.get("overlays", [])
+        if not isinstance(items, list):
+            raise SpecError(f"motion.overlays must be a list of tracks, got {items!r}")
         overlays = []
-        for i, item in enumerate(data.get("overlays", [])):
+        for i, item in enumerate(items):
             if not isinstance(item, dict) or "tokens" not in item:
                 raise SpecError(f"motion.overlays[{i}] must be an object with 'tokens', got {item!r}")
+            unknown = sorted(set(item) - {"start", "tokens"})
+            if unknown:
+                raise SpecError(f"motion.overlays[{i}] has unknown field(s) {unknown}")
+            if not isinstance(item["tokens"], list):
+                raise SpecError(f"motion.overlays[{i}].tokens must be a list of tokens, got {item['tokens']!r}")
             overlays.append(Track(tuple(token_from_dict(t) for t in item["tokens"]), item.get("start", 0.0)))
         return cls(Track(tuple(token_from_dict(t) for t in base)), tuple(overlays))
 

@@ -85,6 +85,8 @@ class EpisodeSpec:
         _choice("motion_type", self.motion_type, _MOTION_TYPES)
         if not isinstance(self.motion, Motion):
             raise SpecError(f"spec.motion must be a Motion, got {self.motion!r}")
+        if not isinstance(self.object, str):
+            raise SpecError(f"spec.object must be an object category name, got {self.object!r}")
         object_category(self.object)
         size = self.object_size
         if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) or size <= 0:

@@ -1,0 +1,102 @@
+"""Ground-truth quality: the paper's Table 3 metrics of the episode stage's own plans.
+
+For each motion type, ``--per-type`` recipe episodes (split evenly over its fast,
+medium and slow slices, the first ones of each) run through ``pipeline.episode`` and
+are scored by :mod:`scoring.metrics` exactly as rollouts are: over the acting frames
+(phase != observe); E_loc is the minimum palm-to-object XZ distance, E_gra the minimum
+fingertip-to-surface distance, Q_smooth/Q_line are measured on the palm path from the
+first acting frame to the first localized frame inclusive. The paper's GT row is
+printed beside. The last line printed is JSON.
+
+    python benchmarks/gt_quality.py                 # 200 episodes per motion type
+    python benchmarks/gt_quality.py --per-type 9    # a quick check
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+# Run as a script, this folder comes first on sys.path, where benchmarks/scoring.py
+# would shadow the scoring package.
+_HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
+
+import numpy as np  # noqa: E402
+
+#: Table 3, row GT.
+PAPER_GT = {"S_loc": 100.0, "E_loc": 0.16, "S_gra": 100.0, "E_gra": 0.09, "Q_smooth": 0.81, "Q_line": 0.96, "R_time": 0.16}
+
+
+def split(total: int, parts: int) -> list[int]:
+    return [total // parts + (1 if k < total % parts else 0) for k in range(parts)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--per-type", type=int, default=200, help="episodes per motion type (default 200)")
+    args = parser.parse_args(argv)
+    if args.per_type < 3:
+        parser.error("--per-type must be >= 3")
+
+    from generators.recipe import slice_specs
+    from pipeline.episode import episode
+    from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES, PHASES
+    from scoring.metrics import METRIC_NAMES, aggregate, episode_metrics
+
+    observe = PHASES.index("observe")
+    rows: dict[str, list[np.ndarray]] = {k: [] for k in ("palm", "obj", "joints", "tips", "grasp")}
+    lengths: list[int] = []
+    motion_of: list[str] = []
+    for motion_type in MOTION_TYPES:
+        for setting, count in zip(INTERCEPT_SECONDS, split(args.per_type, len(INTERCEPT_SECONDS))):
+            for spec in slice_specs(f"{motion_type}-{setting}", count):
+                frames = episode(spec)
+                acting = frames.phase != observe
+                rows["palm"].append(frames.palm_pose[acting, :3])
+                rows["obj"].append(frames.object_pose[acting, :3])
+                rows["joints"].append(frames.joint_angles[acting])
+                rows["tips"].append(frames.fingertip_distance[acting])
+                rows["grasp"].append(frames.grasp_angles[None])
+                lengths.append(int(acting.sum()))
+                motion_of.append(motion_type)
+
+    offsets = np.concatenate([[0], np.cumsum(lengths)])
+    per = episode_metrics(
+        offsets,
+        np.concatenate(rows["palm"]),
+        np.concatenate(rows["obj"]),
+        np.concatenate(rows["joints"]),
+        np.concatenate(rows["tips"]),
+        np.concatenate(rows["grasp"]),
+    )
+    errors = np.zeros(len(lengths), dtype=bool)
+    motion_of_arr = np.array(motion_of)
+    result = {"episodes": len(lengths), "metrics": aggregate(per, errors).metrics, "by_motion": {}}
+    for motion_type in MOTION_TYPES:
+        result["by_motion"][motion_type] = aggregate(per, errors, motion_of_arr == motion_type).metrics
+
+    def fmt(value) -> str:
+        return "   n/a" if value is None else f"{value:6.2f}" if abs(value) >= 10 else f"{value:6.3f}"
+
+    print(f"{'':10s}" + "".join(f"{name:>9s}" for name in METRIC_NAMES), file=sys.stderr)
+    print(f"{'paper GT':10s}" + "".join(f"{fmt(PAPER_GT[name]):>9s}" for name in METRIC_NAMES), file=sys.stderr)
+    for label, metrics in [("all", result["metrics"])] + list(result["by_motion"].items()):
+        print(f"{label:10s}" + "".join(f"{fmt(metrics[name]):>9s}" for name in METRIC_NAMES), file=sys.stderr)
+    rounded = {
+        "benchmark": "gt_quality",
+        "episodes": result["episodes"],
+        "metrics": {k: None if v is None else round(v, 4) for k, v in result["metrics"].items()},
+        "by_motion": {
+            m: {k: None if v is None else round(v, 4) for k, v in ms.items()} for m, ms in result["by_motion"].items()
+        },
+        "paper_gt": PAPER_GT,
+    }
+    print(json.dumps(rounded))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,86 @@
+"""Distances between the hand and the object: analytic, vectorised over frames.
+
+The object's local frame is the one its pose quaternion ``(qx, qy, qz, qw)`` rotates
+into the world, as :mod:`generators.scene` builds the bodies and
+:func:`generators.motion.object_orientation` turns them: a sphere of radius ``r``; a
+cylinder ``(r, length)`` whose axis is local +Y when upright and local +X when lying;
+a box with half extents ``(hx, hy, hz)`` along local X, Y, Z (``schemas.objects``
+dims, scaled to the size).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from schemas.objects import object_category
+
+
+def quaternion_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions (x, y, z, w) -> (..., 3, 3) rotation matrices."""
+    q = np.asarray(quat, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - z * w)
+    out[..., 0, 2] = 2 * (x * z + y * w)
+    out[..., 1, 0] = 2 * (x * y + z * w)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - x * w)
+    out[..., 2, 0] = 2 * (x * z - y * w)
+    out[..., 2, 1] = 2 * (y * z + x * w)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
+def to_local(points: np.ndarray, object_pose: np.ndarray) -> np.ndarray:
+    """World points (n, k, 3) -> the object's local frame, for poses (n, 7)."""
+    pose = np.asarray(object_pose, dtype=np.float64)
+    rot = quaternion_to_matrix(pose[:, 3:7])
+    rel = np.asarray(points, dtype=np.float64) - pose[:, None, :3]
+    return np.einsum("nji,nkj->nki", rot, rel)
+
+
+def cylinder_axis(category: str) -> int:
+    """Index of the local axis a category's cylinder runs along (0 = X lying, 1 = Y upright)."""
+    return 0 if object_category(category).lying else 1
+
+
+def signed_distance_local(points: np.ndarray, shape: str, dims: tuple[float, ...], axis: int = 2) -> np.ndarray:
+    """Signed distance (..., ) of local points (..., 3) to a primitive's surface (negative inside).
+
+    ``axis`` is the local axis of a cylinder (2 = Z, pybullet's own primitive).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if shape == "sphere":
+        return np.linalg.norm(p, axis=-1) - dims[0]
+    if shape == "cylinder":
+        u, v = [k for k in range(3) if k != axis]
+        radial = np.hypot(p[..., u], p[..., v]) - dims[0]
+        axial = np.abs(p[..., axis]) - dims[1] / 2.0
+        outside = np.hypot(np.maximum(radial, 0.0), np.maximum(axial, 0.0))
+        return outside + np.minimum(np.maximum(radial, axial), 0.0)
+    if shape == "box":
+        q = np.abs(p) - np.asarray(dims)
+        outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
+        return outside + np.minimum(q.max(axis=-1), 0.0)
+    raise ValueError(f"unknown shape {shape!r}")
+
+
+def signed_distance(points: np.ndarray, category: str, size: float, object_pose: np.ndarray) -> np.ndarray:
+    """Signed distance (n, k) of world points (n, k, 3) to the object's surface at poses (n, 7)."""
+    cat = object_category(category)
+    local = to_local(points, object_pose)
+    return signed_distance_local(local, cat.shape, cat.scaled_dims(size), cylinder_axis(category))
+
+
+def fingertip_distance(fingertips: np.ndarray, category: str, size: float, object_pose: np.ndarray) -> np.ndarray:
+    """(n,) minimum over the fingertips (n, 5, 3) of the (unsigned) distance to the object's surface."""
+    return np.abs(signed_distance(fingertips, category, size, object_pose)).min(axis=-1)
+
+
+def palm_xz_distance(palm_xyz: np.ndarray, object_xyz: np.ndarray) -> np.ndarray:
+    """(n,) distance in the XZ plane between the palm centre and the object's centre (its top's centre)."""
+    palm = np.asarray(palm_xyz, dtype=np.float64)
+    obj = np.asarray(object_xyz, dtype=np.float64)
+    return np.hypot(palm[..., 0] - obj[..., 0], palm[..., 2] - obj[..., 2])

@@ -1,0 +1,51 @@
+"""JPEG encoding of RGB frames with OpenCV (libjpeg-turbo), and decoding back to RGB.
+
+Settings are pinned explicitly (baseline, not optimized, not progressive, 4:2:0
+chroma subsampling) so that the same pixels give the same bytes; the quality is
+recorded in the manifest's settings as ``jpeg_quality``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from schemas.errors import ShardError, SpecError
+
+#: Default JPEG quality (0-100) of built datasets.
+JPEG_QUALITY = 90
+IMAGE_FORMAT = "jpeg"
+
+
+def _params(quality: int) -> list[int]:
+    return [
+        cv2.IMWRITE_JPEG_QUALITY,
+        quality,
+        cv2.IMWRITE_JPEG_OPTIMIZE,
+        0,
+        cv2.IMWRITE_JPEG_PROGRESSIVE,
+        0,
+        cv2.IMWRITE_JPEG_SAMPLING_FACTOR,
+        cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420,
+    ]
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
+    """(H, W, 3) uint8 RGB -> JPEG bytes."""
+    if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
+        raise SpecError(f"JPEG quality must be an integer in [1, 100], got {quality!r}")
+    image = np.asarray(rgb)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise SpecError(f"expected an (H, W, 3) uint8 RGB image, got {image.dtype} {image.shape}")
+    ok, buffer = cv2.imencode(".jpg", np.ascontiguousarray(image[:, :, ::-1]), _params(int(quality)))
+    if not ok:
+        raise SpecError("OpenCV failed to encode the image as JPEG")
+    return buffer.tobytes()
+
+
+def decode_jpeg(data: bytes) -> np.ndarray:
+    """JPEG bytes -> (H, W, 3) uint8 RGB."""
+    bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise ShardError(f"not a decodable JPEG image ({len(data)} bytes)")
+    return np.ascontiguousarray(bgr[:, :, ::-1])

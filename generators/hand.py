@@ -1,0 +1,204 @@
+"""The five-fingered hand: geometry, joint limits and vectorised forward kinematics.
+
+Scene units (1 unit = 10 cm). The palm frame has its origin at the palm centre;
+local +Z points along the fingers, local +Y out of the back of the hand, and the
+palm faces local -Y. At the rest orientation (roll = pitch = yaw = 0) the palm
+faces down (world -Y) with the fingers pointing forward (+Z, away from the camera).
+
+Handedness: the world is X right, Y up, Z forward and the image shows +X on the
+right, so a RIGHT hand, palm down and fingers forward, has its thumb toward -X.
+The LEFT hand is its mirror image through the palm's YZ plane (thumb toward +X);
+both hands take the same joint angles for the mirrored motion.
+
+Each finger is a chain of three flexion joints rotating about the chain's local +X
+axis; a positive angle curls the finger toward the palm side (local -Y). The thumb's
+chain starts from a fixed, splayed root orientation.
+
+Poses are ``(x, y, z, roll, pitch, yaw)`` with ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``,
+pybullet's ``getQuaternionFromEuler([roll, pitch, yaw])`` convention.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from schemas.errors import SpecError
+from schemas.scene import HANDS, PALM_REST
+
+SIDES = HANDS
+FINGERS = ("thumb", "index", "middle", "ring", "little")
+_JOINT_SUFFIXES = {"thumb": ("cmc", "mcp", "ip")}
+JOINT_NAMES = tuple(
+    f"{finger}_{joint}" for finger in FINGERS for joint in _JOINT_SUFFIXES.get(finger, ("mcp", "pip", "dip"))
+)
+#: Keypoint names in keypoint order: five fingertips, then the wrist.
+KEYPOINT_NAMES = tuple(f"{finger}_tip" for finger in FINGERS) + ("wrist",)
+
+#: Palm box half extents (lateral, thickness, length) and the wrist point, palm frame.
+PALM_HALF_EXTENTS = (0.45, 0.12, 0.50)
+WRIST_OFFSET = (0.0, 0.0, -0.50)
+
+#: Right hand: where each finger's first joint sits in the palm frame.
+_ROOTS_RIGHT = np.array(
+    [
+        [-0.36, -0.04, -0.22],  # thumb (carpometacarpal joint)
+        [-0.31, 0.0, 0.50],  # index
+        [-0.10, 0.0, 0.52],  # middle
+        [0.11, 0.0, 0.50],  # ring
+        [0.31, 0.0, 0.45],  # little
+    ]
+)
+#: Segment lengths (proximal, middle, distal); fingers 0.68-0.89 long.
+SEGMENT_LENGTHS = np.array(
+    [
+        [0.40, 0.30, 0.26],
+        [0.40, 0.23, 0.19],
+        [0.43, 0.26, 0.20],
+        [0.40, 0.25, 0.19],
+        [0.32, 0.19, 0.17],
+    ]
+)
+#: Finger thickness (radius of the capsules drawn and used for contact).
+FINGER_RADII = np.array([0.095, 0.085, 0.085, 0.08, 0.07])
+
+_FINGER_LIMITS = ((-0.35, 1.60), (0.0, 1.80), (0.0, 1.40))
+_THUMB_LIMITS = ((-0.30, 1.20), (-0.20, 1.00), (-0.20, 1.30))
+#: Joint limits (radians), shape (15,), in :data:`JOINT_NAMES` order.
+JOINT_LOWER = np.array([lo for lims in (_THUMB_LIMITS,) + (_FINGER_LIMITS,) * 4 for lo, _ in lims])
+JOINT_UPPER = np.array([hi for lims in (_THUMB_LIMITS,) + (_FINGER_LIMITS,) * 4 for _, hi in lims])
+#: The rest configuration: open hand, straight fingers.
+REST_JOINTS = np.zeros(15)
+#: The palm's rest pose (x, y, z, roll, pitch, yaw), shared by both hands.
+REST_PALM = np.array(PALM_REST, dtype=np.float64)
+
+_MIRROR = np.diag([-1.0, 1.0, 1.0])
+
+
+def _thumb_root_right() -> np.ndarray:
+    """Thumb root rotation: points out and forward, flexing down and across under the palm."""
+    along = np.array([-0.75, -0.20, 0.63])
+    along /= np.linalg.norm(along)
+    curl = np.array([0.45, -0.85, 0.30])  # where flexion swings the thumb
+    axis = np.cross(along, curl)
+    axis /= np.linalg.norm(axis)
+    return np.stack([axis, np.cross(along, axis), along], axis=1)
+
+
+def root_rotations(side: str) -> np.ndarray:
+    """(5, 3, 3) fixed rotations of each finger's chain root in the palm frame."""
+    rots = np.repeat(np.eye(3)[None], 5, axis=0)
+    rots[0] = _thumb_root_right()
+    if _side(side) == "left":
+        rots = _MIRROR @ rots @ _MIRROR
+    return rots
+
+
+def root_positions(side: str) -> np.ndarray:
+    """(5, 3) positions of each finger's first joint in the palm frame."""
+    return _ROOTS_RIGHT @ _MIRROR if _side(side) == "left" else _ROOTS_RIGHT.copy()
+
+
+def _side(side: str) -> str:
+    if side not in SIDES:
+        raise SpecError(f"hand side must be one of {list(SIDES)}, got {side!r}")
+    return side
+
+
+_CACHE = {side: (root_positions(side), root_rotations(side)) for side in SIDES}
+
+
+def euler_to_matrix(euler: np.ndarray) -> np.ndarray:
+    """(..., 3) roll, pitch, yaw -> (..., 3, 3) rotation ``Rz(yaw) Ry(pitch) Rx(roll)``."""
+    e = np.asarray(euler, dtype=np.float64)
+    cr, sr = np.cos(e[..., 0]), np.sin(e[..., 0])
+    cp, sp = np.cos(e[..., 1]), np.sin(e[..., 1])
+    cy, sy = np.cos(e[..., 2]), np.sin(e[..., 2])
+    out = np.empty(e.shape[:-1] + (3, 3))
+    out[..., 0, 0] = cy * cp
+    out[..., 0, 1] = cy * sp * sr - sy * cr
+    out[..., 0, 2] = cy * sp * cr + sy * sr
+    out[..., 1, 0] = sy * cp
+    out[..., 1, 1] = sy * sp * sr + cy * cr
+    out[..., 1, 2] = sy * sp * cr - cy * sr
+    out[..., 2, 0] = -sp
+    out[..., 2, 1] = cp * sr
+    out[..., 2, 2] = cp * cr
+    return out
+
+
+def matrix_to_euler(rot: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation -> (..., 3) roll, pitch, yaw (inverse of :func:`euler_to_matrix`)."""
+    r = np.asarray(rot, dtype=np.float64)
+    roll = np.arctan2(r[..., 2, 1], r[..., 2, 2])
+    pitch = np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(r[..., 1, 0], r[..., 0, 0])
+    return np.stack([roll, pitch, yaw], axis=-1)
+
+
+def mirror_palm_pose(palm_pose: np.ndarray) -> np.ndarray:
+    """The palm pose mirrored through the world's YZ plane (right <-> left)."""
+    out = np.array(palm_pose, dtype=np.float64, copy=True)
+    out[..., [0, 4, 5]] *= -1.0
+    return out
+
+
+def chain_frames(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
+    """World frames along the five chains.
+
+    Returns positions (n, 5, 4, 3) and rotations (n, 5, 4, 3, 3): for each finger,
+    its three joint frames (after the joint's rotation) and its fingertip frame
+    (at the distal segment's end, oriented like the distal segment).
+    """
+    palm = np.atleast_2d(np.asarray(palm_pose, dtype=np.float64))
+    q = np.atleast_2d(np.asarray(joint_angles, dtype=np.float64))
+    if palm.shape[-1] != 6 or q.shape[-1] != 15 or palm.shape[0] != q.shape[0]:
+        raise SpecError(f"need palm_pose (n, 6) and joint_angles (n, 15), got {palm.shape} and {q.shape}")
+    roots, root_rots = _CACHE[_side(side)]
+    n = palm.shape[0]
+    r_palm = euler_to_matrix(palm[:, 3:])
+    pos = np.empty((n, 5, 4, 3))
+    rot = np.empty((n, 5, 4, 3, 3))
+    p = palm[:, None, :3] + (r_palm[:, None] @ roots[None, :, :, None])[..., 0]
+    r = r_palm[:, None] @ root_rots[None]  # (n, 5, 3, 3)
+    x, y, z = r[..., 0], r[..., 1], r[..., 2]
+    q = q.reshape(n, 5, 3)
+    cos, sin = np.cos(q)[..., None], np.sin(q)[..., None]
+    for k in range(3):
+        c, s = cos[:, :, k], sin[:, :, k]
+        y, z = c * y + s * z, c * z - s * y
+        pos[:, :, k] = p
+        rot[:, :, k, :, 0], rot[:, :, k, :, 1], rot[:, :, k, :, 2] = x, y, z
+        p = p + z * SEGMENT_LENGTHS[None, :, k, None]
+    pos[:, :, 3] = p
+    rot[:, :, 3] = rot[:, :, 2]
+    return pos, rot
+
+
+def forward_kinematics(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
+    """Palm poses (n, 6) and joint angles (n, 15) -> joint poses (n, 90) and keypoints (n, 36).
+
+    Joint poses: the 15 joint frames in :data:`JOINT_NAMES` order, each
+    ``(x, y, z, roll, pitch, yaw)``; a joint's frame sits at the joint and carries the
+    child segment's orientation. Keypoints: the 5 fingertips (thumb..little), then
+    the wrist (oriented like the palm).
+    """
+    palm = np.atleast_2d(np.asarray(palm_pose, dtype=np.float64))
+    pos, rot = chain_frames(palm, joint_angles, side)
+    n = palm.shape[0]
+    poses = np.concatenate([pos, matrix_to_euler(rot)], axis=-1)  # (n, 5, 4, 6)
+    joint_poses = poses[:, :, :3].reshape(n, 90)
+    r_palm = euler_to_matrix(palm[:, 3:])
+    wrist = np.concatenate([palm[:, :3] + r_palm @ np.asarray(WRIST_OFFSET), palm[:, 3:]], axis=-1)
+    keypoints = np.concatenate([poses[:, :, 3], wrist[:, None]], axis=1).reshape(n, 36)
+    return joint_poses, keypoints
+
+
+def fingertip_positions(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> np.ndarray:
+    """(n, 5, 3) fingertip positions (thumb..little)."""
+    return chain_frames(palm_pose, joint_angles, side)[0][:, :, 3]
+
+
+def within_limits(joint_angles: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """(n,) whether every joint lies inside its limits."""
+    q = np.atleast_2d(joint_angles)
+    return np.all((q >= JOINT_LOWER - tol) & (q <= JOINT_UPPER + tol), axis=-1)

@@ -1,0 +1,194 @@
+"""The interception solver and the ground-truth hand plan of one episode.
+
+Timeline (frames, ``a = spec.observe_frames``, ``i = spec.intercept_frame``):
+
+* ``[0, a]`` the hand rests at :data:`generators.hand.REST_PALM` with open fingers
+  (frame ``a`` is the first acting frame and still the rest pose);
+* ``[a, i]`` the palm follows a quintic (minimum-jerk family) from rest, with zero
+  velocity and acceleration, to the hover point over the object's top at frame ``i``,
+  arriving with the object's velocity and acceleration, so it never stops before
+  arrival and joins the tracking motion with continuous velocity and acceleration;
+* ``[i, n)`` the palm tracks the hover point ``(x, top + PALM_HOVER, z)`` of the
+  moving object while the fingers close with a minimum-jerk profile from rest
+  (frame ``i``) to :func:`generators.grasp.grasp_angles` (frame ``i + GRASP_FRAMES - 1``),
+  then hold.
+
+The palm keeps the rest orientation throughout (actions steer only its position).
+
+Action: ``action[t] = (palm_xyz[t + 1], joint_angles[t + 1])``, the targets issued at
+frame ``t`` and reached at frame ``t + 1``; the last frame repeats its own state.
+During the observe window the action is therefore the rest pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from generators.camera import projection_matrix, view_matrix
+from generators.grasp import grasp_angles, lowest_fingertip_offset
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
+from schemas.errors import InfeasibleError
+from schemas.objects import object_category
+from schemas.scene import GRASP_FRAMES, PALM_HOVER, PHASES, WORKSPACE_X, WORKSPACE_Z
+from schemas.spec import EpisodeSpec
+from schemas.versions import FPS
+
+#: Fastest palm speed a plan may ask for (units/s; 35 = 3.5 m/s).
+MAX_PALM_SPEED = 35.0
+#: Every approach step must be longer than this (units): no stagnation before arrival.
+MIN_APPROACH_STEP = 1e-4
+#: Lowest a fingertip may go (the table top is Y = 0).
+MIN_FINGERTIP_HEIGHT = 0.0
+_PHASE = {name: i for i, name in enumerate(PHASES)}
+_CLIP_FROM_WORLD = projection_matrix(1.0) @ view_matrix()
+
+
+@dataclass(frozen=True)
+class HandPlan:
+    """The ground-truth hand of one episode, per frame (float64 arrays)."""
+
+    phase: np.ndarray  # (n,) int8 indices into PHASES
+    palm_pose: np.ndarray  # (n, 6)
+    joint_angles: np.ndarray  # (n, 15)
+    action: np.ndarray  # (n, 18)
+    grasp_angles: np.ndarray  # (15,)
+    hover: np.ndarray  # (n, 3) the hover point over the object's top
+    intercept_frame: int
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.phase)
+
+
+def minimum_jerk(s: np.ndarray) -> np.ndarray:
+    """Rest-to-rest minimum-jerk profile on [0, 1]: 10 s^3 - 15 s^4 + 6 s^5 (clipped)."""
+    s = np.clip(s, 0.0, 1.0)
+    return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
+
+
+def quintic(start: np.ndarray, end: np.ndarray, end_velocity: np.ndarray, end_acceleration: np.ndarray,
+            duration: float, s: np.ndarray) -> np.ndarray:
+    """Quintic from ``start`` at rest to ``end`` with the given end velocity and acceleration.
+
+    ``s`` (m,) is normalised time in [0, 1]; returns (m, d) positions.
+    """
+    s = np.asarray(s, dtype=np.float64)[:, None]
+    s3 = s * s * s
+    rest = s3 * (10.0 + s * (-15.0 + 6.0 * s))
+    vel = s3 * (-4.0 + s * (7.0 - 3.0 * s))
+    acc = s3 * (0.5 + s * (-1.0 + 0.5 * s))
+    return (
+        start
+        + rest * (end - start)
+        + vel * (end_velocity * duration)
+        + acc * (end_acceleration * duration * duration)
+    )
+
+
+def phases(spec: EpisodeSpec) -> np.ndarray:
+    """(n,) phase index of every frame."""
+    out = np.full(spec.num_frames, _PHASE["hold"], dtype=np.int8)
+    out[: spec.observe_frames] = _PHASE["observe"]
+    out[spec.observe_frames : spec.intercept_frame] = _PHASE["approach"]
+    out[spec.intercept_frame : spec.intercept_frame + GRASP_FRAMES] = _PHASE["grasp"]
+    return out
+
+
+def closure_profile(num_frames: int, intercept_frame: int) -> np.ndarray:
+    """(n,) fraction of the grasp closed at each frame: 0 until ``intercept_frame``, 1 from
+    ``intercept_frame + GRASP_FRAMES - 1`` on, minimum jerk between."""
+    k = np.arange(num_frames, dtype=np.float64) - intercept_frame
+    return minimum_jerk(k / (GRASP_FRAMES - 1))
+
+
+def in_view(points: np.ndarray) -> np.ndarray:
+    """(n,) whether world points (n, 3) project inside the camera's image (any resolution)."""
+    clip = points @ _CLIP_FROM_WORLD[:, :3].T + _CLIP_FROM_WORLD[:, 3]
+    w = clip[:, 3]
+    return (w > 0) & (np.abs(clip[:, 0]) <= w) & (np.abs(clip[:, 1]) <= w)
+
+
+def _check_in_view(name: str, points: np.ndarray) -> None:
+    inside = in_view(points)
+    if not inside.all():
+        raise InfeasibleError(f"the {name} leaves the camera's view at frame {int(np.argmin(inside))}")
+
+
+def plan_episode(
+    spec: EpisodeSpec,
+    object_xz: np.ndarray,
+    object_velocity_xz: np.ndarray,
+    object_acceleration_xz: np.ndarray,
+) -> HandPlan:
+    """Solve the interception of ``spec`` and plan the hand over its ``n`` frames.
+
+    The object's XZ position, velocity and acceleration are given at the frame times
+    (arrays (n, 2)). Raises :class:`InfeasibleError` naming the reason when the target
+    leaves the workspace or the view, the palm would have to move faster than
+    :data:`MAX_PALM_SPEED` or would stall before arrival, or the fingers would hit the table.
+    """
+    n = spec.num_frames
+    obj = np.asarray(object_xz, dtype=np.float64)
+    vel = np.asarray(object_velocity_xz, dtype=np.float64)
+    acc = np.asarray(object_acceleration_xz, dtype=np.float64)
+    for name, arr in (("positions", obj), ("velocities", vel), ("accelerations", acc)):
+        if arr.shape != (n, 2) or not np.isfinite(arr).all():
+            raise InfeasibleError(f"object {name} must be finite with shape ({n}, 2), got {arr.shape}")
+    a, i = spec.observe_frames, spec.intercept_frame
+    frames = np.arange(n)
+
+    eps = 1e-9
+    outside = (
+        (obj[:, 0] < WORKSPACE_X[0] - eps)
+        | (obj[:, 0] > WORKSPACE_X[1] + eps)
+        | (obj[:, 1] < WORKSPACE_Z[0] - eps)
+        | (obj[:, 1] > WORKSPACE_Z[1] + eps)
+    )
+    if outside.any():
+        k = int(np.argmax(outside))
+        raise InfeasibleError(
+            f"the object leaves the workspace at frame {k} (x={obj[k, 0]:.3f}, z={obj[k, 1]:.3f})"
+        )
+
+    cat = object_category(spec.object)
+    centre_y = cat.half_height(spec.object_size)
+    hover_y = 2.0 * centre_y + PALM_HOVER
+    hover = np.column_stack([obj[:, 0], np.full(n, hover_y), obj[:, 1]])
+    _check_in_view("object", np.column_stack([obj[:, 0], np.full(n, centre_y), obj[:, 1]]))
+
+    palm = np.repeat(REST_PALM[None, :3], n, axis=0)
+    duration = (i - a) / FPS
+    s = (frames[a : i + 1] - a) / (i - a)
+    end_vel = np.array([vel[i, 0], 0.0, vel[i, 1]])
+    end_acc = np.array([acc[i, 0], 0.0, acc[i, 1]])
+    palm[a : i + 1] = quintic(REST_PALM[:3], hover[i], end_vel, end_acc, duration, s)
+    palm[i:] = hover[i:]
+    _check_in_view("palm", palm)
+
+    steps = np.linalg.norm(np.diff(palm[a : i + 1], axis=0), axis=1)
+    if steps.min() <= MIN_APPROACH_STEP:
+        k = a + int(np.argmin(steps))
+        raise InfeasibleError(f"the palm would stall before arrival at frame {k} (step {steps.min():.2e})")
+    # Peak speed of the analytic approach, sampled finely between frames.
+    fine = np.linspace(0.0, 1.0, 8 * (i - a) + 1)
+    path = quintic(REST_PALM[:3], hover[i], end_vel, end_acc, duration, fine)
+    speed = np.linalg.norm(np.diff(path, axis=0), axis=1).max() / (duration / (len(fine) - 1))
+    if speed > MAX_PALM_SPEED:
+        raise InfeasibleError(f"the interception needs a palm speed of {speed:.1f} units/s (> {MAX_PALM_SPEED})")
+
+    grasp = grasp_angles(spec.object, spec.object_size, spec.hand)
+    if np.any(grasp < JOINT_LOWER) or np.any(grasp > JOINT_UPPER):
+        raise InfeasibleError(f"the grasp of {spec.object} (size {spec.object_size}) breaks a joint limit")
+    closure = closure_profile(n, i)
+    joints = REST_JOINTS + closure[:, None] * (grasp - REST_JOINTS)
+
+    palm_pose = np.concatenate([palm, np.repeat(REST_PALM[None, 3:], n, axis=0)], axis=1)
+    lowest = hover_y + lowest_fingertip_offset(spec.object, spec.object_size, spec.hand)
+    if lowest < MIN_FINGERTIP_HEIGHT:
+        raise InfeasibleError(f"the fingers would go through the table (fingertip height {lowest:.3f})")
+
+    state = np.concatenate([palm, joints], axis=1)
+    action = np.concatenate([state[1:], state[-1:]], axis=0)
+    return HandPlan(phases(spec), palm_pose, joints, action, grasp, hover, i)

@@ -1,0 +1,280 @@
+"""RGB frames of the scene from the fixed camera, with pybullet's CPU TinyRenderer.
+
+Two ways to draw the same frame:
+
+- :meth:`Renderer.render_full` draws the whole scene every frame (the reference, and
+  the benchmarks' baseline).
+- :meth:`Renderer.render` draws the static plate (floor and table) once per renderer,
+  with its depth buffer, then per frame only the moving bodies (object and hand), and
+  keeps a moving body's pixel where its depth is at least as near as the plate's.
+
+Why that equals the full render pixel for pixel: TinyRenderer keeps a fragment when
+its depth is at least as near as the depth buffer's, drawing bodies in creation
+order; the static bodies are created first, so in a full render a pixel shows the last
+moving fragment at the nearest moving depth if that depth is at least as near as the
+plate's, else the plate. Depths come back as float32 values of a monotone function of
+the internal depth; where a moving and a static depth are too close to order
+exactly (within a few ulps), :meth:`Renderer.render` falls back to a full render for
+that frame (counted in :attr:`Renderer.fallbacks`). No shadows, explicit lights.
+
+Images are mirrored left-right so that world +X is on the image's right
+(:mod:`generators.camera`).
+
+``backend="egl"`` draws full frames with pybullet's EGL OpenGL plugin instead, where
+it loads (on a machine without a GPU it is Mesa's multi-threaded software
+rasterizer, slower than the composited TinyRenderer). Its shading differs from
+TinyRenderer's and is not reproducible across drivers, so builds use ``"tiny"``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import pybullet as p
+
+from generators.camera import pybullet_matrices
+from generators.scene import (
+    build_object,
+    build_static,
+    load_hand,
+    set_hand_pose,
+    set_object_pose,
+    set_visible,
+    visual_colours,
+)
+from schemas.errors import DyanaError, SpecError
+from schemas.frames import EpisodeFrames
+from schemas.objects import object_category
+from schemas.scene import DEFAULT_RESOLUTION, HANDS
+
+#: Light settings passed to every ``getCameraImage`` call (no defaults relied on).
+LIGHT_DIRECTION = (0.3, 1.0, -0.5)
+LIGHT_COLOR = (1.0, 1.0, 1.0)
+LIGHT_DISTANCE = 10.0
+LIGHT_AMBIENT = 0.55
+LIGHT_DIFFUSE = 0.45
+LIGHT_SPECULAR = 0.0
+
+#: How many (category, size) object bodies a renderer keeps loaded.
+OBJECT_CACHE_SIZE = 16
+#: Depths within this many float32 ulps count as a tie the plate cannot settle.
+TIE_ULPS = 4
+BACKENDS = ("tiny", "egl")
+
+
+class RendererUnavailable(DyanaError):
+    """The requested rendering backend cannot run on this machine."""
+
+
+@dataclass
+class _Body:
+    """A loaded moving body, its original colours and (hands) its joint indices."""
+
+    body: int
+    colours: tuple
+    joints: Optional[np.ndarray] = None
+    visible: bool = True
+
+    def show(self, client: int, visible: bool) -> None:
+        if visible != self.visible:
+            set_visible(client, self.body, self.colours, visible)
+            self.visible = visible
+
+
+class Renderer:
+    """Owns a pybullet DIRECT client holding the scene, both hands and a small cache of
+    object bodies; renders (H, W, 3) uint8 RGB frames. Use as a context manager or
+    call :meth:`close`."""
+
+    def __init__(self, resolution: int = DEFAULT_RESOLUTION, width: Optional[int] = None, backend: str = "tiny"):
+        if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 8:
+            raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
+        self.height = resolution
+        self.width = resolution if width is None else int(width)
+        if self.width < 8:
+            raise SpecError(f"width must be an integer >= 8, got {width!r}")
+        if backend not in BACKENDS:
+            raise SpecError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
+        self.backend = backend
+        self.fallbacks = 0
+        self._client = p.connect(p.DIRECT)
+        try:
+            if backend == "egl":
+                self._load_egl()
+            self._setup()
+        except BaseException:
+            p.disconnect(self._client)
+            raise
+
+    def _load_egl(self) -> None:
+        spec = importlib.util.find_spec("eglRenderer")
+        if spec is None or spec.origin is None:
+            raise RendererUnavailable("pybullet's eglRenderer plugin is not installed")
+        if p.loadPlugin(spec.origin, "_eglRendererPlugin", physicsClientId=self._client) < 0:
+            raise RendererUnavailable(f"pybullet's EGL plugin {spec.origin} did not load (no EGL display?)")
+
+    def _setup(self) -> None:
+        c = self._client
+        self._view, self._proj = pybullet_matrices(self.width, self.height)
+        self._static = [(body, visual_colours(c, body)) for body in build_static(c)]
+        self._hands = {}
+        for side in HANDS:
+            body, indices = load_hand(c, side)
+            self._hands[side] = _Body(body, visual_colours(c, body), indices)
+            self._hands[side].show(c, False)
+        self._objects: OrderedDict[tuple[str, float], _Body] = OrderedDict()
+        self._object: Optional[_Body] = None
+        self._hand: Optional[_Body] = None
+        self._plate_rgb, self._plate_depth = self._draw()
+        self._plate_mirrored = np.ascontiguousarray(self._plate_rgb[:, ::-1])
+        self._tie = TIE_ULPS * np.spacing(self._plate_depth)
+        self._show_static(False)
+        _, empty = self._draw()
+        self._empty_depth = float(empty.min())
+
+    def _show_static(self, visible: bool) -> None:
+        for body, colours in self._static:
+            set_visible(self._client, body, colours, visible)
+
+    # lifecycle ---------------------------------------------------------------
+    def close(self) -> None:
+        if self._client is not None:
+            p.disconnect(self._client)
+            self._client = None
+
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # scene -------------------------------------------------------------------
+    def set_scene(self, object_name: Optional[str], object_size: Optional[float], hand: Optional[str]) -> None:
+        """Choose the object (category and size; None for none) and the hand (side; None
+        for none) that the following frames show."""
+        new_object = None
+        if object_name is not None:
+            object_category(object_name)
+            if object_size is None or not np.isfinite(object_size) or object_size <= 0:
+                raise SpecError(f"object_size must be a finite number > 0, got {object_size!r}")
+            new_object = self._object_body(object_name, float(object_size))
+        if hand is not None and hand not in self._hands:
+            raise SpecError(f"hand must be one of {list(HANDS)} or None, got {hand!r}")
+        new_hand = self._hands[hand] if hand is not None else None
+        for old, new in ((self._object, new_object), (self._hand, new_hand)):
+            if old is not new:
+                if old is not None:
+                    old.show(self._client, False)
+                if new is not None:
+                    new.show(self._client, True)
+        self._object, self._hand = new_object, new_hand
+
+    def _object_body(self, name: str, size: float) -> _Body:
+        key = (name, size)
+        found = self._objects.get(key)
+        if found is not None:
+            self._objects.move_to_end(key)
+            return found
+        if len(self._objects) >= OBJECT_CACHE_SIZE:
+            _, old = self._objects.popitem(last=False)
+            if old is self._object:
+                self._object = None
+            p.removeBody(old.body, physicsClientId=self._client)
+        body = build_object(self._client, name, size)
+        found = _Body(body, visual_colours(self._client, body))
+        found.show(self._client, False)
+        self._objects[key] = found
+        return found
+
+    def _pose(self, object_pose, palm_pose, joint_angles) -> None:
+        if self._object is not None:
+            pose = np.asarray(object_pose, dtype=np.float64)
+            if pose.shape != (7,) or not np.all(np.isfinite(pose)):
+                raise SpecError(f"object_pose must be 7 finite numbers, got {object_pose!r}")
+            set_object_pose(self._client, self._object.body, pose)
+        if self._hand is not None:
+            palm = np.asarray(palm_pose, dtype=np.float64)
+            joints = np.asarray(joint_angles, dtype=np.float64)
+            if palm.shape != (6,) or joints.shape != (15,) or not (np.all(np.isfinite(palm)) and np.all(np.isfinite(joints))):
+                raise SpecError(f"palm_pose (6,) and joint_angles (15,) must be finite, got {palm.shape}, {joints.shape}")
+            set_hand_pose(self._client, self._hand.body, self._hand.joints, palm, joints)
+
+    # drawing -----------------------------------------------------------------
+    def _draw(self) -> tuple[np.ndarray, np.ndarray]:
+        """One TinyRenderer pass over whatever is in view: (H, W, 3) RGB and (H, W) depth,
+        unmirrored."""
+        _, _, rgba, depth, _ = p.getCameraImage(
+            self.width,
+            self.height,
+            viewMatrix=self._view,
+            projectionMatrix=self._proj,
+            lightDirection=LIGHT_DIRECTION,
+            lightColor=LIGHT_COLOR,
+            lightDistance=LIGHT_DISTANCE,
+            shadow=0,
+            lightAmbientCoeff=LIGHT_AMBIENT,
+            lightDiffuseCoeff=LIGHT_DIFFUSE,
+            lightSpecularCoeff=LIGHT_SPECULAR,
+            renderer=p.ER_TINY_RENDERER if self.backend == "tiny" else p.ER_BULLET_HARDWARE_OPENGL,
+            flags=p.ER_NO_SEGMENTATION_MASK,
+            physicsClientId=self._client,
+        )
+        rgba = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)
+        depth = np.asarray(depth, dtype=np.float32).reshape(self.height, self.width)
+        return rgba[:, :, :3], depth
+
+    def _full(self) -> np.ndarray:
+        self._show_static(True)
+        try:
+            rgb, _ = self._draw()
+        finally:
+            self._show_static(False)
+        return np.ascontiguousarray(rgb[:, ::-1])
+
+    def render_full(self, object_pose=None, palm_pose=None, joint_angles=None) -> np.ndarray:
+        """The naive frame: the whole scene drawn by TinyRenderer. (H, W, 3) uint8 RGB."""
+        self._pose(object_pose, palm_pose, joint_angles)
+        return self._full()
+
+    def render(self, object_pose=None, palm_pose=None, joint_angles=None) -> np.ndarray:
+        """The frame for these states, composited over the static plate; equal to
+        :meth:`render_full` pixel for pixel. (H, W, 3) uint8 RGB."""
+        self._pose(object_pose, palm_pose, joint_angles)
+        if self.backend != "tiny":
+            return self._full()
+        if self._object is None and self._hand is None:
+            return self._plate_mirrored.copy()
+        rgb, depth = self._draw()
+        moving = depth < self._empty_depth
+        rows = np.flatnonzero(moving.any(axis=1))
+        out = self._plate_mirrored.copy()
+        if rows.size == 0:
+            return out
+        cols = np.flatnonzero(moving.any(axis=0))
+        win = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        near, plate, inside = depth[win], self._plate_depth[win], moving[win]
+        if np.any(inside & (np.abs(near - plate) <= self._tie[win])):
+            self.fallbacks += 1
+            return self._full()
+        front = inside & (near <= plate)
+        np.copyto(out[:, ::-1][win], rgb[win], where=front[:, :, None])
+        return out
+
+    def render_episode(
+        self,
+        frames: EpisodeFrames,
+        object_name: str,
+        object_size: float,
+        hand: str,
+        full: bool = False,
+    ) -> list[np.ndarray]:
+        """All frames of one episode (``full`` draws each with :meth:`render_full`)."""
+        self.set_scene(object_name, object_size, hand)
+        draw = self.render_full if full else self.render
+        return [
+            draw(frames.object_pose[i], frames.palm_pose[i], frames.joint_angles[i]) for i in range(frames.num_frames)
+        ]

@@ -1,0 +1,138 @@
+"""The ``catalog`` command: the slice registry and the recipe seen from the shell.
+
+``catalog list`` lists the slices with their episode and frame counts;
+``catalog stats SLICE [--json]`` enumerates a slice's recipe (Figure 4's numbers for
+``dyana-12m``); ``catalog specs SLICE [--episodes N]`` prints its specs as JSONL, to
+inspect, edit and build with ``pipeline build --specs``.
+
+It lives in ``pipeline`` because it needs the recipe (``generators``), which the
+``catalog`` package may not import. Each subcommand is one ``_add_*`` function that
+registers its parser and handler; errors print one line and exit with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import Callable
+
+from schemas.errors import DyanaError
+from schemas.slices import get_slice
+from schemas.versions import FPS
+
+EXIT_ERROR = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line, like every other Dyana error."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _print_json(data) -> None:
+    print(json.dumps(data, sort_keys=False))
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from generators.recipe import slice_overview
+
+    rows = slice_overview()
+    if args.json:
+        _print_json(rows)
+        return 0
+    print(f"{'slice':<16} {'motion':<9} {'setting':<8} {'episodes':>9} {'frames':>11} {'seed':>5}")
+    for row in rows:
+        definition = get_slice(row["slice"])
+        motion = row["motion_type"] or ("all" if definition.union else "mixed")
+        setting = row["intercept_setting"] or ("all" if definition.union else "mixed")
+        seed = "parts" if definition.union else str(row["seed"])
+        print(f"{row['slice']:<16} {motion:<9} {setting:<8} {row['episodes']:>9,} {row['frames']:>11,} {seed:>5}")
+    return 0
+
+
+def _add_list(sub) -> None:
+    p = sub.add_parser("list", help="list the slices with their episode and frame counts")
+    p.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
+    p.set_defaults(func=cmd_list)
+
+
+def cmd_stats(args: argparse.Namespace) -> int:
+    from generators.recipe import slice_summary
+
+    stats = slice_summary(args.slice, args.episodes)
+    if args.json:
+        _print_json(stats)
+        return 0
+    hours = stats["total_frames"] / FPS / 3600.0
+    print(
+        f"slice {stats['slice']}: {stats['total_episodes']:,} episodes, "
+        f"{stats['total_frames']:,} frames ({hours:.1f} h at {FPS} FPS)"
+    )
+    print(f"objects: {stats['objects']['categories']} categories, {stats['objects']['rolling']} rolling")
+    formats = ", ".join(f"{name} {count:,}" for name, count in stats["rollout_formats"].items())
+    print(f"rollout formats: {formats}")
+    print(f"{'motion':<10} {'episodes':>9} {'parameter sets':>15} {'mean frames':>12}")
+    for name, row in stats["motion_types"].items():
+        mean = "-" if row["mean_frames"] is None else f"{row['mean_frames']:.2f}"
+        print(f"{name:<10} {row['episodes']:>9,} {row['parameter_sets']:>15,} {mean:>12}")
+    return 0
+
+
+def _add_stats(sub) -> None:
+    p = sub.add_parser("stats", help="enumerate a slice's recipe and print its statistics")
+    p.add_argument("slice", metavar="SLICE", help="slice name (see `catalog list`)")
+    p.add_argument("--episodes", type=int, default=None, metavar="N", help="only the first N episodes")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_stats)
+
+
+def cmd_specs(args: argparse.Namespace) -> int:
+    from generators.recipe import slice_specs
+
+    specs = slice_specs(args.slice, args.episodes)
+    write = sys.stdout.write
+    for spec in specs:
+        write(spec.to_json() + "\n")
+    sys.stdout.flush()
+    return 0
+
+
+def _add_specs(sub) -> None:
+    p = sub.add_parser("specs", help="print a slice's episode specs as JSONL (edit, then `pipeline build --specs`)")
+    p.add_argument("slice", metavar="SLICE", help="slice name (see `catalog list`)")
+    p.add_argument("--episodes", type=int, default=None, metavar="N", help="only the first N episodes")
+    p.set_defaults(func=cmd_specs)
+
+
+#: Subcommand registrars, in help order; add one function per new subcommand.
+SUBCOMMANDS: list[Callable] = [_add_list, _add_stats, _add_specs]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="catalog", description="Dyana slices: list, statistics and episode specs.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for add in SUBCOMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except DyanaError as exc:
+        message = " ".join(str(exc).split())
+        print(f"catalog: error: {message}", file=sys.stderr)
+        return EXIT_ERROR
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,96 @@
+"""The episode stage: ``EpisodeSpec`` -> per-frame states and actions, no rendering.
+
+``episode(spec)`` samples the object's motion at the frame times ``k / FPS``, solves
+the interception (:func:`generators.interception.plan_episode`), runs the hand's
+forward kinematics and measures the events (palm XZ distance to the object's centre,
+fingertip distance to its surface). The build records its output; the closed loop
+uses :func:`assemble_frames` to turn the states its policy produced into the same
+arrays.
+
+This module is callable: ``pipeline.episode(spec)`` and
+``pipeline.episode.episode(spec)`` are the same function (a package attribute and its
+submodule cannot otherwise share the name ``episode``).
+"""
+
+from __future__ import annotations
+
+import sys
+import types
+
+import numpy as np
+
+from generators import motion
+from generators.contact import fingertip_distance, palm_xz_distance
+from generators.hand import forward_kinematics
+from generators.interception import HandPlan, plan_episode
+from schemas.frames import EpisodeFrames
+from schemas.objects import object_category
+from schemas.spec import EpisodeSpec
+from schemas.versions import FPS
+
+
+def frame_times(num_frames: int) -> np.ndarray:
+    """Timestamps ``k / FPS`` of frames ``0 .. num_frames - 1``, computed, never summed."""
+    return np.arange(num_frames, dtype=np.float64) / FPS
+
+
+def object_trajectory(spec: EpisodeSpec) -> tuple[np.ndarray, np.ndarray, motion.MotionSample]:
+    """The object's poses (n, 7), world velocities (n, 3) and XZ motion sample at the frame times."""
+    t = frame_times(spec.num_frames)
+    poses, velocity = motion.object_pose(spec.motion, object_category(spec.object), spec.object_size, t)
+    return poses, velocity, motion.evaluate(spec.motion, t)
+
+
+def assemble_frames(
+    spec: EpisodeSpec,
+    phase: np.ndarray,
+    object_pose: np.ndarray,
+    object_velocity: np.ndarray,
+    palm_pose: np.ndarray,
+    joint_angles: np.ndarray,
+    action: np.ndarray,
+    grasp_angles: np.ndarray,
+) -> EpisodeFrames:
+    """Complete per-frame states with FK (joint poses, keypoints) and the two distances."""
+    joint_poses, keypoints = forward_kinematics(palm_pose, joint_angles, spec.hand)
+    n = len(phase)
+    tips = keypoints.reshape(n, 6, 6)[:, :5, :3]
+    f32 = np.float32
+    return EpisodeFrames(
+        phase=np.asarray(phase, dtype=np.int8),
+        object_pose=np.asarray(object_pose, dtype=f32),
+        object_velocity=np.asarray(object_velocity, dtype=f32),
+        palm_pose=np.asarray(palm_pose, dtype=f32),
+        joint_angles=np.asarray(joint_angles, dtype=f32),
+        joint_poses=joint_poses.astype(f32),
+        keypoints=keypoints.astype(f32),
+        action=np.asarray(action, dtype=f32),
+        fingertip_distance=fingertip_distance(tips, spec.object, spec.object_size, object_pose).astype(f32),
+        palm_distance=palm_xz_distance(palm_pose[:, :3], object_pose[:, :3]).astype(f32),
+        grasp_angles=np.asarray(grasp_angles, dtype=f32),
+    )
+
+
+def plan(spec: EpisodeSpec) -> tuple[HandPlan, np.ndarray, np.ndarray]:
+    """The ground-truth hand plan of ``spec`` with the object's poses and velocities."""
+    poses, velocity, sample = object_trajectory(spec)
+    return plan_episode(spec, sample.position, sample.velocity, sample.acceleration), poses, velocity
+
+
+def episode(spec: EpisodeSpec) -> EpisodeFrames:
+    """Ground-truth states and actions of every frame of ``spec`` (float32 arrays).
+
+    Raises :class:`schemas.errors.InfeasibleError` when the interception cannot be planned.
+    """
+    hand, poses, velocity = plan(spec)
+    return assemble_frames(
+        spec, hand.phase, poses, velocity, hand.palm_pose, hand.joint_angles, hand.action, hand.grasp_angles
+    )
+
+
+class _CallableModule(types.ModuleType):
+    def __call__(self, spec: EpisodeSpec) -> EpisodeFrames:
+        return episode(spec)
+
+
+sys.modules[__name__].__class__ = _CallableModule

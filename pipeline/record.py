@@ -1,0 +1,57 @@
+"""The stage chain that turns specs into a written shard: episode stage, render, encode, write.
+
+A worker process keeps one :class:`~generators.render.Renderer` per resolution for its
+whole life (loading the scene and both hands costs far more than a frame).
+"""
+
+from __future__ import annotations
+
+import atexit
+from collections.abc import Sequence
+from pathlib import Path
+
+from catalog.records import ShardRecord
+from catalog.shard import ShardWriter
+from generators.encode import encode_jpeg
+from generators.render import Renderer
+from schemas.frames import EpisodeFrames
+from schemas.spec import EpisodeSpec
+
+_RENDERERS: dict[int, Renderer] = {}
+
+
+def renderer_for(resolution: int) -> Renderer:
+    """This process's renderer at ``resolution``, created on first use."""
+    renderer = _RENDERERS.get(resolution)
+    if renderer is None:
+        renderer = Renderer(resolution)
+        _RENDERERS[resolution] = renderer
+    return renderer
+
+
+@atexit.register
+def _close_renderers() -> None:
+    for renderer in _RENDERERS.values():
+        renderer.close()
+    _RENDERERS.clear()
+
+
+def encoded_frames(spec: EpisodeSpec, frames: EpisodeFrames, resolution: int, jpeg_quality: int) -> list[bytes]:
+    """Render every frame of an episode and encode it as JPEG."""
+    renderer = renderer_for(resolution)
+    images = renderer.render_episode(frames, spec.object, spec.object_size, spec.hand)
+    return [encode_jpeg(image, jpeg_quality) for image in images]
+
+
+def write_ground_truth_shard(
+    specs: Sequence[EpisodeSpec], first: int, end: int, settings, slice_dir: Path
+) -> ShardRecord:
+    """Episodes ``[first, end)`` of a slice, ground truth, as one atomic shard."""
+    from pipeline.episode import episode
+
+    with ShardWriter(slice_dir, first, end, settings.as_dict()) as writer:
+        for index, spec in zip(range(first, end), specs):
+            frames = episode(spec)
+            images = encoded_frames(spec, frames, settings.resolution, settings.jpeg_quality)
+            writer.add_episode(spec, frames, images)
+    return writer.record

@@ -1,0 +1,99 @@
+"""The slice registry (DESIGN.md, "Commands"): which episodes each slice name denotes.
+
+Nine atomic slices ``{linear,circular,harmonic}-{fast,medium,slow}`` split each motion
+type's Figure-4(a) episode count over its three interception settings as evenly as
+possible (earlier settings take the remainder). ``test-1k`` is 1,000 held-out episodes
+cycling over the nine (type, setting) cells, with its own seed. ``dyana-12m`` is the
+union of the nine: its episodes are theirs, in registry order, each keeping its own
+slice name, index and seed (its own ``seed`` field is therefore 0 and unused).
+Episode ``i`` of a slice draws from ``SeedSequence([seed, i])``, so seeds are distinct.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from schemas.errors import SliceError, SpecError
+from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
+
+#: Figure 4(a): episodes of each motion type in Dyana-12M.
+FIGURE4_EPISODES = {"linear": 44_546, "circular": 89_709, "harmonic": 50_463}
+SETTINGS = tuple(INTERCEPT_SECONDS)
+TEST_SEED = 1_000
+
+
+@dataclass(frozen=True)
+class SliceDef:
+    """One named slice. Atomic slices have a motion type and a setting; ``test-1k``
+    has neither (its episodes cycle over the nine cells); a union lists its ``parts``."""
+
+    name: str
+    motion_type: str | None
+    intercept_setting: str | None
+    episodes: int
+    seed: int
+    parts: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise SpecError(f"slice.name must be a non-empty string, got {self.name!r}")
+        if self.motion_type is not None and self.motion_type not in MOTION_TYPES:
+            raise SpecError(f"slice.motion_type must be one of {list(MOTION_TYPES)} or None, got {self.motion_type!r}")
+        if self.intercept_setting is not None and self.intercept_setting not in SETTINGS:
+            raise SpecError(
+                f"slice.intercept_setting must be one of {list(SETTINGS)} or None, got {self.intercept_setting!r}"
+            )
+        if (self.motion_type is None) != (self.intercept_setting is None):
+            raise SpecError(f"slice {self.name!r}: motion_type and intercept_setting must both be set or both be None")
+        if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
+            raise SpecError(f"slice.episodes must be an integer >= 1, got {self.episodes!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise SpecError(f"slice.seed must be an integer >= 0, got {self.seed!r}")
+        object.__setattr__(self, "parts", tuple(self.parts))
+        if self.parts and self.motion_type is not None:
+            raise SpecError(f"slice {self.name!r}: a union of parts has no single motion type")
+
+    @property
+    def atomic(self) -> bool:
+        return self.motion_type is not None
+
+    @property
+    def union(self) -> bool:
+        return bool(self.parts)
+
+
+def _split(total: int, ways: int) -> list[int]:
+    base, extra = divmod(total, ways)
+    return [base + (1 if k < extra else 0) for k in range(ways)]
+
+
+def _registry() -> dict[str, SliceDef]:
+    slices: dict[str, SliceDef] = {}
+    seed = 0
+    for motion_type in MOTION_TYPES:
+        for setting, count in zip(SETTINGS, _split(FIGURE4_EPISODES[motion_type], len(SETTINGS))):
+            seed += 1
+            name = f"{motion_type}-{setting}"
+            slices[name] = SliceDef(name, motion_type, setting, count, seed)
+    atomic = tuple(slices)
+    slices["test-1k"] = SliceDef("test-1k", None, None, 1_000, TEST_SEED)
+    total = sum(slices[name].episodes for name in atomic)
+    slices["dyana-12m"] = SliceDef("dyana-12m", None, None, total, 0, parts=atomic)
+    return slices
+
+
+#: Every slice, in listing order: the nine atomic slices, ``test-1k``, ``dyana-12m``.
+SLICES: dict[str, SliceDef] = _registry()
+#: The nine atomic slices in order (types outer, settings inner).
+ATOMIC_SLICES: tuple[str, ...] = tuple(name for name, d in SLICES.items() if d.atomic)
+
+
+def slice_names() -> tuple[str, ...]:
+    return tuple(SLICES)
+
+
+def get_slice(name: str) -> SliceDef:
+    """Look a slice up by name; an unknown name raises :class:`SliceError` listing the known ones."""
+    if isinstance(name, str) and name in SLICES:
+        return SLICES[name]
+    raise SliceError(f"unknown slice {name!r} (expected one of: {', '.join(SLICES)})")

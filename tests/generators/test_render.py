@@ -1,0 +1,291 @@
+"""The renderer: composited frames equal full renders pixel for pixel, frames show what
+the states say, determinism, JPEG encoding."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from generators.camera import project
+from generators.encode import JPEG_QUALITY, decode_jpeg, encode_jpeg
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
+from generators.hand_urdf import PALM_SKIN
+from generators.render import Renderer, RendererUnavailable
+from generators.scene import MARKING_RGBA, TABLE_RGBA, TABLE_TOP_GAP
+from schemas.errors import ShardError, SpecError
+from schemas.frames import EpisodeFrames
+from schemas.objects import OBJECTS
+from schemas.scene import WORKSPACE_X, WORKSPACE_Z
+
+SMALL = 96
+FULL = 224
+IDENTITY = [0.0, 0.0, 0.0, 1.0]
+
+
+def matches(pixel, rgba, tol: float = 8.0) -> bool:
+    """Whether a rendered pixel is ``rgba`` under some lighting intensity in [0.5, 1.05]."""
+    base = np.asarray(rgba[:3], dtype=np.float64) * 255.0
+    px = np.asarray(pixel, dtype=np.float64)
+    intensity = px @ base / (base @ base)
+    return bool(0.5 <= intensity <= 1.05 and np.abs(px - intensity * base).max() <= tol)
+
+
+def fraction(window: np.ndarray, rgba) -> float:
+    pixels = window.reshape(-1, 3)
+    return float(np.mean([matches(px, rgba) for px in pixels]))
+
+
+def resting(name: str, x: float, z: float, size: float | None = None, quat=IDENTITY) -> tuple[float, np.ndarray]:
+    cat = OBJECTS[name]
+    size = cat.nominal_size if size is None else size
+    return size, np.array([x, cat.half_height(size), z, *quat])
+
+
+def pixel_of(point, resolution: int) -> tuple[int, int]:
+    (col, row), _ = project(np.asarray(point, dtype=np.float64), resolution, resolution)
+    return int(row), int(col)
+
+
+def random_quat(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    return q / np.linalg.norm(q)
+
+
+@pytest.fixture(scope="module")
+def small():
+    with Renderer(SMALL) as renderer:
+        yield renderer
+
+
+@pytest.fixture(scope="module")
+def full():
+    with Renderer(FULL) as renderer:
+        yield renderer
+
+
+def random_states(rng: np.random.Generator, n: int):
+    """Objects anywhere in the workspace (corners included), hands near objects and
+    down to the table (fingers may dip into it), random orientations and joints."""
+    names = sorted(OBJECTS)
+    corners = [(x, z) for x in WORKSPACE_X for z in WORKSPACE_Z]
+    for i in range(n):
+        name = names[i % len(names)]
+        cat = OBJECTS[name]
+        size = cat.nominal_size * rng.uniform(0.7, 1.3)
+        x, z = corners[i % 4] if i % 3 == 0 else (rng.uniform(*WORKSPACE_X), rng.uniform(*WORKSPACE_Z))
+        quat = random_quat(rng) if i % 2 else IDENTITY
+        pose = np.array([x, cat.half_height(size), z, *quat])
+        palm = np.array(
+            [
+                x + rng.normal(0, 0.4),
+                rng.uniform(0.1, 3.0),
+                z + rng.normal(0, 0.4),
+                rng.normal(0, 0.3),
+                rng.normal(0, 0.3),
+                rng.normal(0, 0.6),
+            ]
+        )
+        joints = rng.uniform(JOINT_LOWER, JOINT_UPPER)
+        yield name, size, ("right", "left")[i % 2], pose, palm, joints
+
+
+def test_composited_equals_full_render_pixel_for_pixel(small):
+    rng = np.random.default_rng(7)
+    for name, size, side, pose, palm, joints in random_states(rng, 150):
+        small.set_scene(name, size, side)
+        fast = small.render(pose, palm, joints)
+        reference = small.render_full(pose, palm, joints)
+        assert fast.shape == (SMALL, SMALL, 3) and fast.dtype == np.uint8
+        diff = np.argwhere((fast != reference).any(axis=2))
+        assert diff.size == 0, f"{name} {side} pose={pose} palm={palm}: {len(diff)} pixels differ, e.g. {diff[:3]}"
+
+
+def test_composited_equals_full_render_at_224(full):
+    rng = np.random.default_rng(11)
+    for name, size, side, pose, palm, joints in random_states(rng, 20):
+        full.set_scene(name, size, side)
+        assert np.array_equal(full.render(pose, palm, joints), full.render_full(pose, palm, joints)), name
+
+
+def test_the_hand_alone_and_nothing_equal_full_renders(small):
+    small.set_scene(None, None, "left")
+    palm = np.array([1.0, 0.25, 3.0, 0.2, -0.1, 0.4])
+    assert np.array_equal(small.render(None, palm, JOINT_UPPER), small.render_full(None, palm, JOINT_UPPER))
+    small.set_scene(None, None, None)
+    assert np.array_equal(small.render(), small.render_full())
+
+
+def test_depth_ties_fall_back_to_a_full_render(small):
+    """A box whose top face lies in the table's top plane ties in depth with the plate
+    everywhere on it: the renderer must notice and still return the full render."""
+    cat = OBJECTS["toy_cube"]
+    size = cat.nominal_size
+    hy = cat.scaled_dims(size)[1]
+    pose = np.array([0.0, -TABLE_TOP_GAP - hy, 4.0, *IDENTITY])
+    small.set_scene("toy_cube", size, None)
+    before = small.fallbacks
+    fast = small.render(pose)
+    assert small.fallbacks == before + 1
+    assert np.array_equal(fast, small.render_full(pose))
+
+
+def test_object_centre_shows_the_object_colour(full):
+    for name in ("tennis_ball", "soda_can", "mug", "cracker_box"):
+        cat = OBJECTS[name]
+        for x, z in ((WORKSPACE_X[0], WORKSPACE_Z[0]), (0.0, 4.5), (WORKSPACE_X[1], WORKSPACE_Z[1])):
+            size, pose = resting(name, x, z)
+            full.set_scene(name, size, None)
+            img = full.render(pose)
+            row, col = pixel_of(pose[:3], FULL)
+            assert matches(img[row, col], cat.rgba) or matches(img[row, col], MARKING_RGBA[name]), (name, x, z)
+            assert fraction(img[row - 2 : row + 3, col - 2 : col + 3], cat.rgba) >= 0.4, (name, x, z)
+            assert not matches(img[row, col], TABLE_RGBA)
+
+
+def test_palm_centre_shows_the_palm(full):
+    full.set_scene("orange", OBJECTS["orange"].nominal_size, "right")
+    for palm in (REST_PALM, np.array([-2.0, 1.5, 3.0, 0.0, 0.0, 0.3]), np.array([2.5, 1.0, 6.5, 0.1, 0.0, -0.4])):
+        _, pose = resting("orange", 0.0, 7.0)
+        img = full.render(pose, palm, REST_JOINTS)
+        row, col = pixel_of(palm[:3], FULL)
+        assert matches(img[row, col], PALM_SKIN), (palm, img[row, col])
+        assert not matches(img[row, col], TABLE_RGBA)
+
+
+def test_world_left_is_image_left(full):
+    name = "water_bottle"
+    cat = OBJECTS[name]
+    for x, left in ((WORKSPACE_X[0], True), (WORKSPACE_X[1], False)):
+        size, pose = resting(name, x, 4.0)
+        full.set_scene(name, size, None)
+        img = full.render(pose)
+        mask = np.array([[matches(px, cat.rgba) for px in row] for row in img[:, :, :]])
+        cols = np.nonzero(mask)[1]
+        assert cols.size > 20
+        assert (cols.mean() < FULL / 2) == left
+
+
+def test_every_category_renders_its_colour(full):
+    full.set_scene(None, None, None)
+    plate = full.render()
+    for name, cat in sorted(OBJECTS.items()):
+        size, pose = resting(name, 0.5, 3.5)
+        full.set_scene(name, size, "left")
+        img = full.render(pose, np.array([-2.5, 2.0, 1.0, 0, 0, 0]), REST_JOINTS)
+        row, col = pixel_of(pose[:3], FULL)
+        window = img[row - 6 : row + 7, col - 6 : col + 7]
+        assert fraction(window, cat.rgba) >= 0.25, name
+        changed = (img != plate).any(axis=2)
+        assert changed[row - 6 : row + 7, col - 6 : col + 7].mean() >= 0.25, name
+
+
+def test_same_states_give_the_same_bytes_across_renderers(small):
+    rng = np.random.default_rng(3)
+    states = list(random_states(rng, 6))
+    first = []
+    for name, size, side, pose, palm, joints in states:
+        small.set_scene(name, size, side)
+        first.append(small.render(pose, palm, joints).tobytes())
+    again = []
+    with Renderer(SMALL) as other:
+        for name, size, side, pose, palm, joints in reversed(states):
+            other.set_scene(name, size, side)
+            again.append(other.render(pose, palm, joints).tobytes())
+            assert other.render(pose, palm, joints).tobytes() == again[-1]
+    assert first == again[::-1]
+
+
+def test_render_episode_draws_each_frame(small):
+    n = 4
+    size, pose = resting("sugar_box", -1.0, 3.0)
+    poses = np.repeat(pose[None], n, axis=0).astype(np.float32)
+    poses[:, 0] += np.arange(n) * 0.5
+    palms = np.repeat(np.asarray(REST_PALM, dtype=np.float32)[None], n, axis=0)
+    palms[:, 1] -= np.arange(n) * 0.5
+    zeros = lambda w: np.zeros((n, w), dtype=np.float32)  # noqa: E731
+    frames = EpisodeFrames(
+        phase=np.zeros(n, dtype=np.int8),
+        object_pose=poses,
+        object_velocity=zeros(3),
+        palm_pose=palms,
+        joint_angles=zeros(15),
+        joint_poses=zeros(90),
+        keypoints=zeros(36),
+        action=zeros(18),
+        fingertip_distance=np.zeros(n, dtype=np.float32),
+        palm_distance=np.zeros(n, dtype=np.float32),
+        grasp_angles=np.zeros(15, dtype=np.float32),
+    )
+    images = small.render_episode(frames, "sugar_box", size, "right")
+    assert len(images) == n
+    assert all(not np.array_equal(images[0], im) for im in images[1:])
+    for i, img in enumerate(images):
+        assert np.array_equal(img, small.render_full(poses[i], palms[i], np.zeros(15)))
+    assert [np.array_equal(a, b) for a, b in zip(images, small.render_episode(frames, "sugar_box", size, "right", full=True))] == [True] * n
+
+
+def test_bad_arguments_are_rejected(small):
+    with pytest.raises(SpecError, match="unknown object"):
+        small.set_scene("anvil", 1.0, None)
+    with pytest.raises(SpecError, match="hand"):
+        small.set_scene(None, None, "middle")
+    with pytest.raises(SpecError, match="object_size"):
+        small.set_scene("orange", -1.0, None)
+    small.set_scene("orange", 0.8, "right")
+    with pytest.raises(SpecError, match="object_pose"):
+        small.render(np.zeros(6), REST_PALM, REST_JOINTS)
+    with pytest.raises(SpecError, match="palm_pose"):
+        small.render(np.array([0, 0.4, 3, 0, 0, 0, 1.0]), REST_PALM, np.zeros(14))
+    with pytest.raises(SpecError, match="resolution"):
+        Renderer(4)
+
+
+def test_jpeg_round_trip_quality_and_determinism(small):
+    small.set_scene("baseball", 0.74, "right")
+    img = small.render(np.array([0.0, 0.37, 3.0, *IDENTITY]), REST_PALM, REST_JOINTS)
+    default = encode_jpeg(img)
+    assert default == encode_jpeg(img, JPEG_QUALITY) == encode_jpeg(img.copy())
+    assert default[:2] == b"\xff\xd8"
+    errors, sizes = [], []
+    for quality in (30, 60, 95):
+        data = encode_jpeg(img, quality)
+        back = decode_jpeg(data)
+        assert back.shape == img.shape and back.dtype == np.uint8
+        errors.append(np.abs(back.astype(int) - img).mean())
+        sizes.append(len(data))
+    assert sizes[0] < sizes[1] < sizes[2]
+    assert errors[0] > errors[1] > errors[2]
+    assert errors[2] < 2.0  # RGB order survives the round trip
+    with pytest.raises(SpecError, match="quality"):
+        encode_jpeg(img, 0)
+    with pytest.raises(SpecError, match="uint8"):
+        encode_jpeg(img.astype(np.float32))
+    with pytest.raises(ShardError):
+        decode_jpeg(b"not a jpeg at all")
+
+
+def test_egl_renderer_draws_a_comparable_image(full):
+    """Where pybullet's EGL plugin loads, it shows the same bodies in the same places
+    (its shading differs: silhouettes are compared, not colours)."""
+    try:
+        egl = Renderer(FULL, backend="egl")
+    except RendererUnavailable as exc:
+        pytest.skip(f"EGL renderer unavailable: {exc}")
+    with egl:
+        masks = []
+        size, pose = resting("cracker_box", 1.5, 4.0)
+        palm = np.array([-1.0, 1.5, 3.0, 0.0, 0.0, 0.3])
+        for renderer in (full, egl):
+            renderer.set_scene(None, None, None)
+            plate = renderer.render()
+            renderer.set_scene("cracker_box", size, "right")
+            img = renderer.render(pose, palm, REST_JOINTS)
+            masks.append((img != plate).any(axis=2))
+        tiny_mask, egl_mask = masks
+        for point in (pose[:3], palm[:3]):
+            row, col = pixel_of(point, FULL)
+            assert tiny_mask[row, col] and egl_mask[row, col]
+        near = lambda m: cv2.dilate(m.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)  # noqa: E731
+        assert (tiny_mask & near(egl_mask)).sum() >= 0.9 * tiny_mask.sum()
+        assert (egl_mask & near(tiny_mask)).sum() >= 0.9 * egl_mask.sum()  # GL adds a few highlight pixels

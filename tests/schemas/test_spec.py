@@ -1,0 +1,151 @@
+"""EpisodeSpec: JSON round trips, hash, JSONL loading and validation messages."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from schemas.errors import SpecError
+from schemas.motion import ArcToken, HarmonicToken, LineToken, Motion, Track
+from schemas.scene import GRASP_FRAMES
+from schemas.spec import SPEC_FIELDS, EpisodeSpec, read_specs_jsonl
+
+
+def spec_dict(**changes) -> dict:
+    out = {
+        "slice": "linear-fast",
+        "episode_index": 42,
+        "seed": 7,
+        "motion_type": "linear",
+        "motion": {"base": [{"type": "L", "start": [0.0, 3.0], "direction": 0.5, "speed": 1.0, "acceleration": 0.0, "duration": 2.0}]},
+        "object": "tennis_ball",
+        "object_size": 0.6,
+        "hand": "right",
+        "rollout_format": "observe-before-act",
+        "intercept_setting": "fast",
+        "observe_frames": 10,
+        "num_frames": 36,
+        "text": "Pick up the tennis ball rolling in a straight line.",
+    }
+    out.update(changes)
+    return out
+
+
+def test_round_trip_and_canonical_json():
+    spec = EpisodeSpec.from_dict(spec_dict())
+    text = spec.to_json()
+    assert EpisodeSpec.from_json(text) == spec
+    assert EpisodeSpec.from_json(text).to_json() == text
+    assert list(json.loads(text)) == sorted(SPEC_FIELDS)
+    assert " " not in text.replace(spec.text, "")
+    assert len(spec.spec_hash) == 64 and spec.spec_hash == EpisodeSpec.from_json(text).spec_hash
+    assert EpisodeSpec.from_dict(spec_dict(seed=8)).spec_hash != spec.spec_hash
+
+
+def test_round_trip_with_every_token_and_overlays():
+    motion = Motion(
+        Track((LineToken((0.0, 3.0), 0.5, 1.0, 0.0, 1.0), ArcToken((0.0, 0.0), 1.0, 1.0, 0.0, -1, 1.0))),
+        (Track((HarmonicToken((0.0, 0.0), 1.0, 0.2, 2.0, 0.0, 1.0, (0.1, 0.0)),), 0.5),),
+    )
+    spec = EpisodeSpec(**{**spec_dict(), "motion": motion, "motion_type": "custom"})
+    assert EpisodeSpec.from_json(spec.to_json()) == spec
+    assert EpisodeSpec.from_json(spec.to_json()).motion.token_types == "LA"
+
+
+def test_derived_properties():
+    spec = EpisodeSpec.from_dict(spec_dict())
+    assert spec.episode_id == "linear-fast:000042"
+    assert spec.intercept_time_s == 0.5
+    assert spec.approach_frames == 10
+    assert spec.intercept_frame == 20
+    assert spec.rolling is True
+    assert spec.fps == 20
+    direct = EpisodeSpec.from_dict(spec_dict(rollout_format="direct-act", observe_frames=0, intercept_setting="slow", num_frames=40))
+    assert direct.intercept_frame == 30
+    assert EpisodeSpec.from_dict(spec_dict(object="mug", object_size=0.9)).rolling is False
+
+
+def test_integral_floats_are_accepted_as_integers():
+    spec = EpisodeSpec.from_dict(spec_dict(episode_index=3.0))
+    assert spec.episode_index == 3 and isinstance(spec.episode_index, int)
+
+
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("slice", "", r"spec.slice must be a non-empty string, got ''"),
+        ("episode_index", -1, r"spec.episode_index must be >= 0, got -1"),
+        ("episode_index", 2.5, r"spec.episode_index must be an integer, got 2.5"),
+        ("seed", True, r"spec.seed must be an integer, got True"),
+        ("seed", "7", r"spec.seed must be an integer, got '7'"),
+        ("motion_type", "spiral", r"spec.motion_type must be one of .*, got 'spiral'"),
+        ("object", "teapot", r"unknown object 'teapot'"),
+        ("object", ["tennis_ball"], r"spec.object must be an object category name, got \['tennis_ball'\]"),
+        ("object_size", 0.0, r"spec.object_size must be a finite number > 0, got 0.0"),
+        ("object_size", -0.5, r"spec.object_size must be a finite number > 0, got -0.5"),
+        ("object_size", float("inf"), r"spec.object_size must be a finite number > 0, got inf"),
+        ("hand", "both", r"spec.hand must be one of \['right', 'left'\], got 'both'"),
+        ("rollout_format", "replay", r"spec.rollout_format must be one of .*, got 'replay'"),
+        ("intercept_setting", "instant", r"spec.intercept_setting must be one of .*, got 'instant'"),
+        ("observe_frames", -3, r"spec.observe_frames must be >= 0, got -3"),
+        ("observe_frames", 0, r"spec.observe_frames must be >= 1 for observe-before-act, got 0"),
+        ("num_frames", 20, rf"spec.num_frames must be >= {20 + GRASP_FRAMES + 1}, got 20"),
+        ("num_frames", 80, r"spec.motion lasts 2.000 s but 80 frames need 3.950 s"),
+        ("text", None, r"spec.text must be a string, got None"),
+        ("motion", "L", r"motion must be an object with 'base', got 'L'"),
+    ],
+)
+def test_bad_fields_name_the_field_and_the_value(field, value, message):
+    with pytest.raises(SpecError, match=message):
+        EpisodeSpec.from_dict(spec_dict(**{field: value}))
+
+
+def test_direct_act_must_not_observe():
+    with pytest.raises(SpecError, match=r"spec.observe_frames must be 0 for direct-act, got 10"):
+        EpisodeSpec.from_dict(spec_dict(rollout_format="direct-act"))
+
+
+def test_nan_in_json_text_is_rejected():
+    text = json.dumps(spec_dict())
+    with pytest.raises(SpecError, match=r"spec.object_size must be a finite number > 0, got nan"):
+        EpisodeSpec.from_json(text.replace('"object_size": 0.6', '"object_size": NaN'))
+    with pytest.raises(SpecError, match=r"L.direction must be finite, got nan"):
+        EpisodeSpec.from_json(text.replace('"direction": 0.5', '"direction": NaN'))
+    with pytest.raises(SpecError, match=r"spec.seed must be an integer, got inf"):
+        EpisodeSpec.from_json(text.replace('"seed": 7', '"seed": Infinity'))
+
+
+def test_missing_and_unknown_fields_are_named():
+    data = spec_dict()
+    del data["hand"]
+    with pytest.raises(SpecError, match=r"spec is missing field\(s\) \['hand'\]"):
+        EpisodeSpec.from_dict(data)
+    with pytest.raises(SpecError, match=r"spec has unknown field\(s\) \['fps'\]"):
+        EpisodeSpec.from_dict(spec_dict(fps=20))
+    with pytest.raises(SpecError, match=r"L token is missing field\(s\) \['speed'\]"):
+        motion = {"base": [{"type": "L", "start": [0.0, 3.0], "direction": 0.5, "acceleration": 0.0, "duration": 2.0}]}
+        EpisodeSpec.from_dict(spec_dict(motion=motion))
+    with pytest.raises(SpecError, match=r"a spec must be a JSON object, got \[\]"):
+        EpisodeSpec.from_json("[]")
+    with pytest.raises(SpecError, match="spec is not valid JSON"):
+        EpisodeSpec.from_json("{")
+
+
+def test_read_specs_jsonl(tmp_path):
+    path = tmp_path / "specs.jsonl"
+    specs = [EpisodeSpec.from_dict(spec_dict(episode_index=i)) for i in range(3)]
+    path.write_text("\n".join(s.to_json() for s in specs) + "\n\n")
+    assert read_specs_jsonl(str(path)) == specs
+
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text(specs[0].to_json() + "\n" + json.dumps(spec_dict(hand="both")) + "\n")
+    with pytest.raises(SpecError, match=rf"{bad}:2: spec.hand must be one of .*'both'"):
+        read_specs_jsonl(str(bad))
+
+    empty = tmp_path / "empty.jsonl"
+    empty.write_text("\n")
+    with pytest.raises(SpecError, match="holds no spec"):
+        read_specs_jsonl(str(empty))
+    with pytest.raises(SpecError, match="cannot read specs file"):
+        read_specs_jsonl(str(tmp_path / "missing.jsonl"))
