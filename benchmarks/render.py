@@ -99,6 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         json.dumps(
             {
+                "benchmark": "render",
                 "naive_render_fps": round(naive, 2),
                 "composited_fps": round(fast, 2),
                 "ratio": round(fast / naive, 3),

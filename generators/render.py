@@ -91,9 +91,9 @@ class Renderer:
     call :meth:`close`."""
 
     def __init__(self, resolution: int = DEFAULT_RESOLUTION, width: Optional[int] = None, backend: str = "tiny"):
-        if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 8:
+        if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
             raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
-        self.height = resolution
+        self.height = int(resolution)
         self.width = resolution if width is None else int(width)
         if self.width < 8:
             raise SpecError(f"width must be an integer >= 8, got {width!r}")

@@ -17,9 +17,10 @@ Rolling objects carry markings (two crossing seams on spheres, two stripes along
 lying cylinders) so that a viewer sees them turn. Markings stand out of the surface
 by a few hundredths of the object's size; the resting geometry is unchanged.
 
-The table top is drawn :data:`TABLE_TOP_GAP` below Y = 0 (a tenth of a millimetre), so
-an object resting on the table never shares a depth with it: this keeps depth
-comparisons of the renderer's compositing unambiguous.
+The table top is drawn :data:`TABLE_TOP_GAP` below Y = 0 (0.001 unit, a tenth of a
+millimetre, invisible at any resolution), so an object resting on the table never
+ties in depth with it: the renderer's compositing would have to fall back to a full
+render for such ties.
 """
 
 from __future__ import annotations
@@ -51,13 +52,13 @@ TABLE_BORDER_RGBA: RGBA = (0.18, 0.28, 0.27, 1.0)
 FLOOR_RGBA: RGBA = (0.55, 0.50, 0.45, 1.0)
 # The floor is tiled around the table's footprint, in front of the camera: TinyRenderer
 # tests every pixel of a triangle's bounding box and clips triangles that cross the
-# camera plane at twice the cost, so one huge floor box would triple a full render.
+# camera plane at twice the cost, so one huge floor box nearly doubles a full render.
 _FLOOR_HALF_X = 40.0
 _FLOOR_NEAR_Z = (-2.0, 1.0)
 _FLOOR_FAR_Z = (8.0, 45.0)
 _FLOOR_SIDE_X = 7.0
 
-#: Colour of each category's markings (seams, stripes, openings, labels, handles).
+#: Colour of each category's markings (seams, stripes, openings, labels).
 MARKING_RGBA: dict[str, RGBA] = {
     "tennis_ball": (0.97, 0.97, 0.95, 1.0),
     "baseball": (0.80, 0.10, 0.10, 1.0),

@@ -31,11 +31,17 @@ from schemas.scene import TABLE_X, TABLE_Z
 RES = 160
 
 
-def matches(pixel, rgba, tol: float = 8.0) -> bool:
+def colour_mask(pixels, rgba, tol: float = 8.0) -> np.ndarray:
+    """Which pixels (..., 3) are ``rgba`` under some lighting intensity in [0.5, 1.05]."""
     base = np.asarray(rgba[:3], dtype=np.float64) * 255.0
-    px = np.asarray(pixel, dtype=np.float64)
+    px = np.asarray(pixels, dtype=np.float64)
     intensity = px @ base / (base @ base)
-    return bool(0.5 <= intensity <= 1.05 and np.abs(px - intensity * base).max() <= tol)
+    off = np.abs(px - intensity[..., None] * base).max(axis=-1)
+    return (intensity >= 0.5) & (intensity <= 1.05) & (off <= tol)
+
+
+def matches(pixel, rgba, tol: float = 8.0) -> bool:
+    return bool(colour_mask(pixel, rgba, tol))
 
 
 def pixel_of(point) -> tuple[int, int]:
@@ -83,7 +89,7 @@ def test_lying_cylinders_lie_along_x_at_identity(renderer):
     shapes = []
     for quat in ([0.0, 0.0, 0.0, 1.0], turned):
         img = renderer.render([0.0, y, 3.0, *quat])
-        mask = np.array([[matches(px, cat.rgba) for px in row] for row in img])
+        mask = colour_mask(img, cat.rgba)
         shapes.append(bbox(mask))
     (w0, h0), (w1, h1) = shapes
     assert w0 > 1.5 * h0  # across the view
