@@ -214,10 +214,7 @@ def build(
             raise SpecError("give --slice NAME or --specs FILE.jsonl")
         definition = get_slice(slice_name)
         if definition.union:
-            raise SpecError(
-                f"{slice_name} is the union of {', '.join(definition.parts)}: build each of them "
-                "(`pipeline build-all` builds them in turn)"
-            )
+            raise SpecError(f"{slice_name} is the union of {', '.join(definition.parts)}: build each part")
         seed = definition.seed
         total = definition.episodes if episodes is None else episodes
         if not 1 <= total <= definition.episodes:

@@ -107,12 +107,44 @@ def _add_specs(sub) -> None:
     p.set_defaults(func=cmd_specs)
 
 
+def cmd_verify(args: argparse.Namespace) -> int:
+    from pipeline.verify import verify
+
+    def progress(shard) -> None:
+        print(f"rebuilt shard episodes [{shard.first}, {shard.end}): identical", file=sys.stderr, flush=True)
+
+    report = verify(args.dir, sample=args.sample, on_shard=None if args.quiet else progress)
+    print(
+        f"{args.dir}: OK: {report.shards_checked} shards intact, "
+        f"{report.shards_rebuilt} rebuilt byte for byte"
+    )
+    return 0
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {text!r}")
+    return value
+
+
+def _add_verify(sub) -> None:
+    p = sub.add_parser("verify", help="check every file's sha256 and rebuild shards to compare bytes")
+    p.add_argument("dir", metavar="DIR", help="a built slice or rollout folder (holding catalog.json)")
+    p.add_argument("--sample", type=_positive, default=None, metavar="K", help="rebuild only K shards (default: all)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_verify)
+
+
 #: Subcommand registrars, in help order; add one function per new subcommand.
-SUBCOMMANDS: list[Callable] = [_add_list, _add_stats, _add_specs]
+SUBCOMMANDS: list[Callable] = [_add_list, _add_stats, _add_specs, _add_verify]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="catalog", description="Dyana slices: list, statistics and episode specs.")
+    parser = _Parser(prog="catalog", description="Dyana slices: list, statistics, episode specs and verification.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for add in SUBCOMMANDS:

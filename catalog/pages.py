@@ -1,0 +1,209 @@
+"""Where each JPEG lies in a frames file: the byte offset and length of every value
+of the ``image`` column, found by walking its Parquet data pages.
+
+The writer stores ``image`` uncompressed, PLAIN-encoded, as a required column in
+data pages v1 (``catalog.parquet_io.writer_options``). A page body is then just the
+values, each a 4-byte little-endian length followed by the bytes, so once the
+offsets are known a frame is one ``os.pread`` of its own bytes: random access
+without reading a 1024-row row group per item.
+
+Walking checks the layout (page type, encoding, value counts, every page ending
+exactly where the next begins) and, with ``check_crc``, each page's CRC32 against
+the checksum the writer stored in its header. Anything else raises ShardError
+naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import zlib
+
+import numpy as np
+import pyarrow.parquet as pq
+
+from schemas.errors import ShardError
+
+_DATA_PAGE = 0
+_PLAIN = 0
+_HEADER_READ = 256
+_MAX_HEADER = 1 << 16
+_LENGTH = struct.Struct("<I")
+
+
+class _ThriftError(ValueError):
+    pass
+
+
+def _varint(buf: bytes, pos: int) -> tuple[int, int]:
+    shift = result = 0
+    while True:
+        byte = buf[pos]
+        pos += 1
+        result |= (byte & 0x7F) << shift
+        if not byte & 0x80:
+            return result, pos
+        shift += 7
+        if shift > 63:
+            raise _ThriftError("varint too long")
+
+
+def _zigzag(n: int) -> int:
+    return (n >> 1) ^ -(n & 1)
+
+
+def _value(buf: bytes, pos: int, kind: int):
+    """One Thrift compact-protocol value of type ``kind`` at ``pos``; (value, next pos)."""
+    if kind in (1, 2):
+        return kind == 1, pos
+    if kind == 3:
+        return buf[pos], pos + 1
+    if kind in (4, 5, 6):
+        raw, pos = _varint(buf, pos)
+        return _zigzag(raw), pos
+    if kind == 7:
+        return buf[pos : pos + 8], pos + 8
+    if kind == 8:
+        size, pos = _varint(buf, pos)
+        if pos + size > len(buf):
+            raise IndexError("binary past the buffer")
+        return buf[pos : pos + size], pos + size
+    if kind in (9, 10):
+        head = buf[pos]
+        pos += 1
+        size, element = head >> 4, head & 0x0F
+        if size == 15:
+            size, pos = _varint(buf, pos)
+        items = []
+        for _ in range(size):
+            if element in (1, 2):
+                items.append(buf[pos] == 1)
+                pos += 1
+            else:
+                item, pos = _value(buf, pos, element)
+                items.append(item)
+        return items, pos
+    if kind == 11:
+        size, pos = _varint(buf, pos)
+        if size == 0:
+            return {}, pos
+        types = buf[pos]
+        pos += 1
+        mapping = {}
+        for _ in range(size):
+            key, pos = _value(buf, pos, types >> 4)
+            mapping[key], pos = _value(buf, pos, types & 0x0F)
+        return mapping, pos
+    if kind == 12:
+        return _struct(buf, pos)
+    raise _ThriftError(f"unknown Thrift type {kind}")
+
+
+def _struct(buf: bytes, pos: int) -> tuple[dict[int, object], int]:
+    """A Thrift compact struct as {field id: value}."""
+    fields: dict[int, object] = {}
+    last = 0
+    while True:
+        head = buf[pos]
+        pos += 1
+        if head == 0:
+            return fields, pos
+        kind, delta = head & 0x0F, head >> 4
+        if delta:
+            field_id = last + delta
+        else:
+            raw, pos = _varint(buf, pos)
+            field_id = _zigzag(raw)
+        last = field_id
+        fields[field_id], pos = _value(buf, pos, kind)
+
+
+def _page_header(fd: int, path: str, pos: int, end: int) -> tuple[dict[int, object], int]:
+    """The PageHeader at file offset ``pos`` and its length in bytes."""
+    want = _HEADER_READ
+    while True:
+        buf = os.pread(fd, min(want, end - pos), pos)
+        try:
+            return _struct(buf, 0)
+        except IndexError:
+            if want >= _MAX_HEADER or pos + len(buf) >= end:
+                raise ShardError(f"{path}: image page header at byte {pos} is cut off (truncated or corrupt)") from None
+            want *= 4
+        except _ThriftError as exc:
+            raise ShardError(f"{path}: image page header at byte {pos} is corrupt: {exc}") from None
+
+
+def image_column_index(metadata: pq.FileMetaData) -> int:
+    """The leaf column index of ``image`` in a frames file's Parquet schema."""
+    for i in range(metadata.num_columns):
+        if metadata.schema.column(i).path == "image":
+            return i
+    raise ValueError("no image column")
+
+
+def image_offsets(fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """File offsets and lengths (int64 arrays, one per row in file order) of the image values.
+
+    ``fd`` is an open descriptor of ``path``; ``metadata`` its parsed footer.
+    """
+    try:
+        column = image_column_index(metadata)
+    except ValueError:
+        raise ShardError(f"{path}: no image column") from None
+    leaf = metadata.schema.column(column)
+    if leaf.physical_type != "BYTE_ARRAY" or leaf.max_definition_level or leaf.max_repetition_level:
+        raise ShardError(f"{path}: image column is not a required BYTE_ARRAY (written by another writer?)")
+    offsets = np.empty(metadata.num_rows, dtype=np.int64)
+    lengths = np.empty(metadata.num_rows, dtype=np.int64)
+    row = 0
+    unpack = _LENGTH.unpack_from
+    for group in range(metadata.num_row_groups):
+        chunk = metadata.row_group(group).column(column)
+        rows = metadata.row_group(group).num_rows
+        if chunk.compression != "UNCOMPRESSED" or chunk.dictionary_page_offset is not None:
+            raise ShardError(
+                f"{path}: image column of row group {group} is {chunk.compression} "
+                f"{'with' if chunk.dictionary_page_offset is not None else 'without'} a dictionary; "
+                "expected uncompressed PLAIN values"
+            )
+        pos = chunk.data_page_offset
+        end = pos + chunk.total_compressed_size
+        seen = 0
+        while pos < end:
+            header, size = _page_header(fd, path, pos, end)
+            kind, body_size, page = header.get(1), header.get(3), header.get(5)
+            if kind != _DATA_PAGE or not isinstance(page, dict) or page.get(2) != _PLAIN:
+                raise ShardError(f"{path}: image page at byte {pos} is not a PLAIN data page v1")
+            count = page.get(1)
+            if not isinstance(body_size, int) or body_size < 0 or pos + size + body_size > end:
+                raise ShardError(f"{path}: image page at byte {pos} runs past its column chunk (corrupt)")
+            if not isinstance(count, int) or count < 0 or seen + count > rows:
+                raise ShardError(f"{path}: image page at byte {pos} claims {count!r} values, more than the row group")
+            start = pos + size
+            body = os.pread(fd, body_size, start)
+            if len(body) != body_size:
+                raise ShardError(f"{path}: image page at byte {pos} is cut off (truncated)")
+            if check_crc:
+                crc = header.get(4)
+                if not isinstance(crc, int):
+                    raise ShardError(f"{path}: image page at byte {pos} has no checksum")
+                if zlib.crc32(body) != crc & 0xFFFFFFFF:
+                    raise ShardError(f"{path}: image page at byte {pos} fails its CRC32 checksum (corrupt or tampered)")
+            q = 0
+            try:
+                for _ in range(count):
+                    (length,) = unpack(body, q)
+                    q += 4
+                    offsets[row] = start + q
+                    lengths[row] = length
+                    q += length
+                    row += 1
+            except struct.error:
+                q = body_size + 1
+            if q != body_size:
+                raise ShardError(f"{path}: image page at byte {pos} does not hold {count} whole values (corrupt)")
+            seen += count
+            pos = start + body_size
+        if seen != rows:
+            raise ShardError(f"{path}: row group {group} has {seen} images for {rows} rows (corrupt)")
+    return offsets, lengths

@@ -1,0 +1,104 @@
+"""`pipeline view`: one recorded episode as a rerun recording (.rrd).
+
+Logs the camera image, the object's and the palm's trajectories, the keypoints and the
+hand skeleton, the phase, the palm/fingertip distances and the action over two
+timelines (``frame`` and ``time``), read from the shards alone.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from catalog.atomic import commit, temp_path
+from catalog.manifest import load_manifest
+from catalog.parquet_io import column_to_numpy, read_episodes, read_frames
+from schemas.errors import SpecError
+from schemas.scene import LOC_TOLERANCE, PHASES
+
+#: Phase colours (observe, approach, grasp, hold) for the palm trail and text log.
+PHASE_COLOURS = {"observe": (150, 150, 150), "approach": (40, 120, 255), "grasp": (255, 140, 0), "hold": (40, 200, 80)}
+OBJECT_COLOUR = (230, 60, 60)
+
+
+def _episode_rows(directory: Path, episode: int):
+    manifest = load_manifest(directory)
+    for shard in manifest.shards:
+        if shard.first <= episode < shard.end:
+            frames = read_frames(directory / shard.files["frames"].path)
+            episodes = read_episodes(directory / shard.files["episodes"].path)
+            index = frames.column("episode_index").to_numpy()
+            rows = frames.filter(index == episode)
+            meta = episodes.filter(episodes.column("episode_index").to_numpy() == episode)
+            if rows.num_rows == 0 or meta.num_rows != 1:
+                break
+            return manifest, rows, meta.to_pylist()[0]
+    raise SpecError(f"{directory}: no episode {episode} (it holds episodes [0, {manifest.episodes}))")
+
+
+def _skeleton(joint_poses: np.ndarray, keypoints: np.ndarray) -> list[np.ndarray]:
+    """Per finger: wrist, its three joints, its fingertip; plus the palm's knuckle line."""
+    joints = joint_poses.reshape(5, 3, 6)[:, :, :3]
+    tips = keypoints.reshape(6, 6)[:5, :3]
+    wrist = keypoints.reshape(6, 6)[5, :3]
+    strips = [np.vstack([wrist, joints[f], tips[f]]) for f in range(5)]
+    strips.append(joints[:, 0, :])
+    return strips
+
+
+def write_recording(directory: str | Path, episode: int, out: str | Path) -> Path:
+    """Write episode ``episode`` of a slice or rollout folder to ``out`` (.rrd)."""
+    import rerun as rr
+
+    directory, out = Path(directory), Path(out)
+    if out.suffix != ".rrd":
+        raise SpecError(f"--out must end in .rrd, got {str(out)!r}")
+    manifest, rows, meta = _episode_rows(directory, episode)
+    images = rows.column("image").to_pylist()
+    phases = rows.column("phase").to_pylist()
+    timestamps = rows.column("timestamp").to_numpy()
+    frame_index = rows.column("frame_index").to_numpy()
+    state = {name: column_to_numpy(rows.column(name)) for name in
+             ("object_pose", "palm_pose", "joint_poses", "keypoints", "action", "joint_angles")}
+    fingertip = rows.column("fingertip_distance").to_numpy()
+    palm_xz = np.linalg.norm(state["palm_pose"][:, [0, 2]] - state["object_pose"][:, [0, 2]], axis=1)
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    temp = temp_path(out)
+    rec = rr.RecordingStream("dyana", recording_id=meta["spec_hash"])
+    rec.save(str(temp))
+    rec.log("world", rr.ViewCoordinates.RUF, static=True)
+    title = f"{meta['episode_id']}: {meta['motion_type']} {meta['intercept_setting']}, {meta['object']}, {meta['hand']} hand"
+    rec.log("episode", rr.TextDocument(f"{title}\n\n{meta['text']}\n\npolicy: {meta.get('policy', 'ground truth')}"),
+            static=True)
+    rec.log("world/object/path", rr.LineStrips3D([state["object_pose"][:, :3]], colors=[OBJECT_COLOUR], radii=0.02),
+            static=True)
+    rec.log("world/palm/path", rr.LineStrips3D([state["palm_pose"][:, :3]], colors=[(40, 120, 255)], radii=0.02),
+            static=True)
+    previous_phase = None
+    for k, image in enumerate(images):
+        rec.set_time("frame", sequence=int(frame_index[k]))
+        rec.set_time("time", duration=float(timestamps[k]))
+        phase = phases[k]
+        colour = PHASE_COLOURS.get(phase, (255, 255, 255))
+        rec.log("camera/image", rr.EncodedImage(contents=image, media_type="image/jpeg"))
+        rec.log("world/object/centre", rr.Points3D([state["object_pose"][k, :3]], colors=[OBJECT_COLOUR], radii=0.08))
+        rec.log("world/palm/centre", rr.Points3D([state["palm_pose"][k, :3]], colors=[colour], radii=0.08))
+        rec.log("world/palm/target", rr.Points3D([state["action"][k, :3]], colors=[(255, 255, 255)], radii=0.04))
+        rec.log("world/hand/keypoints", rr.Points3D(state["keypoints"][k].reshape(6, 6)[:, :3], radii=0.04,
+                                                   labels=["thumb", "index", "middle", "ring", "little", "wrist"]))
+        rec.log("world/hand/skeleton", rr.LineStrips3D(_skeleton(state["joint_poses"][k], state["keypoints"][k]),
+                                                      colors=[colour], radii=0.015))
+        rec.log("distance/palm_xz", rr.Scalars(float(palm_xz[k])))
+        rec.log("distance/tolerance", rr.Scalars(LOC_TOLERANCE))
+        rec.log("distance/fingertip", rr.Scalars(float(fingertip[k])))
+        rec.log("phase/index", rr.Scalars(float(PHASES.index(phase)) if phase in PHASES else -1.0))
+        rec.log("hand/joint_angle_mean", rr.Scalars(float(state["joint_angles"][k].mean())))
+        if phase != previous_phase:
+            rec.log("phase/log", rr.TextLog(f"frame {int(frame_index[k])}: {phase}", color=colour))
+            previous_phase = phase
+    rec.flush()
+    rec.disconnect()
+    commit(temp, out)
+    return out
