@@ -1,0 +1,91 @@
+"""Build throughput against pybullet's naive renderer, measured in one run.
+
+- ``naive_render_fps``: TinyRenderer drawing the full scene (floor, table, object, hand)
+  for every frame of the same episodes at the same resolution, in this process (one core).
+- ``build_fps``: ``pipeline build`` end to end (episode stage, render, JPEG, Parquet +
+  MCAP, manifest) with one worker, frames over wall time including cluster start-up.
+- ``ratio`` = build_fps / naive_render_fps; ``workers_2_speedup`` = the 2-worker build's
+  frames/s over the 1-worker build's.
+
+Usage: python benchmarks/build.py [--slice circular-medium] [--episodes 96] [--json]
+The last line printed is the JSON result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from generators.recipe import slice_specs
+from generators.render import Renderer
+from pipeline.build import build
+from pipeline.episode import episode
+from schemas.slices import get_slice
+
+
+def naive_render_fps(slice_name: str, episodes: int, resolution: int) -> tuple[float, int]:
+    specs = list(slice_specs(slice_name, episodes))
+    all_frames = [(spec, episode(spec)) for spec in specs]
+    count = 0
+    with Renderer(resolution) as renderer:
+        start = time.perf_counter()
+        for spec, frames in all_frames:
+            renderer.render_episode(frames, spec.object, spec.object_size, spec.hand, full=True)
+            count += frames.num_frames
+        elapsed = time.perf_counter() - start
+    return count / elapsed, count
+
+
+def build_fps(slice_name: str, episodes: int, resolution: int, workers: int, shard_size: int) -> tuple[float, str]:
+    out = Path(tempfile.mkdtemp(prefix="dyana-bench-build-"))
+    try:
+        start = time.perf_counter()
+        manifest = build(slice_name, out, episodes=episodes, workers=workers, resolution=resolution,
+                         shard_size=shard_size, progress=False)
+        elapsed = time.perf_counter() - start
+        return manifest.frames / elapsed, manifest.hash
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--slice", default="circular-medium")
+    parser.add_argument("--episodes", type=int, default=96)
+    parser.add_argument("--resolution", type=int, default=224)
+    parser.add_argument("--shard-size", type=int, default=12)
+    parser.add_argument("--json", action="store_true", help="print only the JSON line")
+    args = parser.parse_args(argv)
+    get_slice(args.slice)
+
+    naive, frames = naive_render_fps(args.slice, args.episodes, args.resolution)
+    one, hash_one = build_fps(args.slice, args.episodes, args.resolution, 1, args.shard_size)
+    two, hash_two = build_fps(args.slice, args.episodes, args.resolution, 2, args.shard_size)
+    if hash_one != hash_two:
+        print(f"catalog hashes differ between 1 and 2 workers: {hash_one} vs {hash_two}", file=sys.stderr)
+        return 1
+    result = {
+        "naive_render_fps": round(naive, 1),
+        "build_fps": round(one, 1),
+        "ratio": round(one / naive, 3),
+        "workers_2_speedup": round(two / one, 3),
+        "build_fps_2_workers": round(two, 1),
+        "frames": frames,
+        "episodes": args.episodes,
+        "resolution": args.resolution,
+        "slice": args.slice,
+    }
+    if not args.json:
+        print(f"naive TinyRenderer: {naive:.1f} frames/s; build 1 worker: {one:.1f} frames/s "
+              f"(x{one / naive:.2f}); 2 workers: {two:.1f} frames/s (x{two / one:.2f} over 1)")
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,252 @@
+"""Normalisation statistics of a folder's states and actions, kept in ``stats.json``
+beside ``catalog.json``.
+
+For every float column of the frames table (the states of
+``schemas.tables.STATE_COLUMNS``, ``fingertip_distance`` and ``action``): ``count``,
+``mean``, ``std`` (population, ddof 0), ``min`` and ``max``, element by element,
+over every frame of the folder. They are computed from those columns only (the
+``image`` column is never read, no image is decoded), in float64, shard by shard in
+manifest order, merged with the pairwise (Chan et al.) update, so the same folder
+always gives the same numbers.
+
+``stats.json`` records the manifest's ``hash``: a file whose hash, frame count or
+layout does not match the folder is stale and is recomputed (and rewritten,
+atomically). It is canonical JSON (sorted keys, 2-space indent, trailing newline).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from catalog.atomic import atomic_write_text
+from catalog.hashing import is_sha256, sha256_file
+from catalog.manifest import Manifest, load_manifest
+from catalog.parquet_io import column_to_numpy, read_frames
+from schemas.errors import ShardError
+from schemas.tables import ARRAY_WIDTHS, STATE_COLUMNS
+
+STATS_NAME = "stats.json"
+STATS_VERSION = 1
+#: The columns described, in frames-table order; ``fingertip_distance`` is a scalar (shape ()).
+STATS_COLUMNS = (*STATE_COLUMNS, "action", "fingertip_distance")
+SHAPES = {name: (ARRAY_WIDTHS[name],) for name in (*STATE_COLUMNS, "action")} | {"fingertip_distance": ()}
+_FIELDS = ("mean", "std", "min", "max")
+
+
+@dataclass(frozen=True)
+class ColumnStats:
+    """Element-wise statistics of one column (float64 arrays of the column's per-frame shape)."""
+
+    count: int
+    mean: np.ndarray
+    std: np.ndarray
+    min: np.ndarray
+    max: np.ndarray
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"count": self.count}
+        for name in _FIELDS:
+            out[name] = getattr(self, name).tolist()
+        return out
+
+
+@dataclass(frozen=True)
+class Stats:
+    """Statistics of every column in :data:`STATS_COLUMNS`; ``stats["action"].mean``."""
+
+    manifest_hash: str | None
+    frames: int
+    columns: Mapping[str, ColumnStats]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "columns", MappingProxyType(dict(self.columns)))
+
+    def __getitem__(self, name: str) -> ColumnStats:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise KeyError(f"no statistics for {name!r} (columns: {list(self.columns)})") from None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "version": STATS_VERSION,
+            "manifest_hash": self.manifest_hash,
+            "frames": self.frames,
+            "columns": {name: self.columns[name].to_dict() for name in STATS_COLUMNS},
+        }
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True, indent=2, ensure_ascii=True, allow_nan=False) + "\n"
+
+    @classmethod
+    def from_dict(cls, data: Any) -> "Stats":
+        """Parse and validate; ValueError naming the bad key."""
+        if not isinstance(data, dict) or data.get("version") != STATS_VERSION:
+            raise ValueError(f"not a version-{STATS_VERSION} stats object")
+        frames = data.get("frames")
+        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 0:
+            raise ValueError(f"frames must be an integer >= 0, got {frames!r}")
+        columns = data.get("columns")
+        if not isinstance(columns, dict) or set(columns) != set(STATS_COLUMNS):
+            raise ValueError(f"columns must be exactly {list(STATS_COLUMNS)}")
+        parsed = {}
+        for name in STATS_COLUMNS:
+            entry = columns[name]
+            if not isinstance(entry, dict) or entry.get("count") != frames:
+                raise ValueError(f"columns.{name}.count must equal frames ({frames})")
+            values = {}
+            for key in _FIELDS:
+                try:
+                    array = np.asarray(entry.get(key), dtype=np.float64)
+                except (TypeError, ValueError):
+                    raise ValueError(f"columns.{name}.{key} is not numeric") from None
+                if array.shape != SHAPES[name] or (frames and not np.all(np.isfinite(array))):
+                    raise ValueError(f"columns.{name}.{key} must be finite of shape {SHAPES[name]}")
+                values[key] = array
+            parsed[name] = ColumnStats(frames, **values)
+        manifest_hash = data.get("manifest_hash")
+        if manifest_hash is not None and not is_sha256(manifest_hash):
+            raise ValueError(f"manifest_hash must be a sha256 or null, got {manifest_hash!r}")
+        return cls(manifest_hash, frames, parsed)
+
+
+class _Accumulator:
+    """count, mean, M2 (sum of squared deviations), min, max of one column, merged chunk by chunk."""
+
+    def __init__(self, shape: tuple[int, ...]) -> None:
+        self.count = 0
+        self.mean = np.zeros(shape)
+        self.m2 = np.zeros(shape)
+        self.min = np.full(shape, np.inf)
+        self.max = np.full(shape, -np.inf)
+
+    def add(self, values: np.ndarray) -> None:
+        n = values.shape[0]
+        if n == 0:
+            return
+        data = values.astype(np.float64)
+        mean = data.mean(axis=0)
+        m2 = ((data - mean) ** 2).sum(axis=0)
+        self.merge(n, mean, m2, data.min(axis=0), data.max(axis=0))
+
+    def merge(self, n: int, mean: np.ndarray, m2: np.ndarray, low: np.ndarray, high: np.ndarray) -> None:
+        total = self.count + n
+        delta = mean - self.mean
+        self.mean = self.mean + delta * (n / total)
+        self.m2 = self.m2 + m2 + delta**2 * (self.count * n / total)
+        self.min = np.minimum(self.min, low)
+        self.max = np.maximum(self.max, high)
+        self.count = total
+
+    def result(self) -> ColumnStats:
+        if self.count == 0:
+            zero = np.zeros_like(self.mean)
+            return ColumnStats(0, zero, zero.copy(), zero.copy(), zero.copy())
+        std = np.sqrt(self.m2 / self.count)
+        return ColumnStats(self.count, self.mean.copy(), std, self.min.copy(), self.max.copy())
+
+
+def compute_stats(directory: str | os.PathLike[str], manifest: Manifest | None = None, *, verify: bool = False) -> Stats:
+    """Statistics of every frame of a folder, from the float columns of its frames files.
+
+    ``verify`` also checks each frames file's sha256 against the manifest (reading,
+    not decoding, the image bytes); page checksums are verified either way.
+    """
+    root = Path(directory)
+    manifest = load_manifest(root) if manifest is None else manifest
+    accumulators = {name: _Accumulator(SHAPES[name]) for name in STATS_COLUMNS}
+    for shard in manifest.shards:
+        record = shard.files["frames"]
+        path = root / record.path
+        if verify and path.is_file() and sha256_file(path) != record.sha256:
+            raise ShardError(f"{path}: content changed: sha256 does not match catalog.json")
+        table = read_frames(path, list(STATS_COLUMNS))
+        if table.num_rows != shard.frames:
+            raise ShardError(f"{path}: has {table.num_rows} rows, catalog.json says {shard.frames}")
+        for name in STATS_COLUMNS:
+            accumulators[name].add(column_to_numpy(table.column(name)))
+    return Stats(manifest.hash, manifest.frames, {name: accumulators[name].result() for name in STATS_COLUMNS})
+
+
+def stats_path(directory: str | os.PathLike[str]) -> Path:
+    return Path(directory) / STATS_NAME
+
+
+def write_stats(directory: str | os.PathLike[str], stats: Stats) -> Path:
+    """Write ``DIR/stats.json`` atomically."""
+    return atomic_write_text(stats_path(directory), stats.to_json())
+
+
+def read_stats(directory: str | os.PathLike[str], manifest: Manifest) -> Stats | None:
+    """The stored statistics if ``stats.json`` exists, parses and matches ``manifest``; else None."""
+    try:
+        data = json.loads(stats_path(directory).read_text(encoding="utf-8"))
+        stats = Stats.from_dict(data)
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if stats.manifest_hash != manifest.hash or stats.frames != manifest.frames:
+        return None
+    return stats
+
+
+def load_stats(
+    directory: str | os.PathLike[str], manifest: Manifest | None = None, *, write: bool = True, verify: bool = False
+) -> Stats:
+    """The folder's statistics: ``stats.json`` when it is current, else computed (and written if ``write``).
+
+    A folder that cannot be written (read-only media) still gets its statistics, with a warning.
+    """
+    manifest = load_manifest(directory) if manifest is None else manifest
+    stored = read_stats(directory, manifest)
+    if stored is not None:
+        return stored
+    stats = compute_stats(directory, manifest, verify=verify)
+    if write:
+        try:
+            write_stats(directory, stats)
+        except OSError as exc:
+            warnings.warn(f"{stats_path(directory)}: cannot write the statistics ({exc}); using them unsaved")
+    return stats
+
+
+def combine(parts: Sequence[Stats]) -> Stats:
+    """Statistics of the union of several folders' frames (pooled exactly from the parts)."""
+    if len(parts) == 1:
+        return parts[0]
+    columns = {}
+    for name in STATS_COLUMNS:
+        total = _Accumulator(SHAPES[name])
+        for part in parts:
+            column = part[name]
+            if column.count:
+                total.merge(column.count, column.mean, column.std**2 * column.count, column.min, column.max)
+        columns[name] = total.result()
+    return Stats(None, sum(p.frames for p in parts), columns)
+
+
+def normalise(values: np.ndarray, column: ColumnStats, eps: float = 1e-8) -> np.ndarray:
+    """``(values - mean) / max(std, eps)`` as float32."""
+    return ((values - column.mean) / np.maximum(column.std, eps)).astype(np.float32)
+
+
+__all__ = [
+    "STATS_COLUMNS",
+    "STATS_NAME",
+    "ColumnStats",
+    "Stats",
+    "combine",
+    "compute_stats",
+    "load_stats",
+    "normalise",
+    "read_stats",
+    "write_stats",
+]

@@ -1,0 +1,169 @@
+"""`pipeline serve`: any Policy behind a ``dyana/1`` WebSocket server.
+
+Each connection gets its own policy instance (made by the factory when the client
+connects), so concurrent evaluators never share state. The server sends the
+metadata message first, then answers ``reset`` with ``ready`` and ``act`` with
+``action`` plus the milliseconds the policy took (``server_time_ms``). A policy
+that raises, or a malformed request, gets an ``error`` message and the connection
+stays open; the client decides what to do (the evaluator fails that episode).
+Policy calls run on a daemon worker thread per connection, so the event loop keeps
+answering pings and a policy that hangs cannot keep the server from shutting down.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+from pipeline import protocol
+from pipeline.worker_thread import WorkerThread
+from schemas.errors import DyanaError
+
+PolicyFactory = Callable[[], Any]
+#: Seconds the server waits for open sessions to end when it stops.
+SHUTDOWN_GRACE_S = 5.0
+
+
+def policy_factory(policy: str | PolicyFactory) -> PolicyFactory:
+    """A zero-argument factory from a policy name / ``module:callable`` ref, or the factory itself.
+
+    A name is resolved once here so that an unknown one fails before listening.
+    """
+    if isinstance(policy, str):
+        from pipeline.policies.base import make_policy
+
+        make_policy(policy)
+        return lambda: make_policy(policy)
+    if callable(policy):
+        return policy
+    raise DyanaError(f"serve needs a policy name, a module:callable ref or a factory, got {policy!r}")
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc)
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+async def _send(websocket, message: dict[str, Any]) -> None:
+    try:
+        data = protocol.encode(message)
+    except protocol.ProtocolError as exc:
+        data = protocol.encode(protocol.error_message(f"server cannot encode its reply: {exc}"))
+    await websocket.send(data)
+
+
+async def _session(websocket, factory: PolicyFactory) -> None:
+    """One connection: metadata, then reset/act requests until the client closes."""
+    from websockets.exceptions import ConnectionClosed
+
+    worker = WorkerThread("dyana-serve-policy")
+    try:
+        policy = await worker.acall(factory)
+    except Exception as exc:
+        worker.close()
+        await _send(websocket, protocol.error_message(f"cannot create the policy: {_describe(exc)}"))
+        return
+    try:
+        hello = protocol.metadata_message(policy.name, policy.action_horizon, policy.privileged)
+    except (AttributeError, TypeError, ValueError) as exc:
+        worker.close()
+        await _send(websocket, protocol.error_message(f"the policy does not describe itself: {_describe(exc)}"))
+        return
+    await _send(websocket, hello)
+    reset_done = False
+    try:
+        async for data in websocket:
+            try:
+                request = protocol.parse(data, ("reset", "act"))
+            except protocol.ProtocolError as exc:
+                await _send(websocket, protocol.error_message(f"bad request: {exc}"))
+                continue
+            kind = request["type"]
+            if kind == "error":
+                continue
+            try:
+                if kind == "reset":
+                    await worker.acall(policy.reset, request["task"])
+                    reset_done = True
+                    reply = {"type": "ready"}
+                elif not reset_done:
+                    reply = protocol.error_message("act before reset: send a reset message first")
+                else:
+                    start = time.perf_counter()
+                    action = await worker.acall(policy.act, request["observation"])
+                    elapsed_ms = (time.perf_counter() - start) * 1000.0
+                    reply = protocol.action_message(action, elapsed_ms)
+            except Exception as exc:
+                reply = protocol.error_message(f"policy {kind} raised {_describe(exc)}")
+            await _send(websocket, reply)
+    except ConnectionClosed:
+        pass
+    finally:
+        close = getattr(policy, "close", None)
+        if callable(close) and not worker.stuck:
+            await worker.acall(close)
+        worker.close()
+
+
+async def serve_async(
+    policy: str | PolicyFactory,
+    host: str = "127.0.0.1",
+    port: int = 8000,
+    *,
+    on_listening: Callable[[str, int], None] | None = None,
+    stop: asyncio.Future | None = None,
+) -> None:
+    """Serve until ``stop`` completes (or forever); ``on_listening(host, port)`` gets the bound port."""
+    from websockets.asyncio.server import serve as ws_serve
+
+    factory = policy_factory(policy)
+    try:
+        server = await ws_serve(
+            lambda ws: _session(ws, factory),
+            host,
+            port,
+            compression=None,
+            max_size=protocol.MAX_MESSAGE_BYTES,
+            ping_interval=20,
+            ping_timeout=60,
+        )
+    except OSError as exc:
+        raise DyanaError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+    try:
+        bound = server.sockets[0].getsockname()[1] if server.sockets else port
+        if on_listening is not None:
+            on_listening(host, bound)
+        if stop is None:
+            await server.serve_forever()
+        else:
+            await stop
+    finally:
+        server.close()
+        try:  # a session stuck in a hung policy call must not block shutdown
+            await asyncio.wait_for(server.wait_closed(), SHUTDOWN_GRACE_S)
+        except asyncio.TimeoutError:
+            pass
+
+
+def serve(policy: str | PolicyFactory, host: str = "127.0.0.1", port: int = 8000) -> None:
+    """Serve ``policy`` on ``ws://host:port`` until SIGINT/SIGTERM; prints the address on stderr."""
+
+    def listening(bound_host: str, bound_port: int) -> None:
+        name = policy if isinstance(policy, str) else getattr(policy, "__name__", "policy")
+        print(f"serving {name} on ws://{bound_host}:{bound_port} ({protocol.PROTOCOL})", file=sys.stderr, flush=True)
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        stop = loop.create_future()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                loop.add_signal_handler(sig, lambda: stop.done() or stop.set_result(None))
+            except (NotImplementedError, RuntimeError):
+                pass
+        await serve_async(policy, host, port, on_listening=listening, stop=stop)
+
+    asyncio.run(main())
