@@ -153,9 +153,8 @@ def image_offsets(fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool
     leaf = metadata.schema.column(column)
     if leaf.physical_type != "BYTE_ARRAY" or leaf.max_definition_level or leaf.max_repetition_level:
         raise ShardError(f"{path}: image column is not a required BYTE_ARRAY (written by another writer?)")
-    offsets = np.empty(metadata.num_rows, dtype=np.int64)
-    lengths = np.empty(metadata.num_rows, dtype=np.int64)
-    row = 0
+    offsets: list[int] = []
+    lengths: list[int] = []
     unpack = _LENGTH.unpack_from
     for group in range(metadata.num_row_groups):
         chunk = metadata.row_group(group).column(column)
@@ -194,10 +193,9 @@ def image_offsets(fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool
                 for _ in range(count):
                     (length,) = unpack(body, q)
                     q += 4
-                    offsets[row] = start + q
-                    lengths[row] = length
+                    offsets.append(start + q)
+                    lengths.append(length)
                     q += length
-                    row += 1
             except struct.error:
                 q = body_size + 1
             if q != body_size:
@@ -206,4 +204,6 @@ def image_offsets(fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool
             pos = start + body_size
         if seen != rows:
             raise ShardError(f"{path}: row group {group} has {seen} images for {rows} rows (corrupt)")
-    return offsets, lengths
+    if len(offsets) != metadata.num_rows:
+        raise ShardError(f"{path}: {len(offsets)} images for {metadata.num_rows} rows (corrupt)")
+    return np.array(offsets, dtype=np.int64), np.array(lengths, dtype=np.int64)

@@ -17,6 +17,7 @@ Usage::
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -34,7 +35,16 @@ from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
-__all__ = ["FileRecord", "ShardRecord", "ShardWriter"]
+__all__ = ["FileRecord", "ShardRecord", "ShardWriter", "rollout_frame_limit"]
+
+#: A policy may act for ceil(ROLLOUT_HORIZON_FACTOR x the ground truth's acting frames).
+ROLLOUT_HORIZON_FACTOR = 1.2
+
+
+def rollout_frame_limit(spec: EpisodeSpec) -> int:
+    """Most frames a rollout of ``spec`` records: the observe window plus the acting
+    horizon ``ceil(1.2 x (num_frames - observe_frames))`` (``pipeline.env.horizon``)."""
+    return spec.observe_frames + math.ceil(ROLLOUT_HORIZON_FACTOR * (spec.num_frames - spec.observe_frames))
 
 
 class ShardWriter:
@@ -120,7 +130,8 @@ class ShardWriter:
 
         ``grasp_angles`` defaults to ``frames.grasp_angles``. Rollout shards need
         ``policy`` and ``status`` (and ``error`` when status is ``error``) and accept
-        fewer frames than ``spec.num_frames`` (an episode cut short by a policy error).
+        1 to :func:`rollout_frame_limit` frames (a policy may take longer than the
+        ground truth, or be cut short by an error).
         """
         where = self.paths["frames"]
         if self._state != "open":
@@ -134,8 +145,12 @@ class ShardWriter:
             )
         n = frames.num_frames
         if self.rollout:
-            if n > spec.num_frames:
-                raise ShardError(f"episode {spec.episode_id}: {n} frames, more than the spec's {spec.num_frames}")
+            limit = rollout_frame_limit(spec)
+            if n > limit:
+                raise ShardError(
+                    f"episode {spec.episode_id}: {n} frames, more than a rollout's {limit} "
+                    f"(observe_frames {spec.observe_frames} + horizon {limit - spec.observe_frames})"
+                )
             if policy is None or status is None:
                 raise ShardError(f"episode {spec.episode_id}: a rollout shard needs policy and status")
         else:

@@ -143,7 +143,7 @@ def pybullet_joint_order() -> tuple[str, ...]:
 
 def link_indices(body: int, client: int = 0) -> dict[str, int]:
     """pybullet index of every named joint/link of a loaded hand (joint index == child link index)."""
-    import pybullet as p
+    from generators.bullet import p
 
     out: dict[str, int] = {}
     for i in range(p.getNumJoints(body, physicsClientId=client)):
@@ -167,7 +167,7 @@ def keypoint_link_indices(body: int, client: int = 0) -> np.ndarray:
 
 def set_hand_state(body: int, palm_pose, joint_angles, client: int = 0, indices: np.ndarray | None = None) -> None:
     """Pose a loaded hand: palm pose (6,) and joint angles (15,)."""
-    import pybullet as p
+    from generators.bullet import p
 
     palm = [float(v) for v in palm_pose]
     p.resetBasePositionAndOrientation(

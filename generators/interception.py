@@ -68,6 +68,30 @@ def minimum_jerk(s: np.ndarray) -> np.ndarray:
     return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
 
 
+#: Fraction of the approach spent speeding up (and, symmetrically, slowing down).
+APPROACH_RAMP = 0.15
+
+
+def cruise_step(s: np.ndarray, ramp: float) -> np.ndarray:
+    """Smooth step on [0, 1] whose speed ramps up over ``ramp``, cruises, and ramps down.
+
+    The speed is the minimum-jerk step S(x) = 10x^3 - 15x^4 + 6x^5 on the ramps and 1 in
+    between, normalised so the step goes 0 -> 1: zero velocity and acceleration at both
+    ends, continuous acceleration everywhere. Against a bell-shaped minimum-jerk speed it
+    keeps the palm's step lengths nearly even (the paper's Q_smooth), with no stop.
+    """
+    s = np.clip(np.asarray(s, dtype=np.float64), 0.0, 1.0)
+
+    def area(x: np.ndarray) -> np.ndarray:  # integral of S from 0 to x
+        return x**4 * (2.5 + x * (-3.0 + x))
+
+    up = ramp * area(np.minimum(s, ramp) / ramp)
+    cruise = np.clip(s - ramp, 0.0, 1.0 - 2.0 * ramp)
+    down = ramp * (0.5 - area(np.clip((1.0 - s) / ramp, 0.0, 1.0)))
+    down = np.where(s > 1.0 - ramp, down, 0.0)
+    return (up + cruise + down) / (1.0 - ramp)
+
+
 def quintic(start: np.ndarray, end: np.ndarray, end_velocity: np.ndarray, end_acceleration: np.ndarray,
             duration: float, s: np.ndarray) -> np.ndarray:
     """Quintic from ``start`` at rest to ``end`` with the given end velocity and acceleration.
@@ -76,7 +100,7 @@ def quintic(start: np.ndarray, end: np.ndarray, end_velocity: np.ndarray, end_ac
     """
     s = np.asarray(s, dtype=np.float64)[:, None]
     s3 = s * s * s
-    rest = s3 * (10.0 + s * (-15.0 + 6.0 * s))
+    rest = cruise_step(s, APPROACH_RAMP)
     vel = s3 * (-4.0 + s * (7.0 - 3.0 * s))
     acc = s3 * (0.5 + s * (-1.0 + 0.5 * s))
     return (

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-import pybullet as p
+from generators.bullet import p
 
 from generators.camera import pybullet_matrices
 from generators.scene import (

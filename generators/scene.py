@@ -30,7 +30,7 @@ import tempfile
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
+from generators.bullet import p
 
 from generators.hand_urdf import joint_indices, set_hand_state, write_hand_urdf
 from schemas.objects import object_category

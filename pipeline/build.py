@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 from catalog.atomic import atomic_write_text, remove_stray_temps
 from catalog.hashing import sha256_file
@@ -157,10 +158,17 @@ def run_tasks(
     slice_dir: Path,
     workers: int,
     scheduler: str | None,
-    on_done: Callable[[ShardRecord], None],
+    on_done: Callable[[Any], None],
+    task_fn: Callable[[ShardTask, Any, str], Any] | None = None,
+    key_prefix: str = "shard",
 ) -> None:
     """Run shard tasks on a local cluster (one single-threaded process per worker) or
-    on an existing scheduler; call ``on_done`` in the driver as each shard finishes."""
+    on an existing scheduler; call ``on_done`` in the driver as each shard finishes.
+
+    By default each task is :func:`build_shard` and ``on_done`` receives its
+    ShardRecord; with ``task_fn`` (``pipeline eval`` passes its rollout shard function)
+    each task is ``task_fn(task, settings, str(slice_dir))`` and ``on_done`` receives
+    its result as returned."""
     if not tasks:
         return
     import dask
@@ -180,12 +188,18 @@ def run_tasks(
         try:
             futures = [
                 client.submit(
-                    build_shard, task, settings, str(slice_dir), key=f"shard-{task.first:06d}-{task.end:06d}", pure=False
+                    build_shard if task_fn is None else task_fn,
+                    task,
+                    settings,
+                    str(slice_dir),
+                    key=f"{key_prefix}-{task.first:06d}-{task.end:06d}",
+                    pure=False,
                 )
                 for task in tasks
             ]
             for future in as_completed(futures):
-                on_done(ShardRecord.from_dict(future.result()))
+                result = future.result()
+                on_done(ShardRecord.from_dict(result) if task_fn is None else result)
         finally:
             client.close()
             if cluster is not None:

@@ -147,7 +147,6 @@ def decode(data: bytes) -> dict[str, Any]:
             object_hook=_object_hook,
             ext_hook=_ext_hook,
             strict_map_key=False,
-            max_buffer_size=MAX_MESSAGE_BYTES,
         )
     except ProtocolError:
         raise

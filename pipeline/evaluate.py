@@ -1,0 +1,383 @@
+"""`pipeline eval`: a policy in the loop on a slice's episodes, recorded as rollout shards.
+
+The run folder (RUN) has the layout of a built slice: ``shards/`` with the same
+three files per shard (the episodes table adds ``policy``, ``status``, ``error``)
+and ``RUN/catalog.json``, whose ``policy`` key marks it as rollouts. Shards run as
+Dask tasks through :func:`pipeline.build.run_tasks` and resume the same way
+(``.build-state.json``); each task makes its own policy: a built-in name or a
+``module:callable`` ref is resolved inside the worker, a ``ws://`` URL is connected
+from the worker. After an episode fails the worker discards that policy (a hung
+thread or a broken connection may still hold it) and makes a fresh one.
+
+The recorded bytes depend only on the slice, the settings, the policy's actions and
+the deadline (which decides which episodes fail): not on the number of workers, the
+transport (in-process or WebSocket) or timing, as long as no call nears its deadline.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from catalog.atomic import remove_stray_temps
+from catalog.hashing import sha256_file
+from catalog.manifest import CodeInfo, Manifest, git_commit, load_manifest, manifest_path, write_manifest
+from catalog.parquet_io import column_to_numpy, read_episodes, read_frames
+from catalog.records import ShardRecord
+from pipeline.build import STATE_FILE, BuildSettings, Progress, ShardTask, _load_state, _save_state, run_tasks, shard_ranges
+from pipeline.rollout import DEFAULT_DEADLINE_S, run_episode
+from schemas.errors import PolicyError, SpecError
+from schemas.scene import GRASP_RATIO, LOC_TOLERANCE
+from schemas.versions import CODE_VERSION
+
+DEFAULT_SHARD_SIZE = 32
+#: Extra seconds a remote policy's socket waits beyond the deadline (the runner's
+#: deadline fires first and names the fault).
+REMOTE_SLACK_S = 5.0
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """Everything that determines a run's bytes besides the specs: the build settings
+    (in ``catalog.json``'s ``settings``), the policy and the deadline (its top-level keys)."""
+
+    build: BuildSettings
+    slice_name: str
+    policy_ref: str
+    policy_name: str
+    deadline_s: float
+
+    def as_dict(self) -> dict[str, Any]:
+        """The resume key (the policy's name, not its ref: a restarted server may move port)."""
+        return {**self.build.as_dict(), "slice": self.slice_name, "policy": self.policy_name, "deadline_s": self.deadline_s}
+
+    def extra(self) -> dict[str, Any]:
+        return {"policy": self.policy_name, "deadline_s": self.deadline_s}
+
+
+class _Unavailable:
+    """Stands in for a policy that could not be made: its episode records the reason."""
+
+    action_horizon = 1
+    privileged = False
+
+    def __init__(self, name: str, reason: str) -> None:
+        self.name, self.reason = name, reason
+
+    def reset(self, task: dict) -> None:
+        raise PolicyError(self.reason)
+
+    def act(self, obs: dict) -> np.ndarray:
+        raise PolicyError(self.reason)
+
+
+def open_policy(ref: str, deadline_s: float) -> Any:
+    """A fresh policy for ``ref``: RemotePolicy for ``ws://``, else ``make_policy(ref)``."""
+    from pipeline.remote import RemotePolicy, is_remote
+
+    if is_remote(ref):
+        return RemotePolicy(ref, timeout_s=deadline_s + REMOTE_SLACK_S)
+    from pipeline.policies.base import make_policy
+
+    return make_policy(ref)
+
+
+def _close(policy: Any) -> None:
+    close = getattr(policy, "close", None)
+    if callable(close):
+        try:
+            close()
+        except Exception:
+            pass
+
+
+def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[str, Any]:
+    """Worker side: roll out one shard's episodes and write them; the record and timing."""
+    from catalog.shard import ShardWriter
+    from pipeline.env import DyanaEnv
+
+    env = DyanaEnv(resolution=settings.build.resolution, jpeg_quality=settings.build.jpeg_quality)
+    stats = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
+    policy = None
+    start = time.perf_counter()
+    try:
+        with ShardWriter(Path(run_dir), task.first, task.end, settings.build.as_dict(), rollout=True) as writer:
+            for spec in task.specs():
+                if policy is None:
+                    try:
+                        policy = open_policy(settings.policy_ref, settings.deadline_s)
+                    except PolicyError as exc:
+                        policy = _Unavailable(settings.policy_name, str(exc))
+                    except Exception as exc:
+                        policy = _Unavailable(settings.policy_name, f"cannot make the policy: {type(exc).__name__}: {exc}")
+                result = run_episode(env, policy, spec, settings.deadline_s)
+                writer.add_episode(
+                    spec,
+                    result.frames,
+                    result.images,
+                    policy=settings.policy_name,
+                    status=result.status,
+                    error=result.error or None,
+                )
+                stats["episodes"] += 1
+                stats["steps"] += result.steps
+                stats["calls"] += result.calls
+                stats["policy_s"] += result.policy_s
+                if not result.ok:
+                    stats["errors"] += 1
+                if not result.ok:
+                    _retire(policy, stats)
+                    policy = None
+    finally:
+        _retire(policy, stats)
+        close_env = getattr(env, "close", None)
+        if callable(close_env):
+            close_env()
+    stats["seconds"] = time.perf_counter() - start
+    return {"record": writer.record.to_dict(), "stats": stats}
+
+
+def _retire(policy: Any, stats: dict[str, Any]) -> None:
+    """Close a policy, keeping its remote timing (if any) in ``stats``."""
+    if policy is None:
+        return
+    timing = getattr(policy, "timing", None)
+    if callable(timing) and policy.calls:
+        stats["remote"] = _merge_timing(stats["remote"], timing())
+    _close(policy)
+
+
+def _merge_timing(total: dict | None, part: dict) -> dict:
+    if total is None:
+        return dict(part)
+    calls = total["calls"] + part["calls"]
+    merged = {"calls": calls, "max_round_trip_ms": max(total["max_round_trip_ms"], part["max_round_trip_ms"])}
+    for key in ("round_trip_ms", "server_ms"):
+        merged[key] = (total[key] * total["calls"] + part[key] * part["calls"]) / max(calls, 1)
+    return merged
+
+
+def describe_policy(ref: str, deadline_s: float) -> str:
+    """The policy's name, resolving ``ref`` once in the driver so that a bad name, an
+    unimportable callable or an unreachable server fails before any work starts."""
+    from pipeline.remote import is_remote
+
+    try:
+        policy = open_policy(ref, deadline_s)
+    except PolicyError as exc:
+        where = f"{ref}: " if is_remote(ref) else ""
+        raise PolicyError(f"{where}{exc}") from None
+    try:
+        name = getattr(policy, "name", None)
+        if not isinstance(name, str) or not name:
+            raise SpecError(f"policy {ref!r} has no name (a Policy needs a non-empty str attribute name)")
+        return name
+    finally:
+        _close(policy)
+
+
+@dataclass
+class EvalSummary:
+    """Quick counts over a run's files (``scoring eval RUN`` gives the paper's metrics):
+    localized / grasped use the scoring definitions, over the ``ok`` episodes."""
+
+    policy: str
+    slice: str
+    episodes: int
+    frames: int
+    errors: int
+    localized: int
+    grasped: int
+    error_reasons: list[tuple[int, str]] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def lines(self) -> list[str]:
+        n = max(self.episodes, 1)
+        out = [
+            f"evaluated {self.policy} on {self.slice}: {self.episodes} episodes, {self.frames} frames, "
+            f"{self.errors} error(s)",
+            f"  localized {self.localized}/{self.episodes} ({100.0 * self.localized / n:.1f}%), "
+            f"grasped {self.grasped}/{self.episodes} ({100.0 * self.grasped / n:.1f}%)  "
+            "(quick counts; `scoring eval RUN` for the metrics)",
+        ]
+        for index, reason in self.error_reasons[:5]:
+            out.append(f"  error in episode {index}: {reason}")
+        if len(self.error_reasons) > 5:
+            out.append(f"  ... and {len(self.error_reasons) - 5} more error(s)")
+        return out
+
+
+def summarize(run_dir: str | Path) -> EvalSummary:
+    """Count episodes, errors, localizations and grasps from a run's shards."""
+    root = Path(run_dir)
+    manifest = load_manifest(root)
+    if "policy" not in manifest.extra:
+        raise SpecError(f"{root}: not a rollout run (catalog.json has no policy)")
+    errors, localized, grasped, reasons = 0, 0, 0, []
+    for shard in manifest.shards:
+        episodes = read_episodes(root / shard.files["episodes"].path, ["episode_index", "grasp_angles", "status", "error"])
+        frames = read_frames(
+            root / shard.files["frames"].path, ["episode_index", "phase", "palm_pose", "object_pose", "joint_angles"]
+        )
+        index = frames.column("episode_index").to_numpy()
+        acting = np.asarray(frames.column("phase").to_pylist()) != "observe"
+        palm = column_to_numpy(frames.column("palm_pose"))[:, :3].astype(np.float64)
+        obj = column_to_numpy(frames.column("object_pose"))[:, :3].astype(np.float64)
+        joints = column_to_numpy(frames.column("joint_angles")).astype(np.float64)
+        near = np.hypot(palm[:, 0] - obj[:, 0], palm[:, 2] - obj[:, 2]) <= LOC_TOLERANCE
+        angles = column_to_numpy(episodes.column("grasp_angles")).astype(np.float64)
+        for row, (episode, status, reason) in enumerate(
+            zip(episodes.column("episode_index").to_pylist(), episodes.column("status").to_pylist(), episodes.column("error").to_pylist())
+        ):
+            if status != "ok":
+                errors += 1
+                reasons.append((episode, reason))
+                continue
+            mine = (index == episode) & acting
+            localized += bool(near[mine].any())
+            grasped += bool(np.all(joints[mine] >= GRASP_RATIO * angles[row], axis=1).any())
+    return EvalSummary(
+        policy=str(manifest.extra["policy"]),
+        slice=manifest.slice,
+        episodes=manifest.episodes,
+        frames=manifest.frames,
+        errors=errors,
+        localized=localized,
+        grasped=grasped,
+        error_reasons=reasons,
+    )
+
+
+def _finished_shards(run_dir: Path, settings: EvalSettings) -> dict[tuple[int, int], ShardRecord]:
+    """Shards of an earlier complete run of the same evaluation in ``run_dir`` (files intact);
+    a different run there is refused rather than overwritten."""
+    if not manifest_path(run_dir).exists():
+        return {}
+    manifest = load_manifest(run_dir)
+    same = (
+        manifest.slice == settings.slice_name
+        and dict(manifest.settings) == settings.build.as_dict()
+        and dict(manifest.extra) == settings.extra()
+    )
+    if not same:
+        what = manifest.extra.get("policy", "a built slice (no policy)")
+        raise SpecError(
+            f"{run_dir} already holds another run ({what} on {manifest.slice}, settings {dict(manifest.settings)}, "
+            f"{dict(manifest.extra)}): choose another --out or remove it"
+        )
+    return {
+        tuple(s.episodes): s
+        for s in manifest.shards
+        if all((run_dir / f.path).is_file() and sha256_file(run_dir / f.path) == f.sha256 for f in s.files.values())
+    }
+
+
+def evaluate(
+    policy_ref: str,
+    slice_name: str,
+    out: str | Path,
+    *,
+    episodes: int | None = None,
+    workers: int = 2,
+    scheduler: str | None = None,
+    deadline_s: float = DEFAULT_DEADLINE_S,
+    resolution: int = 224,
+    shard_size: int = DEFAULT_SHARD_SIZE,
+    progress: bool = True,
+    summary: bool = True,
+    stream: TextIO | None = None,
+) -> Manifest:
+    """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
+    (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest."""
+    from generators.encode import JPEG_QUALITY
+    from schemas.slices import get_slice
+
+    if not isinstance(policy_ref, str) or not policy_ref:
+        raise SpecError(f"--policy must be a name, module:callable or ws://HOST:PORT, got {policy_ref!r}")
+    if isinstance(deadline_s, bool) or not isinstance(deadline_s, (int, float)) or not 0 < deadline_s < float("inf"):
+        raise SpecError(f"--deadline must be a number of seconds > 0, got {deadline_s!r}")
+    definition = get_slice(slice_name)
+    if definition.union:
+        raise SpecError(f"{slice_name} is the union of {', '.join(definition.parts)}: evaluate on one of them or test-1k")
+    total = definition.episodes if episodes is None else episodes
+    if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
+        raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
+    build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY)
+    ranges = shard_ranges(total, shard_size)
+    name = describe_policy(policy_ref, float(deadline_s))
+    settings = EvalSettings(build_settings, slice_name, policy_ref, name, float(deadline_s))
+
+    run_dir = Path(out)
+    (run_dir / "shards").mkdir(parents=True, exist_ok=True)
+    remove_stray_temps(run_dir)
+    commit = git_commit()
+    done = _finished_shards(run_dir, settings)
+    done.update(_load_state(run_dir, settings, commit))
+    done = {key: record for key, record in done.items() if key in set(ranges)}
+    tasks = [ShardTask(slice_name, first, end) for first, end in ranges if (first, end) not in done]
+
+    meter = Progress(len(ranges), total) if progress else None
+    if meter is not None and done:
+        print(f"resuming: {len(done)} of {len(ranges)} shards already evaluated", file=sys.stderr)
+        for key in sorted(done):
+            meter.update(done[key], skipped=True)
+    timing: dict[str, Any] = {"episodes": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
+
+    def on_done(result: dict) -> None:
+        record = ShardRecord.from_dict(result["record"])
+        done[tuple(record.episodes)] = record
+        _save_state(run_dir, settings, commit, done)
+        stats = result["stats"]
+        for key in ("episodes", "steps", "calls", "policy_s"):
+            timing[key] += stats[key]
+        if stats["remote"] is not None:
+            timing["remote"] = _merge_timing(timing["remote"], stats["remote"])
+        if meter is not None:
+            meter.update(record)
+
+    start = time.monotonic()
+    run_tasks(tasks, settings, run_dir, workers, scheduler, on_done, task_fn=eval_shard, key_prefix="eval")
+    elapsed = time.monotonic() - start
+
+    manifest = Manifest.create(
+        slice_name,
+        definition.seed,
+        build_settings.as_dict(),
+        [done[key] for key in ranges],
+        code=CodeInfo(CODE_VERSION, commit),
+        extra=settings.extra(),
+    )
+    write_manifest(run_dir, manifest)
+    (run_dir / STATE_FILE).unlink(missing_ok=True)
+    if summary:
+        out_stream = sys.stdout if stream is None else stream
+        for line in summarize(run_dir).lines():
+            print(line, file=out_stream)
+        for line in _timing_lines(timing, elapsed):
+            print(line, file=out_stream)
+        print(f"  -> {manifest_path(run_dir)} (hash {manifest.hash[:16]})", file=out_stream, flush=True)
+    return manifest
+
+
+def _timing_lines(timing: dict[str, Any], elapsed: float) -> Sequence[str]:
+    if not timing["episodes"]:
+        return []
+    lines = [
+        f"  time: {elapsed:.1f} s, {timing['episodes'] / max(elapsed, 1e-9):.2f} episodes/s, "
+        f"{timing['steps'] / max(elapsed, 1e-9):.1f} steps/s; policy {1000.0 * timing['policy_s'] / max(timing['calls'], 1):.2f} ms per act"
+    ]
+    remote = timing["remote"]
+    if remote is not None:
+        lines.append(
+            f"  remote: {remote['round_trip_ms']:.2f} ms round trip per act (server {remote['server_ms']:.2f} ms, "
+            f"worst {remote['max_round_trip_ms']:.1f} ms)"
+        )
+    return lines

@@ -1,0 +1,161 @@
+"""RemotePolicy: the Policy protocol spoken over a ``dyana/1`` WebSocket connection.
+
+It connects on construction and reads the server's metadata (``name``,
+``action_horizon``, ``privileged``), then forwards ``reset(task)`` and
+``act(obs)``. A dropped connection, a reply later than ``timeout_s``, a malformed
+reply or an ``error`` reply raises :class:`~schemas.errors.PolicyError`; after any
+of these the connection is closed and the object refuses further calls (a late
+reply could otherwise be mistaken for the next one): make a new RemotePolicy.
+Reasons never contain the server's address, so recorded errors stay reproducible.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from pipeline import protocol
+from schemas.errors import PolicyError, SpecError
+
+DEFAULT_TIMEOUT_S = 30.0
+OPEN_TIMEOUT_S = 10.0
+_LOOPBACK = {"127.0.0.1", "localhost", "::1"}
+
+
+def is_remote(ref: str) -> bool:
+    """Whether a policy ref names a server (``ws://`` or ``wss://``)."""
+    return isinstance(ref, str) and ref.startswith(("ws://", "wss://"))
+
+
+class RemotePolicy:
+    """A policy served at ``url``; see the module docstring."""
+
+    def __init__(self, url: str, timeout_s: float = DEFAULT_TIMEOUT_S, open_timeout_s: float = OPEN_TIMEOUT_S) -> None:
+        if not is_remote(url):
+            raise SpecError(f"a remote policy URL starts with ws:// or wss://, got {url!r}")
+        if not (isinstance(timeout_s, (int, float)) and timeout_s > 0):
+            raise SpecError(f"timeout_s must be a number > 0, got {timeout_s!r}")
+        self.url = url
+        self.timeout_s = float(timeout_s)
+        self.calls = 0
+        self.round_trip_ms = 0.0
+        self.server_ms = 0.0
+        self.max_round_trip_ms = 0.0
+        self._broken: str | None = None
+        self._ws = None
+        from websockets.sync.client import connect
+
+        host = urlsplit(url).hostname or ""
+        try:
+            self._ws = connect(
+                url,
+                compression=None,
+                max_size=protocol.MAX_MESSAGE_BYTES,
+                open_timeout=open_timeout_s,
+                proxy=None if host in _LOOPBACK else True,
+            )
+        except Exception as exc:  # OSError, InvalidURI, InvalidHandshake, TimeoutError, ...
+            raise PolicyError(f"cannot connect to the policy server: {_describe(exc)}") from None
+        hello = self._receive(("metadata",), open_timeout_s)
+        self.name: str = hello["policy"]
+        self.action_horizon: int = hello["action_horizon"]
+        self.privileged: bool = hello["privileged"]
+
+    # --- Policy protocol --------------------------------------------------------------
+
+    def reset(self, task: dict[str, Any]) -> None:
+        self._send(protocol.reset_message(task))
+        self._receive(("ready",), self.timeout_s)
+
+    def act(self, obs: dict[str, Any]) -> np.ndarray:
+        start = time.perf_counter()
+        self._send(protocol.act_message(obs))
+        reply = self._receive(("action",), self.timeout_s)
+        elapsed = (time.perf_counter() - start) * 1000.0
+        self.calls += 1
+        self.round_trip_ms += elapsed
+        self.server_ms += float(reply["server_time_ms"])
+        self.max_round_trip_ms = max(self.max_round_trip_ms, elapsed)
+        return reply["action"]
+
+    def close(self) -> None:
+        if self._ws is not None:
+            self._ws.close()
+
+    def __enter__(self) -> "RemotePolicy":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def timing(self) -> dict[str, float]:
+        """Mean round trip and server time per ``act`` (ms), the worst round trip and the call count."""
+        n = max(self.calls, 1)
+        return {
+            "calls": self.calls,
+            "round_trip_ms": self.round_trip_ms / n,
+            "server_ms": self.server_ms / n,
+            "max_round_trip_ms": self.max_round_trip_ms,
+        }
+
+    # --- transport ----------------------------------------------------------------------
+
+    def _fail(self, reason: str) -> PolicyError:
+        self._broken = reason
+        try:
+            self.close()
+        except Exception:
+            pass
+        return PolicyError(reason)
+
+    def _check_usable(self) -> None:
+        if self._broken is not None:
+            raise PolicyError(f"remote policy unusable after an earlier failure ({self._broken})")
+
+    def _send(self, message: dict[str, Any]) -> None:
+        self._check_usable()
+        data = protocol.encode(message)
+        from websockets.exceptions import ConnectionClosed
+
+        try:
+            self._ws.send(data)
+        except ConnectionClosed as exc:
+            raise self._fail(f"remote policy: connection closed ({_closed(exc)})") from None
+        except OSError as exc:
+            raise self._fail(f"remote policy: cannot send ({_describe(exc)})") from None
+
+    def _receive(self, expected: tuple[str, ...], timeout: float) -> dict[str, Any]:
+        self._check_usable()
+        from websockets.exceptions import ConnectionClosed
+
+        try:
+            data = self._ws.recv(timeout=timeout)
+        except TimeoutError:
+            raise self._fail(f"remote policy: no {' or '.join(expected)} reply within {timeout:g} s") from None
+        except ConnectionClosed as exc:
+            raise self._fail(f"remote policy: connection closed ({_closed(exc)})") from None
+        except OSError as exc:
+            raise self._fail(f"remote policy: connection failed ({_describe(exc)})") from None
+        try:
+            message = protocol.parse(data, expected)
+        except protocol.ProtocolError as exc:
+            raise self._fail(f"remote policy: protocol error: {exc}") from None
+        if message["type"] == "error":
+            raise self._fail(f"remote policy: server error: {message['message']}")
+        return message
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc)
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _closed(exc: Exception) -> str:
+    rcvd = getattr(exc, "rcvd", None)
+    if rcvd is None:
+        return "no close frame received"
+    reason = f", {rcvd.reason}" if rcvd.reason else ""
+    return f"code {rcvd.code}{reason}"
