@@ -242,27 +242,41 @@ def _load_source(root: Path, source: int, verify: str, files: list[_ShardFile]):
 # --- per-process shard cache ----------------------------------------------------------
 
 
+class _Descriptor:
+    """Owns an open file descriptor and closes it when the last reference goes, so a
+    shard evicted from the cache while an item is still being read from it keeps a
+    valid descriptor (a closed number could be reused by another file)."""
+
+    __slots__ = ("fd",)
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def __del__(self) -> None:
+        try:
+            os.close(self.fd)
+        except OSError:
+            pass
+
+
 class _OpenShard:
     """A frames file in use: its descriptor, float columns, timestamps, phases and JPEG offsets."""
 
-    __slots__ = ("path", "fd", "floats", "timestamp", "phase", "offsets", "lengths", "nbytes")
+    __slots__ = ("path", "owner", "fd", "floats", "timestamp", "phase", "offsets", "lengths", "nbytes")
 
-    def __init__(self, path, fd, floats, timestamp, phase, offsets, lengths) -> None:
-        self.path, self.fd = path, fd
+    def __init__(self, path, owner, floats, timestamp, phase, offsets, lengths) -> None:
+        self.path, self.owner, self.fd = path, owner, owner.fd
         self.floats, self.timestamp, self.phase = floats, timestamp, phase
         self.offsets, self.lengths = offsets, lengths
-        self.nbytes = floats.nbytes + timestamp.nbytes + phase.nbytes + 2 * 8 * len(offsets)
+        # Python int lists (faster to index than numpy): about 72 bytes a row for the two.
+        self.nbytes = floats.nbytes + timestamp.nbytes + phase.nbytes + 72 * len(offsets)
 
     def jpeg(self, row: int) -> bytes:
-        data = os.pread(self.fd, self.lengths[row], self.offsets[row])
-        if len(data) != self.lengths[row]:
+        length = self.lengths[row]
+        data = os.pread(self.fd, length, self.offsets[row])
+        if len(data) != length:
             raise ShardError(f"{self.path}: image of row {row} is cut off (file truncated while open)")
         return data
-
-    def close(self) -> None:
-        if self.fd >= 0:
-            os.close(self.fd)
-            self.fd = -1
 
 
 def _sha256_fd(fd: int) -> str:
@@ -287,8 +301,11 @@ class _Reader:
         self.cache: OrderedDict[int, _OpenShard] = OrderedDict()
         self.bytes = 0
         self.verified: set[int] = set()
+        self.last_key, self.last = -1, None
 
     def get(self, key: int) -> _OpenShard:
+        if key == self.last_key:
+            return self.last
         shard = self.cache.get(key)
         if shard is None:
             shard = self._load(key)
@@ -297,21 +314,22 @@ class _Reader:
             while len(self.cache) > 1 and (self.bytes > self.budget or len(self.cache) > self.MAX_OPEN):
                 _, old = self.cache.popitem(last=False)
                 self.bytes -= old.nbytes
-                old.close()
         else:
             self.cache.move_to_end(key)
+        self.last_key, self.last = key, shard
         return shard
 
     def _load(self, key: int) -> _OpenShard:
         record = self.files[key]
         path = record.path
         try:
-            fd = os.open(path, os.O_RDONLY)
+            owner = _Descriptor(os.open(path, os.O_RDONLY))
         except FileNotFoundError:
             raise ShardError(f"{path}: file is missing") from None
         except OSError as exc:
             raise ShardError(f"{path}: cannot open: {exc}") from None
-        try:
+        fd = owner.fd
+        if True:
             size = os.fstat(fd).st_size
             if size != record.size:
                 state = "truncated" if size < record.size else "longer than recorded"
@@ -346,22 +364,13 @@ class _Reader:
                 raise ShardError(f"{path}: phase holds a value outside {list(PHASES)}")
             phase = column_to_numpy(codes).astype(np.int8)
             timestamp = np.ascontiguousarray(column_to_numpy(table.column("timestamp")), dtype=np.float64)
-            return _OpenShard(path, fd, floats, timestamp, phase, offsets.tolist(), lengths.tolist())
-        except BaseException:
-            os.close(fd)
-            raise
+            return _OpenShard(path, owner, floats, timestamp, phase, offsets.tolist(), lengths.tolist())
 
     def close(self) -> None:
-        for shard in self.cache.values():
-            shard.close()
+        """Forget every loaded shard (descriptors close as soon as no item is being read from them)."""
         self.cache.clear()
         self.bytes = 0
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:
-            pass
+        self.last_key, self.last = -1, None
 
 
 # --- the dataset ------------------------------------------------------------------------

@@ -4,7 +4,8 @@ Timeline (frames, ``a = spec.observe_frames``, ``i = spec.intercept_frame``):
 
 * ``[0, a]`` the hand rests at :data:`generators.hand.REST_PALM` with open fingers
   (frame ``a`` is the first acting frame and still the rest pose);
-* ``[a, i]`` the palm follows a quintic (minimum-jerk family) from rest, with zero
+* ``[a, i]`` the palm follows a ramp-cruise-ramp path (:func:`cruise_step`, plus the
+  quintic's end-velocity and end-acceleration terms) from rest, with zero
   velocity and acceleration, to the hover point over the object's top at frame ``i``,
   arriving with the object's velocity and acceleration, so it never stops before
   arrival and joins the tracking motion with continuous velocity and acceleration;
