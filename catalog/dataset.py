@@ -61,6 +61,7 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
+from bisect import bisect_right
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -76,7 +77,7 @@ from catalog.hashing import sha256_file
 from catalog.manifest import Manifest, load_manifest
 from catalog.pages import image_offsets
 from catalog.parquet_io import check_columns, column_to_numpy, open_parquet, read_episodes, read_frames, table_kind
-from catalog.windows import episode_starts, history_window, horizon_window, locate
+from catalog.windows import episode_starts, history_window, horizon_window
 from schemas.errors import ShardError, SpecError
 from schemas.objects import OBJECTS
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES, PHASES
@@ -102,6 +103,7 @@ _EPISODE_COLUMNS = (
     "rollout_format", "intercept_setting", "num_frames", "text",
 )
 _IMREAD = getattr(cv2, "IMREAD_COLOR_RGB", None)
+getpid = os.getpid
 _BLOCK = 1 << 20
 
 
@@ -329,42 +331,41 @@ class _Reader:
         except OSError as exc:
             raise ShardError(f"{path}: cannot open: {exc}") from None
         fd = owner.fd
-        if True:
-            size = os.fstat(fd).st_size
-            if size != record.size:
-                state = "truncated" if size < record.size else "longer than recorded"
-                raise ShardError(f"{path}: {state}: {size} bytes, catalog.json says {record.size}")
-            if self.verify == "sha256" and key not in self.verified:
-                digest = _sha256_fd(fd)
-                if digest != record.sha256:
-                    raise ShardError(f"{path}: content changed: sha256 {digest}, catalog.json says {record.sha256}")
-                self.verified.add(key)
-            with open_parquet(path) as parquet:
-                if table_kind(parquet) != "frames":
-                    raise ShardError(f"{path}: not a frames table")
-                check_columns(path, parquet, "frames", _SHARD_COLUMNS)
-                if parquet.metadata.num_rows != record.frames:
-                    raise ShardError(f"{path}: has {parquet.metadata.num_rows} rows, catalog.json says {record.frames}")
-                try:
-                    table = parquet.read(columns=list(_SHARD_COLUMNS), use_threads=False)
-                except (pa.ArrowException, OSError, ValueError) as exc:
-                    raise ShardError(f"{path}: corrupt Parquet data: {exc}") from None
-                offsets, lengths = image_offsets(fd, path, parquet.metadata, check_crc=self.verify != "sha256")
-            episode = column_to_numpy(table.column("episode_index"))
-            frame = column_to_numpy(table.column("frame_index"))
-            if _index_digest(episode, frame) != record.index_digest:
-                raise ShardError(f"{path}: episode_index/frame_index changed since the dataset was opened")
-            n = table.num_rows
-            floats = np.empty((n, FLOAT_WIDTH), dtype=np.float32)
-            for name in FLOAT_COLUMNS:
-                start, stop = _LAYOUT[name]
-                floats[:, start:stop] = column_to_numpy(table.column(name)).reshape(n, stop - start)
-            codes = pc.index_in(table.column("phase"), value_set=pa.array(PHASES))
-            if codes.null_count:
-                raise ShardError(f"{path}: phase holds a value outside {list(PHASES)}")
-            phase = column_to_numpy(codes).astype(np.int8)
-            timestamp = np.ascontiguousarray(column_to_numpy(table.column("timestamp")), dtype=np.float64)
-            return _OpenShard(path, owner, floats, timestamp, phase, offsets.tolist(), lengths.tolist())
+        size = os.fstat(fd).st_size
+        if size != record.size:
+            state = "truncated" if size < record.size else "longer than recorded"
+            raise ShardError(f"{path}: {state}: {size} bytes, catalog.json says {record.size}")
+        if self.verify == "sha256" and key not in self.verified:
+            digest = _sha256_fd(fd)
+            if digest != record.sha256:
+                raise ShardError(f"{path}: content changed: sha256 {digest}, catalog.json says {record.sha256}")
+            self.verified.add(key)
+        with open_parquet(path) as parquet:
+            if table_kind(parquet) != "frames":
+                raise ShardError(f"{path}: not a frames table")
+            check_columns(path, parquet, "frames", _SHARD_COLUMNS)
+            if parquet.metadata.num_rows != record.frames:
+                raise ShardError(f"{path}: has {parquet.metadata.num_rows} rows, catalog.json says {record.frames}")
+            try:
+                table = parquet.read(columns=list(_SHARD_COLUMNS), use_threads=False)
+            except (pa.ArrowException, OSError, ValueError) as exc:
+                raise ShardError(f"{path}: corrupt Parquet data: {exc}") from None
+            offsets, lengths = image_offsets(fd, path, parquet.metadata, check_crc=self.verify != "sha256")
+        episode = column_to_numpy(table.column("episode_index"))
+        frame = column_to_numpy(table.column("frame_index"))
+        if _index_digest(episode, frame) != record.index_digest:
+            raise ShardError(f"{path}: episode_index/frame_index changed since the dataset was opened")
+        n = table.num_rows
+        floats = np.empty((n, FLOAT_WIDTH), dtype=np.float32)
+        for name in FLOAT_COLUMNS:
+            start, stop = _LAYOUT[name]
+            floats[:, start:stop] = column_to_numpy(table.column(name)).reshape(n, stop - start)
+        codes = pc.index_in(table.column("phase"), value_set=pa.array(PHASES))
+        if codes.null_count:
+            raise ShardError(f"{path}: phase holds a value outside {list(PHASES)}")
+        phase = column_to_numpy(codes).astype(np.int8)
+        timestamp = np.ascontiguousarray(column_to_numpy(table.column("timestamp")), dtype=np.float64)
+        return _OpenShard(path, owner, floats, timestamp, phase, offsets.tolist(), lengths.tolist())
 
     def close(self) -> None:
         """Forget every loaded shard (descriptors close as soon as no item is being read from them)."""
@@ -538,10 +539,14 @@ class FrameDataset:
 
     # --- items -----------------------------------------------------------------------------
 
+    def _new_reader(self) -> _Reader:
+        self._reader = _Reader(self._files, self._options.verify, self._options.cache_bytes)
+        return self._reader
+
     def _shard(self, key: int) -> _OpenShard:
         reader = self._reader
-        if reader is None or reader.pid != os.getpid():
-            reader = self._reader = _Reader(self._files, self._options.verify, self._options.cache_bytes)
+        if reader is None or reader.pid != getpid():
+            reader = self._new_reader()
         return reader.get(key)
 
     def _decode(self, shard: _OpenShard, row: int) -> np.ndarray:
@@ -566,9 +571,15 @@ class FrameDataset:
             raise TypeError(f"frame index must be an integer, got {type(index).__name__}") from None
         if i < 0:
             i += self._len
-        k, f = locate(i, self._starts, self._len)
+        if not 0 <= i < self._len:
+            raise IndexError(f"frame {index} is out of range for {self._len} frames")
+        k = bisect_right(self._starts, i) - 1
+        f = i - self._starts[k]
         key, first, n = self._spans[k]
-        shard = self._shard(key)
+        reader = self._reader
+        if reader is None or reader.pid != getpid():
+            reader = self._new_reader()
+        shard = reader.last if key == reader.last_key else reader.get(key)
         row = first + f
         options = self._options
         if options.history == 0:

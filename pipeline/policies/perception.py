@@ -98,16 +98,6 @@ def table_colour(image: np.ndarray) -> np.ndarray:
     return np.median(image[table_region(w, h)], axis=0)
 
 
-def _segment_distance(px: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance of pixels (..., 2) to 2D segments a -> b (k, 2): shape (..., k)."""
-    ab = b - a
-    denom = np.maximum(np.einsum("kj,kj->k", ab, ab), 1e-12)
-    rel = px[..., None, :] - a
-    s = np.clip(np.einsum("...kj,kj->...k", rel, ab) / denom, 0.0, 1.0)
-    closest = a + s[..., None] * ab
-    return np.linalg.norm(px[..., None, :] - closest, axis=-1)
-
-
 def _convex_hull(points: np.ndarray) -> np.ndarray:
     """Counter-clockwise convex hull (Andrew's monotone chain) of 2D points (m, 2)."""
     pts = sorted(map(tuple, np.round(points, 9)))
@@ -155,45 +145,58 @@ def _signed_area(hull: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
-def hand_mask(
-    palm_pose: np.ndarray, joint_poses: np.ndarray, keypoints: np.ndarray, width: int, height: int,
-    margin: float = HAND_MARGIN_PX,
-) -> np.ndarray:
-    """(H, W) bool: the pixels the hand covers, predicted from its state and geometry."""
+def _hand_parts(palm_pose, joint_poses, keypoints) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """World capsules (starts (k, 3), ends (k, 3), radii (k,)) and palm box corners (8, 3)."""
     palm = np.asarray(palm_pose, dtype=np.float64)
     joints = np.asarray(joint_poses, dtype=np.float64).reshape(5, 3, 6)[:, :, :3]
     tips = np.asarray(keypoints, dtype=np.float64).reshape(6, 6)[:5, :3]
     rot = euler_to_matrix(palm[3:])
     chain = np.concatenate([joints, tips[:, None]], axis=1)  # (5, 4, 3)
-    starts = chain[:, :3].reshape(15, 3)
-    ends = chain[:, 1:].reshape(15, 3)
-    radii = np.repeat(FINGER_RADII, 3)
-    wrist = palm[:3] + np.array([rot @ np.array([0.0, 0.0, z]) for z in _WRIST_SPAN])
-    starts = np.vstack([starts, wrist[:1]])
-    ends = np.vstack([ends, wrist[1:]])
-    radii = np.append(radii, _WRIST_RADIUS)
+    wrist = palm[:3] + np.outer(_WRIST_SPAN, rot[:, 2])
+    starts = np.vstack([chain[:, :3].reshape(15, 3), wrist[:1]])
+    ends = np.vstack([chain[:, 1:].reshape(15, 3), wrist[1:]])
+    radii = np.append(np.repeat(FINGER_RADII, 3), _WRIST_RADIUS)
+    corners = palm[:3] + (_BOX_SIGNS * np.asarray(PALM_HALF_EXTENTS)) @ rot.T
+    return starts, ends, radii, corners
 
-    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
-    corners = palm[:3] + (signs * np.asarray(PALM_HALF_EXTENTS)) @ rot.T
+
+def _window(lo: np.ndarray, hi: np.ndarray, width: int, height: int):
+    """Pixel window (rows slice, cols slice) and its pixel centres (h, w, 2), or None if empty."""
+    c0, r0 = max(int(np.floor(lo[0])), 0), max(int(np.floor(lo[1])), 0)
+    c1, r1 = min(int(np.ceil(hi[0])) + 1, width), min(int(np.ceil(hi[1])) + 1, height)
+    if c0 >= c1 or r0 >= r1:
+        return None
+    cols, rows = np.meshgrid(np.arange(c0, c1) + 0.5, np.arange(r0, r1) + 0.5)
+    return (slice(r0, r1), slice(c0, c1)), np.stack([cols, rows], axis=-1)
+
+
+def hand_mask(
+    palm_pose: np.ndarray, joint_poses: np.ndarray, keypoints: np.ndarray, width: int, height: int,
+    margin: float = HAND_MARGIN_PX,
+) -> np.ndarray:
+    """(H, W) bool: the pixels the hand covers, predicted from its state and geometry
+    (palm box, wrist cylinder, finger capsules), grown by ``margin`` pixels."""
+    starts, ends, radii, corners = _hand_parts(palm_pose, joint_poses, keypoints)
     pa, da = project(starts, width, height)
     pb, db = project(ends, width, height)
     pc, _ = project(corners, width, height)
-    f = focal_px(height)
-    r_px = radii * f / np.maximum(np.minimum(da, db), 1e-6) + margin
-    hull = _convex_hull(pc)
-
+    r_px = radii * focal_px(height) / np.maximum(np.minimum(da, db), 1e-6) + margin
     mask = np.zeros((height, width), dtype=bool)
-    everything = np.vstack([pa - r_px[:, None], pb - r_px[:, None], pa + r_px[:, None], pb + r_px[:, None], pc])
-    lo = np.floor(everything.min(axis=0) - margin).astype(int)
-    hi = np.ceil(everything.max(axis=0) + margin).astype(int)
-    c0, r0 = max(lo[0], 0), max(lo[1], 0)
-    c1, r1 = min(hi[0] + 1, width), min(hi[1] + 1, height)
-    if c0 >= c1 or r0 >= r1:
-        return mask
-    cols, rows = np.meshgrid(np.arange(c0, c1) + 0.5, np.arange(r0, r1) + 0.5)
-    px = np.stack([cols, rows], axis=-1)
-    covered = np.any(_segment_distance(px, pa, pb) <= r_px, axis=-1) | _inside_hull(px, hull, margin)
-    mask[r0:r1, c0:c1] = covered
+    for a, b, r in zip(pa, pb, r_px):
+        win = _window(np.minimum(a, b) - r, np.maximum(a, b) + r, width, height)
+        if win is None:
+            continue
+        (rows, cols), px = win
+        ab = b - a
+        rel = px - a
+        s = np.clip((rel @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+        d = rel - s[..., None] * ab
+        mask[rows, cols] |= (d[..., 0] ** 2 + d[..., 1] ** 2) <= r * r
+    hull = _convex_hull(pc)
+    win = _window(pc.min(axis=0) - margin, pc.max(axis=0) + margin, width, height)
+    if win is not None:
+        (rows, cols), px = win
+        mask[rows, cols] |= _inside_hull(px, hull, margin)
     return mask
 
 
