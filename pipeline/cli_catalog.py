@@ -18,18 +18,12 @@ import os
 import sys
 from typing import Callable
 
+from pipeline.cli_args import OneLineParser, positive_int
 from schemas.errors import DyanaError
 from schemas.slices import get_slice
 from schemas.versions import FPS
 
 EXIT_ERROR = 2
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse whose usage errors are one line, like every other Dyana error."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see --help)\n")
 
 
 def _print_json(data) -> None:
@@ -121,20 +115,10 @@ def cmd_verify(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {text!r}")
-    return value
-
-
 def _add_verify(sub) -> None:
     p = sub.add_parser("verify", help="check every file's sha256 and rebuild shards to compare bytes")
     p.add_argument("dir", metavar="DIR", help="a built slice or rollout folder (holding catalog.json)")
-    p.add_argument("--sample", type=_positive, default=None, metavar="K", help="rebuild only K shards (default: all)")
+    p.add_argument("--sample", type=positive_int, default=None, metavar="K", help="rebuild only K shards (default: all)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_verify)
 
@@ -144,8 +128,8 @@ SUBCOMMANDS: list[Callable] = [_add_list, _add_stats, _add_specs, _add_verify]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="catalog", description="Dyana slices: list, statistics, episode specs and verification.")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    parser = OneLineParser(prog="catalog", description="Dyana slices: list, statistics, episode specs and verification.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
     for add in SUBCOMMANDS:
         add(sub)
