@@ -23,7 +23,7 @@ from catalog.hashing import sha256_file
 from catalog.manifest import Manifest, ShardRecord, compute_hash, git_commit, write_manifest
 from schemas.errors import DyanaError, ShardError, SpecError
 from schemas.spec import EpisodeSpec
-from schemas.versions import CODE_VERSION, FPS
+from schemas.versions import CODE_VERSION, DATASET_VERSION, FPS
 
 STATE_FILE = ".build-state.json"
 DEFAULT_SHARD_SIZE = 128
@@ -37,6 +37,7 @@ class BuildSettings:
     jpeg_quality: int
     fps: int = FPS
     image_format: str = "jpeg"
+    dataset_version: str = DATASET_VERSION
 
     def __post_init__(self) -> None:
         if not isinstance(self.resolution, int) or not 16 <= self.resolution <= 1024:

@@ -22,6 +22,7 @@ from catalog.parquet_io import read_episodes
 from catalog.records import ShardRecord
 from schemas.errors import ShardError
 from schemas.spec import EpisodeSpec
+from schemas.versions import DATASET_VERSION
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,13 @@ def rebuild_shard(directory: Path, manifest: Manifest, shard: ShardRecord, scrat
     from pipeline.build import BuildSettings
     from pipeline.record import write_ground_truth_shard
 
+    built_with = manifest.settings.get("dataset_version")
+    if built_with != DATASET_VERSION:
+        raise ShardError(
+            f"{directory / 'catalog.json'}: built as dataset version {built_with!r}; this code builds "
+            f"{DATASET_VERSION!r}, so its shards cannot be rebuilt byte for byte (check out the commit "
+            f"{manifest.code.commit or 'that built it'})"
+        )
     settings = BuildSettings(**manifest.settings)
     specs = _stored_specs(directory, shard)
     rebuilt = write_ground_truth_shard(specs, shard.first, shard.end, settings, scratch)
