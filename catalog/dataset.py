@@ -42,23 +42,26 @@ flat over any number of passes. Random access runs at decoding speed while the
 selected frames' shards fit the cache; for bigger selections use
 :meth:`FrameDataset.iterable`, which loads each shard once per epoch.
 
-Corrupt data (guarantees). A file that is missing, or whose size differs from
-``catalog.json``, raises ShardError naming it when the dataset is opened. Every
-page read goes through a CRC32 check (pyarrow's page checksum verification for the
-tables, Dyana's own for the image pages) and the image column's page structure is
-checked value by value; ``verify="sha256"`` (the default) also hashes each episodes
-file at open and each frames file the first time a process touches it, and compares
-the digest with the manifest, which catches any change, even one with recomputed
-checksums. Any mismatch raises ShardError naming the file before an item of that
-file is returned. ``verify="checksums"`` skips the hashing (faster first touch) and
-detects truncation, accidental corruption and most edits, but not a deliberate edit
-that also rewrites the page checksums. Files are checked as they are when a process
-first reads them; rewriting a file in place under a running loader is not detected.
+Corrupt data (guarantees). At open, every frames and episodes file must exist with
+the size ``catalog.json`` records (a truncated or extended file raises ShardError
+naming it) and the episodes tables are read with their page checksums verified. On
+a shard's first use in a process, ``verify="sha256"`` (the default) hashes the
+frames file and compares it with ``catalog.json`` (episodes files are hashed at
+open): any changed byte is caught. ``verify="checksums"`` skips the hash; every page
+read is then CRC32-checked (pyarrow's page checksum verification for the float
+columns, Dyana's own for the image pages, whose layout is also checked value by
+value), which catches truncation and accidental corruption but not a deliberate
+edit that rewrites the checksums too. Either way the file's ``episode_index`` and
+``frame_index`` must still be what the index was built from, and a JPEG that does
+not decode raises. A failed check raises ShardError naming the file, and no item of
+that shard is returned. Limit: a process checks a file when it loads it; a file
+rewritten in place while loaded is not checked again until it is reloaded.
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 import os
 import sys
 from bisect import bisect_right
@@ -72,6 +75,7 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from catalog.hashing import sha256_file
 from catalog.manifest import Manifest, load_manifest
@@ -84,16 +88,22 @@ from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES, PHASES
 from schemas.tables import ARRAY_WIDTHS, STATE_COLUMNS
 
 VERIFY_MODES = ("sha256", "checksums")
-#: Float columns of an item, in frames-table order, with their per-frame widths (0: scalar).
+#: Float columns of an item, in frames-table order; a shard keeps them side by side in one
+#: float32 matrix (``fingertip_distance``, a scalar, takes one column).
 FLOAT_COLUMNS = (*STATE_COLUMNS, "action", "fingertip_distance")
-_WIDTHS = {**ARRAY_WIDTHS, "fingertip_distance": 0}
-_LAYOUT: dict[str, tuple[int, int]] = {}
-_offset = 0
-for _name in FLOAT_COLUMNS:
-    _LAYOUT[_name] = (_offset, _offset + max(_WIDTHS[_name], 1))
-    _offset += max(_WIDTHS[_name], 1)
-FLOAT_WIDTH = _offset
-del _offset, _name
+
+
+def _float_layout() -> dict[str, tuple[int, int]]:
+    layout, start = {}, 0
+    for name in FLOAT_COLUMNS:
+        width = ARRAY_WIDTHS.get(name, 1)
+        layout[name] = (start, start + width)
+        start += width
+    return layout
+
+
+_LAYOUT = _float_layout()
+FLOAT_WIDTH = _LAYOUT[FLOAT_COLUMNS[-1]][1]
 _STATE_SLICES = tuple((name, slice(*_LAYOUT[name])) for name in STATE_COLUMNS)
 _ACTION = slice(*_LAYOUT["action"])
 _DISTANCE = _LAYOUT["fingertip_distance"][0]
@@ -103,16 +113,15 @@ _EPISODE_COLUMNS = (
     "rollout_format", "intercept_setting", "num_frames", "text",
 )
 _IMREAD = getattr(cv2, "IMREAD_COLOR_RGB", None)
-getpid = os.getpid
-_BLOCK = 1 << 20
+_getpid = os.getpid
 
 
 @dataclass(frozen=True)
 class Episode:
     """One episode of an opened dataset, from its folder's episodes table.
 
-    ``num_frames`` is the number of frames stored (an evaluated rollout cut short by
-    a policy error may hold fewer than its spec's); ``policy`` and ``status`` are set
+    ``num_frames`` is the number of frames stored (an evaluated rollout holds as many
+    as its policy ran, not its spec's ``num_frames``); ``policy`` and ``status`` are set
     for rollouts only; ``source`` is the folder's position in the opened list.
     """
 
@@ -225,12 +234,14 @@ def _load_source(root: Path, source: int, verify: str, files: list[_ShardFile]):
         runs = _frame_runs(frames_path, episode, frame, shard.first, shard.end)
         key = len(files)
         files.append(
-            _ShardFile(str(frames_path), frames_record.size, frames_record.sha256, shard.frames, _index_digest(episode, frame))
+            _ShardFile(
+                str(frames_path), frames_record.size, frames_record.sha256, shard.frames, _index_digest(episode, frame)
+            )
         )
         for row, episode_index in enumerate(table["episode_index"]):
             start, count = runs.get(episode_index, (0, 0))
             declared = table["num_frames"][row]
-            if (count > declared) if rollout else (count != declared):
+            if not rollout and count != declared:  # a rollout runs as long as its policy did
                 raise ShardError(
                     f"{frames_path}: episode {episode_index} has {count} frames, its episodes row says {declared}"
                 )
@@ -257,7 +268,7 @@ class _Descriptor:
     def __del__(self) -> None:
         try:
             os.close(self.fd)
-        except OSError:
+        except Exception:  # already closed, or interpreter shutdown
             pass
 
 
@@ -281,13 +292,13 @@ class _OpenShard:
         return data
 
 
-def _sha256_fd(fd: int) -> str:
-    digest = hashlib.sha256()
-    position = 0
-    while block := os.pread(fd, _BLOCK, position):
-        digest.update(block)
-        position += len(block)
-    return digest.hexdigest()
+def _parquet_file(handle: io.FileIO, path: str, checksums: bool) -> pq.ParquetFile:
+    """The Parquet reader of an open file (the very file that was hashed, even if the path
+    has since been replaced), verifying page checksums if asked."""
+    try:
+        return pq.ParquetFile(handle, page_checksum_verification=checksums)
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        raise ShardError(f"{path}: not a readable Parquet file (truncated or corrupt): {exc}") from None
 
 
 class _Reader:
@@ -303,11 +314,12 @@ class _Reader:
         self.cache: OrderedDict[int, _OpenShard] = OrderedDict()
         self.bytes = 0
         self.verified: set[int] = set()
-        self.last_key, self.last = -1, None
+        self.last: tuple[int, _OpenShard | None] = (-1, None)  # one tuple: swapped atomically between threads
 
     def get(self, key: int) -> _OpenShard:
-        if key == self.last_key:
-            return self.last
+        last_key, last = self.last
+        if key == last_key:
+            return last
         shard = self.cache.get(key)
         if shard is None:
             shard = self._load(key)
@@ -318,7 +330,7 @@ class _Reader:
                 self.bytes -= old.nbytes
         else:
             self.cache.move_to_end(key)
-        self.last_key, self.last = key, shard
+        self.last = (key, shard)
         return shard
 
     def _load(self, key: int) -> _OpenShard:
@@ -335,12 +347,16 @@ class _Reader:
         if size != record.size:
             state = "truncated" if size < record.size else "longer than recorded"
             raise ShardError(f"{path}: {state}: {size} bytes, catalog.json says {record.size}")
-        if self.verify == "sha256" and key not in self.verified:
-            digest = _sha256_fd(fd)
-            if digest != record.sha256:
-                raise ShardError(f"{path}: content changed: sha256 {digest}, catalog.json says {record.sha256}")
-            self.verified.add(key)
-        with open_parquet(path) as parquet:
+        hashed = self.verify == "sha256" and key not in self.verified
+        hasher = hashlib.sha256() if hashed else None
+        # Right after hashing every byte, page checksums are redundant; otherwise they are checked.
+        with io.FileIO(os.dup(fd), "r") as handle, _parquet_file(handle, path, checksums=not hashed) as parquet:
+            offsets, lengths = image_offsets(fd, path, parquet.metadata, check_crc=not hashed, hasher=hasher, size=size)
+            if hasher is not None:
+                digest = hasher.hexdigest()
+                if digest != record.sha256:
+                    raise ShardError(f"{path}: content changed: sha256 {digest}, catalog.json says {record.sha256}")
+                self.verified.add(key)
             if table_kind(parquet) != "frames":
                 raise ShardError(f"{path}: not a frames table")
             check_columns(path, parquet, "frames", _SHARD_COLUMNS)
@@ -350,7 +366,6 @@ class _Reader:
                 table = parquet.read(columns=list(_SHARD_COLUMNS), use_threads=False)
             except (pa.ArrowException, OSError, ValueError) as exc:
                 raise ShardError(f"{path}: corrupt Parquet data: {exc}") from None
-            offsets, lengths = image_offsets(fd, path, parquet.metadata, check_crc=self.verify != "sha256")
         episode = column_to_numpy(table.column("episode_index"))
         frame = column_to_numpy(table.column("frame_index"))
         if _index_digest(episode, frame) != record.index_digest:
@@ -365,13 +380,13 @@ class _Reader:
             raise ShardError(f"{path}: phase holds a value outside {list(PHASES)}")
         phase = column_to_numpy(codes).astype(np.int8)
         timestamp = np.ascontiguousarray(column_to_numpy(table.column("timestamp")), dtype=np.float64)
-        return _OpenShard(path, owner, floats, timestamp, phase, offsets.tolist(), lengths.tolist())
+        return _OpenShard(path, owner, floats, timestamp, phase, offsets, lengths)
 
     def close(self) -> None:
         """Forget every loaded shard (descriptors close as soon as no item is being read from them)."""
         self.cache.clear()
         self.bytes = 0
-        self.last_key, self.last = -1, None
+        self.last = (-1, None)
 
 
 # --- the dataset ------------------------------------------------------------------------
@@ -545,7 +560,7 @@ class FrameDataset:
 
     def _shard(self, key: int) -> _OpenShard:
         reader = self._reader
-        if reader is None or reader.pid != getpid():
+        if reader is None or reader.pid != _getpid():
             reader = self._new_reader()
         return reader.get(key)
 
@@ -577,9 +592,11 @@ class FrameDataset:
         f = i - self._starts[k]
         key, first, n = self._spans[k]
         reader = self._reader
-        if reader is None or reader.pid != getpid():
+        if reader is None or reader.pid != _getpid():
             reader = self._new_reader()
-        shard = reader.last if key == reader.last_key else reader.get(key)
+        last_key, shard = reader.last
+        if key != last_key:
+            shard = reader.get(key)
         row = first + f
         options = self._options
         if options.history == 0:
@@ -660,9 +677,16 @@ class FrameDataset:
         self.close()
 
     def __getstate__(self) -> dict[str, Any]:
+        """No open files, caches or statistics travel to another process; manifests go as dicts."""
         state = self.__dict__.copy()
         state["_reader"] = None
+        state["_stats"] = None
+        state["_manifests"] = [m.to_dict() for m in self._manifests]
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        state["_manifests"] = tuple(Manifest.from_dict(m) for m in state["_manifests"])
+        self.__dict__.update(state)
 
     def __repr__(self) -> str:
         names = ", ".join(str(r) for r in self._roots)
@@ -820,7 +844,9 @@ def open_dataset(
         episodes_all.extend(source_episodes)
         spans.extend(source_spans)
     dataset = FrameDataset(roots, manifests, files, episodes_all, spans, options)
-    filters = dict(motion_type=motion_type, intercept_setting=intercept_setting, object=object, episodes=episodes, where=where)
+    filters = dict(
+        motion_type=motion_type, intercept_setting=intercept_setting, object=object, episodes=episodes, where=where
+    )
     if any(value is not None for value in filters.values()):
         dataset = dataset.select(**filters)
     return dataset

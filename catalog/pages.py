@@ -19,7 +19,6 @@ import os
 import struct
 import zlib
 
-import numpy as np
 import pyarrow.parquet as pq
 
 from schemas.errors import ShardError
@@ -29,6 +28,7 @@ _PLAIN = 0
 _HEADER_READ = 256
 _MAX_HEADER = 1 << 16
 _LENGTH = struct.Struct("<I")
+_BLOCK = 1 << 20
 
 
 class _ThriftError(ValueError):
@@ -118,13 +118,14 @@ def _struct(buf: bytes, pos: int) -> tuple[dict[int, object], int]:
         fields[field_id], pos = _value(buf, pos, kind)
 
 
-def _page_header(fd: int, path: str, pos: int, end: int) -> tuple[dict[int, object], int]:
-    """The PageHeader at file offset ``pos`` and its length in bytes."""
+def _page_header(fd: int, path: str, pos: int, end: int) -> tuple[dict[int, object], bytes]:
+    """The PageHeader at file offset ``pos`` and its raw bytes."""
     want = _HEADER_READ
     while True:
         buf = os.pread(fd, min(want, end - pos), pos)
         try:
-            return _struct(buf, 0)
+            fields, size = _struct(buf, 0)
+            return fields, buf[:size]
         except IndexError:
             if want >= _MAX_HEADER or pos + len(buf) >= end:
                 raise ShardError(f"{path}: image page header at byte {pos} is cut off (truncated or corrupt)") from None
@@ -141,10 +142,23 @@ def image_column_index(metadata: pq.FileMetaData) -> int:
     raise ValueError("no image column")
 
 
-def image_offsets(fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """File offsets and lengths (int64 arrays, one per row in file order) of the image values.
+def _hash_range(fd: int, hasher, start: int, end: int) -> None:
+    while start < end:
+        block = os.pread(fd, min(_BLOCK, end - start), start)
+        if not block:
+            return
+        hasher.update(block)
+        start += len(block)
 
-    ``fd`` is an open descriptor of ``path``; ``metadata`` its parsed footer.
+
+def image_offsets(
+    fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool = True, hasher=None, size: int | None = None
+) -> tuple[list[int], list[int]]:
+    """File offsets and lengths (one per row, in file order) of the image values.
+
+    ``fd`` is an open descriptor of ``path``; ``metadata`` its parsed footer. With a
+    ``hashlib`` ``hasher`` and the file's ``size``, every byte of the file is also fed
+    to it, in order, in the same pass (the image bytes are read once).
     """
     try:
         column = image_column_index(metadata)
@@ -156,6 +170,7 @@ def image_offsets(fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool
     offsets: list[int] = []
     lengths: list[int] = []
     unpack = _LENGTH.unpack_from
+    hashed = 0  # bytes of the file fed to the hasher so far
     for group in range(metadata.num_row_groups):
         chunk = metadata.row_group(group).column(column)
         rows = metadata.row_group(group).num_rows
@@ -167,21 +182,28 @@ def image_offsets(fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool
             )
         pos = chunk.data_page_offset
         end = pos + chunk.total_compressed_size
+        if hasher is not None:
+            if pos < hashed:
+                raise ShardError(f"{path}: image column chunks overlap or are out of order (corrupt)")
+            _hash_range(fd, hasher, hashed, pos)
         seen = 0
         while pos < end:
-            header, size = _page_header(fd, path, pos, end)
+            header, raw = _page_header(fd, path, pos, end)
             kind, body_size, page = header.get(1), header.get(3), header.get(5)
             if kind != _DATA_PAGE or not isinstance(page, dict) or page.get(2) != _PLAIN:
                 raise ShardError(f"{path}: image page at byte {pos} is not a PLAIN data page v1")
             count = page.get(1)
-            if not isinstance(body_size, int) or body_size < 0 or pos + size + body_size > end:
+            start = pos + len(raw)
+            if not isinstance(body_size, int) or body_size < 0 or start + body_size > end:
                 raise ShardError(f"{path}: image page at byte {pos} runs past its column chunk (corrupt)")
             if not isinstance(count, int) or count < 0 or seen + count > rows:
                 raise ShardError(f"{path}: image page at byte {pos} claims {count!r} values, more than the row group")
-            start = pos + size
             body = os.pread(fd, body_size, start)
             if len(body) != body_size:
                 raise ShardError(f"{path}: image page at byte {pos} is cut off (truncated)")
+            if hasher is not None:
+                hasher.update(raw)
+                hasher.update(body)
             if check_crc:
                 crc = header.get(4)
                 if not isinstance(crc, int):
@@ -204,6 +226,11 @@ def image_offsets(fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool
             pos = start + body_size
         if seen != rows:
             raise ShardError(f"{path}: row group {group} has {seen} images for {rows} rows (corrupt)")
+        hashed = end
     if len(offsets) != metadata.num_rows:
         raise ShardError(f"{path}: {len(offsets)} images for {metadata.num_rows} rows (corrupt)")
-    return np.array(offsets, dtype=np.int64), np.array(lengths, dtype=np.int64)
+    if hasher is not None:
+        if size is None:
+            raise ValueError("hashing needs the file size")
+        _hash_range(fd, hasher, hashed, size)
+    return offsets, lengths

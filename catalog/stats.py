@@ -155,7 +155,9 @@ class _Accumulator:
         return ColumnStats(self.count, self.mean.copy(), std, self.min.copy(), self.max.copy())
 
 
-def compute_stats(directory: str | os.PathLike[str], manifest: Manifest | None = None, *, verify: bool = False) -> Stats:
+def compute_stats(
+    directory: str | os.PathLike[str], manifest: Manifest | None = None, *, verify: bool = False
+) -> Stats:
     """Statistics of every frame of a folder, from the float columns of its frames files.
 
     ``verify`` also checks each frames file's sha256 against the manifest (reading,

@@ -4,8 +4,10 @@ Each task builds one whole shard (a fixed range of episodes): episode stage, ren
 JPEG encode, write Parquet + MCAP under temporary names, rename. The driver records
 every finished shard in ``.build-state.json`` (atomically), so a killed build resumes:
 shards whose files still match their recorded sha256 are skipped. ``catalog.json`` is
-written last; its hash covers the settings and the ordered file hashes only, so the
-worker count, the scheduler and interruptions cannot change it.
+written last, then ``stats.json`` (normalisation statistics of states and actions,
+computed without decoding images). The manifest's hash covers the settings and the
+ordered file hashes only, so the worker count, the scheduler and interruptions cannot
+change it.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import Any
 
 from catalog.atomic import atomic_write_text, remove_stray_temps
 from catalog.hashing import sha256_file
+from catalog.stats import load_stats
 from catalog.manifest import Manifest, ShardRecord, compute_hash, git_commit, write_manifest
 from schemas.errors import DyanaError, ShardError, SpecError
 from schemas.spec import EpisodeSpec
@@ -285,6 +288,7 @@ def build(
         hash=compute_hash(settings.as_dict(), shards),
     )
     write_manifest(slice_dir, manifest)
+    load_stats(slice_dir, manifest)
     (slice_dir / STATE_FILE).unlink(missing_ok=True)
     return manifest
 

@@ -47,7 +47,7 @@ def test_build_writes_a_verifiable_catalog(reference):
     assert load_manifest(slice_dir).hash == manifest.hash
     verify_files(slice_dir)
     assert not (slice_dir / STATE_FILE).exists()
-    assert sorted(p.name for p in slice_dir.iterdir()) == ["catalog.json", "shards"]
+    assert sorted(p.name for p in slice_dir.iterdir()) == ["catalog.json", "shards", "stats.json"]
 
 
 def test_two_workers_give_the_same_bytes(reference, tmp_path):
@@ -55,7 +55,8 @@ def test_two_workers_give_the_same_bytes(reference, tmp_path):
     other = _build(tmp_path, workers=2)
     assert other.hash == manifest.hash
     assert _files(tmp_path / SLICE) == _files(slice_dir)
-    assert (tmp_path / SLICE / "catalog.json").read_bytes() == (slice_dir / "catalog.json").read_bytes()
+    for name in ("catalog.json", "stats.json"):
+        assert (tmp_path / SLICE / name).read_bytes() == (slice_dir / name).read_bytes()
 
 
 def _free_port() -> int:
