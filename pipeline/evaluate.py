@@ -131,7 +131,6 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
                 stats["policy_s"] += result.policy_s
                 if not result.ok:
                     stats["errors"] += 1
-                if not result.ok:
                     _retire(policy, stats)
                     policy = None
     finally:
@@ -145,11 +144,12 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
 
 def _retire(policy: Any, stats: dict[str, Any]) -> None:
     """Close a policy, keeping its remote timing (if any) in ``stats``."""
+    from pipeline.remote import RemotePolicy
+
     if policy is None:
         return
-    timing = getattr(policy, "timing", None)
-    if callable(timing) and policy.calls:
-        stats["remote"] = _merge_timing(stats["remote"], timing())
+    if isinstance(policy, RemotePolicy) and policy.calls:
+        stats["remote"] = _merge_timing(stats["remote"], policy.timing())
     _close(policy)
 
 
@@ -296,7 +296,10 @@ def evaluate(
     stream: TextIO | None = None,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
-    (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest."""
+    (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
+
+    ``workers=0`` (without a scheduler) runs the shards one after another in this
+    process, without Dask: same bytes, for debugging and tests."""
     from generators.encode import JPEG_QUALITY
     from schemas.slices import get_slice
 
@@ -344,7 +347,11 @@ def evaluate(
             meter.update(record)
 
     start = time.monotonic()
-    run_tasks(tasks, settings, run_dir, workers, scheduler, on_done, task_fn=eval_shard, key_prefix="eval")
+    if workers == 0 and scheduler is None:
+        for task in tasks:
+            on_done(eval_shard(task, settings, str(run_dir)))
+    else:
+        run_tasks(tasks, settings, run_dir, workers, scheduler, on_done, task_fn=eval_shard, key_prefix="eval")
     elapsed = time.monotonic() - start
 
     manifest = Manifest.create(

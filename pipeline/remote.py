@@ -11,6 +11,7 @@ Reasons never contain the server's address, so recorded errors stay reproducible
 
 from __future__ import annotations
 
+import contextlib
 import time
 from typing import Any
 from urllib.parse import urlsplit
@@ -46,16 +47,19 @@ class RemotePolicy:
         self.max_round_trip_ms = 0.0
         self._broken: str | None = None
         self._ws = None
+        self._stack = contextlib.ExitStack()
         from websockets.sync.client import connect
 
         host = urlsplit(url).hostname or ""
         try:
-            self._ws = connect(
-                url,
-                compression=None,
-                max_size=protocol.MAX_MESSAGE_BYTES,
-                open_timeout=open_timeout_s,
-                proxy=None if host in _LOOPBACK else True,
+            self._ws = self._stack.enter_context(
+                connect(
+                    url,
+                    compression=None,
+                    max_size=protocol.MAX_MESSAGE_BYTES,
+                    open_timeout=open_timeout_s,
+                    proxy=None if host in _LOOPBACK else True,
+                )
             )
         except Exception as exc:  # OSError, InvalidURI, InvalidHandshake, TimeoutError, ...
             raise PolicyError(f"cannot connect to the policy server: {_describe(exc)}") from None
@@ -82,8 +86,8 @@ class RemotePolicy:
         return reply["action"]
 
     def close(self) -> None:
-        if self._ws is not None:
-            self._ws.close()
+        """Close the connection (idempotent; safe from another thread while a call waits)."""
+        self._stack.close()
 
     def __enter__(self) -> "RemotePolicy":
         return self

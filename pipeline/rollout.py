@@ -3,9 +3,9 @@
 :func:`run_episode` resets the environment with the spec (the observe window runs
 inside the reset), gives the policy its task, then asks it for actions until the
 episode terminates (grasp complete) or truncates (horizon). An action is one row
-(18,) or a chunk (H, 18), executed open loop one row per frame. Every action is
-cast to float32 before it reaches the environment, exactly as it would be after a
-trip over the wire, so in-process and remote runs see identical numbers.
+(18,) or a chunk (H, 18), executed open loop one row per frame (:func:`pipeline.env.run_chunk`,
+which checks the whole chunk first). The environment casts every action to float32,
+as a trip over the wire does, so in-process and remote runs see identical numbers.
 
 Faults fail the episode, never the run: an action that is not a finite (18,) or
 (H, 18) array, an exception in ``reset``/``act``, a call that overruns
@@ -13,6 +13,11 @@ Faults fail the episode, never the run: an action that is not a finite (18,) or
 :mod:`pipeline.worker_thread`) or a dropped connection gives status ``error`` with
 the reason, and the frames recorded up to that point are kept (at least the first
 acting frame, after the observe window).
+
+Python cannot stop a thread: an in-process call past its deadline is abandoned and
+keeps running in the background (the caller then discards that policy instance). A
+model that may spin forever is better served with ``pipeline serve`` and evaluated
+over ``ws://``, where the evaluator just drops the connection.
 """
 
 from __future__ import annotations
@@ -22,15 +27,12 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from pipeline.worker_thread import CallTimeout, WorkerThread
 from schemas.errors import PolicyError
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
-ACTION_WIDTH = 18
 #: Default per-call deadline (seconds) for a policy's ``reset`` and each ``act``.
 DEFAULT_DEADLINE_S = 10.0
 
@@ -39,7 +41,7 @@ DEFAULT_DEADLINE_S = 10.0
 class RolloutResult:
     """What one episode produced: its recording and how it ended.
 
-    ``steps`` counts executed actions (frames advanced), ``calls`` the ``act`` calls,
+    ``steps`` counts executed actions (frames advanced), ``calls`` the ``act`` calls made,
     ``policy_s`` the seconds spent waiting for the policy (not recorded anywhere).
     """
 
@@ -60,7 +62,9 @@ class RolloutResult:
 
 
 def task_for(spec: EpisodeSpec, resolution: int, privileged: bool, horizon: int) -> dict[str, Any]:
-    """The task a policy's ``reset`` receives; the spec itself only for privileged policies."""
+    """The task a policy's ``reset`` receives: the public conditions of the episode
+    (instruction, timing, the interception setting's time, image size, hand); the spec
+    itself only for privileged policies."""
     task: dict[str, Any] = {
         "text": spec.text,
         "fps": FPS,
@@ -68,27 +72,11 @@ def task_for(spec: EpisodeSpec, resolution: int, privileged: bool, horizon: int)
         "horizon": horizon,
         "resolution": resolution,
         "hand": spec.hand,
+        "intercept_time_s": spec.intercept_time_s,
     }
     if privileged:
         task["spec"] = spec.to_json()
     return task
-
-
-def check_action(raw: Any) -> np.ndarray:
-    """A policy's output as a float32 (H, 18) chunk, or PolicyError saying what is wrong."""
-    try:
-        action = np.asarray(raw, dtype=np.float32)
-    except (TypeError, ValueError) as exc:
-        raise PolicyError(f"action is not a numeric array ({type(raw).__name__}: {exc})") from None
-    if action.ndim == 1 and action.shape[0] == ACTION_WIDTH:
-        action = action[None, :]
-    elif not (action.ndim == 2 and action.shape[0] >= 1 and action.shape[1] == ACTION_WIDTH):
-        raise PolicyError(f"action must have shape (18,) or (H, 18) with H >= 1, got {tuple(action.shape)}")
-    bad = ~np.isfinite(action)
-    if bad.any():
-        row, col = (int(i) for i in np.argwhere(bad)[0])
-        raise PolicyError(f"action contains NaN/inf (row {row}, column {col}: {action[row, col]})")
-    return action
 
 
 def _call(worker: WorkerThread, fn: Any, arg: Any, deadline_s: float, what: str) -> Any:
@@ -111,7 +99,7 @@ def run_episode(env: Any, policy: Any, spec: EpisodeSpec, deadline_s: float = DE
     """
     if not (isinstance(deadline_s, (int, float)) and math.isfinite(deadline_s) and deadline_s > 0):
         raise PolicyError(f"deadline must be a finite number of seconds > 0, got {deadline_s!r}")
-    from pipeline.env import horizon
+    from pipeline.env import horizon, run_chunk
 
     obs, info = env.reset(options={"spec": spec})
     worker = WorkerThread()
@@ -122,22 +110,18 @@ def run_episode(env: Any, policy: Any, spec: EpisodeSpec, deadline_s: float = DE
     try:
         task = task_for(spec, env.resolution, bool(getattr(policy, "privileged", False)), horizon(spec))
         _call(worker, policy.reset, task, deadline_s, "reset")
-        done = False
+        done = bool(getattr(env, "done", False))
         while not done:
+            calls += 1
             start = time.perf_counter()
             try:
                 raw = _call(worker, policy.act, obs, deadline_s, "act")
             finally:
                 waited += time.perf_counter() - start
-            calls += 1
-            chunk = check_action(raw)
-            for row in chunk:
-                obs, _reward, terminated, truncated, info = env.step(row)
-                steps += 1
-                frame = int(obs["frame_index"])
-                if terminated or truncated:
-                    done = True
-                    break
+            ran = run_chunk(env, raw)
+            obs, info, steps = ran.observation, ran.info, steps + ran.steps
+            frame = int(obs["frame_index"])
+            done = ran.terminated or ran.truncated
     except PolicyError as exc:
         status, reason = "error", f"frame {frame}: {exc}"
     finally:

@@ -8,23 +8,32 @@ its height above the table, and where it is.
 
 The recipe, per frame:
 
-1. *Foreground*: pixels on the table top whose colour differs from the table's
-   (measured once per episode as the median colour of the table region, robust to
-   the few pixels that the object and hand cover).
+1. *Foreground*: pixels on the table top whose RGB distance to the table's colour
+   exceeds :data:`COLOUR_THRESHOLD` (the colour is measured once per episode, as the
+   median of the table region, which the object and hand barely cover). After a
+   sighting only a window around it is searched (:data:`ROI_HALF_PX`).
 2. *Hand*: the hand's own pixels are predicted from its proprioception (palm pose,
-   joint and fingertip positions) by projecting its parts (palm box, wrist, finger
-   capsules) with the camera model, and removed, with a margin of a few pixels for
-   JPEG's ringing.
-3. *Blob*: the largest connected foreground component, with the components close
-   to it (a finger lying across the object splits it); its centroid is the object's
-   image position.
-4. *Back-projection*: the centroid's viewing ray meets the horizontal plane at the
-   object's centre height, the category's resting half height at an estimated
-   size. The size is estimated from the blob's area on frames where the hand does
-   not touch the blob: the category's silhouette area at the nominal size is
-   predicted by projecting the shape, and area scales with size squared. Until an
-   estimate exists the nominal size is assumed; if the text names no known category,
-   a fixed centre height :data:`DEFAULT_CENTRE_HEIGHT` is assumed.
+   joint and fingertip positions) by projecting its parts (palm box, wrist cylinder,
+   finger capsules) with the camera model, grown by a margin for JPEG's ringing, and
+   removed.
+3. *Blob*: the largest connected foreground component left, with the components
+   near it (a finger lying across the object splits it).
+4. *Silhouette match*: the category's silhouette at the estimated size (the
+   projected convex hull of its shape; six headings for a lying cylinder, whose
+   heading follows its unknown path), grown by JPEG's one-pixel halo, is slid over the
+   blob. The best shift minimises template pixels over clearly visible table plus
+   blob pixels outside the template; pixels under the hand cost nothing, so a partly
+   hidden object is still placed by what shows. For a blob clear of the hand, its
+   centroid refines the match to a fraction of a pixel.
+5. *Back-projection*: the matched centre pixel's viewing ray meets the horizontal
+   plane at the object's centre height (the category's resting half height at the
+   estimated size).
+
+The size is estimated from blobs clear of the hand: the blob's area (its JPEG-blended
+rim weighted by colour, :func:`weighted_area`) over the silhouette's, times the size
+the silhouette was drawn at, square-rooted; the median of these samples. Until one
+exists the category's nominal size is assumed. If the text names no known category,
+the blob's centroid is back-projected at :data:`DEFAULT_CENTRE_HEIGHT`.
 """
 
 from __future__ import annotations
@@ -36,8 +45,9 @@ from typing import Optional
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError
 
-from generators.camera import project, unproject_to_plane
+from generators.camera import projection_matrix, unproject_to_plane, view_matrix
 from generators.hand import (
     FINGER_RADII,
     PALM_HALF_EXTENTS,
@@ -48,10 +58,14 @@ from generators.scene import TABLE_BORDER
 from schemas.objects import OBJECTS, ObjectCategory
 from schemas.scene import CAMERA_FOV_DEG, TABLE_X, TABLE_Z
 
-#: A pixel is foreground when some channel differs from the table's colour by more.
-COLOUR_THRESHOLD = 30
+#: A pixel is foreground when its RGB distance to the table's colour is larger (the
+#: table's JPEG noise stays under 15; the darkest shades of the blue and green objects
+#: are 25-40 away).
+COLOUR_THRESHOLD = 22
 #: Extra pixels around the projected hand that count as hand (JPEG ringing, rounding).
 HAND_MARGIN_PX = 2.0
+#: Silhouette templates are grown by this many pixels to match JPEG's halo.
+HALO_PX = 1.0
 #: Components smaller than this many pixels are noise.
 MIN_BLOB_PX = 4
 #: Assumed centre height (units) when the text names no known category.
@@ -61,6 +75,17 @@ SIZE_RANGE = (0.7, 1.3)
 #: Wrist cylinder of the hand model: radius and its extent along the palm's local Z.
 _WRIST_RADIUS = 0.7 * PALM_HALF_EXTENTS[0]
 _WRIST_SPAN = (WRIST_OFFSET[2] - 0.5, WRIST_OFFSET[2])
+_BOX_SIGNS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
+_NEIGHBOURS = np.array([[dr, dc] for dr in (-2, -1, 0, 1, 2) for dc in (-2, -1, 0, 1, 2)])
+#: Template search reach (pixels) around a clean blob, and the most it may reach when occluded.
+CLEAN_REACH_PX = 3
+MAX_REACH_PX = 20
+#: A lying cylinder's heading is tracked from frames showing at least this share of it.
+HEADING_COVERAGE = 0.5
+#: After a sighting, the next frame is searched this far around it (pixels at 224 px).
+ROI_HALF_PX = 48
+#: Sub-pixel centroid corrections larger than this are not trusted.
+MAX_CENTROID_CORRECTION_PX = 2.0
 
 
 def object_from_text(text: str) -> Optional[str]:
@@ -68,6 +93,23 @@ def object_from_text(text: str) -> Optional[str]:
     lowered = " ".join(re.findall(r"[a-z]+", str(text).lower()))
     found = [name for name in OBJECTS if re.search(rf"\b{name.replace('_', ' ')}\b", lowered)]
     return max(found, key=len) if found else None
+
+
+@functools.lru_cache(maxsize=8)
+def _clip_from_world(width: int, height: int) -> np.ndarray:
+    return projection_matrix(width / height) @ view_matrix()
+
+
+def _project(points: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`generators.camera.project` with the matrices computed once per resolution:
+    pixels (..., 2) as (column, row) and the clip w (the camera depth)."""
+    pts = np.asarray(points, dtype=np.float64)
+    m = _clip_from_world(width, height)
+    clip = pts @ m[:, :3].T + m[:, 3]
+    w = clip[..., 3:4]
+    cols = (1.0 - clip[..., 0:1] / w) * 0.5 * width
+    rows = (1.0 - clip[..., 1:2] / w) * 0.5 * height
+    return np.concatenate([cols, rows], axis=-1), w[..., 0]
 
 
 def focal_px(height: int) -> float:
@@ -87,8 +129,7 @@ def table_region(width: int, height: int) -> np.ndarray:
         & (world[..., 2] > TABLE_Z[0] + m)
         & (world[..., 2] < TABLE_Z[1] - m)
     )
-    # the camera sees the whole table in front of it; rays pointing up never meet it
-    inside &= np.isfinite(world).all(axis=-1)
+    # rays above the horizon meet the plane behind the camera (z < eye z), off the table
     return ndimage.binary_erosion(inside, iterations=1)
 
 
@@ -99,30 +140,11 @@ def table_colour(image: np.ndarray) -> np.ndarray:
 
 
 def _convex_hull(points: np.ndarray) -> np.ndarray:
-    """Counter-clockwise convex hull (Andrew's monotone chain) of 2D points (m, 2)."""
-    pts = sorted(map(tuple, np.round(points, 9)))
-    if len(pts) <= 2:
-        return np.array(pts)
-
-    def half(seq):
-        out: list = []
-        for p in seq:
-            while len(out) >= 2 and (
-                (out[-1][0] - out[-2][0]) * (p[1] - out[-2][1]) - (out[-1][1] - out[-2][1]) * (p[0] - out[-2][0])
-            ) <= 0:
-                out.pop()
-            out.append(p)
-        return out
-
-    lower, upper = half(pts), half(reversed(pts))
-    return np.array(lower[:-1] + upper[:-1])
-
-
-def _polygon_area(hull: np.ndarray) -> float:
-    if len(hull) < 3:
-        return 0.0
-    x, y = hull[:, 0], hull[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    """Convex hull vertices (k, 2) of 2D points (m, 2), in order (empty if degenerate)."""
+    try:
+        return points[ConvexHull(points).vertices]
+    except QhullError:
+        return np.empty((0, 2))
 
 
 def _inside_hull(px: np.ndarray, hull: np.ndarray, margin: float) -> np.ndarray:
@@ -133,8 +155,7 @@ def _inside_hull(px: np.ndarray, hull: np.ndarray, margin: float) -> np.ndarray:
     edge = b - a
     length = np.maximum(np.linalg.norm(edge, axis=1), 1e-12)
     rel = px[..., None, :] - a
-    # pixel rows grow downward, so a counter-clockwise hull in (col, row) has its
-    # interior on the side where the cross product is positive
+    # the interior lies on the side of every edge that the hull's orientation gives
     cross = (edge[:, 0] * rel[..., 1] - edge[:, 1] * rel[..., 0]) / length
     sign = 1.0 if _signed_area(hull) > 0 else -1.0
     return np.all(sign * cross >= -margin, axis=-1)
@@ -172,81 +193,158 @@ def _window(lo: np.ndarray, hi: np.ndarray, width: int, height: int):
 
 def hand_mask(
     palm_pose: np.ndarray, joint_poses: np.ndarray, keypoints: np.ndarray, width: int, height: int,
-    margin: float = HAND_MARGIN_PX,
+    margin: float = HAND_MARGIN_PX, window: Optional[tuple[int, int, int, int]] = None,
 ) -> np.ndarray:
     """(H, W) bool: the pixels the hand covers, predicted from its state and geometry
-    (palm box, wrist cylinder, finger capsules), grown by ``margin`` pixels."""
+    (palm box, wrist cylinder, finger capsules), grown by ``margin`` pixels; only
+    inside ``window`` (row0, row1, col0, col1) when given."""
     starts, ends, radii, corners = _hand_parts(palm_pose, joint_poses, keypoints)
-    pa, da = project(starts, width, height)
-    pb, db = project(ends, width, height)
-    pc, _ = project(corners, width, height)
+    pa, da = _project(starts, width, height)
+    pb, db = _project(ends, width, height)
+    pc, _ = _project(corners, width, height)
     r_px = radii * focal_px(height) / np.maximum(np.minimum(da, db), 1e-6) + margin
     mask = np.zeros((height, width), dtype=bool)
-    for a, b, r in zip(pa, pb, r_px):
-        win = _window(np.minimum(a, b) - r, np.maximum(a, b) + r, width, height)
-        if win is None:
-            continue
-        (rows, cols), px = win
-        ab = b - a
-        rel = px - a
-        s = np.clip((rel @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-        d = rel - s[..., None] * ab
-        mask[rows, cols] |= (d[..., 0] ** 2 + d[..., 1] ** 2) <= r * r
-    hull = _convex_hull(pc)
-    win = _window(pc.min(axis=0) - margin, pc.max(axis=0) + margin, width, height)
-    if win is not None:
-        (rows, cols), px = win
-        mask[rows, cols] |= _inside_hull(px, hull, margin)
+    lo = np.minimum((np.minimum(pa, pb) - r_px[:, None]).min(axis=0), pc.min(axis=0) - margin)
+    hi = np.maximum((np.maximum(pa, pb) + r_px[:, None]).max(axis=0), pc.max(axis=0) + margin)
+    if window is not None:
+        r0, r1, c0, c1 = window
+        lo = np.maximum(lo, [c0, r0])
+        hi = np.minimum(hi, [c1 - 1, r1 - 1])
+    win = _window(lo, hi, width, height)
+    if win is None:
+        return mask
+    (rows, cols), px = win
+    x, y = px[..., 0:1], px[..., 1:2]  # (h, w, 1) against the k capsules
+    ab = pb - pa
+    rx, ry = x - pa[:, 0], y - pa[:, 1]
+    s = np.clip((rx * ab[:, 0] + ry * ab[:, 1]) / np.maximum((ab * ab).sum(axis=1), 1e-12), 0.0, 1.0)
+    dx, dy = rx - s * ab[:, 0], ry - s * ab[:, 1]
+    covered = np.any(dx * dx + dy * dy <= r_px * r_px, axis=-1)
+    mask[rows, cols] = covered | _inside_hull(px, _convex_hull(pc), margin)
     return mask
 
 
-def silhouette_area(category: ObjectCategory, size: float, centre_xz: np.ndarray, width: int, height: int) -> float:
-    """Predicted pixel area of the category's silhouette at ``size`` resting at ``centre_xz``.
+def _surface_points(category: ObjectCategory, size: float, heading: float) -> np.ndarray:
+    """Points (m, 3) whose convex hull is the object's body at ``size``, centre at the origin.
 
-    Lying cylinders average over headings (their heading follows the unknown path).
+    ``heading`` turns a lying cylinder's axis in the XZ plane; other shapes ignore it
+    (non-rolling objects keep their orientation; a sphere looks the same any way).
     """
     dims = category.scaled_dims(size)
-    centre = np.array([centre_xz[0], category.half_height(size), centre_xz[1]])
-    ring = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    ring = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
     if category.shape == "sphere":
-        u, v = np.meshgrid(np.linspace(0.0, np.pi, 12), ring)
-        local = dims[0] * np.stack([np.sin(u) * np.cos(v), np.cos(u), np.sin(u) * np.sin(v)], axis=-1).reshape(-1, 3)
-        shapes = [local]
-    elif category.shape == "cylinder":
+        u, v = np.meshgrid(np.linspace(0.0, np.pi, 9), ring)
+        return dims[0] * np.stack([np.sin(u) * np.cos(v), np.cos(u), np.sin(u) * np.sin(v)], axis=-1).reshape(-1, 3)
+    if category.shape == "cylinder":
         r, length = dims
-        disc = np.stack([r * np.cos(ring), r * np.sin(ring)], axis=-1)
         if category.lying:
-            shapes = []
-            for heading in np.linspace(0.0, np.pi, 6, endpoint=False):
-                axis = np.array([np.cos(heading), 0.0, np.sin(heading)])
-                side = np.cross(axis, [0.0, 1.0, 0.0])
-                rim = disc[:, :1] * side + disc[:, 1:] * np.array([0.0, 1.0, 0.0])
-                shapes.append(np.vstack([rim + axis * length / 2, rim - axis * length / 2]))
-        else:
-            rim = np.stack([disc[:, 0], np.zeros(len(ring)), disc[:, 1]], axis=-1)
-            shapes = [np.vstack([rim + [0.0, length / 2, 0.0], rim - [0.0, length / 2, 0.0]])]
-    else:
-        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
-        shapes = [signs * np.asarray(dims)]
-    areas = [_polygon_area(_convex_hull(project(centre + pts, width, height)[0])) for pts in shapes]
-    return float(np.mean(areas))
+            axis = np.array([np.cos(heading), 0.0, np.sin(heading)])
+            side = np.cross(axis, [0.0, 1.0, 0.0])
+            rim = np.outer(r * np.cos(ring), side) + np.outer(r * np.sin(ring), [0.0, 1.0, 0.0])
+            return np.vstack([rim + axis * length / 2, rim - axis * length / 2])
+        rim = np.stack([r * np.cos(ring), np.zeros(len(ring)), r * np.sin(ring)], axis=-1)
+        return np.vstack([rim + [0.0, length / 2, 0.0], rim - [0.0, length / 2, 0.0]])
+    return _BOX_SIGNS * np.asarray(dims)
+
+
+def headings(category: ObjectCategory) -> tuple[float, ...]:
+    """The orientations a template search tries: six headings for lying cylinders."""
+    if category.shape == "cylinder" and category.lying:
+        return tuple(np.linspace(0.0, np.pi, 6, endpoint=False))
+    return (0.0,)
+
+
+@dataclass(frozen=True)
+class Template:
+    """A predicted silhouette: mask (h, w) whose top-left pixel is ``origin`` (row, col),
+    the projected object centre ``centre`` (column, row) and the silhouette's pixel count."""
+
+    mask: np.ndarray
+    origin: tuple[int, int]
+    centre: np.ndarray
+    area: int
+
+
+def template(
+    category: ObjectCategory, size: float, centre_xz: np.ndarray, heading: float, width: int, height: int
+) -> Optional[Template]:
+    """The silhouette of the object resting at ``centre_xz``, rasterised and grown by
+    :data:`HALO_PX` (JPEG's halo around every edge, which the blob includes), or None
+    if off-image. ``area`` counts the silhouette itself."""
+    centre = np.array([centre_xz[0], category.half_height(size), centre_xz[1]])
+    px, _ = _project(centre + _surface_points(category, size, heading), width, height)
+    hull = _convex_hull(px)
+    win = _window(px.min(axis=0) - HALO_PX, px.max(axis=0) + HALO_PX, width, height)
+    if win is None:
+        return None
+    (rows, cols), grid = win
+    mask = _inside_hull(grid, hull, HALO_PX)
+    area = int(_inside_hull(grid, hull, 0.0).sum())
+    if area == 0:
+        return None
+    return Template(mask, (rows.start, cols.start), _project(centre, width, height)[0], area)
+
+
+def _crop(image: np.ndarray, r0: int, c0: int, h: int, w: int) -> np.ndarray:
+    """``image[r0:r0+h, c0:c0+w]`` as int64, zero outside the image."""
+    out = np.zeros((h, w), dtype=np.int64)
+    rr0, cc0 = max(r0, 0), max(c0, 0)
+    rr1, cc1 = min(r0 + h, image.shape[0]), min(c0 + w, image.shape[1])
+    if rr0 < rr1 and cc0 < cc1:
+        out[rr0 - r0 : rr1 - r0, cc0 - c0 : cc1 - c0] = image[rr0:rr1, cc0:cc1]
+    return out
+
+
+def _correlate(images: np.ndarray, tpl: Template, reach: int) -> np.ndarray:
+    """Overlap counts (k, 2 reach + 1, 2 reach + 1) of each image (k, H, W) with the
+    template shifted by (row, col) offsets in [-reach, reach]; exact integers (FFT,
+    rounded)."""
+    h, w = tpl.mask.shape
+    r0, c0 = tpl.origin
+    crops = np.stack([_crop(image, r0 - reach, c0 - reach, h + 2 * reach, w + 2 * reach) for image in images])
+    shape = crops.shape[1:]
+    spectrum = np.fft.rfft2(crops, s=shape) * np.conj(np.fft.rfft2(tpl.mask.astype(np.float64), s=shape))
+    full = np.fft.irfft2(spectrum, s=shape)
+    return np.rint(full[:, : 2 * reach + 1, : 2 * reach + 1]).astype(np.int64)
+
+
+def match_template(tpl: Template, blob: np.ndarray, background: np.ndarray, reach: int) -> tuple[np.ndarray, int]:
+    """Best shift (column, row) of the template and its mismatch.
+
+    Mismatch = template pixels over clearly visible table + blob pixels outside the
+    template; pixels the hand covers cost nothing (the object may be behind it).
+    Several equally good shifts (an object mostly hidden) are averaged.
+    """
+    on_background, on_blob = _correlate(np.stack([background, blob]), tpl, reach)
+    score = on_background + int(blob.sum()) - on_blob
+    best = int(score.min())
+    rows, cols = np.nonzero(score == best)
+    return np.array([cols.mean() - reach, rows.mean() - reach]), best
 
 
 @dataclass(frozen=True)
 class Detection:
-    """The object seen in one frame: blob centroid (column, row), area (pixels),
-    estimated world centre (x, y, z), and whether the hand touches the blob."""
+    """The object seen in one frame.
+
+    ``pixel`` the estimated image position (column, row) of the object's centre,
+    ``position`` the world centre (x, y, z) it back-projects to, ``area`` the blob's
+    area in pixels (:func:`weighted_area`), ``coverage`` that over the predicted silhouette's (small when the hand
+    hides the object), ``touches_hand`` whether the blob borders the hand, and
+    ``mismatch`` the template mismatch over the silhouette's area (0 = perfect).
+    """
 
     pixel: np.ndarray
-    area: int
     position: np.ndarray
+    area: float
+    coverage: float
     touches_hand: bool
+    mismatch: float
 
 
-def find_blob(foreground: np.ndarray, hand: np.ndarray) -> Optional[tuple[np.ndarray, int, bool]]:
-    """Centroid (column, row), pixel count and hand contact of the object's blob, or None."""
-    candidates = foreground & ~hand
-    labels, count = ndimage.label(candidates)
+def find_blob(foreground: np.ndarray, hand: np.ndarray) -> Optional[np.ndarray]:
+    """(H, W) bool mask of the object's blob: the largest component of the foreground
+    outside the hand, with the components near it; None when nothing is left."""
+    labels, count = ndimage.label(foreground & ~hand)
     if count == 0:
         return None
     sizes = np.bincount(labels.ravel(), minlength=count + 1)
@@ -254,20 +352,33 @@ def find_blob(foreground: np.ndarray, hand: np.ndarray) -> Optional[tuple[np.nda
     best = int(np.argmax(sizes))
     if sizes[best] < MIN_BLOB_PX:
         return None
-    rows, cols = np.nonzero(labels == best)
-    centre = np.array([cols.mean(), rows.mean()])
+    objects = ndimage.find_objects(labels)
+    centres = np.array([[(s[1].start + s[1].stop) / 2.0, (s[0].start + s[0].stop) / 2.0] for s in objects])
     reach = 2.0 * np.sqrt(sizes[best] / np.pi) + 3.0
-    keep = [best]
-    for k in np.flatnonzero(sizes >= MIN_BLOB_PX):
-        if k == best:
-            continue
-        r, c = np.nonzero(labels == k)
-        if np.hypot(c.mean() - centre[0], r.mean() - centre[1]) <= reach:
-            keep.append(int(k))
-    blob = np.isin(labels, keep)
+    near = np.hypot(*(centres - centres[best - 1]).T) <= reach
+    keep = np.flatnonzero(near & (sizes[1:] >= MIN_BLOB_PX)) + 1
+    return np.isin(labels, keep)
+
+
+def weighted_area(blob: np.ndarray, distance2: np.ndarray) -> float:
+    """The blob's area with its rim weighted by how far each rim pixel's colour is from
+    the table's, relative to the blob's interior: JPEG smears every edge into a halo of
+    blended pixels, which would otherwise inflate the area by up to a third."""
     rows, cols = np.nonzero(blob)
-    touches = bool(np.any(ndimage.binary_dilation(blob, iterations=2) & hand))
-    return np.array([cols.mean() + 0.5, rows.mean() + 0.5]), int(blob.sum()), touches
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    crop = blob[r0:r1, c0:c1]
+    inner = ndimage.binary_erosion(crop)
+    if inner.sum() < MIN_BLOB_PX:
+        return float(crop.sum())
+    distance = np.sqrt(distance2[r0:r1, c0:c1].astype(np.float64))
+    span = max(float(np.median(distance[inner])), 1.0)
+    rim = crop & ~inner
+    return float(inner.sum() + np.clip(distance[rim] / span, 0.0, 1.0).sum())
+
+
+def _centroid(mask: np.ndarray, r0: int = 0, c0: int = 0) -> np.ndarray:
+    rows, cols = np.nonzero(mask)
+    return np.array([cols.mean() + c0 + 0.5, rows.mean() + r0 + 0.5])
 
 
 class ObjectLocator:
@@ -283,6 +394,9 @@ class ObjectLocator:
         name = object_from_text(text)
         self.category: Optional[ObjectCategory] = OBJECTS[name] if name else None
         self._table_rgb: Optional[np.ndarray] = None
+        self._far: list[np.ndarray] = []
+        self._heading: Optional[int] = None
+        self._last_pixel: Optional[np.ndarray] = None
         self._size_samples: list[float] = []
 
     @property
@@ -315,17 +429,73 @@ class ObjectLocator:
         image = np.asarray(image)
         if self._table_rgb is None:
             self._table_rgb = table_colour(image)
-        diff = np.abs(image.astype(np.int16) - self._table_rgb.astype(np.int16)).max(axis=-1)
-        foreground = (diff > COLOUR_THRESHOLD) & table_region(self.width, self.height)
-        hand = hand_mask(palm_pose, joint_poses, keypoints, self.width, self.height)
-        found = find_blob(foreground, hand)
-        if found is None:
+            levels = np.arange(256)
+            self._far = [((levels - c) ** 2).astype(np.int32) for c in self._table_rgb]
+        r0, r1, c0, c1 = window = self._roi()
+        region = np.zeros((self.height, self.width), dtype=bool)
+        region[r0:r1, c0:c1] = table_region(self.width, self.height)[r0:r1, c0:c1]
+        far = self._far
+        crop = image[r0:r1, c0:c1]
+        foreground = np.zeros_like(region)
+        distance2 = np.zeros((self.height, self.width), dtype=np.int32)
+        distance2[r0:r1, c0:c1] = far[0][crop[..., 0]] + far[1][crop[..., 1]] + far[2][crop[..., 2]]
+        foreground[r0:r1, c0:c1] = distance2[r0:r1, c0:c1] > COLOUR_THRESHOLD**2
+        foreground &= region
+        hand = hand_mask(palm_pose, joint_poses, keypoints, self.width, self.height, window=window)
+        blob = find_blob(foreground, hand)
+        if blob is None:
+            self._last_pixel = None
             return None
-        pixel, area, touches = found
+        area = weighted_area(blob, distance2)
+        rows, cols = np.nonzero(blob)
+        touches = bool(np.any(hand[np.clip(rows[:, None] + _NEIGHBOURS[:, 0], 0, self.height - 1),
+                                   np.clip(cols[:, None] + _NEIGHBOURS[:, 1], 0, self.width - 1)]))
+        centroid = _centroid(blob)
+        first = unproject_to_plane(centroid, self.width, self.height, self.centre_height)
+        if self.category is None:
+            self._last_pixel = centroid
+            return Detection(centroid, first, area, 1.0, touches, 0.0)
+
+        background = region & ~foreground & ~hand
+        size = self.size
+        options = headings(self.category)
+        tried = range(len(options))
+        if self._heading is not None and len(options) > 2:
+            tried = [(self._heading + d) % len(options) for d in (-1, 0, 1)]
+        best = None
+        for index in tried:
+            tpl = template(self.category, size, first[[0, 2]], options[index], self.width, self.height)
+            if tpl is None:
+                continue
+            reach = CLEAN_REACH_PX
+            if touches:
+                reach = int(min(np.ceil(np.hypot(*tpl.mask.shape) / 2) + 2, MAX_REACH_PX))
+            shift, miss = match_template(tpl, blob, background, reach)
+            if best is None or miss < best[2]:
+                best = (tpl, shift, miss, index)
+        if best is None:
+            self._last_pixel = centroid
+            return Detection(centroid, first, area, 1.0, touches, 0.0)
+        tpl, shift, miss, index = best
+        if not touches or area >= HEADING_COVERAGE * tpl.area:
+            self._heading = index
+        pixel = tpl.centre + shift
+        if not touches:
+            # sub-pixel: the blob's centroid against the shifted template's
+            offset = np.rint(shift[::-1]).astype(int)
+            placed = _centroid(tpl.mask, tpl.origin[0] + offset[0], tpl.origin[1] + offset[1])
+            delta = centroid - placed
+            if np.hypot(*delta) <= MAX_CENTROID_CORRECTION_PX:
+                pixel = tpl.centre + offset[::-1] + delta
+            self._size_samples.append(size * float(np.sqrt(area / tpl.area)))
         position = unproject_to_plane(pixel, self.width, self.height, self.centre_height)
-        if not touches and self.category is not None:
-            predicted = silhouette_area(self.category, self.category.nominal_size, position[[0, 2]], self.width, self.height)
-            if predicted > 0:
-                self._size_samples.append(self.category.nominal_size * float(np.sqrt(area / predicted)))
-                position = unproject_to_plane(pixel, self.width, self.height, self.centre_height)
-        return Detection(pixel, area, position, touches)
+        self._last_pixel = pixel
+        return Detection(pixel, position, area, area / tpl.area, touches, miss / tpl.area)
+
+    def _roi(self) -> tuple[int, int, int, int]:
+        """Rows and columns to search: around the last sighting, else the whole image."""
+        if self._last_pixel is None:
+            return 0, self.height, 0, self.width
+        c, r = (int(round(v)) for v in self._last_pixel)
+        half = ROI_HALF_PX * self.height // 224 + 1
+        return max(r - half, 0), min(r + half, self.height), max(c - half, 0), min(c + half, self.width)

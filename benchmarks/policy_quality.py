@@ -1,0 +1,136 @@
+"""How well the built-in policies do in the closed loop, per (motion type, setting) cell.
+
+Runs each policy in :class:`pipeline.env.DyanaEnv` on the first ``--per-cell`` test-1k
+episodes of every one of the nine (motion type, interception setting) cells (test-1k
+episode ``i`` belongs to cell ``i mod 9``) at ``--resolution`` px, then scores the
+recordings' acting frames with :func:`scoring.metrics.episode_metrics` (the numbers
+``scoring eval`` would print for the same frames). The loop is the runner's, minus
+its threads and deadlines: ``task`` carries ``intercept_time_s``.
+
+Prints one line per policy and, as the last line, one JSON object
+``{policy: {"episodes", "S_loc", "S_gra", "by_motion": {...}, "ms_per_step"}}`` with
+success rates in percent. One process, one core.
+Tiny check: ``python benchmarks/policy_quality.py --per-cell 1 --policies still oracle``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+# the repository first: this folder's scoring.py would shadow the scoring package
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from generators.recipe import spec_for  # noqa: E402
+from pipeline.env import DyanaEnv, horizon  # noqa: E402
+from pipeline.policies.base import make_policy  # noqa: E402
+from schemas.scene import PHASES  # noqa: E402
+from schemas.versions import FPS  # noqa: E402
+from scoring.metrics import episode_metrics  # noqa: E402
+
+OBSERVE = PHASES.index("observe")
+
+
+def predictive_without_text():
+    """The predictive policy choosing its motion model by residual only (no text hint)."""
+    from pipeline.policies.predictive import PredictivePolicy
+
+    policy = PredictivePolicy(text_hint=False)
+    policy.name = "predictive-no-text"
+    return policy
+
+
+def task_for(spec, resolution: int, privileged: bool) -> dict:
+    task = {
+        "text": spec.text,
+        "fps": FPS,
+        "observe_frames": spec.observe_frames,
+        "horizon": horizon(spec),
+        "resolution": resolution,
+        "hand": spec.hand,
+        "intercept_time_s": spec.intercept_time_s,
+    }
+    if privileged:
+        task["spec"] = spec.to_json()
+    return task
+
+
+def rollout(env: DyanaEnv, policy, spec) -> tuple:
+    obs, _ = env.reset(options={"spec": spec})
+    policy.reset(task_for(spec, env.resolution, policy.privileged))
+    steps, spent = 0, 0.0
+    done = env.done
+    while not done:
+        start = time.process_time()
+        action = np.asarray(policy.act(obs), dtype=np.float32)
+        spent += time.process_time() - start
+        for row in action.reshape(-1, 18):
+            obs, _, terminated, truncated, _ = env.step(row)
+            steps += 1
+            done = terminated or truncated
+            if done:
+                break
+    frames, _ = env.recording()
+    return frames, steps, spent
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--policies", nargs="+", default=["oracle", "still", "chase", "predictive"])
+    parser.add_argument("--per-cell", type=int, default=5)
+    parser.add_argument("--resolution", type=int, default=224)
+    args = parser.parse_args(argv)
+    indices = list(range(9 * args.per_cell))
+    specs = [spec_for("test-1k", i) for i in indices]
+    env = DyanaEnv(args.resolution)
+    results = {}
+    for name in args.policies:
+        policy = make_policy(name)
+        palm, obj, joints, tips, grasp, counts, steps, spent = [], [], [], [], [], [], 0, 0.0
+        for spec in specs:
+            frames, n, s = rollout(env, policy, spec)
+            acting = frames.phase != OBSERVE
+            palm.append(frames.palm_pose[acting, :3])
+            obj.append(frames.object_pose[acting, :3])
+            joints.append(frames.joint_angles[acting])
+            tips.append(frames.fingertip_distance[acting])
+            grasp.append(frames.grasp_angles)
+            counts.append(int(acting.sum()))
+            steps, spent = steps + n, spent + s
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        m = episode_metrics(offsets, np.concatenate(palm), np.concatenate(obj), np.concatenate(joints),
+                            np.concatenate(tips), np.stack(grasp))
+        by_motion = {}
+        for motion in ("linear", "circular", "harmonic"):
+            pick = np.array([s.motion_type == motion for s in specs])
+            by_motion[motion] = {"S_loc": 100.0 * float(m.localized[pick].mean()),
+                                 "S_gra": 100.0 * float(m.grasped[pick].mean())}
+        by_setting = {}
+        for setting in ("fast", "medium", "slow"):
+            pick = np.array([s.intercept_setting == setting for s in specs])
+            by_setting[setting] = {"S_loc": 100.0 * float(m.localized[pick].mean()),
+                                   "S_gra": 100.0 * float(m.grasped[pick].mean())}
+        results[name] = {
+            "episodes": len(specs),
+            "S_loc": 100.0 * float(m.localized.mean()),
+            "S_gra": 100.0 * float(m.grasped.mean()),
+            "by_motion": by_motion,
+            "by_setting": by_setting,
+            "ms_per_step": 1000.0 * spent / max(steps, 1),
+        }
+        r = results[name]
+        print(f"{name:12s} episodes {r['episodes']:3d}  S_loc {r['S_loc']:5.1f}%  S_gra {r['S_gra']:5.1f}%  "
+              f"policy {r['ms_per_step']:.2f} ms/step  " +
+              "  ".join(f"{k} {v['S_loc']:.0f}/{v['S_gra']:.0f}" for k, v in {**by_motion, **by_setting}.items()),
+              flush=True)
+    print(json.dumps(results, sort_keys=True))
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,417 @@
+"""The closed-loop environment: a policy's actions drive the hand, at 20 FPS, through
+the same stages as the build (object motion, hand kinematics, render, JPEG).
+
+:class:`DyanaEnv` follows Gymnasium's API (a ``gymnasium.Env`` when Gymnasium is
+installed, registered as :data:`ENV_ID`; otherwise a plain class with the same
+methods):
+
+* ``reset(seed=None, options={"spec": spec})`` runs the observe window inside (the
+  hand held still at rest while the object moves) and returns the observation of the
+  first acting frame ``a = spec.observe_frames``. The spec may be an
+  :class:`~schemas.spec.EpisodeSpec`, its dict or its JSON; without one, ``seed``
+  picks test-1k episode ``seed % 1000`` (no seed: the episode after the last one
+  picked that way, starting at 0).
+* ``step(action)`` takes one (18,) action, the dataset's ``action`` meaning: the
+  palm position and the 15 joint angles of the NEXT frame. Joints are clipped to the
+  hand's limits and the palm to :data:`PALM_BOX`; the palm keeps the rest
+  orientation, as in the ground truth. The action is cast to float32 first (what the
+  recording keeps), so a replay of the recorded actions gives the same states. A
+  wrong shape or a NaN/inf raises :class:`~schemas.errors.PolicyError`: the
+  environment never repairs an action, and the frame does not advance.
+  :func:`run_chunk` executes an (H, 18) chunk open loop, one row per step.
+
+Observation (every step, same keys): ``image`` (H, W, 3) uint8 RGB, the JPEG-decoded
+frame, so that the pixels a policy sees in process, over the wire and in the
+recorded shard are the same; ``palm_pose`` (6,), ``joint_angles`` (15,),
+``joint_poses`` (90,), ``keypoints`` (36,) float32; ``text``; ``frame_index`` int;
+``timestamp`` float (``frame_index / 20``); ``observe_images`` (K, H, W, 3) uint8:
+the K = ``observe_frames`` frames of the observe window in the first observation,
+empty (0, H, W, 3) afterwards (a fixed set of keys keeps the observation inside its
+Gymnasium space).
+
+Events are checked on every acting frame from the recorded float32 values, the way
+``scoring`` computes them: localization when the palm's XZ distance to the object's
+centre is within :data:`~schemas.scene.LOC_TOLERANCE`, grasp completion when every
+joint reaches :data:`~schemas.scene.GRASP_RATIO` of the ground-truth grasp angles.
+``info``: ``localized``, ``grasped``, ``t_loc``, ``t_gra`` (acting frames from the
+first acting frame to the event, -1 before it), ``palm_distance`` and
+``fingertip_distance`` of the current frame. Reward: 1.0 on the step where the grasp
+completes, else 0.0. ``terminated`` = grasp completion; ``truncated`` = the horizon
+(:func:`horizon` acting frames, the first acting frame included) is reached.
+
+:meth:`DyanaEnv.recording` returns every frame so far in the dataset's format, with
+the JPEG bytes exactly as encoded. Phases: ``observe`` in the window, then
+``approach`` until the localization frame, ``grasp`` from it, ``hold`` after grasp
+completion (an episode ends there, so rollouts only show ``hold`` if a caller goes
+on after a custom termination; they never do here). This differs from the ground
+truth's labels, which follow the plan (``grasp`` from the planned interception
+frame for ``GRASP_FRAMES`` frames, then ``hold``): the states are the same, the labels
+follow what happened. ``action`` per frame is the action issued at that frame
+(observe frames: the rest pose, as in the ground truth); the last frame, which has
+issued none, repeats its own state, as in the ground truth.
+
+Deterministic: the same spec and the same actions give identical arrays and bytes.
+"""
+
+from __future__ import annotations
+
+import math
+import string
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from generators.encode import JPEG_QUALITY, decode_jpeg, encode_jpeg
+from generators.contact import fingertip_distance
+from generators.grasp import grasp_angles
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, forward_kinematics
+from generators.motion import object_pose
+from schemas.errors import DyanaError, PolicyError, SpecError
+from schemas.frames import EpisodeFrames
+from schemas.objects import object_category
+from schemas.scene import DEFAULT_RESOLUTION, GRASP_RATIO, LOC_TOLERANCE, PHASES, TABLE_X, TABLE_Z
+from schemas.spec import EpisodeSpec
+from schemas.versions import FPS
+
+try:  # Gymnasium is optional: without it the environment is a plain class
+    import gymnasium
+    from gymnasium import spaces
+except ImportError:  # pragma: no cover - exercised only without gymnasium
+    gymnasium = None
+    spaces = None
+
+ENV_ID = "Dyana/Grasp-v0"
+#: Acting frames allowed: this factor times the ground truth's acting frames, rounded up.
+HORIZON_FACTOR = 1.2
+#: Where the palm may go (x, y, z ranges): above the table, up to 6 units high.
+PALM_BOX = (TABLE_X, (0.0, 6.0), TABLE_Z)
+ACTION_WIDTH = 18
+OBSERVATION_KEYS = (
+    "image", "palm_pose", "joint_angles", "joint_poses", "keypoints", "text", "frame_index", "timestamp", "observe_images",
+)
+INFO_KEYS = ("localized", "grasped", "t_loc", "t_gra", "palm_distance", "fingertip_distance")
+#: The test slice a seed picks from when reset gets no spec.
+DEFAULT_SLICE = "test-1k"
+_PHASE = {name: i for i, name in enumerate(PHASES)}
+_PALM_LOW = np.array([r[0] for r in PALM_BOX])
+_PALM_HIGH = np.array([r[1] for r in PALM_BOX])
+_REST_STATE = np.concatenate([REST_PALM[:3], REST_JOINTS]).astype(np.float32)
+_MAX_FRAMES = 100_000
+
+
+def horizon(spec: EpisodeSpec) -> int:
+    """Acting frames a rollout may take: ``ceil(1.2 x (num_frames - observe_frames))``."""
+    return math.ceil(HORIZON_FACTOR * (spec.num_frames - spec.observe_frames))
+
+
+def as_spec(value: Any) -> EpisodeSpec:
+    """An EpisodeSpec from a spec, its dict or its JSON text."""
+    if isinstance(value, EpisodeSpec):
+        return value
+    if isinstance(value, dict):
+        return EpisodeSpec.from_dict(value)
+    if isinstance(value, (str, bytes)):
+        return EpisodeSpec.from_json(value.decode() if isinstance(value, bytes) else value)
+    raise SpecError(f"options['spec'] must be an EpisodeSpec, a dict or JSON text, got {type(value).__name__}")
+
+
+def as_action(action: Any) -> np.ndarray:
+    """One action as float32 (18,), or PolicyError naming what is wrong."""
+    try:
+        arr = np.asarray(action, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise PolicyError(f"action is not a numeric array ({type(action).__name__}: {exc})") from None
+    if arr.shape != (ACTION_WIDTH,):
+        raise PolicyError(f"action must have shape ({ACTION_WIDTH},), got {tuple(arr.shape)}")
+    bad = np.flatnonzero(~np.isfinite(arr))
+    if bad.size:
+        raise PolicyError(f"action contains NaN/inf at index {int(bad[0])} (value {arr[bad[0]]})")
+    return arr
+
+
+def as_chunk(action: Any) -> np.ndarray:
+    """An action or a chunk as float32 (H, 18) with H >= 1, or PolicyError."""
+    try:
+        arr = np.asarray(action, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise PolicyError(f"action is not a numeric array ({type(action).__name__}: {exc})") from None
+    if arr.shape == (ACTION_WIDTH,):
+        arr = arr[None]
+    if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] != ACTION_WIDTH:
+        raise PolicyError(f"action must have shape ({ACTION_WIDTH},) or (H, {ACTION_WIDTH}) with H >= 1, got {tuple(arr.shape)}")
+    bad = np.argwhere(~np.isfinite(arr))
+    if bad.size:
+        row, col = (int(v) for v in bad[0])
+        raise PolicyError(f"action contains NaN/inf at row {row}, column {col} (value {arr[row, col]})")
+    return arr
+
+
+def _spaces(resolution: int):
+    if spaces is None:
+        return None, None
+    image = spaces.Box(0, 255, (resolution, resolution, 3), np.uint8)
+
+    def vec(n: int) -> "spaces.Box":
+        return spaces.Box(-np.inf, np.inf, (n,), np.float32)
+
+    observation = spaces.Dict(
+        {
+            "image": image,
+            "palm_pose": vec(6),
+            "joint_angles": vec(15),
+            "joint_poses": vec(90),
+            "keypoints": vec(36),
+            "text": spaces.Text(max_length=4096, min_length=0, charset=string.printable),
+            "frame_index": spaces.Discrete(_MAX_FRAMES),
+            "timestamp": spaces.Box(0.0, np.inf, (), np.float64),
+            "observe_images": spaces.Sequence(image, stack=True),
+        }
+    )
+    action = spaces.Box(
+        np.concatenate([_PALM_LOW, JOINT_LOWER]).astype(np.float32),
+        np.concatenate([_PALM_HIGH, JOINT_UPPER]).astype(np.float32),
+        (ACTION_WIDTH,),
+        np.float32,
+    )
+    return observation, action
+
+
+_Base = gymnasium.Env if gymnasium is not None else object
+
+
+class DyanaEnv(_Base):
+    """Closed-loop dynamic grasping (module docstring). One episode at a time; frames
+    are rendered by this process's shared renderer (:func:`pipeline.record.renderer_for`)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
+
+    def __init__(self, resolution: int = DEFAULT_RESOLUTION, jpeg_quality: int = JPEG_QUALITY, render_mode: Optional[str] = None):
+        if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
+            raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
+        if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, (int, np.integer)) or not 1 <= jpeg_quality <= 100:
+            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {jpeg_quality!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise SpecError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.resolution = int(resolution)
+        self.jpeg_quality = int(jpeg_quality)
+        self.render_mode = render_mode
+        self.observation_space, self.action_space = _spaces(self.resolution)
+        self.episode_spec: Optional[EpisodeSpec] = None
+        self._next_index = 0
+        self._done = True
+        self._frames: dict[str, list] = {}
+
+    # episode -----------------------------------------------------------------
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None) -> tuple[dict, dict]:
+        if gymnasium is not None:
+            super().reset(seed=seed)
+        options = options or {}
+        if options.get("spec") is not None:
+            spec = as_spec(options["spec"])
+        else:
+            from generators.recipe import spec_for
+
+            if seed is not None:
+                index = int(seed) % 1000
+            else:
+                index = self._next_index % 1000
+            self._next_index = index + 1
+            spec = spec_for(DEFAULT_SLICE, index)
+        self.episode_spec = spec
+        self._first = spec.observe_frames
+        self._limit = spec.observe_frames + horizon(spec)
+        times = np.arange(self._limit, dtype=np.float64) / FPS
+        poses, velocity = object_pose(spec.motion, object_category(spec.object), spec.object_size, times)
+        self._object_pose = poses.astype(np.float32)
+        self._object_velocity = velocity.astype(np.float32)
+        self._grasp = grasp_angles(spec.object, spec.object_size, spec.hand).astype(np.float32)
+        self._frames = {name: [] for name in ("phase", "palm_pose", "joint_angles", "joint_poses", "keypoints",
+                                                "action", "fingertip_distance", "palm_distance", "images")}
+        self._loc_frame: Optional[int] = None
+        self._gra_frame: Optional[int] = None
+        self._done = False
+        rest = _REST_STATE
+        observe_images = []
+        for k in range(self._first):
+            image = self._add_frame(k, rest[:3], rest[3:])
+            self._frames["action"].append(rest.copy())
+            observe_images.append(image)
+        image = self._add_frame(self._first, rest[:3], rest[3:])
+        self._done = self._limit <= self._first + 1
+        observe = (
+            np.stack(observe_images)
+            if observe_images
+            else np.zeros((0, self.resolution, self.resolution, 3), dtype=np.uint8)
+        )
+        return self._observation(image, observe), self._info()
+
+    def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
+        if self.episode_spec is None:
+            raise DyanaError("step() before reset(): call reset() first")
+        if self._done:
+            raise DyanaError("step() after the episode ended (grasp complete or horizon): call reset()")
+        act = as_action(action)
+        frame = self.current_frame
+        self._frames["action"].append(act)
+        palm = np.clip(act[:3].astype(np.float64), _PALM_LOW, _PALM_HIGH).astype(np.float32)
+        joints = np.clip(act[3:].astype(np.float64), JOINT_LOWER, JOINT_UPPER).astype(np.float32)
+        completed_before = self._gra_frame is not None
+        image = self._add_frame(frame + 1, palm, joints)
+        terminated = self._gra_frame is not None and not completed_before
+        truncated = not terminated and frame + 2 >= self._limit
+        self._done = terminated or truncated
+        reward = 1.0 if terminated else 0.0
+        empty = np.zeros((0, self.resolution, self.resolution, 3), dtype=np.uint8)
+        return self._observation(image, empty), reward, terminated, truncated, self._info()
+
+    @property
+    def current_frame(self) -> int:
+        """Index of the latest frame (the one the last observation showed)."""
+        return len(self._frames.get("phase", ())) - 1
+
+    @property
+    def done(self) -> bool:
+        """Whether the episode has ended (or none was started)."""
+        return self._done
+
+    def recording(self) -> tuple[EpisodeFrames, list[bytes]]:
+        """Every frame so far in the dataset's format and the JPEG bytes of each."""
+        if self.episode_spec is None:
+            raise DyanaError("recording() before reset(): nothing was recorded")
+        f = self._frames
+        n = len(f["phase"])
+        actions = list(f["action"][: n - 1])
+        actions.append(np.concatenate([f["palm_pose"][-1][:3], f["joint_angles"][-1]]).astype(np.float32))
+        frames = EpisodeFrames(
+            phase=np.asarray(f["phase"], dtype=np.int8),
+            object_pose=self._object_pose[:n].copy(),
+            object_velocity=self._object_velocity[:n].copy(),
+            palm_pose=np.stack(f["palm_pose"]),
+            joint_angles=np.stack(f["joint_angles"]),
+            joint_poses=np.stack(f["joint_poses"]),
+            keypoints=np.stack(f["keypoints"]),
+            action=np.stack(actions).astype(np.float32),
+            fingertip_distance=np.asarray(f["fingertip_distance"], dtype=np.float32),
+            palm_distance=np.asarray(f["palm_distance"], dtype=np.float32),
+            grasp_angles=self._grasp.copy(),
+        )
+        return frames, list(f["images"])
+
+    def render(self) -> Optional[np.ndarray]:
+        """The latest frame as the policy saw it (``render_mode="rgb_array"``), else None."""
+        if self.render_mode != "rgb_array" or not self._frames.get("images"):
+            return None
+        return decode_jpeg(self._frames["images"][-1])
+
+    def close(self) -> None:
+        """Nothing to release: the renderer is shared by the process."""
+
+    # internals ---------------------------------------------------------------
+    def _add_frame(self, k: int, palm_xyz: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """Append frame ``k`` with this hand state; returns the decoded image."""
+        from pipeline.record import renderer_for
+
+        spec = self.episode_spec
+        palm_pose = np.concatenate([palm_xyz, REST_PALM[3:].astype(np.float32)]).astype(np.float32)
+        joint_poses, keypoints = forward_kinematics(palm_pose[None].astype(np.float64), joints[None].astype(np.float64), spec.hand)
+        obj = self._object_pose[k]
+        tips = keypoints.reshape(1, 6, 6)[:, :5, :3]
+        tip_distance = np.float32(fingertip_distance(tips, spec.object, spec.object_size, obj[None].astype(np.float64))[0])
+        palm64, obj64 = palm_pose.astype(np.float64), obj.astype(np.float64)
+        distance = math.hypot(palm64[0] - obj64[0], palm64[2] - obj64[2])
+        f = self._frames
+        f["palm_pose"].append(palm_pose)
+        f["joint_angles"].append(joints.astype(np.float32))
+        f["joint_poses"].append(joint_poses[0].astype(np.float32))
+        f["keypoints"].append(keypoints[0].astype(np.float32))
+        f["fingertip_distance"].append(tip_distance)
+        f["palm_distance"].append(np.float32(distance))
+
+        if k < self._first:
+            phase = _PHASE["observe"]
+        else:
+            if self._loc_frame is None and distance <= LOC_TOLERANCE:
+                self._loc_frame = k
+            closed = bool(np.all(joints.astype(np.float64) >= GRASP_RATIO * self._grasp.astype(np.float64)))
+            if self._gra_frame is None and closed:
+                self._gra_frame = k
+            if self._gra_frame is not None and k > self._gra_frame:
+                phase = _PHASE["hold"]
+            elif self._loc_frame is not None:
+                phase = _PHASE["grasp"]
+            else:
+                phase = _PHASE["approach"]
+        f["phase"].append(phase)
+
+        renderer = renderer_for(self.resolution)
+        renderer.set_scene(spec.object, spec.object_size, spec.hand)
+        data = encode_jpeg(renderer.render(obj, palm_pose, joints), self.jpeg_quality)
+        f["images"].append(data)
+        return decode_jpeg(data)
+
+    def _observation(self, image: np.ndarray, observe_images: np.ndarray) -> dict[str, Any]:
+        f = self._frames
+        k = self.current_frame
+        return {
+            "image": image,
+            "palm_pose": f["palm_pose"][-1].copy(),
+            "joint_angles": f["joint_angles"][-1].copy(),
+            "joint_poses": f["joint_poses"][-1].copy(),
+            "keypoints": f["keypoints"][-1].copy(),
+            "text": self.episode_spec.text,
+            "frame_index": k,
+            "timestamp": k / FPS,
+            "observe_images": observe_images,
+        }
+
+    def _info(self) -> dict[str, Any]:
+        f = self._frames
+        return {
+            "localized": self._loc_frame is not None,
+            "grasped": self._gra_frame is not None,
+            "t_loc": -1 if self._loc_frame is None else self._loc_frame - self._first,
+            "t_gra": -1 if self._gra_frame is None else self._gra_frame - self._first,
+            "palm_distance": float(f["palm_distance"][-1]),
+            "fingertip_distance": float(f["fingertip_distance"][-1]),
+        }
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """What :func:`run_chunk` did: the last step's observation and info, the summed
+    reward, how the episode stands, and how many rows ran."""
+
+    observation: dict
+    reward: float
+    terminated: bool
+    truncated: bool
+    info: dict
+    steps: int
+
+
+def run_chunk(env: DyanaEnv, action: Any) -> ChunkResult:
+    """Execute an action (18,) or a chunk (H, 18) open loop, one row per step, stopping
+    at termination or truncation (later rows are dropped). The whole chunk is checked
+    before any row runs: an invalid chunk raises PolicyError and changes nothing."""
+    chunk = as_chunk(action)
+    reward, steps = 0.0, 0
+    for row in chunk:
+        obs, r, terminated, truncated, info = env.step(row)
+        reward += r
+        steps += 1
+        if terminated or truncated:
+            break
+    return ChunkResult(obs, reward, terminated, truncated, info, steps)
+
+
+def register() -> bool:
+    """Register :data:`ENV_ID` with Gymnasium (idempotent); False without Gymnasium."""
+    if gymnasium is None:
+        return False
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="pipeline.env:DyanaEnv")
+    return True
+
+
+register()

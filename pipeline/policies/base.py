@@ -1,0 +1,145 @@
+"""The policy protocol of the closed loop, and how a policy is named.
+
+A policy has three attributes and two methods:
+
+* ``name`` (str); ``action_horizon`` (int: 1 returns single actions, H > 1 returns
+  (H, 18) chunks executed open loop); ``privileged`` (bool: True only for the
+  oracle, whose task carries the spec);
+* ``reset(task)`` before each episode. ``task`` = ``{"text", "fps",
+  "observe_frames", "horizon", "resolution", "hand"}``, plus ``"intercept_time_s"``
+  (the interception setting's time, part of the public task description) when the
+  runner provides it, plus ``"spec"`` (the spec's JSON) for privileged policies;
+* ``act(obs) -> ndarray`` (18,) or (H, 18) float32, from the observation
+  (:mod:`pipeline.env`). Policies are deterministic given the same observations.
+
+:func:`make_policy` resolves a reference: a built-in name (:data:`BUILTIN`) or
+``module:attribute`` (dots in the attribute walk into it). The attribute may be a
+Policy class or factory (called without arguments, it must return a policy), or a
+plain function ``obs -> action`` (a callable with one required argument), which is
+wrapped by :class:`FunctionPolicy`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from typing import Any, Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from schemas.errors import SpecError
+
+#: Built-in policies: name -> "module:class".
+BUILTIN = {
+    "oracle": "pipeline.policies.oracle:OraclePolicy",
+    "still": "pipeline.policies.still:StillPolicy",
+    "chase": "pipeline.policies.chase:ChasePolicy",
+    "predictive": "pipeline.policies.predictive:PredictivePolicy",
+}
+#: The task keys every policy receives (``intercept_time_s`` and ``spec`` may be added).
+TASK_KEYS = ("text", "fps", "observe_frames", "horizon", "resolution", "hand")
+#: The interception time a policy assumes when the task does not say (the medium setting).
+DEFAULT_INTERCEPT_TIME_S = 1.0
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """What the closed loop calls (module docstring)."""
+
+    name: str
+    action_horizon: int
+    privileged: bool
+
+    def reset(self, task: dict) -> None: ...
+
+    def act(self, obs: dict) -> np.ndarray: ...
+
+
+def state_action(obs: dict) -> np.ndarray:
+    """(18,) float32 action that keeps the hand where the observation shows it."""
+    return np.concatenate([np.asarray(obs["palm_pose"], dtype=np.float32)[:3],
+                           np.asarray(obs["joint_angles"], dtype=np.float32)]).astype(np.float32)
+
+
+class FunctionPolicy:
+    """A plain function ``obs -> action`` as a policy (not privileged; ``reset`` is a
+    no-op; the function may return (18,) or (H, 18))."""
+
+    privileged = False
+    action_horizon = 1
+
+    def __init__(self, fn: Callable[[dict], Any], name: str):
+        self.fn = fn
+        self.name = name
+
+    def reset(self, task: dict) -> None:
+        return None
+
+    def act(self, obs: dict) -> np.ndarray:
+        return np.asarray(self.fn(obs), dtype=np.float32)
+
+
+def _is_policy(obj: Any) -> bool:
+    return all(hasattr(obj, attr) for attr in ("name", "action_horizon", "privileged")) and all(
+        callable(getattr(obj, method, None)) for method in ("reset", "act")
+    )
+
+
+def _required_positional(fn: Callable) -> int | None:
+    try:
+        sig = inspect.signature(fn)
+    except (TypeError, ValueError):
+        return None
+    return sum(
+        1
+        for p in sig.parameters.values()
+        if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty
+    )
+
+
+def _resolve(ref: str) -> Any:
+    module_name, _, attr = ref.partition(":")
+    if not module_name or not attr:
+        raise SpecError(f"policy reference must be a built-in name {sorted(BUILTIN)} or module:callable, got {ref!r}")
+    try:
+        target: Any = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise SpecError(f"policy {ref!r}: cannot import module {module_name!r} ({exc})") from None
+    for part in attr.split("."):
+        try:
+            target = getattr(target, part)
+        except AttributeError:
+            raise SpecError(f"policy {ref!r}: {module_name!r} has no attribute {attr!r}") from None
+    return target
+
+
+def make_policy(ref: str) -> Policy:
+    """A fresh policy for a built-in name or a ``module:callable`` reference.
+
+    Raises SpecError naming the reference when it is unknown, cannot be imported, or
+    does not give a policy.
+    """
+    if not isinstance(ref, str) or not ref:
+        raise SpecError(f"policy must be a non-empty string, got {ref!r}")
+    target = _resolve(BUILTIN.get(ref, ref)) if (ref in BUILTIN or ":" in ref) else None
+    if target is None:
+        raise SpecError(f"unknown policy {ref!r}: expected one of {sorted(BUILTIN)} or module:callable")
+    if _is_policy(target) and not inspect.isclass(target):
+        return target
+    if not callable(target):
+        raise SpecError(f"policy {ref!r} is neither a policy nor callable ({type(target).__name__})")
+    required = _required_positional(target)
+    if inspect.isclass(target) or required == 0:
+        try:
+            made = target()
+        except Exception as exc:
+            raise SpecError(f"policy {ref!r}: creating it raised {type(exc).__name__}: {exc}") from None
+        if not _is_policy(made):
+            raise SpecError(
+                f"policy {ref!r}: calling it gave {type(made).__name__}, not a policy "
+                "(needs name, action_horizon, privileged, reset(task), act(obs))"
+            )
+        return made
+    if required == 1:
+        return FunctionPolicy(target, ref)
+    raise SpecError(f"policy {ref!r}: a callable must take no argument (a factory) or one (obs -> action)")

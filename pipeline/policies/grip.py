@@ -1,0 +1,38 @@
+"""Closing the hand: which joint angles to close to, and how fast.
+
+The hand model is public, so a policy may compute the grasp of the object it sees
+(:func:`generators.grasp.grasp_angles`: each finger closes along its synergy until it
+touches) for the category the task text names and the size it estimated. It closes
+to the grasp of a slightly smaller object (:data:`GRIP_MARGIN`), a firm grip that
+forgives an overestimated size. Without a known category it closes each finger to
+the end of its synergy.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from generators.grasp import SYNERGY_END, grasp_angles
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS
+from generators.interception import minimum_jerk
+from schemas.scene import GRASP_FRAMES
+
+#: Close to the grasp of an object this much smaller than the estimate.
+GRIP_MARGIN = 0.85
+
+
+def grip_angles(category: Optional[str], size: Optional[float], hand: str) -> np.ndarray:
+    """(15,) joint angles to close to."""
+    if category is None or size is None:
+        return np.clip(SYNERGY_END.reshape(15), JOINT_LOWER, JOINT_UPPER)
+    return grasp_angles(category, round(float(size) * GRIP_MARGIN, 6), hand)
+
+
+def closing_joints(grip: np.ndarray, frames_since_start: int) -> np.ndarray:
+    """(15,) joint angles ``frames_since_start`` frames after closing began (0 = still
+    open): minimum jerk from rest to ``grip`` over ``GRASP_FRAMES`` frames, as the
+    ground truth closes."""
+    fraction = float(minimum_jerk(np.array(frames_since_start / (GRASP_FRAMES - 1))))
+    return REST_JOINTS + fraction * (np.asarray(grip) - REST_JOINTS)

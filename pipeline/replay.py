@@ -1,0 +1,243 @@
+"""`pipeline replay`: re-execute a recording and check it comes out byte for byte.
+
+- A built slice: each episode's stored spec goes through the episode stage, the
+  renderer and the JPEG encoder again.
+- Rollouts (``catalog.json`` has a ``policy``): the environment is reset with the
+  stored spec and stepped with the recorded actions (the action column of every
+  acting frame but the last). No policy is needed: what the policy saw is the
+  decoded JPEG of the recorded image bytes, which replay re-renders and compares.
+
+Every column of every frame (state arrays bit for bit, the JPEG bytes) and of the
+episodes table is compared, then the shard is rewritten into a scratch folder and
+its three files' sha256 are compared with the manifest (which also covers the MCAP
+and the Parquet metadata). The first difference raises :class:`ReplayMismatch`
+naming the shard, episode, frame and column, with both values.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from catalog.manifest import load_manifest
+from catalog.parquet_io import episode_row, episodes_table, frames_table, read_episodes, read_frames
+from catalog.records import ShardRecord, shard_stem
+from schemas.errors import PolicyError, ReplayMismatch
+from schemas.frames import EpisodeFrames
+from schemas.spec import EpisodeSpec
+from schemas.versions import FPS
+
+ROLLOUT_COLUMNS = ("policy", "status", "error")
+
+
+@dataclass(frozen=True)
+class ReplayReport:
+    """What was re-executed: ``kind`` is ``slice`` (ground truth) or ``rollouts``."""
+
+    path: str
+    slice: str
+    kind: str
+    shards: int
+    episodes: int
+    frames: int
+
+
+def _mismatch(message: str, **where: Any) -> ReplayMismatch:
+    """A ReplayMismatch carrying ``shard``, ``episode``, ``frame``, ``column`` attributes."""
+    exc = ReplayMismatch(message)
+    for key in ("shard", "episode", "frame", "column"):
+        setattr(exc, key, where.get(key))
+    return exc
+
+
+def _bits(values: np.ndarray) -> np.ndarray:
+    """Values as unsigned integers of the same width, so -0.0 != 0.0 and NaNs compare by payload."""
+    values = np.ascontiguousarray(values)
+    if values.dtype.kind == "f":
+        return values.view(np.dtype(f"u{values.dtype.itemsize}"))
+    return values
+
+
+def _column_values(column: pa.ChunkedArray | pa.Array) -> Any:
+    if isinstance(column, pa.ChunkedArray):
+        column = column.combine_chunks()
+    if pa.types.is_fixed_size_list(column.type):
+        width = column.type.list_size
+        return column.flatten().to_numpy(zero_copy_only=False).reshape(-1, width)
+    if pa.types.is_integer(column.type) or pa.types.is_floating(column.type) or pa.types.is_boolean(column.type):
+        return column.to_numpy(zero_copy_only=False)
+    return column.to_pylist()
+
+
+def _first_row_difference(recorded: Any, expected: Any) -> tuple[int, str] | None:
+    """The first row whose values differ, with a description of both values."""
+    n = min(len(recorded), len(expected))
+    if isinstance(recorded, np.ndarray):
+        a, b = _bits(recorded[:n]), _bits(expected[:n])
+        differ = a != b
+        if differ.ndim > 1:
+            rows = np.flatnonzero(differ.any(axis=1))
+            if rows.size == 0:
+                return None
+            row = int(rows[0])
+            col = int(np.flatnonzero(differ[row])[0])
+            return row, f"[{col}]: recorded {recorded[row, col]}, replay gives {expected[row, col]}"
+        rows = np.flatnonzero(differ)
+        if rows.size == 0:
+            return None
+        row = int(rows[0])
+        return row, f": recorded {recorded[row]}, replay gives {expected[row]}"
+    for row in range(n):
+        x, y = recorded[row], expected[row]
+        if x != y:
+            if isinstance(x, bytes) and isinstance(y, bytes):
+                size = min(len(x), len(y))
+                at = next((i for i in range(size) if x[i] != y[i]), size)
+                return row, f": recorded {len(x)} bytes, replay gives {len(y)} bytes, first difference at byte {at}"
+            return row, f": recorded {x!r:.120}, replay gives {y!r:.120}"
+    return None
+
+
+def _first_difference(recorded: pa.Table, expected: pa.Table, columns: Sequence[str]) -> tuple[int, str, str] | None:
+    """(row, column, detail) of the earliest difference; among columns of that row, the first in order."""
+    best: tuple[int, int, str, str] | None = None
+    for order, name in enumerate(columns):
+        found = _first_row_difference(_column_values(recorded.column(name)), _column_values(expected.column(name)))
+        if found is not None and (best is None or found[0] < best[0]):
+            best = (found[0], order, name, found[1])
+    if best is None:
+        return None
+    return best[0], best[2], best[3]
+
+
+def _rollout_recording(env: Any, spec: EpisodeSpec, actions: np.ndarray, status: str, where: dict) -> tuple[EpisodeFrames, list[bytes]]:
+    """Reset with the spec and step with the recorded actions of frames observe_frames .. n-2."""
+    env.reset(options={"spec": spec})
+    n = len(actions)
+    ended = None
+    for frame in range(spec.observe_frames, n - 1):
+        try:
+            _obs, _reward, terminated, truncated, _info = env.step(actions[frame])
+        except PolicyError as exc:
+            raise _mismatch(
+                f"{where['prefix']}, frame {frame}: the recorded action is refused by the environment: {exc}",
+                frame=frame, column="action", **where["ids"],
+            ) from None
+        if terminated or truncated:
+            ended = frame + 1
+            break
+    if ended is not None and ended < n - 1:
+        raise _mismatch(
+            f"{where['prefix']}: replay ends at frame {ended} (grasp complete or horizon), the recording goes on to frame {n - 1}",
+            frame=ended + 1, column="frame_index", **where["ids"],
+        )
+    frames, images = env.recording()
+    if status == "ok" and ended is None and frames.num_frames == n:
+        raise _mismatch(
+            f"{where['prefix']}: status ok but the recording stops at frame {n - 1} before grasp completion or the horizon",
+            frame=n - 1, column="status", **where["ids"],
+        )
+    return frames, list(images)
+
+
+def _replay_shard(root: Path, settings: dict, shard: ShardRecord, rollout: bool, env: Any) -> int:
+    from catalog.shard import ShardWriter
+
+    stem = shard_stem(shard.first, shard.end)
+    episodes = read_episodes(root / shard.files["episodes"].path)
+    frames = read_frames(root / shard.files["frames"].path)
+    frame_episode = frames.column("episode_index").to_numpy()
+    resolution, quality = settings["resolution"], settings["jpeg_quality"]
+    fps = settings.get("fps", FPS)
+    replayed: list[tuple[EpisodeSpec, EpisodeFrames, list[bytes], dict]] = []
+    for row in episodes.to_pylist():
+        index = row["episode_index"]
+        spec = EpisodeSpec.from_json(row["spec"])
+        ids = {"shard": stem, "episode": index}
+        prefix = f"{root}: shard {stem}, episode {index} ({spec.episode_id})"
+        recorded = frames.filter(pa.array(frame_episode == index))
+        if rollout:
+            actions = _column_values(recorded.column("action"))
+            ep_frames, images = _rollout_recording(env, spec, actions, row["status"], {"prefix": prefix, "ids": ids})
+        else:
+            from pipeline.episode import episode
+            from pipeline.record import encoded_frames
+
+            ep_frames = episode(spec)
+            images = encoded_frames(spec, ep_frames, resolution, quality)
+        expected = frames_table(index, ep_frames, images, fps=fps)
+        found = _first_difference(recorded, expected, expected.column_names)
+        if found is None and recorded.num_rows != expected.num_rows:
+            n = min(recorded.num_rows, expected.num_rows)
+            found = (n, "frame_index", f": recorded {recorded.num_rows} frames, replay gives {expected.num_rows}")
+        if found is not None:
+            frame, column, detail = found
+            raise _mismatch(f"{prefix}, frame {frame}, column {column}{detail}", frame=frame, column=column, **ids)
+        extra = {k: row[k] for k in ROLLOUT_COLUMNS} if rollout else {}
+        expected_row = episodes_table([episode_row(spec, ep_frames.grasp_angles, **extra)], rollout)
+        found = _first_difference(episodes.filter(pa.array(episodes.column("episode_index").to_numpy() == index)), expected_row, expected_row.column_names)
+        if found is not None:
+            _, column, detail = found
+            raise _mismatch(f"{prefix}, episodes table, column {column}{detail}", frame=None, column=column, **ids)
+        replayed.append((spec, ep_frames, images, extra))
+
+    with tempfile.TemporaryDirectory(prefix="dyana-replay-") as scratch:
+        with ShardWriter(scratch, shard.first, shard.end, settings, rollout=rollout) as writer:
+            for spec, ep_frames, images, extra in replayed:
+                writer.add_episode(spec, ep_frames, images, **{k: (v or None) for k, v in extra.items()})
+        for kind, record in shard.files.items():
+            again = writer.record.files[kind]
+            if again.sha256 != record.sha256:
+                raise _mismatch(
+                    f"{root}: shard {stem}: {record.path} differs from the replayed shard's "
+                    f"(sha256 {again.sha256[:12]}… instead of {record.sha256[:12]}…) although every column matches",
+                    shard=stem, column=kind,
+                )
+    return sum(f.num_frames for _, f, _, _ in replayed)
+
+
+def replay(
+    path: str | os.PathLike[str],
+    shards: Sequence[int] | None = None,
+    on_shard: Callable[[ShardRecord], None] | None = None,
+) -> ReplayReport:
+    """Re-execute a built slice or a run (``shards``: only those first-episode indices)."""
+    root = Path(path)
+    manifest = load_manifest(root)
+    rollout = "policy" in manifest.extra
+    settings = dict(manifest.settings)
+    chosen = list(manifest.shards)
+    if shards is not None:
+        wanted = set(shards)
+        chosen = [s for s in chosen if s.first in wanted]
+    env = None
+    if rollout:
+        from pipeline.env import DyanaEnv
+
+        env = DyanaEnv(resolution=settings["resolution"], jpeg_quality=settings["jpeg_quality"])
+    episodes = frames = 0
+    try:
+        for shard in chosen:
+            frames += _replay_shard(root, settings, shard, rollout, env)
+            episodes += shard.num_episodes
+            if on_shard is not None:
+                on_shard(shard)
+    finally:
+        close = getattr(env, "close", None)
+        if callable(close):
+            close()
+    return ReplayReport(
+        path=os.fspath(path),
+        slice=manifest.slice,
+        kind="rollouts" if rollout else "slice",
+        shards=len(chosen),
+        episodes=episodes,
+        frames=frames,
+    )

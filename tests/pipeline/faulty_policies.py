@@ -1,0 +1,77 @@
+"""Misbehaving policies for the fault tests, importable as ``tests.pipeline.faulty_policies:NAME``
+(so that Dask workers and `pipeline eval` can resolve them).
+
+Each behaves like ``still`` (repeat the current hand state) until its third ``act``
+call, where it commits its fault.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+
+from pipeline.policies.base import state_action
+
+FAULT_CALL = 3
+HANG_S = 3.0
+
+
+def faulty_action(fault: str | None, obs: dict, calls: int):
+    """The action of call number ``calls``: the still action, or the fault at FAULT_CALL."""
+    action = state_action(obs)
+    if fault is None or calls != FAULT_CALL:
+        return action
+    if fault == "nan":
+        action[4] = np.nan
+        return action
+    if fault == "inf":
+        chunk = np.stack([action, action])
+        chunk[1, 0] = np.inf
+        return chunk
+    if fault == "shape":
+        return action[:17]
+    if fault == "raise":
+        raise ValueError("the model diverged")
+    if fault == "hang":
+        time.sleep(HANG_S)
+        return action
+    raise AssertionError(fault)
+
+
+class Single:
+    """One fault in every episode (the class attribute ``fault``)."""
+
+    name = "single-fault"
+    action_horizon = 1
+    privileged = False
+    fault: str | None = None
+
+    def reset(self, task: dict) -> None:
+        self.calls = 0
+        if self.fault == "reset":
+            raise RuntimeError("cannot load the weights")
+
+    def act(self, obs: dict):
+        self.calls += 1
+        return faulty_action(self.fault, obs, self.calls)
+
+
+class Mixed:
+    """Privileged (it reads the episode index from the spec): a different fault per episode."""
+
+    name = "mixed-faults"
+    action_horizon = 1
+    privileged = True
+    FAULTS = {1: "nan", 2: "inf", 3: "shape", 4: "raise", 5: "hang", 6: "reset"}
+
+    def reset(self, task: dict) -> None:
+        self.fault = self.FAULTS.get(json.loads(task["spec"])["episode_index"])
+        self.calls = 0
+        if self.fault == "reset":
+            raise RuntimeError("cannot load the weights")
+
+    def act(self, obs: dict):
+        self.calls += 1
+        return faulty_action(self.fault, obs, self.calls)

@@ -1,0 +1,62 @@
+"""Tampering helpers for the replay tests: rewrite a shard file the way only replay
+can notice (the manifest's hashes are updated to match)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from catalog.hashing import sha256_file
+from catalog.manifest import Manifest, load_manifest, write_manifest
+from catalog.parquet_io import read_frames, write_table
+from catalog.records import FileRecord, ShardRecord
+
+
+def rewrite_frames(folder: Path, shard_index: int, mutate: Callable[[pa.Table], pa.Table]) -> ShardRecord:
+    """Rewrite one shard's frames file through ``mutate`` with the pinned writer options,
+    then update its sha256/size and the manifest hash, so integrity checks still pass."""
+    manifest = load_manifest(folder)
+    shard = manifest.shards[shard_index]
+    record = shard.files["frames"]
+    path = folder / record.path
+    table = mutate(read_frames(path))
+    write_table(path, table, "frames")
+    files = dict(shard.files)
+    files["frames"] = FileRecord(record.path, sha256_file(path), path.stat().st_size)
+    shards = list(manifest.shards)
+    shards[shard_index] = ShardRecord(shard.episodes, shard.frames, files)
+    updated = Manifest.create(
+        manifest.slice, manifest.seed, manifest.settings, shards, code=manifest.code, extra=manifest.extra
+    )
+    write_manifest(folder, updated)
+    return shards[shard_index]
+
+
+def set_state_value(table: pa.Table, episode: int, frame: int, column: str, element: int, delta: float) -> pa.Table:
+    """``table`` with one float32 element of one frame's array nudged by ``delta``."""
+    rows = np.flatnonzero(
+        (table.column("episode_index").to_numpy() == episode) & (table.column("frame_index").to_numpy() == frame)
+    )
+    assert rows.size == 1, (episode, frame)
+    col = table.column(column).combine_chunks()
+    width = col.type.list_size
+    values = col.flatten().to_numpy(zero_copy_only=False).reshape(-1, width).copy()
+    values[rows[0], element] += np.float32(delta)
+    new = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1), type=pa.float32()), width)
+    return table.set_column(table.schema.get_field_index(column), table.schema.field(column), new)
+
+
+def flip_image_byte(table: pa.Table, episode: int, frame: int) -> pa.Table:
+    """``table`` with one byte in the middle of one frame's JPEG changed."""
+    rows = np.flatnonzero(
+        (table.column("episode_index").to_numpy() == episode) & (table.column("frame_index").to_numpy() == frame)
+    )
+    images = table.column("image").to_pylist()
+    data = bytearray(images[rows[0]])
+    data[len(data) // 2] ^= 0x01
+    images[rows[0]] = bytes(data)
+    index = table.schema.get_field_index("image")
+    return table.set_column(index, table.schema.field("image"), pa.array(images, type=pa.binary()))

@@ -1,0 +1,250 @@
+"""The closed-loop environment: the contract checker, ground-truth reproduction,
+determinism, invalid actions, the observe window, the horizon and termination."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from catalog.shard import rollout_frame_limit
+from generators.encode import JPEG_QUALITY, decode_jpeg
+from generators.grasp import grasp_angles
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
+from generators.recipe import spec_for
+from pipeline.env import ENV_ID, PALM_BOX, DyanaEnv, as_chunk, horizon, run_chunk
+from pipeline.env_checker import check_env
+from pipeline.episode import episode
+from pipeline.record import encoded_frames
+from schemas.errors import DyanaError, PolicyError, SpecError
+from schemas.scene import GRASP_RATIO, PHASES
+
+RES = 64
+OBSERVE, APPROACH, GRASP, HOLD = (PHASES.index(p) for p in ("observe", "approach", "grasp", "hold"))
+#: test-1k episodes: 0 linear direct-act, 2 linear with a window, 4 circular, 7 harmonic.
+EPISODES = (0, 2, 4, 7)
+
+
+@pytest.fixture(scope="module")
+def env() -> DyanaEnv:
+    return DyanaEnv(RES)
+
+
+def hold(obs: dict) -> np.ndarray:
+    return np.concatenate([obs["palm_pose"][:3], obs["joint_angles"]]).astype(np.float32)
+
+
+def run(env: DyanaEnv, spec, actions) -> tuple:
+    obs, info = env.reset(options={"spec": spec})
+    out = (obs, 0.0, False, False, info)
+    for action in actions:
+        out = env.step(action)
+        if out[2] or out[3]:
+            break
+    return out, env.recording()
+
+
+def test_check_env_passes(env):
+    check_env(env, spec_for("test-1k", 7))
+
+
+def test_check_env_passes_direct_act(env):
+    spec = spec_for("test-1k", 0)
+    assert spec.observe_frames == 0
+    check_env(env, spec)
+
+
+def test_check_env_catches_a_broken_environment(env):
+    class Leaky(DyanaEnv):
+        def step(self, action):  # repairs NaN/inf instead of refusing them
+            if isinstance(action, np.ndarray) and action.shape == (18,):
+                action = np.nan_to_num(action, posinf=0.0, neginf=0.0)
+            return super().step(action)
+
+    with pytest.raises(AssertionError, match="accepted"):
+        check_env(Leaky(RES), spec_for("test-1k", 2), steps=2)
+
+
+@pytest.mark.parametrize("index", EPISODES)
+def test_ground_truth_actions_reproduce_the_ground_truth(env, index):
+    spec = spec_for("test-1k", index)
+    gt = episode(spec)
+    a = spec.observe_frames
+    (_, reward, terminated, truncated, info), (frames, images) = run(env, spec, gt.action[a:])
+    n = frames.num_frames
+    # the episode ends at grasp completion, the first frame with every joint >= 80% of the grasp
+    closed = np.all(gt.joint_angles.astype(np.float64) >= GRASP_RATIO * gt.grasp_angles.astype(np.float64), axis=1)
+    completion = int(np.flatnonzero(closed & (np.arange(spec.num_frames) >= a))[0])
+    assert terminated and not truncated and reward == 1.0
+    assert n == completion + 1 and info["t_gra"] == completion - a and info["localized"]
+    for name in ("object_pose", "object_velocity", "palm_pose", "joint_angles", "grasp_angles"):
+        expected = getattr(gt, name) if name == "grasp_angles" else getattr(gt, name)[:n]
+        np.testing.assert_array_equal(getattr(frames, name), expected, err_msg=name)
+    # forward kinematics runs on the float32 states the recording keeps, the ground
+    # truth on its float64 plan: at most a float32 rounding step apart
+    for name in ("joint_poses", "keypoints", "fingertip_distance", "palm_distance"):
+        np.testing.assert_allclose(getattr(frames, name), getattr(gt, name)[:n], rtol=0, atol=2e-6, err_msg=name)
+    np.testing.assert_array_equal(frames.action[:-1], gt.action[: n - 1])
+    state = np.concatenate([frames.palm_pose[-1, :3], frames.joint_angles[-1]])
+    np.testing.assert_array_equal(frames.action[-1], state)
+    assert images == encoded_frames(spec, gt, RES, JPEG_QUALITY)[:n]
+    # intended difference: phases follow the events, not the plan
+    np.testing.assert_array_equal(frames.phase[:a], gt.phase[:a])
+    t_loc = a + info["t_loc"]
+    assert np.all(frames.phase[a:t_loc] == APPROACH) and np.all(frames.phase[t_loc:] == GRASP)
+    assert t_loc <= spec.intercept_frame and gt.phase[spec.intercept_frame] == GRASP
+
+
+def test_same_actions_give_identical_recordings(env):
+    spec = spec_for("test-1k", 4)
+    rng = np.random.default_rng(7)
+    low = np.concatenate([[-3.0, 0.5, 1.0], JOINT_LOWER])
+    high = np.concatenate([[3.0, 4.0, 8.0], JOINT_UPPER * 0.5])
+    actions = rng.uniform(low, high, size=(12, 18))
+    _, (f1, i1) = run(env, spec, actions)
+    _, (f2, i2) = run(DyanaEnv(RES), spec, actions)
+    for name in ("phase", "object_pose", "palm_pose", "joint_angles", "joint_poses", "keypoints", "action",
+                 "fingertip_distance", "palm_distance"):
+        assert getattr(f1, name).tobytes() == getattr(f2, name).tobytes(), name
+    assert i1 == i2
+    # float64 actions are recorded, and executed, as float32
+    np.testing.assert_array_equal(f1.action[spec.observe_frames : spec.observe_frames + 12], actions.astype(np.float32))
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (lambda a: np.where(np.arange(18) == 3, np.nan, a), "NaN/inf at index 3"),
+        (lambda a: np.where(np.arange(18) == 17, -np.inf, a), "NaN/inf at index 17"),
+        (lambda a: a[:17], r"shape \(18,\), got \(17,\)"),
+        (lambda a: np.stack([a, a]), r"got \(2, 18\)"),
+        (lambda a: "grasp", "not a numeric array"),
+        (lambda a: None, "shape"),
+    ],
+)
+def test_invalid_actions_raise_and_change_nothing(env, bad, message):
+    spec = spec_for("test-1k", 2)
+    obs, _ = env.reset(options={"spec": spec})
+    with pytest.raises(PolicyError, match=message):
+        env.step(bad(hold(obs)))
+    assert env.recording()[0].num_frames == spec.observe_frames + 1
+    obs, *_ = env.step(hold(obs))
+    assert obs["frame_index"] == spec.observe_frames + 1
+
+
+def test_observe_window_holds_the_hand_still(env):
+    spec = spec_for("test-1k", 4)
+    a = spec.observe_frames
+    obs, info = env.reset(options={"spec": spec})
+    assert obs["observe_images"].shape == (a, RES, RES, 3) and obs["frame_index"] == a
+    assert obs["timestamp"] == a / 20 and obs["text"] == spec.text
+    assert not info["localized"] and info["t_loc"] == -1
+    frames, images = env.recording()
+    assert np.all(frames.phase[:a] == OBSERVE) and frames.phase[a] == APPROACH
+    np.testing.assert_array_equal(frames.palm_pose, np.broadcast_to(REST_PALM.astype(np.float32), (a + 1, 6)))
+    np.testing.assert_array_equal(frames.joint_angles, np.zeros((a + 1, 15), dtype=np.float32))
+    rest_action = np.concatenate([REST_PALM[:3], REST_JOINTS]).astype(np.float32)
+    np.testing.assert_array_equal(frames.action[:a], np.broadcast_to(rest_action, (a, 18)))
+    for k in (0, a // 2, a - 1):
+        np.testing.assert_array_equal(obs["observe_images"][k], decode_jpeg(images[k]))
+    np.testing.assert_array_equal(obs["image"], decode_jpeg(images[a]))
+    assert len({images[k] for k in range(a)}) > a // 2  # the object moves while the hand waits
+    obs, *_ = env.step(hold(obs))
+    assert obs["observe_images"].shape == (0, RES, RES, 3)
+
+
+def test_horizon_truncates_a_still_hand(env):
+    spec = spec_for("test-1k", 6)
+    a, h = spec.observe_frames, horizon(spec)
+    assert h == -(-6 * (spec.num_frames - a) // 5) == rollout_frame_limit(spec) - a
+    obs, _ = env.reset(options={"spec": spec})
+    steps = 0
+    while True:
+        obs, reward, terminated, truncated, info = env.step(hold(obs))
+        steps += 1
+        if terminated or truncated:
+            break
+    assert truncated and not terminated and reward == 0.0 and steps == h - 1
+    assert env.recording()[0].num_frames == a + h
+    assert not info["localized"] and not info["grasped"]
+    with pytest.raises(DyanaError, match="ended"):
+        env.step(hold(obs))
+
+
+def test_terminates_when_the_grasp_completes(env):
+    spec = spec_for("test-1k", 2)
+    grasp = grasp_angles(spec.object, spec.object_size, spec.hand)
+    obs, _ = env.reset(options={"spec": spec})
+    ramp = [0.3, 0.6, 0.79, 0.81, 1.0]  # fractions of the grasp; complete at 0.8
+    for j, fraction in enumerate(ramp):
+        action = np.concatenate([obs["palm_pose"][:3], fraction * grasp])
+        obs, reward, terminated, truncated, info = env.step(action)
+        if terminated:
+            break
+    assert terminated and j == 3 and reward == 1.0 and info["grasped"] and info["t_gra"] == 4
+    assert not info["localized"]  # grasp is judged on the fingers alone
+    frames, _ = env.recording()
+    assert frames.num_frames == spec.observe_frames + 5
+    assert np.all(frames.phase[spec.observe_frames :] == APPROACH)
+
+
+def test_actions_are_clipped_to_the_palm_box_and_joint_limits(env):
+    spec = spec_for("test-1k", 2)
+    obs, _ = env.reset(options={"spec": spec})
+    action = np.concatenate([[100.0, -5.0, -100.0], JOINT_UPPER + 1.0])
+    obs, *_ = env.step(action)
+    np.testing.assert_array_equal(obs["palm_pose"][:3], np.array([PALM_BOX[0][1], PALM_BOX[1][0], PALM_BOX[2][0]], dtype=np.float32))
+    np.testing.assert_array_equal(obs["joint_angles"], JOINT_UPPER.astype(np.float32))
+    np.testing.assert_array_equal(obs["palm_pose"][3:], REST_PALM[3:].astype(np.float32))
+    frames, _ = env.recording()
+    np.testing.assert_array_equal(frames.action[spec.observe_frames], action.astype(np.float32))  # as issued
+
+
+def test_run_chunk_executes_rows_and_checks_the_whole_chunk_first(env):
+    spec = spec_for("test-1k", 2)
+    obs, _ = env.reset(options={"spec": spec})
+    chunk = np.repeat(hold(obs)[None], 3, axis=0)
+    result = run_chunk(env, chunk)
+    assert result.steps == 3 and result.observation["frame_index"] == spec.observe_frames + 3
+    bad = chunk.copy()
+    bad[2, 5] = np.nan
+    with pytest.raises(PolicyError, match="row 2, column 5"):
+        run_chunk(env, bad)
+    assert env.recording()[0].num_frames == spec.observe_frames + 4
+    assert as_chunk(hold(obs)).shape == (1, 18)
+    with pytest.raises(PolicyError):
+        as_chunk(np.zeros((0, 18)))
+
+
+def test_reset_accepts_specs_dicts_json_and_seeds(env):
+    spec = spec_for("test-1k", 3)
+    for given in (spec, spec.to_dict(), spec.to_json()):
+        obs, _ = env.reset(options={"spec": given})
+        assert env.episode_spec == spec and obs["frame_index"] == spec.observe_frames
+    env.reset(seed=1003)
+    assert env.episode_spec == spec
+    with pytest.raises(SpecError, match="must be an EpisodeSpec"):
+        env.reset(options={"spec": 42})
+    with pytest.raises(SpecError):
+        env.reset(options={"spec": "{not json"})
+    with pytest.raises(DyanaError, match="before reset"):
+        DyanaEnv(RES).step(np.zeros(18))
+
+
+def test_bad_constructor_arguments():
+    for kwargs in ({"resolution": 4}, {"resolution": True}, {"jpeg_quality": 0}, {"render_mode": "human"}):
+        with pytest.raises(SpecError):
+            DyanaEnv(**kwargs)
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")  # Gymnasium's advice on unbounded spaces, float casts
+def test_gymnasium_registration_and_checker():
+    gymnasium = pytest.importorskip("gymnasium")
+    from gymnasium.utils.env_checker import check_env as gymnasium_check_env
+
+    assert ENV_ID in gymnasium.registry
+    made = gymnasium.make(ENV_ID, resolution=RES)
+    obs, info = made.reset(seed=2)
+    assert obs["frame_index"] == spec_for("test-1k", 2).observe_frames
+    obs, reward, terminated, truncated, info = made.step(made.action_space.sample())
+    assert obs["frame_index"] == spec_for("test-1k", 2).observe_frames + 1 and obs["observe_images"].shape[0] == 0
+    gymnasium_check_env(made.unwrapped, skip_render_check=True)

@@ -1,0 +1,164 @@
+"""`pipeline eval` end to end: oracle and still on a few test-1k episodes through the
+CLI, scored by `scoring eval`; resume after an interruption; bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pipeline.evaluate as evaluate_module
+from catalog.integrity import verify_files
+from catalog.manifest import load_manifest
+from catalog.shard import ShardWriter, rollout_frame_limit
+from generators.recipe import spec_for
+from pipeline.env import DyanaEnv, horizon
+from pipeline.evaluate import evaluate
+from pipeline.policies.base import make_policy
+from pipeline.rollout import run_episode
+from schemas.errors import ShardError, SpecError
+from schemas.frames import EpisodeFrames
+
+BIN = Path(sys.executable).parent
+RESOLUTION = 48
+EPISODES = 6
+
+
+def _eval_cli(policy: str, out: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(BIN / "pipeline"), "eval", "--policy", policy, "--slice", "test-1k", "--episodes", str(EPISODES),
+         "--resolution", str(RESOLUTION), "--shard-size", "3", "--workers", "2", "--out", str(out), *extra],
+        capture_output=True, text=True, timeout=300,
+    )
+
+
+def _score(run: Path) -> dict:
+    result = subprocess.run([str(BIN / "scoring"), "eval", str(run), "--json"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval")
+    results = {name: _eval_cli(name, root / name) for name in ("oracle", "still")}
+    return root, results
+
+
+def test_oracle_localizes_and_grasps_every_episode(runs):
+    root, results = runs
+    assert results["oracle"].returncode == 0, results["oracle"].stderr
+    assert f"evaluated oracle on test-1k: {EPISODES} episodes" in results["oracle"].stdout
+    assert f"localized {EPISODES}/{EPISODES} (100.0%), grasped {EPISODES}/{EPISODES} (100.0%)" in results["oracle"].stdout
+    report = _score(root / "oracle")
+    assert report["episodes"] == EPISODES and report["errors"] == 0
+    assert report["metrics"]["S_loc"] == 100.0 and report["metrics"]["S_gra"] == 100.0
+
+
+def test_still_grasps_nothing(runs):
+    root, results = runs
+    assert results["still"].returncode == 0, results["still"].stderr
+    report = _score(root / "still")
+    assert report["episodes"] == EPISODES and report["errors"] == 0
+    assert report["metrics"]["S_gra"] == 0.0
+
+
+def test_a_run_is_a_verifiable_rollout_folder(runs):
+    root, _ = runs
+    run = root / "oracle"
+    manifest = verify_files(run)
+    assert manifest.extra == {"policy": "oracle", "deadline_s": 10.0}
+    assert manifest.slice == "test-1k" and manifest.settings["resolution"] == RESOLUTION
+    assert [tuple(s.episodes) for s in manifest.shards] == [(0, 3), (3, 6)]
+    assert sorted(p.name for p in run.iterdir()) == ["catalog.json", "shards"]
+
+
+def test_the_oracle_reproduces_the_ground_truth_states(runs):
+    """Through the environment, the oracle's frames are the build's frames up to grasp completion."""
+    from catalog.parquet_io import column_to_numpy, read_frames
+    from pipeline.episode import episode
+
+    root, _ = runs
+    manifest = load_manifest(root / "oracle")
+    frames = read_frames(root / "oracle" / manifest.shards[0].files["frames"].path)
+    index = frames.column("episode_index").to_numpy()
+    for i in range(3):
+        truth = episode(spec_for("test-1k", i))
+        palm = column_to_numpy(frames.column("palm_pose"))[index == i]
+        assert np.array_equal(palm, truth.palm_pose[: len(palm)])
+
+
+class Interrupted(Exception):
+    """Stands for a killed run."""
+
+
+def test_an_evaluation_resumes_after_an_interruption(tmp_path, monkeypatch):
+    settings = dict(episodes=4, resolution=RESOLUTION, shard_size=2, workers=0, progress=False, summary=False)
+    reference = evaluate("still", "test-1k", tmp_path / "fresh", **settings)
+
+    real, calls, interrupt = evaluate_module.eval_shard, [], [True]
+
+    def interrupted(task, *args):
+        calls.append(task.first)
+        if task.first == 2 and interrupt and interrupt.pop():
+            raise Interrupted
+        return real(task, *args)
+
+    monkeypatch.setattr(evaluate_module, "eval_shard", interrupted)
+    with pytest.raises(Interrupted):
+        evaluate("still", "test-1k", tmp_path / "resumed", **settings)
+    assert not (tmp_path / "resumed" / "catalog.json").exists()
+    calls.clear()
+    resumed = evaluate("still", "test-1k", tmp_path / "resumed", **settings)
+    assert calls == [2]  # only the unfinished shard ran again
+    assert resumed.hash == reference.hash
+    calls.clear()
+    evaluate("still", "test-1k", tmp_path / "resumed", **settings)  # complete: nothing to do
+    assert calls == []
+    with pytest.raises(SpecError, match="already holds another run"):
+        evaluate("oracle", "test-1k", tmp_path / "resumed", **settings)
+
+
+def test_rollout_shards_take_up_to_observe_plus_horizon_frames(tmp_path):
+    env = DyanaEnv(resolution=RESOLUTION)
+    spec = spec_for("test-1k", 2)
+    result = run_episode(env, make_policy("still"), spec, 5.0)
+    limit = rollout_frame_limit(spec)
+    assert limit == spec.observe_frames + horizon(spec)
+    assert result.frames.num_frames == limit > spec.num_frames
+    writer = ShardWriter(tmp_path, 2, 3, {"resolution": RESOLUTION}, rollout=True).start()
+    writer.add_episode(spec, result.frames, result.images, policy="still", status="ok")
+    writer.finish()
+    assert all(rollout_frame_limit(spec_for("test-1k", i)) == spec_for("test-1k", i).observe_frames + horizon(spec_for("test-1k", i)) for i in range(50))
+    f = result.frames
+    longer = EpisodeFrames(
+        **{k: np.concatenate([v, v[-1:]]) for k, v in f.__dict__.items() if k != "grasp_angles"}, grasp_angles=f.grasp_angles
+    )
+    with ShardWriter(tmp_path / "other", 2, 3, {"resolution": RESOLUTION}, rollout=True) as other:
+        with pytest.raises(ShardError, match=f"{limit + 1} frames, more than a rollout's {limit}"):
+            other.add_episode(spec, longer, result.images + result.images[-1:], policy="still", status="ok")
+        other.abort()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--policy", "nosuch", "--episodes", "1"], "unknown policy 'nosuch'"),
+        (["--policy", "still", "--slice", "nowhere", "--episodes", "1"], "nowhere"),
+        (["--policy", "still", "--slice", "dyana-12m", "--episodes", "1"], "union"),
+        (["--policy", "still", "--episodes", "1001"], "--episodes must be in [1, 1000]"),
+        (["--policy", "still", "--deadline", "0"], "expected a number > 0"),
+        (["--policy", "no_such_module:fn", "--episodes", "1"], "cannot import module 'no_such_module'"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path):
+    result = subprocess.run(
+        [str(BIN / "pipeline"), "eval", "--out", str(tmp_path / "run"), *args], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 2
+    assert message in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "run" / "catalog.json").exists()

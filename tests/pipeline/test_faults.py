@@ -1,0 +1,192 @@
+"""Faults fail their own episode only: NaN/inf or wrong-shape actions, an exception, a
+policy past its deadline, a dropped connection. The episode is recorded with status
+``error`` and the reason, the frames up to the fault are kept, the run completes with
+every episode, the summary counts the errors, and `scoring eval` reads the run."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import re
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from catalog.manifest import load_manifest
+from catalog.parquet_io import read_episodes, read_frames
+from catalog.shard import ShardWriter
+from generators.recipe import spec_for
+from pipeline import protocol
+from pipeline.env import DyanaEnv
+from pipeline.evaluate import evaluate, summarize
+from pipeline.policies.base import state_action
+from pipeline.replay import replay
+from pipeline.rollout import run_episode
+
+from .faulty_policies import FAULT_CALL, HANG_S, Single
+
+BIN = Path(sys.executable).parent
+ROOT = Path(__file__).resolve().parents[2]
+RESOLUTION = 48
+DEADLINE_S = 0.5
+SPEC = spec_for("test-1k", 2)  # observe-before-act: 18 observe frames
+
+REASONS = {
+    "nan": r"frame \d+: action contains NaN/inf at row 0, column 4 \(value nan\)",
+    "inf": r"frame \d+: action contains NaN/inf at row 1, column 0 \(value inf\)",
+    "shape": r"frame \d+: action must have shape \(18,\) or \(H, 18\) with H >= 1, got \(17,\)",
+    "raise": r"frame \d+: policy act raised ValueError: the model diverged",
+    "hang": rf"frame \d+: policy act exceeded its deadline of {DEADLINE_S:g} s",
+    "reset": r"frame 18: policy reset raised RuntimeError: cannot load the weights",
+}
+
+
+@pytest.fixture(scope="module")
+def env():
+    return DyanaEnv(resolution=RESOLUTION)
+
+
+@pytest.mark.parametrize("fault", sorted(REASONS))
+def test_each_fault_fails_the_episode_and_keeps_its_frames(env, fault, tmp_path):
+    policy = type("P", (Single,), {"fault": fault})()
+    result = run_episode(env, policy, SPEC, DEADLINE_S)
+    assert result.status == "error"
+    assert re.fullmatch(REASONS[fault], result.error), result.error
+    first_acting = SPEC.observe_frames
+    if fault == "reset":
+        assert result.calls == 0 and result.frames.num_frames == first_acting + 1
+    else:  # two good steps, then the fault at the third call: nothing of it executed
+        assert result.calls == FAULT_CALL and result.steps == FAULT_CALL - 1
+        assert result.frames.num_frames == first_acting + FAULT_CALL
+        assert result.error.startswith(f"frame {first_acting + FAULT_CALL - 1}:")
+    assert len(result.images) == result.frames.num_frames
+    assert np.isfinite(result.frames.action).all()
+    with ShardWriter(tmp_path, SPEC.episode_index, SPEC.episode_index + 1, {"resolution": RESOLUTION}, rollout=True) as w:
+        w.add_episode(SPEC, result.frames, result.images, policy=policy.name, status=result.status, error=result.error)
+    assert w.record.frames == result.frames.num_frames
+
+
+def test_a_hung_call_does_not_hold_the_run(env):
+    import time
+
+    start = time.monotonic()
+    result = run_episode(env, type("P", (Single,), {"fault": "hang"})(), SPEC, DEADLINE_S)
+    assert result.status == "error"
+    assert time.monotonic() - start < HANG_S
+
+
+def test_a_faulty_run_records_every_episode_and_counts_the_errors(tmp_path):
+    """Through the CLI with Dask: one policy with a different fault in six of eight episodes."""
+    run = tmp_path / "run"
+    result = subprocess.run(
+        [str(BIN / "pipeline"), "eval", "--policy", "tests.pipeline.faulty_policies:Mixed", "--episodes", "8",
+         "--shard-size", "4", "--workers", "2", "--deadline", str(DEADLINE_S), "--resolution", str(RESOLUTION),
+         "--out", str(run), "--quiet"],
+        capture_output=True, text=True, timeout=300, cwd=ROOT,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "evaluated mixed-faults on test-1k: 8 episodes" in result.stdout
+    assert "6 error(s)" in result.stdout
+    manifest = load_manifest(run)
+    assert manifest.episodes == 8 and manifest.extra["policy"] == "mixed-faults"
+    rows = []
+    for shard in manifest.shards:
+        rows += read_episodes(run / shard.files["episodes"].path, ["episode_index", "status", "error"]).to_pylist()
+    by_index = {row["episode_index"]: row for row in rows}
+    assert sorted(by_index) == list(range(8))
+    assert [by_index[i]["status"] for i in range(8)] == ["ok"] + ["error"] * 6 + ["ok"]
+    faults = {1: "nan", 2: "inf", 3: "shape", 4: "raise", 5: "hang", 6: "reset"}
+    for index, fault in faults.items():
+        pattern = REASONS[fault] if fault != "reset" else r"frame \d+: policy reset raised RuntimeError: cannot load the weights"
+        assert re.fullmatch(pattern, by_index[index]["error"]), (index, by_index[index]["error"])
+    frames = read_frames(run / manifest.shards[1].files["frames"].path, ["episode_index"])
+    counts = np.bincount(frames.column("episode_index").to_numpy() - 4, minlength=4)
+    assert counts[2] == spec_for("test-1k", 6).observe_frames + 1  # reset failed: observe + first frame
+    assert summarize(run).errors == 6
+
+    scored = subprocess.run([str(BIN / "scoring"), "eval", str(run), "--json"], capture_output=True, text=True, timeout=120)
+    assert scored.returncode == 0, scored.stderr
+    report = json.loads(scored.stdout)
+    assert report["episodes"] == 8 and report["errors"] == 6
+    replay(run)  # faulty runs replay too: the recorded actions reproduce every frame
+
+
+# --- a misbehaving server ---------------------------------------------------------------
+
+#: Episode index -> what the server does on that episode's third act.
+SERVER_FAULTS = {1: "close", 2: "abort", 3: "garbage", 4: "error"}
+
+
+async def _misbehave(ws) -> None:
+    await ws.send(protocol.encode(protocol.metadata_message("flaky", 1, True)))
+    episode, calls = None, 0
+    async for data in ws:
+        message = protocol.parse(data)
+        if message["type"] == "reset":
+            episode, calls = json.loads(message["task"]["spec"])["episode_index"], 0
+            await ws.send(protocol.encode({"type": "ready"}))
+            continue
+        calls += 1
+        fault = SERVER_FAULTS.get(episode) if calls == FAULT_CALL else None
+        if fault == "close":
+            await ws.close(1011, "model crashed")
+            return
+        if fault == "abort":
+            ws.transport.abort()
+            return
+        if fault == "garbage":
+            await ws.send(b"\xc1 not msgpack")
+        elif fault == "error":
+            await ws.send(protocol.encode(protocol.error_message("CUDA out of memory")))
+        else:
+            await ws.send(protocol.encode(protocol.action_message(state_action(message["observation"]), 0.1)))
+
+
+@pytest.fixture(scope="module")
+def flaky_server():
+    from websockets.asyncio.server import serve
+
+    ready, holder = threading.Event(), {}
+
+    async def main():
+        holder["stop"] = asyncio.get_running_loop().create_future()
+        async with serve(_misbehave, "127.0.0.1", 0, compression=None, max_size=protocol.MAX_MESSAGE_BYTES) as server:
+            holder["url"] = f"ws://127.0.0.1:{server.sockets[0].getsockname()[1]}"
+            holder["loop"] = asyncio.get_running_loop()
+            ready.set()
+            await holder["stop"]
+
+    thread = threading.Thread(target=lambda: asyncio.run(main()), daemon=True)
+    thread.start()
+    assert ready.wait(10)
+    yield holder["url"]
+    holder["loop"].call_soon_threadsafe(holder["stop"].set_result, None)
+    thread.join(10)
+
+
+def test_dropped_connections_and_bad_replies_fail_only_their_episode(flaky_server, tmp_path):
+    printed = io.StringIO()
+    manifest = evaluate(
+        flaky_server, "test-1k", tmp_path / "run", episodes=6, workers=0, resolution=RESOLUTION, shard_size=3,
+        deadline_s=5.0, progress=False, stream=printed,
+    )
+    assert manifest.episodes == 6 and manifest.extra["policy"] == "flaky"
+    rows = []
+    for shard in manifest.shards:
+        rows += read_episodes(tmp_path / "run" / shard.files["episodes"].path, ["episode_index", "status", "error"]).to_pylist()
+    errors = {row["episode_index"]: row["error"] for row in rows if row["status"] == "error"}
+    assert sorted(errors) == [1, 2, 3, 4]
+    assert "remote policy: connection closed (code 1011, model crashed)" in errors[1]
+    assert "remote policy: connection closed" in errors[2]
+    assert "remote policy: protocol error: not a msgpack message" in errors[3]
+    assert "remote policy: server error: CUDA out of memory" in errors[4]
+    for index, reason in errors.items():
+        assert reason.startswith(f"frame {spec_for('test-1k', index).observe_frames + FAULT_CALL - 1}:"), reason
+        assert "127.0.0.1" not in reason  # recorded reasons never name the host
+    assert "4 error(s)" in printed.getvalue()
+    assert "error in episode 1: frame" in printed.getvalue()
