@@ -7,9 +7,11 @@ recordings' acting frames with :func:`scoring.metrics.episode_metrics` (the numb
 ``scoring eval`` would print for the same frames). The loop is the runner's, minus
 its threads and deadlines: ``task`` carries ``intercept_time_s``.
 
-Prints one line per policy and, as the last line, one JSON object
-``{policy: {"episodes", "S_loc", "S_gra", "by_motion": {...}, "ms_per_step"}}`` with
-success rates in percent. One process, one core.
+Prints two lines per policy (success by motion type and setting, as S_loc/S_gra;
+then the seven metrics of ``scoring``) and, as the last line, one JSON object
+``{policy: {"episodes", "S_loc", "S_gra", "metrics", "by_motion", "by_setting",
+"ms_per_step"}}`` with success rates in percent; ``ms_per_step`` is the policy's CPU
+time per executed action. One process, one core.
 Tiny check: ``python benchmarks/policy_quality.py --per-cell 1 --policies still oracle``.
 """
 
@@ -31,7 +33,7 @@ from pipeline.env import DyanaEnv, horizon  # noqa: E402
 from pipeline.policies.base import make_policy  # noqa: E402
 from schemas.scene import PHASES  # noqa: E402
 from schemas.versions import FPS  # noqa: E402
-from scoring.metrics import episode_metrics  # noqa: E402
+from scoring.metrics import METRIC_NAMES, aggregate, episode_metrics  # noqa: E402
 
 OBSERVE = PHASES.index("observe")
 
@@ -115,10 +117,12 @@ def main(argv=None) -> dict:
             pick = np.array([s.intercept_setting == setting for s in specs])
             by_setting[setting] = {"S_loc": 100.0 * float(m.localized[pick].mean()),
                                    "S_gra": 100.0 * float(m.grasped[pick].mean())}
+        summary = aggregate(m, np.zeros(len(specs), dtype=bool))
         results[name] = {
             "episodes": len(specs),
             "S_loc": 100.0 * float(m.localized.mean()),
             "S_gra": 100.0 * float(m.grasped.mean()),
+            "metrics": {k: summary.metrics[k] for k in METRIC_NAMES},
             "by_motion": by_motion,
             "by_setting": by_setting,
             "ms_per_step": 1000.0 * spent / max(steps, 1),
@@ -128,6 +132,7 @@ def main(argv=None) -> dict:
               f"policy {r['ms_per_step']:.2f} ms/step  " +
               "  ".join(f"{k} {v['S_loc']:.0f}/{v['S_gra']:.0f}" for k, v in {**by_motion, **by_setting}.items()),
               flush=True)
+        print("    " + "  ".join(f"{k} {'-' if v is None else f'{v:.3f}'}" for k, v in r["metrics"].items()), flush=True)
     print(json.dumps(results, sort_keys=True))
     return results
 

@@ -2,8 +2,9 @@
 
 Three model families, one per motion primitive (paper 3.1):
 
-* ``line``: ``p(t) = p0 + u (v t + a t^2 / 2)`` with a unit direction ``u`` (constant
-  velocity, or with the acceleration when it pays for itself);
+* ``line``: ``p(t) = p0 + u v t`` with a unit direction ``u`` (constant velocity:
+  the linear tokens' small accelerations are not worth estimating from a short,
+  noisy window and extrapolating for up to 1.5 s; :func:`fit_line` can fit them);
 * ``arc``: ``p(t) = c + R (cos(w t + th), sin(w t + th))``, signed angular velocity ``w``;
 * ``harmonic``: ``p(t) = c + d t + u (a sin(w t) + b cos(w t))``: oscillation along a
   unit axis ``u`` with a slow drift ``d``.
@@ -12,9 +13,11 @@ Every model is linear in its coefficients once its nonlinear parameters (the
 direction, or the angular frequency) are fixed: directions come from principal
 components, frequencies from a grid refined locally, both solved in batches with
 normal equations. Models are compared with the Bayesian information criterion on
-the residual (capped per sample, so outliers weigh alike), with a noise floor so
-that a perfect fit of few points does not win by accident. One pass of outlier
-rejection drops samples far off each family's first fit.
+the residual (capped per sample, so outliers weigh alike), each parameter weighted
+:data:`PARAM_PENALTY` times (perception errors are correlated from frame to frame, so
+the samples say less than their number suggests), with a noise floor so that a
+perfect fit of few points does not win by accident. One pass of outlier rejection
+drops samples far off each family's first fit.
 
 Every fitted model is a :class:`MotionFit`: coefficients ``C`` (2, k) over a basis
 ``phi(t)`` (k,), so position, velocity and acceleration are ``C phi``, ``C phi'``,
@@ -32,7 +35,9 @@ KINDS = ("line", "arc", "harmonic")
 #: Fewest samples each family needs.
 MIN_SAMPLES = {"line": 3, "arc": 6, "harmonic": 8}
 #: Residual floor (units) per coordinate: below this, fits are not told apart.
-NOISE_FLOOR = 0.005
+NOISE_FLOOR = 0.02
+#: Weight of each parameter in the selection criterion (BIC's is 1).
+PARAM_PENALTY = 2.0
 #: Angular speeds (rad/s) the arc search covers, both turning directions.
 ARC_OMEGAS = np.linspace(0.2, 4.0, 77)
 #: Oscillation frequencies (rad/s) the harmonic search covers (0.1 - 1.0 Hz).
@@ -77,12 +82,6 @@ class MotionFit:
     @property
     def rms(self) -> float:
         return float(np.sqrt(self.rss / max(2 * self.samples, 1)))
-
-    @property
-    def bic(self) -> float:
-        n = 2 * self.samples
-        rss = max(self.rss, n * NOISE_FLOOR**2)
-        return n * np.log(rss / n) + self.params * np.log(n)
 
 
 def basis(kind: str, omega: float, t: np.ndarray, order: int = 0) -> np.ndarray:
@@ -223,8 +222,7 @@ def _fit_family(kind: str, t: np.ndarray, xz: np.ndarray) -> Optional[MotionFit]
     if len(t) < MIN_SAMPLES[kind]:
         return None
     if kind == "line":
-        fits = [fit_line(t, xz, False), fit_line(t, xz, True)] if len(t) >= 4 else [fit_line(t, xz, False)]
-        return min(fits, key=lambda f: f.bic)
+        return fit_line(t, xz, accelerate=False)
     return fit_arc(t, xz) if kind == "arc" else fit_harmonic(t, xz)
 
 
@@ -262,9 +260,10 @@ def fit_motion(t: Sequence[float], xz: Sequence[Sequence[float]], kinds: Sequenc
 
 
 def selection_score(fit: MotionFit, t: np.ndarray, xz: np.ndarray) -> float:
-    """BIC over all samples with each residual capped at :data:`OUTLIER_MIN`, so that
-    fits that dropped different outliers compare on the same samples."""
+    """BIC-like score over all samples (lower is better): each residual capped at
+    :data:`OUTLIER_MIN`, so that fits that dropped different outliers compare on the
+    same samples, and each parameter weighted :data:`PARAM_PENALTY` times."""
     r = np.minimum(residuals(fit, t, xz), OUTLIER_MIN)
     n = 2 * len(t)
     rss = max(float(np.sum(r * r)), n * NOISE_FLOOR**2)
-    return n * np.log(rss / n) + fit.params * np.log(n)
+    return n * np.log(rss / n) + PARAM_PENALTY * fit.params * np.log(n)

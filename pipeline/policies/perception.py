@@ -328,8 +328,9 @@ class Detection:
 
     ``pixel`` the estimated image position (column, row) of the object's centre,
     ``position`` the world centre (x, y, z) it back-projects to, ``area`` the blob's
-    area in pixels (:func:`weighted_area`), ``coverage`` that over the predicted silhouette's (small when the hand
-    hides the object), ``touches_hand`` whether the blob borders the hand, and
+    area in pixels (:func:`weighted_area`), ``coverage`` that over the predicted
+    silhouette's (small when the hand hides the object), ``touches_hand`` whether the
+    blob borders the hand, and
     ``mismatch`` the template mismatch over the silhouette's area (0 = perfect).
     """
 
@@ -394,7 +395,7 @@ class ObjectLocator:
         name = object_from_text(text)
         self.category: Optional[ObjectCategory] = OBJECTS[name] if name else None
         self._table_rgb: Optional[np.ndarray] = None
-        self._far: list[np.ndarray] = []
+        self._squares: list[np.ndarray] = []
         self._heading: Optional[int] = None
         self._last_pixel: Optional[np.ndarray] = None
         self._size_samples: list[float] = []
@@ -430,15 +431,15 @@ class ObjectLocator:
         if self._table_rgb is None:
             self._table_rgb = table_colour(image)
             levels = np.arange(256)
-            self._far = [((levels - c) ** 2).astype(np.int32) for c in self._table_rgb]
+            self._squares = [((levels - c) ** 2).astype(np.int32) for c in self._table_rgb]
         r0, r1, c0, c1 = window = self._roi()
         region = np.zeros((self.height, self.width), dtype=bool)
         region[r0:r1, c0:c1] = table_region(self.width, self.height)[r0:r1, c0:c1]
-        far = self._far
+        sq = self._squares
         crop = image[r0:r1, c0:c1]
         foreground = np.zeros_like(region)
         distance2 = np.zeros((self.height, self.width), dtype=np.int32)
-        distance2[r0:r1, c0:c1] = far[0][crop[..., 0]] + far[1][crop[..., 1]] + far[2][crop[..., 2]]
+        distance2[r0:r1, c0:c1] = sq[0][crop[..., 0]] + sq[1][crop[..., 1]] + sq[2][crop[..., 2]]
         foreground[r0:r1, c0:c1] = distance2[r0:r1, c0:c1] > COLOUR_THRESHOLD**2
         foreground &= region
         hand = hand_mask(palm_pose, joint_poses, keypoints, self.width, self.height, window=window)

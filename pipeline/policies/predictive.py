@@ -39,10 +39,16 @@ from pipeline.policies.perception import Detection, ObjectLocator
 from schemas.errors import PolicyError
 from schemas.scene import PALM_HOVER, WORKSPACE_X, WORKSPACE_Z
 
+#: A sighting is fitted when it shows this share of the object, and matches its
+#: silhouette this well (mismatched pixels over the silhouette's area).
+MIN_COVERAGE = 0.4
+MAX_MISMATCH = 0.6
 #: Samples needed before the first fit.
 MIN_FIT_SAMPLES = 4
-#: Height above the hover point of the staging point used before any fit.
+#: Before any fit the palm heads for a staging point this high above the hover point
+#: over the latest sighting showing at least STAGING_COVERAGE of the object.
 STAGING_LIFT = 1.0
+STAGING_COVERAGE = 0.3
 #: The text phrases that name a motion family.
 MOTION_WORDS = (
     ("line", re.compile(r"straight|\bline\b|linear")),
@@ -60,9 +66,7 @@ def motion_hint(text: str) -> tuple[str, ...]:
 
 def reliable(seen: Optional[Detection]) -> bool:
     """Whether a sighting is good enough to fit: most of the object in view."""
-    if seen is None:
-        return False
-    return seen.coverage >= (0.8 if seen.touches_hand else 0.5) and seen.mismatch <= 0.6
+    return seen is not None and seen.coverage >= MIN_COVERAGE and seen.mismatch <= MAX_MISMATCH
 
 
 @dataclass(frozen=True)
@@ -125,7 +129,7 @@ class PredictivePolicy:
     # sensing -------------------------------------------------------------------
     def _sight(self, image, obs: dict, t: float) -> bool:
         seen = self._locator.locate(image, obs["palm_pose"], obs["joint_poses"], obs["keypoints"])
-        if seen is not None and seen.coverage >= 0.3:
+        if seen is not None and seen.coverage >= STAGING_COVERAGE:
             self._latest = seen.position[[0, 2]]
         if reliable(seen):
             self._times.append(t)
