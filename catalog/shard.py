@@ -37,14 +37,10 @@ from schemas.versions import FPS
 
 __all__ = ["FileRecord", "ShardRecord", "ShardWriter", "rollout_frame_limit"]
 
-#: A policy may act for ceil(ROLLOUT_HORIZON_FACTOR x the ground truth's acting frames).
-ROLLOUT_HORIZON_FACTOR = 1.2
-
-
 def rollout_frame_limit(spec: EpisodeSpec) -> int:
     """Most frames a rollout of ``spec`` records: the observe window plus the acting
-    horizon ``ceil(1.2 x (num_frames - observe_frames))`` (``pipeline.env.horizon``)."""
-    return spec.observe_frames + math.ceil(ROLLOUT_HORIZON_FACTOR * (spec.num_frames - spec.observe_frames))
+    horizon ``spec.acting_horizon`` = ceil(1.2 x (num_frames - observe_frames))."""
+    return spec.observe_frames + spec.acting_horizon
 
 
 class ShardWriter:

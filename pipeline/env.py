@@ -86,8 +86,6 @@ except ImportError:  # pragma: no cover - exercised only without gymnasium
     spaces = None
 
 ENV_ID = "Dyana/Grasp-v0"
-#: Acting frames allowed: this factor times the ground truth's acting frames, rounded up.
-HORIZON_FACTOR = 1.2
 #: Where the palm may go (x, y, z ranges): above the table, up to 6 units high.
 PALM_BOX = (TABLE_X, (0.0, 6.0), TABLE_Z)
 ACTION_WIDTH = 18
@@ -106,7 +104,7 @@ _MAX_FRAMES = 100_000
 
 def horizon(spec: EpisodeSpec) -> int:
     """Acting frames a rollout may take: ``ceil(1.2 x (num_frames - observe_frames))``."""
-    return math.ceil(HORIZON_FACTOR * (spec.num_frames - spec.observe_frames))
+    return spec.acting_horizon
 
 
 def as_spec(value: Any) -> EpisodeSpec:

@@ -6,6 +6,8 @@ World frame: X right, Y up, Z forward (away from the camera); the table top is Y
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 #: Fixed egocentric camera, looking forward and down at the workspace.
 CAMERA_EYE = (0.0, 9.0, -3.0)
 CAMERA_TARGET = (0.0, 0.0, 4.5)
@@ -33,6 +35,9 @@ GRASP_RATIO = 0.8
 
 #: Interception settings: seconds from the first acting frame to arrival.
 INTERCEPT_SECONDS = {"fast": 0.5, "medium": 1.0, "slow": 1.5}
+#: A closed-loop policy may act for ceil(HORIZON_FACTOR x the ground truth's acting frames).
+HORIZON_FACTOR = Fraction(6, 5)
+
 #: Frames to close the fingers after arrival, then frames of hold.
 GRASP_FRAMES = 6
 HOLD_FRAMES = 4

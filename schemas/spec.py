@@ -15,7 +15,7 @@ from typing import Any
 from schemas.errors import SpecError
 from schemas.motion import Motion
 from schemas.objects import object_category
-from schemas.scene import GRASP_FRAMES, HANDS, INTERCEPT_SECONDS, MOTION_TYPES, ROLLOUT_FORMATS
+from schemas.scene import GRASP_FRAMES, HANDS, HORIZON_FACTOR, INTERCEPT_SECONDS, MOTION_TYPES, ROLLOUT_FORMATS
 from schemas.versions import FPS
 
 SPEC_FIELDS = (
@@ -132,6 +132,11 @@ class EpisodeSpec:
         return self.observe_frames + self.approach_frames
 
     @property
+    def acting_horizon(self) -> int:
+        """Acting frames a closed-loop policy may take: ceil(1.2 x the ground truth's)."""
+        return acting_horizon(self.num_frames, self.observe_frames)
+
+    @property
     def rolling(self) -> bool:
         return object_category(self.object).rolling
 
@@ -169,6 +174,13 @@ class EpisodeSpec:
         except json.JSONDecodeError as exc:
             raise SpecError(f"spec is not valid JSON: {exc}") from exc
         return cls.from_dict(data)
+
+
+def acting_horizon(num_frames, observe_frames):
+    """``ceil(HORIZON_FACTOR * (num_frames - observe_frames))`` in exact integer
+    arithmetic, for ints or numpy integer arrays."""
+    acting = num_frames - observe_frames
+    return -((-acting * HORIZON_FACTOR.numerator) // HORIZON_FACTOR.denominator)
 
 
 def read_specs_jsonl(path: str) -> list[EpisodeSpec]:

@@ -18,10 +18,13 @@ import pyarrow.compute as pc
 from catalog.manifest import load_manifest
 from catalog.parquet_io import column_to_numpy, open_parquet, read_episodes, read_frames, table_kind
 from schemas.errors import ShardError
+from schemas.spec import acting_horizon
 from schemas.scene import PHASES
 
 FRAME_COLUMNS = ("episode_index", "frame_index", "phase", "palm_pose", "object_pose", "joint_angles", "fingertip_distance")
-EPISODE_COLUMNS = ("episode_index", "motion_type", "intercept_setting", "object", "grasp_angles")
+EPISODE_COLUMNS = (
+    "episode_index", "motion_type", "intercept_setting", "object", "grasp_angles", "num_frames", "observe_frames",
+)
 ROLLOUT_COLUMNS = ("policy", "status")
 #: Phases in which the hand acts; every other frame is observation only.
 OBSERVE = "observe"
@@ -33,6 +36,8 @@ class RunData:
 
     ``offsets`` (n + 1) delimit each episode's acting frames, in frame order;
     ``policy`` is None for a built (ground-truth) slice, whose episodes are all ok.
+    ``acting_budget`` (n,) is R_time's N: a ground-truth episode's acting frames, a
+    rollout's acting horizon (the frames it was allowed: it stops at grasp completion).
     """
 
     name: str
@@ -45,6 +50,7 @@ class RunData:
     error: np.ndarray
     grasp_angles: np.ndarray
     offsets: np.ndarray
+    acting_budget: np.ndarray
     palm_xyz: np.ndarray
     object_xyz: np.ndarray
     joint_angles: np.ndarray
@@ -108,6 +114,14 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
     if episodes.num_rows == 0:
         raise ShardError(f"{os.fspath(folder)}: the run is empty (no episodes)")
     return _assemble(root, manifest.slice, episodes, frames, rollout)
+
+
+def _acting_budget(episodes: pa.Table, counts: np.ndarray, rollout: bool) -> np.ndarray:
+    if not rollout:
+        return counts.astype(np.int64)
+    num_frames = episodes.column("num_frames").to_numpy().astype(np.int64)
+    observe = episodes.column("observe_frames").to_numpy().astype(np.int64)
+    return acting_horizon(num_frames, observe)
 
 
 def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table, rollout: bool) -> RunData:
@@ -179,6 +193,7 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         error=error,
         grasp_angles=grasp_angles,
         offsets=offsets,
+        acting_budget=_acting_budget(episodes, counts, rollout),
         palm_xyz=frame_array("palm_pose")[:, :3],
         object_xyz=frame_array("object_pose")[:, :3],
         joint_angles=frame_array("joint_angles"),

@@ -130,12 +130,16 @@ def episode_metrics(
     joint_angles: np.ndarray,
     fingertip_distance: np.ndarray,
     grasp_angles: np.ndarray,
+    acting_budget: np.ndarray | None = None,
 ) -> EpisodeMetrics:
     """Per-episode metrics from the acting frames of ``n`` episodes.
 
     ``palm_xyz``/``object_xyz`` (m, 3), ``joint_angles`` (m, 15), ``fingertip_distance``
     (m,) are the acting frames in order; ``grasp_angles`` (n, 15) the episodes' ground
     truth. Distances are computed in float64 from the recorded values.
+    ``acting_budget`` (n,) is R_time's N, the acting frames the episode could last
+    (rollouts stop at grasp completion, so their recorded count would always give 0);
+    by default the recorded acting frames.
     """
     palm = np.asarray(palm_xyz, dtype=np.float64)
     obj = np.asarray(object_xyz, dtype=np.float64)
@@ -176,7 +180,10 @@ def episode_metrics(
 
     both = localized & (t_gra >= 0)
     done = np.maximum(t_loc, t_gra) + 1
-    r_time = np.where(both, 1.0 - done / np.maximum(counts, 1), 0.0)
+    budget = counts if acting_budget is None else np.asarray(acting_budget, dtype=np.int64)
+    if budget.shape != (n,):
+        raise ValueError(f"acting_budget must have shape ({n},), got {budget.shape}")
+    r_time = np.where(both, 1.0 - done / np.maximum(budget, 1), 0.0)
     return EpisodeMetrics(counts, t_loc, t_gra, e_loc, e_gra, q_smooth, q_line, r_time)
 
 

@@ -56,7 +56,8 @@ def _groups(values: np.ndarray, canonical: Sequence[str], always: bool) -> list[
 def score_run(data: RunData, label: str | None = None) -> RunReport:
     """Per-episode metrics of every episode, then the overall and grouped summaries."""
     per: EpisodeMetrics = episode_metrics(
-        data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles
+        data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles,
+        data.acting_budget,
     )
     breakdowns: dict[str, dict[str, Summary]] = {}
     for key, attribute, canonical, _ in BREAKDOWNS:

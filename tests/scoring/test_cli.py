@@ -71,7 +71,9 @@ def test_json_keys_and_values(capsys, run):
     steps = np.array([1.0, 0.8])  # palm 2 -> 1 -> 0.2
     assert m["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()), rel=1e-6)
     assert m["Q_line"] == pytest.approx(1.0)
-    assert m["R_time"] == pytest.approx((1 - 4 / 4) / 3 + 0 + 0)  # T = max(2, 3) + 1 = 4 of N = 4
+    # A rollout's N is its acting horizon ceil(1.2 x 4) = 5 (it stops at grasp completion):
+    # T = max(2, 3) + 1 = 4 of N = 5; the other two episodes score 0.
+    assert m["R_time"] == pytest.approx((1 - 4 / 5) / 3 + 0 + 0)
     low, high = result["intervals"]["S_loc"]
     assert 0 < low < 100 / 3 < high < 100
     assert set(result["by_motion"]) == {"linear", "circular", "harmonic"}
@@ -87,10 +89,13 @@ def test_json_keys_and_values(capsys, run):
 def test_r_time_counts_only_acting_frames(tmp_path, capsys):
     ep = Ep(phases=["observe"] * 3 + ["approach"] * 4 + ["grasp"] * 4, palm=xs(*[0.0] * 3, 3, 2, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1),
             joints=np.concatenate([np.tile(CLOSED, (3, 1)), closing(8, 4)]))
-    folder = write_run(tmp_path / "r", [ep])
-    code, out, _ = run_main(capsys, "eval", str(folder), "--json")
-    result = json.loads(out)
-    assert result["metrics"]["R_time"] == pytest.approx(1 - 5 / 8)  # t_loc 2, t_gra 4 -> T 5 of N 8
+    built = write_run(tmp_path / "gt", [ep], policy=None)
+    code, out, _ = run_main(capsys, "eval", str(built), "--json")
+    assert json.loads(out)["metrics"]["R_time"] == pytest.approx(1 - 5 / 8)  # t_loc 2, t_gra 4 -> T 5 of N 8
+    rollout = write_run(tmp_path / "r", [ep])
+    code, out, _ = run_main(capsys, "eval", str(rollout), "--json")
+    # A rollout's N is its acting horizon, ceil(1.2 x 8) = 10.
+    assert json.loads(out)["metrics"]["R_time"] == pytest.approx(1 - 5 / 10)
 
 
 def test_ground_truth_slice(tmp_path, capsys):
