@@ -79,8 +79,9 @@ def _bars(ax, reports: Sequence[RunReport], colours, metric: str) -> None:
             value = None if summary is None else summary.metrics[metric]
             interval = None if summary is None else summary.intervals[metric]
             heights.append(0.0 if value is None else value)
-            low.append(0.0 if interval is None or value is None else value - interval[0])
-            high.append(0.0 if interval is None or value is None else interval[1] - value)
+            # Wilson bounds at 0% or 100% equal the rate up to rounding: clamp the bars at 0.
+            low.append(0.0 if interval is None or value is None else max(value - interval[0], 0.0))
+            high.append(0.0 if interval is None or value is None else max(interval[1] - value, 0.0))
         ax.bar(x - 0.4 + width * (i + 0.5), heights, width, yerr=[low, high], color=colour, capsize=2,
                label=report.label, error_kw={"linewidth": 0.8})
     ax.set_xticks(x)

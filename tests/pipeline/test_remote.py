@@ -181,7 +181,7 @@ def test_the_readme_example_server_works(tmp_path):
                 time.sleep(0.1)
         common = dict(episodes=3, resolution=RESOLUTION, shard_size=3, workers=0, progress=False, summary=False)
         mine = evaluate(f"ws://127.0.0.1:{port}", "test-1k", tmp_path / "mine", **common)
-        still = evaluate("still", "test-1k", tmp_path / "still", **common)
+        evaluate("still", "test-1k", tmp_path / "still", **common)
     finally:
         proc.terminate()
         proc.wait(timeout=20)

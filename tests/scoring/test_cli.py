@@ -209,3 +209,13 @@ def test_unknown_status_and_phase_are_refused(tmp_path, capsys):
     folder = write_run(tmp_path / "phase", [Ep(phases=["observe", "dance", "hold", "hold"], palm=MISS["palm"])])
     code, _, err = run_main(capsys, "eval", str(folder))
     assert code == 2 and "unknown phase 'dance'" in err
+
+
+def test_plot_of_runs_at_100_and_0_percent(tmp_path, capsys):
+    """Wilson bounds at the extremes equal the rate: the error bars must not go negative."""
+    perfect = write_run(tmp_path / "perfect", [Ep(**GOOD) for _ in range(7)], policy="oracle")
+    nothing = write_run(tmp_path / "nothing", [Ep(**MISS) for _ in range(7)], policy="still")
+    png = tmp_path / "radar.png"
+    code, _, err = run_main(capsys, "eval", str(perfect), str(nothing), "--plot", str(png))
+    assert code == 0, err
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

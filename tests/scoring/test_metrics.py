@@ -342,3 +342,9 @@ def test_mean_interval():
     low, high = mean_interval(np.array([1.0, 3.0]))
     half = 1.959963984540054 * math.sqrt(2) / math.sqrt(2)
     assert (low, high) == (pytest.approx(2 - half), pytest.approx(2 + half))
+
+
+@pytest.mark.parametrize("n", [1, 7, 180, 1000])
+def test_wilson_interval_reaches_the_extremes_exactly(n):
+    assert wilson_interval(n, n)[1] == 1.0
+    assert wilson_interval(0, n)[0] == 0.0
