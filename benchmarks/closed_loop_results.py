@@ -1,0 +1,65 @@
+"""The README's closed-loop results: evaluate the built-in policies on test-1k and score them.
+
+Runs ``pipeline eval`` for oracle, predictive, chase and still on the first
+``--episodes`` test-1k episodes (50 per motion x speed cell for 450), then
+``scoring eval`` over the four runs, writing the terminal table, a Markdown table and
+the radar plot into ``--out`` (default ``benchmarks/results``, the files the README
+shows). Runs go to a temporary folder unless ``--runs`` is given.
+
+    python benchmarks/closed_loop_results.py --episodes 450
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+# Run as a script, this folder comes first on sys.path, where benchmarks/scoring.py
+# would shadow the scoring package.
+_HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
+
+from pipeline.cli import main as pipeline_main  # noqa: E402
+from scoring.cli import main as scoring_main  # noqa: E402
+
+POLICIES = ("oracle", "predictive", "chase", "still")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=450)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", default=os.path.join(_HERE, "results"))
+    parser.add_argument("--runs", help="keep the runs in this folder")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with contextlib.ExitStack() as stack:
+        runs = Path(args.runs) if args.runs else Path(stack.enter_context(tempfile.TemporaryDirectory()))
+        folders = []
+        for policy in POLICIES:
+            folder = runs / policy
+            start = time.perf_counter()
+            code = pipeline_main(["eval", "--policy", policy, "--slice", "test-1k", "--episodes", str(args.episodes),
+                                  "--out", str(folder), "--workers", str(args.workers), "--quiet"])
+            if code != 0:
+                return code
+            print(f"{policy}: {args.episodes} episodes in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+            folders.append(str(folder))
+        table = io.StringIO()
+        with contextlib.redirect_stdout(table):
+            code = scoring_main(["eval", *folders, "--plot", str(out / "radar.png"),
+                                 "--markdown", str(out / "table.md")])
+        (out / "table.txt").write_text(table.getvalue())
+        print(table.getvalue())
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
