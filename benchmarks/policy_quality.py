@@ -31,8 +31,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from generators.recipe import spec_for  # noqa: E402
 from pipeline.env import DyanaEnv, horizon  # noqa: E402
 from pipeline.policies.base import make_policy  # noqa: E402
+from pipeline.rollout import task_for  # noqa: E402
 from schemas.scene import PHASES  # noqa: E402
-from schemas.versions import FPS  # noqa: E402
 from scoring.metrics import METRIC_NAMES, aggregate, episode_metrics  # noqa: E402
 
 OBSERVE = PHASES.index("observe")
@@ -47,24 +47,9 @@ def predictive_without_text():
     return policy
 
 
-def task_for(spec, resolution: int, privileged: bool) -> dict:
-    task = {
-        "text": spec.text,
-        "fps": FPS,
-        "observe_frames": spec.observe_frames,
-        "horizon": horizon(spec),
-        "resolution": resolution,
-        "hand": spec.hand,
-        "intercept_time_s": spec.intercept_time_s,
-    }
-    if privileged:
-        task["spec"] = spec.to_json()
-    return task
-
-
 def rollout(env: DyanaEnv, policy, spec) -> tuple:
     obs, _ = env.reset(options={"spec": spec})
-    policy.reset(task_for(spec, env.resolution, policy.privileged))
+    policy.reset(task_for(spec, env.resolution, policy.privileged, horizon(spec)))
     steps, spent = 0, 0.0
     done = env.done
     while not done:
