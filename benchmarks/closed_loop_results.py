@@ -1,10 +1,11 @@
 """The README's closed-loop results: evaluate the built-in policies on test-1k and score them.
 
-Runs ``pipeline eval`` for oracle, predictive, chase and still on the first
-``--episodes`` test-1k episodes (50 per motion x speed cell for 450), then
-``scoring eval`` over the four runs, writing the terminal table, a Markdown table and
+Builds the ground truth of the first ``--episodes`` test-1k episodes (50 per motion x
+speed cell for 450), runs ``pipeline eval`` for oracle, predictive, chase and still on
+them, then ``scoring eval`` over the five folders (the GT row first), writing the terminal table, a Markdown table and
 the radar plot into ``--out`` (default ``benchmarks/results``, the files the README
-shows). Runs go to a temporary folder unless ``--runs`` is given.
+shows). Runs go to a temporary folder unless ``--runs`` is given; a folder there that
+already holds a ``catalog.json`` is reused.
 
     python benchmarks/closed_loop_results.py --episodes 450
 """
@@ -42,15 +43,19 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
         runs = Path(args.runs) if args.runs else Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        folders = []
+        common = ["--episodes", str(args.episodes), "--workers", str(args.workers), "--quiet"]
+        commands = {"gt": ["build", "--slice", "test-1k", "--out", str(runs / "gt"), *common]}
         for policy in POLICIES:
-            folder = runs / policy
-            start = time.perf_counter()
-            code = pipeline_main(["eval", "--policy", policy, "--slice", "test-1k", "--episodes", str(args.episodes),
-                                  "--out", str(folder), "--workers", str(args.workers), "--quiet"])
-            if code != 0:
-                return code
-            print(f"{policy}: {args.episodes} episodes in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+            commands[policy] = ["eval", "--policy", policy, "--slice", "test-1k", "--out", str(runs / policy), *common]
+        folders = []
+        for name, command in commands.items():
+            folder = runs / name / "test-1k" if name == "gt" else runs / name
+            if not (folder / "catalog.json").is_file():
+                start = time.perf_counter()
+                code = pipeline_main(command)
+                if code != 0:
+                    return code
+                print(f"{name}: {args.episodes} episodes in {time.perf_counter() - start:.1f} s", file=sys.stderr)
             folders.append(str(folder))
         table = io.StringIO()
         with contextlib.redirect_stdout(table):
