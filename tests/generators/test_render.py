@@ -17,23 +17,11 @@ from schemas.errors import ShardError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.objects import OBJECTS
 from schemas.scene import WORKSPACE_X, WORKSPACE_Z
+from tests.generators.colours import colour_mask, matches
 
 SMALL = 96
 FULL = 224
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
-
-
-def colour_mask(pixels, rgba, tol: float = 8.0) -> np.ndarray:
-    """Which pixels (..., 3) are ``rgba`` under some lighting intensity in [0.5, 1.05]."""
-    base = np.asarray(rgba[:3], dtype=np.float64) * 255.0
-    px = np.asarray(pixels, dtype=np.float64)
-    intensity = px @ base / (base @ base)
-    off = np.abs(px - intensity[..., None] * base).max(axis=-1)
-    return (intensity >= 0.5) & (intensity <= 1.05) & (off <= tol)
-
-
-def matches(pixel, rgba, tol: float = 8.0) -> bool:
-    return bool(colour_mask(pixel, rgba, tol))
 
 
 def fraction(window: np.ndarray, rgba) -> float:

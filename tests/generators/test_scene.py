@@ -27,21 +27,9 @@ from generators.scene import (
 )
 from schemas.objects import OBJECTS
 from schemas.scene import TABLE_X, TABLE_Z
+from tests.generators.colours import colour_mask, matches
 
 RES = 160
-
-
-def colour_mask(pixels, rgba, tol: float = 8.0) -> np.ndarray:
-    """Which pixels (..., 3) are ``rgba`` under some lighting intensity in [0.5, 1.05]."""
-    base = np.asarray(rgba[:3], dtype=np.float64) * 255.0
-    px = np.asarray(pixels, dtype=np.float64)
-    intensity = px @ base / (base @ base)
-    off = np.abs(px - intensity[..., None] * base).max(axis=-1)
-    return (intensity >= 0.5) & (intensity <= 1.05) & (off <= tol)
-
-
-def matches(pixel, rgba, tol: float = 8.0) -> bool:
-    return bool(colour_mask(pixel, rgba, tol))
 
 
 def pixel_of(point) -> tuple[int, int]:
