@@ -7,6 +7,7 @@ becomes a one-line message on stderr and exit code 2; a replay mismatch exits 1.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -133,7 +134,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--slice", help="slice name, e.g. linear-fast (see `catalog list`)")
     p.add_argument("--episodes", type=positive_int, help="build only the first N episodes (of each part for dyana-12m)")
     p.add_argument("--out", default="out", help="output folder; the slice goes to OUT/<slice>/ (default: out)")
-    p.add_argument("--workers", type=positive_int, default=2, help="local worker processes (default: 2)")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
+                   help=f"local single-threaded worker processes (default: one per core, {os.cpu_count() or 1} here)")
     p.add_argument("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
     p.add_argument("--resolution", type=positive_int, default=224, help="image side in pixels (default: 224)")
     p.add_argument("--shard-size", type=positive_int, default=128, help="episodes per shard (default: 128)")
@@ -152,7 +154,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--slice", default="test-1k", help="slice whose episodes to run (default: test-1k)")
     p.add_argument("--episodes", type=positive_int, help="only the first N episodes")
     p.add_argument("--out", required=True, help="run folder: RUN/catalog.json and RUN/shards/")
-    p.add_argument("--workers", type=positive_int, default=2, help="local worker processes (default: 2)")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1,
+                   help=f"local single-threaded worker processes (default: one per core, {os.cpu_count() or 1} here)")
     p.add_argument("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
     p.add_argument("--deadline", type=_positive_float, default=10.0, help="seconds allowed per policy call (default: 10)")
     p.add_argument("--resolution", type=positive_int, default=224, help="image side in pixels (default: 224)")
