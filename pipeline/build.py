@@ -12,6 +12,7 @@ change it.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 import time
@@ -84,8 +85,11 @@ def build_shard(task: ShardTask, settings: BuildSettings, slice_dir: str) -> dic
     return record.to_dict()
 
 
-def _load_state(slice_dir: Path, settings: BuildSettings, commit: str | None) -> dict[tuple[int, int], ShardRecord]:
-    """Shards a previous run of the same build finished whose files are intact."""
+def _load_state(
+    slice_dir: Path, settings: BuildSettings, commit: str | None, source: str
+) -> dict[tuple[int, int], ShardRecord]:
+    """Shards a previous run of the same build (same settings, code and episode source)
+    finished whose files are intact."""
     path = slice_dir / STATE_FILE
     if not path.exists():
         return {}
@@ -93,7 +97,7 @@ def _load_state(slice_dir: Path, settings: BuildSettings, commit: str | None) ->
         state = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise ShardError(f"{path}: unreadable build state ({exc}); remove it to rebuild from scratch") from exc
-    if state.get("settings") != settings.as_dict() or state.get("commit") != commit:
+    if state.get("settings") != settings.as_dict() or state.get("commit") != commit or state.get("source") != source:
         return {}
     done: dict[tuple[int, int], ShardRecord] = {}
     for raw in state.get("shards", []):
@@ -106,10 +110,11 @@ def _load_state(slice_dir: Path, settings: BuildSettings, commit: str | None) ->
     return done
 
 
-def _save_state(slice_dir: Path, settings: BuildSettings, commit: str | None, done: dict) -> None:
+def _save_state(slice_dir: Path, settings: BuildSettings, commit: str | None, source: str, done: dict) -> None:
     state = {
         "settings": settings.as_dict(),
         "commit": commit,
+        "source": source,
         "shards": [done[key].to_dict() for key in sorted(done)],
     }
     atomic_write_text(slice_dir / STATE_FILE, json.dumps(state, sort_keys=True, indent=2) + "\n")
@@ -252,7 +257,11 @@ def build(
     (slice_dir / "shards").mkdir(parents=True, exist_ok=True)
     remove_stray_temps(slice_dir)
     commit = git_commit()
-    done = _load_state(slice_dir, settings, commit)
+    if specs_json is None:
+        source = f"recipe:{slice_name}:{seed}"
+    else:
+        source = "specs:" + hashlib.sha256("\n".join(specs_json).encode()).hexdigest()
+    done = _load_state(slice_dir, settings, commit, source)
     tasks = []
     for first, end in shard_ranges(total, shard_size):
         if (first, end) in done:
@@ -270,7 +279,7 @@ def build(
 
     def on_done(record: ShardRecord) -> None:
         done[tuple(record.episodes)] = record
-        _save_state(slice_dir, settings, commit, done)
+        _save_state(slice_dir, settings, commit, source, done)
         if meter is not None:
             meter.update(record)
 

@@ -323,7 +323,8 @@ def evaluate(
     remove_stray_temps(run_dir)
     commit = git_commit()
     done = _finished_shards(run_dir, settings)
-    done.update(_load_state(run_dir, settings, commit))
+    source = f"recipe:{slice_name}:{definition.seed}"
+    done.update(_load_state(run_dir, settings, commit, source))
     done = {key: record for key, record in done.items() if key in set(ranges)}
     tasks = [ShardTask(slice_name, first, end) for first, end in ranges if (first, end) not in done]
 
@@ -337,7 +338,7 @@ def evaluate(
     def on_done(result: dict) -> None:
         record = ShardRecord.from_dict(result["record"])
         done[tuple(record.episodes)] = record
-        _save_state(run_dir, settings, commit, done)
+        _save_state(run_dir, settings, commit, source, done)
         stats = result["stats"]
         for key in ("episodes", "steps", "calls", "policy_s"):
             timing[key] += stats[key]

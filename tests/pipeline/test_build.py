@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import pyarrow.parquet as pq
 import pytest
 
 from catalog.integrity import verify_files
@@ -165,3 +166,30 @@ def test_bad_specs_file_names_the_line(tmp_path):
     assert result.returncode == 2
     assert f"{path}:1" in result.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_an_edited_specs_file_is_not_resumed_from_stale_shards(tmp_path):
+    """A killed build's finished shards are reused only for the same episodes: after the
+    specs file is edited, the changed shard is rebuilt, the unchanged one reused."""
+    import dataclasses
+    import hashlib
+
+    from generators.recipe import spec_for
+
+    specs = [spec_for(SLICE, i) for i in range(2)]
+    path = tmp_path / "specs.jsonl"
+    path.write_text("".join(s.to_json() + "\n" for s in specs))
+    out = tmp_path / "out"
+    first = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False)
+    # The state file a build killed just before writing catalog.json leaves behind.
+    source = "specs:" + hashlib.sha256("\n".join(s.to_json() for s in specs).encode()).hexdigest()
+    (out / SLICE / STATE_FILE).write_text(json.dumps({
+        "settings": dict(first.settings), "commit": first.code.commit, "source": source,
+        "shards": [s.to_dict() for s in first.shards],
+    }))
+    edited = [specs[0], dataclasses.replace(specs[1], text="Grasp it, please.")]
+    path.write_text("".join(s.to_json() + "\n" for s in edited))
+    second = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False)
+    texts = [t for shard in second.shards
+             for t in pq.read_table(out / SLICE / shard.files["episodes"].path).column("text").to_pylist()]
+    assert texts == [specs[0].text, "Grasp it, please."]
