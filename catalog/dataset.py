@@ -370,6 +370,9 @@ class _Reader:
         frame = column_to_numpy(table.column("frame_index"))
         if _index_digest(episode, frame) != record.index_digest:
             raise ShardError(f"{path}: episode_index/frame_index changed since the dataset was opened")
+        for name in _SHARD_COLUMNS:
+            if table.column(name).null_count:
+                raise ShardError(f"{path}: column {name!r} holds null values (the contract has none)")
         n = table.num_rows
         floats = np.empty((n, FLOAT_WIDTH), dtype=np.float32)
         for name in FLOAT_COLUMNS:

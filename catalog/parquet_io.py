@@ -332,6 +332,10 @@ def _read(path: str | os.PathLike[str], kinds: tuple[str, ...], columns: Sequenc
             table = parquet.read(columns=wanted)
         except (pa.ArrowException, OSError, ValueError) as exc:
             raise ShardError(f"{os.fspath(path)}: corrupt Parquet data: {exc}") from None
+    for name in wanted:
+        nulls = table.column(name).null_count
+        if nulls:
+            raise ShardError(f"{os.fspath(path)}: column {name!r} holds {nulls} null value(s) (the contract has none)")
     contract = _schema(kind)
     return table.select(wanted).cast(pa.schema([contract.field(name) for name in wanted]))
 

@@ -107,7 +107,7 @@ class ShardWriter:
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         if exc_type is not None:
             self.abort()
-        elif self._state == "open":
+        elif self._state in ("open", "failed"):
             self.finish()
 
     def add_episode(
@@ -175,7 +175,14 @@ class ShardWriter:
         if self._state == "finished":
             return self.record
         if self._state != "open":
-            raise ShardError(f"shard {self.paths['frames']}: finish() on a writer that is {self._state}")
+            state = self._state
+            if state == "failed":  # a write failed mid-episode: its temps are incomplete, delete them
+                self.abort()
+                raise ShardError(
+                    f"shard {self.paths['frames']}: an episode failed to write; the shard was discarded"
+                )
+            raise ShardError(f"shard {self.paths['frames']}: finish() on a writer that is {state}")
+        committed: list[Path] = []
         try:
             added = [row["episode_index"] for row in self._rows]
             if added != list(range(self.first, self.end)):
@@ -197,8 +204,11 @@ class ShardWriter:
                 files[kind] = FileRecord(self.paths[kind], sha256_file(temp), temp.stat().st_size)
             for kind in FILE_KINDS:
                 atomic.commit(self._temps[kind], self._finals[kind])
+                committed.append(self._finals[kind])
         except BaseException:
             self.abort()
+            for final in committed:  # a shard is all three files or none
+                atomic.discard(final)
             raise
         self._state = "finished"
         self.record = ShardRecord((self.first, self.end), self._frames, files)

@@ -175,7 +175,10 @@ def compute_stats(
         if table.num_rows != shard.frames:
             raise ShardError(f"{path}: has {table.num_rows} rows, catalog.json says {shard.frames}")
         for name in STATS_COLUMNS:
-            accumulators[name].add(column_to_numpy(table.column(name)))
+            values = column_to_numpy(table.column(name))
+            if not np.isfinite(values).all():
+                raise ShardError(f"{path}: column {name!r} holds non-finite values (NaN or infinity)")
+            accumulators[name].add(values)
     return Stats(manifest.hash, manifest.frames, {name: accumulators[name].result() for name in STATS_COLUMNS})
 
 

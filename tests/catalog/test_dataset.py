@@ -568,3 +568,49 @@ def test_image_offsets_span_pages_and_row_groups(tmp_path):
     ds = catalog.open(root, verify="checksums")
     for i in (0, 1023, 1024, len(ds) - 1):
         np.testing.assert_array_equal(ds[i]["image"], _rgb(stored[i]))
+
+
+def test_null_values_in_a_hashed_frames_file_are_named(copy):
+    """A frames file with a null ``action`` (written by another tool, with a manifest over it)
+    raises ShardError naming the file and column, not a numpy reshape error."""
+    import pyarrow as pa
+
+    from catalog.hashing import sha256_file
+    from catalog.parquet_io import writer_options
+    from catalog.records import FileRecord, ShardRecord
+    from schemas.versions import SCHEMA_VERSION
+
+    manifest = load_manifest(copy)
+    shard = manifest.shards[0]
+    path = copy / shard.files["frames"].path
+    table = pq.read_table(path)
+    column = table.column("action").combine_chunks()
+    values = column.to_pylist()
+    values[3] = None
+    index = table.schema.get_field_index("action")
+    table = table.set_column(index, pa.field("action", column.type, nullable=True), pa.array(values, column.type))
+    schema = table.schema.with_metadata({"dyana.table": "frames", "dyana.schema_version": SCHEMA_VERSION})
+    with pq.ParquetWriter(str(path), schema, **writer_options("frames")) as writer:
+        writer.write_table(table.cast(schema))
+    files = dict(shard.files)
+    files["frames"] = FileRecord(shard.files["frames"].path, sha256_file(path), path.stat().st_size)
+    shards = [ShardRecord(shard.episodes, shard.frames, files), *manifest.shards[1:]]
+    write_manifest(copy, Manifest.create(manifest.slice, manifest.seed, dict(manifest.settings), shards, code=CODE))
+    for verify in ("sha256", "checksums"):
+        with pytest.raises(ShardError, match=rf"{path.name}.*'action'.*null"):
+            catalog.open(copy, verify=verify)[0]
+
+
+def test_non_finite_values_give_a_shard_error_for_stats(tmp_path):
+    """Statistics over a shard holding a NaN cannot be stored as JSON: name the file and column
+    instead of failing inside json.dumps."""
+    spec, frames, images = make_episode(0)
+    velocity = frames.object_velocity.copy()
+    velocity[2, 1] = np.nan
+    root = tmp_path / "nan"
+    with ShardWriter(root, 0, 1, SETTINGS) as writer:
+        writer.add_episode(spec, replace(frames, object_velocity=velocity), images)
+    write_manifest(root, Manifest.create("linear-fast", 1, SETTINGS, [writer.record], code=CODE))
+    with pytest.raises(ShardError, match=r"frames\.parquet: column 'object_velocity' holds non-finite"):
+        catalog.open(root).stats
+    assert not (root / STATS_NAME).exists()

@@ -207,3 +207,40 @@ def test_rollout_shard_has_policy_status_error(tmp_path):
         {"policy": "scripted", "status": "error", "error": "NaN action"},
     ]
     assert writer.record.frames == make_spec(0).num_frames + 5
+
+
+def test_failed_write_caught_inside_with_still_leaves_nothing(tmp_path):
+    """A write error swallowed inside the ``with`` must not leave temp files behind
+    (nor let the block end as if the shard had been written)."""
+    with pytest.raises(ShardError, match="failed to write; the shard was discarded"):
+        with ShardWriter(tmp_path, 0, 1, SETTINGS) as writer:
+
+            def disk_full(table):
+                raise OSError("no space left on device")
+
+            writer._frames_writer.write = disk_full
+            with pytest.raises(OSError, match="no space"):
+                writer.add_episode(*make_episode(0))
+    assert find_stray_temps(tmp_path) == []
+    assert list((tmp_path / "shards").iterdir()) == []
+    assert writer.record is None
+
+
+def test_failure_while_renaming_leaves_no_partial_shard(tmp_path, monkeypatch):
+    """If the last of the three renames fails, the two already renamed must not stay behind."""
+    from catalog import atomic
+
+    real_commit = atomic.commit
+    calls = []
+
+    def flaky_commit(temp, final):
+        calls.append(final)
+        if len(calls) == 3:
+            raise OSError("I/O error")
+        real_commit(temp, final)
+
+    monkeypatch.setattr(atomic, "commit", flaky_commit)
+    with pytest.raises(OSError, match="I/O error"):
+        _write(tmp_path)
+    assert len(calls) == 3
+    assert list((tmp_path / "shards").iterdir()) == []

@@ -219,3 +219,22 @@ def test_plot_of_runs_at_100_and_0_percent(tmp_path, capsys):
     code, _, err = run_main(capsys, "eval", str(perfect), str(nothing), "--plot", str(png))
     assert code == 0, err
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_null_values_in_a_column_are_refused_in_one_line(tmp_path, capsys):
+    """A frames file written by another tool with a null palm_pose must not crash with a traceback."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    folder = write_run(tmp_path / "nulls", [Ep(**GOOD)], policy=None)
+    path = next((folder / "shards").glob("*.frames.parquet"))
+    table = pq.read_table(path)
+    column = table.column("palm_pose").combine_chunks()
+    values = column.to_pylist()
+    values[3] = None
+    index = table.schema.get_field_index("palm_pose")
+    pq.write_table(table.set_column(index, pa.field("palm_pose", column.type), pa.array(values, column.type)), path)
+    code, out, err = run_main(capsys, "eval", str(folder), "--json")
+    assert code == 2 and out == ""
+    assert "frames.parquet" in err and "'palm_pose'" in err and "null" in err
+    assert len(err.strip().splitlines()) == 1
