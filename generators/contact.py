@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from schemas.errors import SpecError
 from schemas.objects import object_category
 
 
@@ -64,7 +65,7 @@ def signed_distance_local(points: np.ndarray, shape: str, dims: tuple[float, ...
         q = np.abs(p) - np.asarray(dims)
         outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
         return outside + np.minimum(q.max(axis=-1), 0.0)
-    raise ValueError(f"unknown shape {shape!r}")
+    raise SpecError(f"unknown shape {shape!r}")
 
 
 def signed_distance(points: np.ndarray, category: str, size: float, object_pose: np.ndarray) -> np.ndarray:

@@ -44,8 +44,16 @@ def encode_jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
 
 
 def decode_jpeg(data: bytes) -> np.ndarray:
-    """JPEG bytes -> (H, W, 3) uint8 RGB."""
-    bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    """JPEG bytes -> (H, W, 3) uint8 RGB; anything undecodable (empty, truncated, not
+    bytes) is a :class:`ShardError`."""
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise ShardError(f"an encoded image must be bytes, got {type(data).__name__}")
+    bgr = None
+    if len(data):
+        try:
+            bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        except cv2.error:
+            bgr = None
     if bgr is None:
         raise ShardError(f"not a decodable JPEG image ({len(data)} bytes)")
     return np.ascontiguousarray(bgr[:, :, ::-1])

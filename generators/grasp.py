@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 
 import numpy as np
 
 from generators.contact import signed_distance_local
-from generators.hand import FINGER_RADII, JOINT_LOWER, JOINT_UPPER, REST_JOINTS, chain_frames
+from generators.hand import FINGER_RADII, JOINT_LOWER, JOINT_UPPER, REST_JOINTS, SIDES, chain_frames
 from schemas.errors import SpecError
 from schemas.objects import object_category
 from schemas.scene import PALM_HOVER
@@ -85,16 +86,22 @@ def _lowest_offset(category: str, size: float, side: str) -> float:
 def lowest_fingertip_offset(category: str, size: float, side: str) -> float:
     """Lowest fingertip height relative to the palm centre (palm down) while the fingers
     close from rest to :func:`grasp_angles` (the synergy sampled at 21 fractions)."""
-    _check_size(size)
+    _check(category, size, side)
     return _lowest_offset(category, float(size), side)
 
 
-def _check_size(size: float) -> None:
-    if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) or size <= 0:
+def _check(category: str, size: float, side: str) -> None:
+    """Validate before the caches, which would raise TypeError on unhashable arguments."""
+    if not isinstance(category, str):
+        raise SpecError(f"object must be a category name, got {category!r}")
+    object_category(category)
+    if not isinstance(side, str) or side not in SIDES:
+        raise SpecError(f"hand side must be one of {list(SIDES)}, got {side!r}")
+    if isinstance(size, bool) or not isinstance(size, numbers.Real) or not math.isfinite(size) or size <= 0:
         raise SpecError(f"object size must be a finite number > 0, got {size!r}")
 
 
 def grasp_angles(category: str, size: float, side: str) -> np.ndarray:
     """(15,) ground-truth joint angles (radians) grasping ``category`` of ``size`` with the ``side`` hand."""
-    _check_size(size)
+    _check(category, size, side)
     return np.array(_grasp_angles(category, float(size), side))

@@ -99,7 +99,7 @@ def root_positions(side: str) -> np.ndarray:
 
 
 def _side(side: str) -> str:
-    if side not in SIDES:
+    if not isinstance(side, str) or side not in SIDES:
         raise SpecError(f"hand side must be one of {list(SIDES)}, got {side!r}")
     return side
 
@@ -151,7 +151,7 @@ def chain_frames(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> 
     """
     palm = np.atleast_2d(np.asarray(palm_pose, dtype=np.float64))
     q = np.atleast_2d(np.asarray(joint_angles, dtype=np.float64))
-    if palm.shape[-1] != 6 or q.shape[-1] != 15 or palm.shape[0] != q.shape[0]:
+    if palm.ndim != 2 or q.ndim != 2 or palm.shape[-1] != 6 or q.shape[-1] != 15 or palm.shape[0] != q.shape[0]:
         raise SpecError(f"need palm_pose (n, 6) and joint_angles (n, 15), got {palm.shape} and {q.shape}")
     roots, root_rots = _CACHE[_side(side)]
     n = palm.shape[0]

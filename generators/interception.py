@@ -129,7 +129,8 @@ def closure_profile(num_frames: int, intercept_frame: int) -> np.ndarray:
 
 
 def in_view(points: np.ndarray) -> np.ndarray:
-    """(n,) whether world points (n, 3) project inside the camera's image (any resolution)."""
+    """(n,) whether world points (n, 3) project inside the camera's square image (any resolution;
+    a wider :class:`generators.render.Renderer` image sees more)."""
     clip = points @ _CLIP_FROM_WORLD[:, :3].T + _CLIP_FROM_WORLD[:, 3]
     w = clip[:, 3]
     return (w > 0) & (np.abs(clip[:, 0]) <= w) & (np.abs(clip[:, 1]) <= w)

@@ -263,8 +263,17 @@ def _eval_track(comp: _Compiled, t: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     return pos, vel, acc
 
 
+def _check_motion(motion) -> Motion:
+    if not isinstance(motion, Motion):
+        raise SpecError(f"not a Motion: {motion!r}")
+    return motion
+
+
 def _times(t) -> np.ndarray:
-    arr = np.asarray(t, dtype=np.float64)
+    try:
+        arr = np.asarray(t, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SpecError(f"times must be real numbers, got {t!r}") from None
     if arr.ndim > 1:
         raise SpecError(f"times must be a 1-D array, got shape {arr.shape}")
     arr = arr.reshape(-1)
@@ -282,6 +291,7 @@ def _times(t) -> np.ndarray:
 
 def evaluate(motion: Motion, t) -> MotionSample:
     """Exact r(t), v(t), a(t) of ``motion`` at times ``t`` (seconds, shape ``(n,)``)."""
+    _check_motion(motion)
     t = _times(t)
     return _evaluate(motion, t)
 
@@ -464,6 +474,7 @@ def arc_length(motion: Motion, t) -> np.ndarray:
     """Distance travelled on [0, t], ``(n,)``: closed form for L, A, undrifted H and
     constant-curvature C; fixed-grid 3-point Gauss-Legendre quadrature (6th order on
     :data:`ROLL_STEP_S` steps) for curving clothoids, drifting harmonics and overlays."""
+    _check_motion(motion)
     t = _times(t)
 
     def handler(seg: _Segment, times: np.ndarray, start: float):
@@ -699,6 +710,7 @@ def object_orientation(motion: Motion, category: ObjectCategory | str, size: flo
     """
     category = _category(category)
     size = _check_size(category, size)
+    _check_motion(motion)
     t = _times(t)
     if not category.rolling:
         return np.tile(_IDENTITY, (t.shape[0], 1))
@@ -716,6 +728,7 @@ def object_pose(motion: Motion, category: ObjectCategory | str, size: float, t) 
     :func:`object_orientation` for the rotation conventions."""
     category = _category(category)
     size = _check_size(category, size)
+    _check_motion(motion)
     t = _times(t)
     sample = _evaluate(motion, t)
     n = t.shape[0]
@@ -735,6 +748,7 @@ def object_angular_velocity(motion: Motion, category: ObjectCategory | str, size
     the yaw rate -dpsi/dt about +Y (dpsi/dt = (v x a) / |v|^2, 0 when standing still)."""
     category = _category(category)
     size = _check_size(category, size)
+    _check_motion(motion)
     sample = evaluate(motion, t)
     n = sample.velocity.shape[0]
     if not category.rolling:
@@ -871,8 +885,9 @@ def motion_bounds(motion: Motion, t_end: float, samples: int = 512) -> tuple[flo
     if isinstance(t_end, bool) or not isinstance(t_end, (int, float, np.floating)) or not math.isfinite(t_end) or t_end < 0:
         raise SpecError(f"t_end must be a finite number >= 0, got {t_end!r}")
     t_end = float(t_end)
+    _check_motion(motion)
     if motion.overlays:
-        if samples < 2:
+        if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 2:
             raise SpecError(f"samples must be >= 2, got {samples!r}")
         cuts = [s.t0 for s in _segments(motion) if s.t0 <= t_end]
         return _sampled_bounds(motion, np.unique(np.concatenate([np.linspace(0.0, t_end, samples), cuts])))

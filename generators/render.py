@@ -29,6 +29,7 @@ TinyRenderer's and is not reproducible across drivers, so builds use ``"tiny"``.
 from __future__ import annotations
 
 import importlib.util
+import numbers
 from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Optional
@@ -85,6 +86,14 @@ class _Body:
             self.visible = visible
 
 
+def _floats(values) -> Optional[np.ndarray]:
+    """``values`` as a float64 array, or None when they are not numbers."""
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+
+
 class Renderer:
     """Owns a pybullet DIRECT client holding the scene, both hands and a small cache of
     object bodies; renders (H, W, 3) uint8 RGB frames. Use as a context manager or
@@ -94,9 +103,9 @@ class Renderer:
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
             raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
         self.height = int(resolution)
-        self.width = resolution if width is None else int(width)
-        if self.width < 8:
+        if width is not None and (isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 8):
             raise SpecError(f"width must be an integer >= 8, got {width!r}")
+        self.width = self.height if width is None else int(width)
         if backend not in BACKENDS:
             raise SpecError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
         self.backend = backend
@@ -158,11 +167,18 @@ class Renderer:
         for none) that the following frames show."""
         new_object = None
         if object_name is not None:
+            if not isinstance(object_name, str):
+                raise SpecError(f"object must be a category name or None, got {object_name!r}")
             object_category(object_name)
-            if object_size is None or not np.isfinite(object_size) or object_size <= 0:
+            if (
+                isinstance(object_size, (bool, np.bool_))
+                or not isinstance(object_size, numbers.Real)
+                or not np.isfinite(object_size)
+                or object_size <= 0
+            ):
                 raise SpecError(f"object_size must be a finite number > 0, got {object_size!r}")
             new_object = self._object_body(object_name, float(object_size))
-        if hand is not None and hand not in self._hands:
+        if hand is not None and (not isinstance(hand, str) or hand not in self._hands):
             raise SpecError(f"hand must be one of {list(HANDS)} or None, got {hand!r}")
         new_hand = self._hands[hand] if hand is not None else None
         for old, new in ((self._object, new_object), (self._hand, new_hand)):
@@ -192,15 +208,20 @@ class Renderer:
 
     def _pose(self, object_pose, palm_pose, joint_angles) -> None:
         if self._object is not None:
-            pose = np.asarray(object_pose, dtype=np.float64)
-            if pose.shape != (7,) or not np.all(np.isfinite(pose)):
+            pose = _floats(object_pose)
+            if pose is None or pose.shape != (7,) or not np.all(np.isfinite(pose)):
                 raise SpecError(f"object_pose must be 7 finite numbers, got {object_pose!r}")
             set_object_pose(self._client, self._object.body, pose)
         if self._hand is not None:
-            palm = np.asarray(palm_pose, dtype=np.float64)
-            joints = np.asarray(joint_angles, dtype=np.float64)
-            if palm.shape != (6,) or joints.shape != (15,) or not (np.all(np.isfinite(palm)) and np.all(np.isfinite(joints))):
-                raise SpecError(f"palm_pose (6,) and joint_angles (15,) must be finite, got {palm.shape}, {joints.shape}")
+            palm, joints = _floats(palm_pose), _floats(joint_angles)
+            if (
+                palm is None
+                or joints is None
+                or palm.shape != (6,)
+                or joints.shape != (15,)
+                or not (np.all(np.isfinite(palm)) and np.all(np.isfinite(joints)))
+            ):
+                raise SpecError(f"palm_pose (6,) and joint_angles (15,) must be finite numbers, got {palm_pose!r}, {joint_angles!r}")
             set_hand_pose(self._client, self._hand.body, self._hand.joints, palm, joints)
 
     # drawing -----------------------------------------------------------------

@@ -36,6 +36,12 @@ class EpisodeFrames:
     grasp_angles: np.ndarray  # (15,)
 
     def __post_init__(self) -> None:
+        for name in ("phase", *FRAME_ARRAYS, "fingertip_distance", "palm_distance", "grasp_angles"):
+            value = getattr(self, name)
+            if not isinstance(value, np.ndarray):
+                raise SpecError(f"{name} must be a numpy array, got {type(value).__name__}")
+        if self.phase.ndim != 1 or not np.issubdtype(self.phase.dtype, np.integer):
+            raise SpecError(f"phase must be a 1-D integer array, got {self.phase.dtype} {self.phase.shape}")
         n = len(self.phase)
         if n == 0:
             raise SpecError("an episode needs at least one frame")

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar, Union
 
@@ -29,9 +30,12 @@ Vec2 = tuple[float, float]
 
 
 def _finite(owner: str, name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise SpecError(f"{owner}.{name} must be a number, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:
+        raise SpecError(f"{owner}.{name} must be finite, got {value!r}") from None
     if not math.isfinite(value):
         raise SpecError(f"{owner}.{name} must be finite, got {value!r}")
     return value
@@ -154,6 +158,19 @@ class ClothoidToken:
         object.__setattr__(self, "curvature", _finite("C", "curvature", self.curvature))
 
 
+def _load_json(what: str, text: Any) -> Any:
+    """``json.loads`` whose every failure (bad syntax, wrong type, nesting too deep for
+    the parser) is a :class:`SpecError` naming ``what``."""
+    if not isinstance(text, (str, bytes, bytearray)):
+        raise SpecError(f"{what} JSON must be text, got {type(text).__name__}")
+    try:
+        return json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SpecError(f"{what} is not valid JSON: {exc}") from exc
+    except RecursionError:
+        raise SpecError(f"{what} JSON is nested too deeply") from None
+
+
 Token = Union[LineToken, ArcToken, HarmonicToken, ClothoidToken]
 TOKEN_TYPES: dict[str, type] = {cls.type: cls for cls in (LineToken, ArcToken, HarmonicToken, ClothoidToken)}
 
@@ -178,7 +195,7 @@ def token_from_dict(data: Any) -> Token:
     if cls is None:
         raise SpecError(f"unknown token type {kind!r} (expected one of {sorted(TOKEN_TYPES)})")
     names = {f.name for f in fields(cls)}
-    unknown = sorted(set(data) - names - {"type"})
+    unknown = sorted((str(k) for k in set(data) - names - {"type"}))
     if unknown:
         raise SpecError(f"{kind} token has unknown field(s) {unknown}")
     required = [f.name for f in fields(cls) if f.default is MISSING]
@@ -226,6 +243,8 @@ class Motion:
             raise SpecError(f"motion.base must be a Track, got {self.base!r}")
         if self.base.start != 0.0:
             raise SpecError(f"motion.base must start at 0, got start={self.base.start!r}")
+        if not isinstance(self.overlays, (tuple, list)):
+            raise SpecError(f"motion.overlays must be a sequence of Tracks, got {self.overlays!r}")
         overlays = tuple(self.overlays)
         for overlay in overlays:
             if not isinstance(overlay, Track):
@@ -259,7 +278,7 @@ class Motion:
             data = {"base": data}
         if not isinstance(data, dict):
             raise SpecError(f"motion must be an object with 'base', got {data!r}")
-        unknown = sorted(set(data) - {"base", "overlays"})
+        unknown = sorted(str(k) for k in set(data) - {"base", "overlays"})
         if unknown:
             raise SpecError(f"motion has unknown field(s) {unknown}")
         if "base" not in data:
@@ -274,7 +293,7 @@ class Motion:
         for i, item in enumerate(items):
             if not isinstance(item, dict) or "tokens" not in item:
                 raise SpecError(f"motion.overlays[{i}] must be an object with 'tokens', got {item!r}")
-            unknown = sorted(set(item) - {"start", "tokens"})
+            unknown = sorted(str(k) for k in set(item) - {"start", "tokens"})
             if unknown:
                 raise SpecError(f"motion.overlays[{i}] has unknown field(s) {unknown}")
             if not isinstance(item["tokens"], list):
@@ -287,8 +306,5 @@ class Motion:
 
     @classmethod
     def from_json(cls, text: str) -> "Motion":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise SpecError(f"motion is not valid JSON: {exc}") from exc
+        data = _load_json("motion", text)
         return cls.from_dict(data)

@@ -84,5 +84,5 @@ def object_category(name: str) -> ObjectCategory:
     """Look a category up by name; a clear error lists the known ones."""
     try:
         return OBJECTS[name]
-    except KeyError:
+    except (KeyError, TypeError):
         raise SpecError(f"unknown object {name!r} (expected one of {sorted(OBJECTS)})") from None

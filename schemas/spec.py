@@ -9,11 +9,12 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import SpecError
-from schemas.motion import Motion
+from schemas.motion import Motion, _load_json
 from schemas.objects import object_category
 from schemas.scene import GRASP_FRAMES, HANDS, HORIZON_FACTOR, INTERCEPT_SECONDS, MOTION_TYPES, ROLLOUT_FORMATS
 from schemas.versions import FPS
@@ -37,14 +38,23 @@ SPEC_FIELDS = (
 _MOTION_TYPES = MOTION_TYPES + ("custom",)
 
 
-def _int(name: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
+#: Largest values the shard tables can store (``episode_index``/``seed`` are int64
+#: columns, ``observe_frames``/``num_frames`` int32).
+_INT64_MAX = 2**63 - 1
+_INT32_MAX = 2**31 - 1
+
+
+def _int(name: str, value: Any, minimum: int, maximum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         else:
             raise SpecError(f"spec.{name} must be an integer, got {value!r}")
+    value = int(value)
     if value < minimum:
         raise SpecError(f"spec.{name} must be >= {minimum}, got {value!r}")
+    if value > maximum:
+        raise SpecError(f"spec.{name} must be <= {maximum}, got {value!r}")
     return value
 
 
@@ -80,8 +90,8 @@ class EpisodeSpec:
     def __post_init__(self) -> None:
         if not isinstance(self.slice, str) or not self.slice:
             raise SpecError(f"spec.slice must be a non-empty string, got {self.slice!r}")
-        object.__setattr__(self, "episode_index", _int("episode_index", self.episode_index, 0))
-        object.__setattr__(self, "seed", _int("seed", self.seed, 0))
+        object.__setattr__(self, "episode_index", _int("episode_index", self.episode_index, 0, _INT64_MAX))
+        object.__setattr__(self, "seed", _int("seed", self.seed, 0, _INT64_MAX))
         _choice("motion_type", self.motion_type, _MOTION_TYPES)
         if not isinstance(self.motion, Motion):
             raise SpecError(f"spec.motion must be a Motion, got {self.motion!r}")
@@ -89,19 +99,19 @@ class EpisodeSpec:
             raise SpecError(f"spec.object must be an object category name, got {self.object!r}")
         object_category(self.object)
         size = self.object_size
-        if isinstance(size, bool) or not isinstance(size, (int, float)) or not math.isfinite(size) or size <= 0:
+        if isinstance(size, bool) or not isinstance(size, numbers.Real) or not math.isfinite(size) or size <= 0:
             raise SpecError(f"spec.object_size must be a finite number > 0, got {size!r}")
         object.__setattr__(self, "object_size", float(size))
         _choice("hand", self.hand, HANDS)
         _choice("rollout_format", self.rollout_format, ROLLOUT_FORMATS)
         _choice("intercept_setting", self.intercept_setting, tuple(INTERCEPT_SECONDS))
-        object.__setattr__(self, "observe_frames", _int("observe_frames", self.observe_frames, 0))
+        object.__setattr__(self, "observe_frames", _int("observe_frames", self.observe_frames, 0, _INT32_MAX))
         if self.rollout_format == "direct-act" and self.observe_frames != 0:
             raise SpecError(f"spec.observe_frames must be 0 for direct-act, got {self.observe_frames!r}")
         if self.rollout_format == "observe-before-act" and self.observe_frames < 1:
             raise SpecError(f"spec.observe_frames must be >= 1 for observe-before-act, got {self.observe_frames!r}")
         minimum = self.intercept_frame + GRASP_FRAMES + 1
-        object.__setattr__(self, "num_frames", _int("num_frames", self.num_frames, minimum))
+        object.__setattr__(self, "num_frames", _int("num_frames", self.num_frames, minimum, _INT32_MAX))
         needed = (self.num_frames - 1) / FPS
         if self.motion.duration + 1e-9 < needed:
             raise SpecError(
@@ -169,11 +179,7 @@ class EpisodeSpec:
 
     @classmethod
     def from_json(cls, text: str) -> "EpisodeSpec":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise SpecError(f"spec is not valid JSON: {exc}") from exc
-        return cls.from_dict(data)
+        return cls.from_dict(_load_json("spec", text))
 
 
 def acting_horizon(num_frames, observe_frames):
@@ -187,11 +193,15 @@ def read_specs_jsonl(path: str) -> list[EpisodeSpec]:
     """Load and validate a JSONL file of specs; errors name the file and line."""
     specs: list[EpisodeSpec] = []
     try:
-        handle = open(path, encoding="utf-8")
-    except OSError as exc:
-        raise SpecError(f"cannot read specs file {path}: {exc.strerror}") from exc
+        handle = open(path, "rb")
+    except (OSError, TypeError, ValueError) as exc:
+        raise SpecError(f"cannot read specs file {path}: {getattr(exc, 'strerror', None) or exc}") from exc
     with handle:
-        for lineno, line in enumerate(handle, start=1):
+        for lineno, raw in enumerate(handle, start=1):
+            try:
+                line = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise SpecError(f"{path}:{lineno}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
             if not line.strip():
                 continue
             try:

@@ -233,6 +233,25 @@ def test_bad_arguments_are_rejected(small):
         Renderer(4)
 
 
+def test_wrongly_typed_arguments_are_spec_errors(small):
+    with pytest.raises(SpecError, match="object_size"):
+        small.set_scene("orange", "0.8", None)
+    with pytest.raises(SpecError, match="object_size"):
+        small.set_scene("orange", True, None)
+    with pytest.raises(SpecError, match="object"):
+        small.set_scene(["orange"], 0.8, None)
+    with pytest.raises(SpecError, match="hand"):
+        small.set_scene(None, None, ["right"])
+    small.set_scene("orange", np.float32(0.8), "right")
+    with pytest.raises(SpecError, match="object_pose"):
+        small.render(["x"] * 7, REST_PALM, REST_JOINTS)
+    with pytest.raises(SpecError, match="palm_pose"):
+        small.render(np.array([0, 0.4, 3, 0, 0, 0, 1.0]), {"x": 1}, REST_JOINTS)
+    for width in ("wide", 16.5, True):
+        with pytest.raises(SpecError, match="width"):
+            Renderer(16, width=width)
+
+
 def test_jpeg_round_trip_quality_and_determinism(small):
     small.set_scene("baseball", 0.74, "right")
     img = small.render(np.array([0.0, 0.37, 3.0, *IDENTITY]), REST_PALM, REST_JOINTS)
