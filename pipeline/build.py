@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -188,12 +189,19 @@ def run_tasks(
     with dask.config.set(LEAN_WORKERS):
         cluster = None
         if scheduler:
-            client = Client(scheduler, timeout="30s")
+            try:
+                client = Client(scheduler, timeout="30s")
+            except (OSError, ValueError, TypeError) as exc:  # unreachable, timed out, or not an address
+                raise DyanaError(f"--scheduler {scheduler!r}: cannot connect to the Dask scheduler: {exc}") from None
         else:
             cluster = LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40
             )
-            client = Client(cluster)
+            try:
+                client = Client(cluster)
+            except BaseException:
+                cluster.close()
+                raise
         try:
             futures = [
                 client.submit(
@@ -213,6 +221,24 @@ def run_tasks(
             client.close()
             if cluster is not None:
                 cluster.close()
+
+
+_SHARD_FILE = re.compile(r"\d{6}-\d{6}\.(frames\.parquet|episodes\.parquet|mcap)")
+
+
+def remove_unlisted_shards(slice_dir: Path, manifest: Manifest) -> list[Path]:
+    """Delete shard files in ``slice_dir/shards`` that ``manifest`` does not list: the
+    leftovers of an earlier build of the folder with another ``--episodes`` or
+    ``--shard-size``, which would otherwise fail ``catalog verify`` and be picked up
+    by ``shards/*.parquet`` globs. Only files named like shards are touched."""
+    listed = {path for path, _, _ in manifest.files()}
+    removed = []
+    shard_dir = slice_dir / "shards"
+    for path in sorted(shard_dir.iterdir()) if shard_dir.is_dir() else []:
+        if _SHARD_FILE.fullmatch(path.name) and f"shards/{path.name}" not in listed and path.is_file():
+            path.unlink()
+            removed.append(path)
+    return removed
 
 
 def build(
@@ -297,6 +323,7 @@ def build(
         hash=compute_hash(settings.as_dict(), shards),
     )
     write_manifest(slice_dir, manifest)
+    remove_unlisted_shards(slice_dir, manifest)
     load_stats(slice_dir, manifest)
     (slice_dir / STATE_FILE).unlink(missing_ok=True)
     return manifest

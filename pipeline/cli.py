@@ -187,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     except DyanaError as exc:
         print(f"pipeline {args.command}: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # an output folder that cannot be created or written, a full disk, ...
+        print(f"pipeline {args.command}: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"pipeline {args.command}: interrupted", file=sys.stderr)
         return 130

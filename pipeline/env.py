@@ -118,12 +118,26 @@ def as_spec(value: Any) -> EpisodeSpec:
     raise SpecError(f"options['spec'] must be an EpisodeSpec, a dict or JSON text, got {type(value).__name__}")
 
 
+def _float32(action: Any) -> np.ndarray:
+    """``action`` as a float32 array, or PolicyError: whatever the conversion raises (a
+    tensor that refuses ``__array__``, ragged lists, ...) and complex values (whose
+    imaginary part a cast would silently drop) are the policy's fault, not the run's.
+    Values too large for float32 become inf, which the callers refuse. Always a copy, so
+    a policy that refills the array it returned cannot rewrite recorded actions."""
+    try:
+        if np.iscomplexobj(action):
+            raise PolicyError(f"action is not a real array (complex values: {np.asarray(action).dtype})")
+        with np.errstate(over="ignore", invalid="ignore"):  # a copy: the policy may reuse its buffer
+            return np.array(action, dtype=np.float32, copy=True)
+    except PolicyError:
+        raise
+    except Exception as exc:
+        raise PolicyError(f"action is not a numeric array ({type(action).__name__}: {type(exc).__name__}: {exc})") from None
+
+
 def as_action(action: Any) -> np.ndarray:
     """One action as float32 (18,), or PolicyError naming what is wrong."""
-    try:
-        arr = np.asarray(action, dtype=np.float32)
-    except (TypeError, ValueError) as exc:
-        raise PolicyError(f"action is not a numeric array ({type(action).__name__}: {exc})") from None
+    arr = _float32(action)
     if arr.shape != (ACTION_WIDTH,):
         raise PolicyError(f"action must have shape ({ACTION_WIDTH},), got {tuple(arr.shape)}")
     bad = np.flatnonzero(~np.isfinite(arr))
@@ -134,10 +148,7 @@ def as_action(action: Any) -> np.ndarray:
 
 def as_chunk(action: Any) -> np.ndarray:
     """An action or a chunk as float32 (H, 18) with H >= 1, or PolicyError."""
-    try:
-        arr = np.asarray(action, dtype=np.float32)
-    except (TypeError, ValueError) as exc:
-        raise PolicyError(f"action is not a numeric array ({type(action).__name__}: {exc})") from None
+    arr = _float32(action)
     if arr.shape == (ACTION_WIDTH,):
         arr = arr[None]
     if arr.ndim != 2 or arr.shape[0] < 1 or arr.shape[1] != ACTION_WIDTH:

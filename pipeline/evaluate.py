@@ -30,7 +30,17 @@ from catalog.hashing import sha256_file
 from catalog.manifest import CodeInfo, Manifest, git_commit, load_manifest, manifest_path, write_manifest
 from catalog.parquet_io import column_to_numpy, read_episodes, read_frames
 from catalog.records import ShardRecord
-from pipeline.build import STATE_FILE, BuildSettings, Progress, ShardTask, _load_state, _save_state, run_tasks, shard_ranges
+from pipeline.build import (
+    STATE_FILE,
+    BuildSettings,
+    Progress,
+    ShardTask,
+    _load_state,
+    _save_state,
+    remove_unlisted_shards,
+    run_tasks,
+    shard_ranges,
+)
 from pipeline.rollout import DEFAULT_DEADLINE_S, run_episode
 from schemas.errors import PolicyError, SpecError
 from schemas.scene import GRASP_RATIO, LOC_TOLERANCE
@@ -256,9 +266,10 @@ def summarize(run_dir: str | Path) -> EvalSummary:
     )
 
 
-def _finished_shards(run_dir: Path, settings: EvalSettings) -> dict[tuple[int, int], ShardRecord]:
-    """Shards of an earlier complete run of the same evaluation in ``run_dir`` (files intact);
-    a different run there is refused rather than overwritten."""
+def _finished_shards(run_dir: Path, settings: EvalSettings, commit: str | None) -> dict[tuple[int, int], ShardRecord]:
+    """Shards of an earlier complete run of the same evaluation by the same code in
+    ``run_dir`` (files intact); a different run there is refused rather than overwritten,
+    and the same run by other code is re-run (its rollouts may differ)."""
     if not manifest_path(run_dir).exists():
         return {}
     manifest = load_manifest(run_dir)
@@ -273,6 +284,8 @@ def _finished_shards(run_dir: Path, settings: EvalSettings) -> dict[tuple[int, i
             f"{run_dir} already holds another run ({what} on {manifest.slice}, settings {dict(manifest.settings)}, "
             f"{dict(manifest.extra)}): choose another --out or remove it"
         )
+    if manifest.code.commit != commit or manifest.code.version != CODE_VERSION:
+        return {}
     return {
         tuple(s.episodes): s
         for s in manifest.shards
@@ -322,7 +335,7 @@ def evaluate(
     (run_dir / "shards").mkdir(parents=True, exist_ok=True)
     remove_stray_temps(run_dir)
     commit = git_commit()
-    done = _finished_shards(run_dir, settings)
+    done = _finished_shards(run_dir, settings, commit)
     source = f"recipe:{slice_name}:{definition.seed}"
     done.update(_load_state(run_dir, settings, commit, source))
     done = {key: record for key, record in done.items() if key in set(ranges)}
@@ -364,6 +377,7 @@ def evaluate(
         extra=settings.extra(),
     )
     write_manifest(run_dir, manifest)
+    remove_unlisted_shards(run_dir, manifest)
     (run_dir / STATE_FILE).unlink(missing_ok=True)
     if summary:
         out_stream = sys.stdout if stream is None else stream

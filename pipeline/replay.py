@@ -26,10 +26,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from catalog.hashing import sha256_file
 from catalog.manifest import load_manifest
 from catalog.parquet_io import episode_row, episodes_table, frames_table, read_episodes, read_frames
 from catalog.records import ShardRecord, shard_stem
-from schemas.errors import PolicyError, ReplayMismatch
+from schemas.errors import PolicyError, ReplayMismatch, ShardError
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
@@ -194,12 +195,17 @@ def _replay_shard(root: Path, settings: dict, shard: ShardRecord, rollout: bool,
                 writer.add_episode(spec, ep_frames, images, **{k: (v or None) for k, v in extra.items()})
         for kind, record in shard.files.items():
             again = writer.record.files[kind]
-            if again.sha256 != record.sha256:
-                raise _mismatch(
-                    f"{root}: shard {stem}: {record.path} differs from the replayed shard's "
-                    f"(sha256 {again.sha256[:12]}… instead of {record.sha256[:12]}…) although every column matches",
-                    shard=stem, column=kind,
-                )
+            on_disk = root / record.path
+            actual = sha256_file(on_disk) if on_disk.is_file() else None
+            if actual is None:
+                raise ShardError(f"{on_disk}: file is missing")
+            for where, digest in (("catalog.json's", record.sha256), ("file's", actual)):
+                if again.sha256 != digest:
+                    raise _mismatch(
+                        f"{root}: shard {stem}: {record.path} differs from the replayed shard's "
+                        f"(sha256 {again.sha256[:12]}… instead of the {where} {digest[:12]}…) although every column matches",
+                        shard=stem, column=kind,
+                    )
     return sum(f.num_frames for _, f, _, _ in replayed)
 
 

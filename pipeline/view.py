@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from catalog.atomic import commit, temp_path
+from catalog.atomic import commit, discard, temp_path
 from catalog.manifest import load_manifest
 from catalog.parquet_io import column_to_numpy, read_episodes, read_frames
 from schemas.errors import SpecError
@@ -65,9 +65,26 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     palm_xz = np.linalg.norm(state["palm_pose"][:, [0, 2]] - state["object_pose"][:, [0, 2]], axis=1)
 
     out.parent.mkdir(parents=True, exist_ok=True)
+    if out.is_dir():
+        raise SpecError(f"--out {str(out)!r} is a folder, give a file name ending in .rrd")
     temp = temp_path(out)
     rec = rr.RecordingStream("dyana", recording_id=meta["spec_hash"])
-    rec.save(str(temp))
+    try:
+        rec.save(str(temp))
+        _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz)
+        rec.flush()
+        rec.disconnect()
+        commit(temp, out)
+    except BaseException:
+        rec.disconnect()
+        discard(temp)
+        raise
+    return out
+
+
+def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz) -> None:
+    import rerun as rr
+
     rec.log("world", rr.ViewCoordinates.RUF, static=True)
     title = f"{meta['episode_id']}: {meta['motion_type']} {meta['intercept_setting']}, {meta['object']}, {meta['hand']} hand"
     rec.log("episode", rr.TextDocument(f"{title}\n\n{meta['text']}\n\npolicy: {meta.get('policy', 'ground truth')}"),
@@ -98,7 +115,3 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
         if phase != previous_phase:
             rec.log("phase/log", rr.TextLog(f"frame {int(frame_index[k])}: {phase}", color=colour))
             previous_phase = phase
-    rec.flush()
-    rec.disconnect()
-    commit(temp, out)
-    return out

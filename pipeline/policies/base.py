@@ -105,6 +105,8 @@ def _resolve(ref: str) -> Any:
         target: Any = importlib.import_module(module_name)
     except ImportError as exc:
         raise SpecError(f"policy {ref!r}: cannot import module {module_name!r} ({exc})") from None
+    except Exception as exc:  # the module itself fails while importing (SyntaxError, a missing file, ...)
+        raise SpecError(f"policy {ref!r}: importing module {module_name!r} raised {type(exc).__name__}: {exc}") from None
     for part in attr.split("."):
         try:
             target = getattr(target, part)

@@ -34,10 +34,22 @@ def faulty_action(fault: str | None, obs: dict, calls: int):
         return action[:17]
     if fault == "raise":
         raise ValueError("the model diverged")
+    if fault == "tensor":
+        return Unconvertible()
+    if fault == "complex":
+        return action * (1 + 1j)
     if fault == "hang":
         time.sleep(HANG_S)
         return action
     raise AssertionError(fault)
+
+
+class Unconvertible:
+    """Like a tensor that refuses conversion (``requires_grad``, on a GPU): its
+    ``__array__`` raises something other than TypeError/ValueError."""
+
+    def __array__(self, dtype=None, copy=None):
+        raise RuntimeError("Can't call numpy() on Tensor that requires grad")
 
 
 class Single:

@@ -193,3 +193,26 @@ def test_an_edited_specs_file_is_not_resumed_from_stale_shards(tmp_path):
     texts = [t for shard in second.shards
              for t in pq.read_table(out / SLICE / shard.files["episodes"].path).column("text").to_pylist()]
     assert texts == [specs[0].text, "Grasp it, please."]
+
+
+def test_rebuilding_with_another_shard_size_leaves_no_stale_shards(reference, tmp_path):
+    """A folder rebuilt with another --shard-size (or fewer episodes) holds only the new
+    shards: the old ones would fail `catalog verify` and be read by shards/* globs."""
+    import shutil
+
+    _, slice_dir = reference
+    shutil.copytree(slice_dir, tmp_path / SLICE)
+    manifest = build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=1, progress=False)
+    listed = sorted(Path(f.path).name for s in manifest.shards for f in s.files.values())
+    assert sorted(_files(tmp_path / SLICE)) == listed
+    verify_files(tmp_path / SLICE)
+
+
+@pytest.mark.parametrize("address", ["not-an-address::", "tcp://127.0.0.1:notaport"])
+def test_a_bad_scheduler_address_is_one_line_and_exit_2(tmp_path, address):
+    result = subprocess.run(
+        [str(BIN / "pipeline"), "build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path), "--scheduler", address],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 2, result.stderr
+    assert f"--scheduler {address!r}: cannot connect" in result.stderr and "Traceback" not in result.stderr

@@ -248,3 +248,30 @@ def test_gymnasium_registration_and_checker():
     obs, reward, terminated, truncated, info = made.step(made.action_space.sample())
     assert obs["frame_index"] == spec_for("test-1k", 2).observe_frames + 1 and obs["observe_images"].shape[0] == 0
     gymnasium_check_env(made.unwrapped, skip_render_check=True)
+
+
+def test_the_recording_keeps_actions_a_policy_later_reuses(env):
+    """A policy may return the same buffer every call and refill it: the recording must
+    hold each action as issued, not the buffer's last contents."""
+    from pipeline.policies.base import state_action
+    from pipeline.rollout import run_episode
+
+    class Reusing:
+        name, action_horizon, privileged = "reusing", 1, False
+
+        def reset(self, task):
+            self.buffer, self.issued = None, []
+
+        def act(self, obs):
+            if self.buffer is None:
+                self.buffer = state_action(obs)
+            self.buffer[0] += np.float32(0.01)
+            self.issued.append(self.buffer.copy())
+            return self.buffer
+
+    spec = spec_for("test-1k", 2)
+    policy = Reusing()
+    result = run_episode(env, policy, spec, 5.0)
+    recorded = result.frames.action[spec.observe_frames : spec.observe_frames + len(policy.issued)]
+    assert result.status == "ok" and len(policy.issued) > 2
+    np.testing.assert_array_equal(recorded, np.stack(policy.issued))

@@ -162,3 +162,45 @@ def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path):
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "run" / "catalog.json").exists()
+
+
+@pytest.mark.parametrize("command", ["eval", "build"])
+def test_an_output_folder_that_cannot_be_made_is_one_line_and_exit_2(command, tmp_path, capsys):
+    from pipeline.cli import main
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder\n")
+    args = ["--policy", "still", "--slice", "test-1k"] if command == "eval" else ["--slice", "linear-fast"]
+    code = main([command, *args, "--episodes", "1", "--workers", "1", "--quiet", "--out", str(blocker / "run")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.startswith(f"pipeline {command}: ") and "Not a directory" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_rerun_with_another_layout_leaves_no_stale_shards(tmp_path):
+    settings = dict(resolution=RESOLUTION, workers=0, progress=False, summary=False)
+    evaluate("still", "test-1k", tmp_path / "run", episodes=2, shard_size=1, **settings)
+    manifest = evaluate("still", "test-1k", tmp_path / "run", episodes=2, shard_size=2, **settings)
+    listed = sorted(Path(f.path).name for s in manifest.shards for f in s.files.values())
+    assert sorted(p.name for p in (tmp_path / "run" / "shards").iterdir()) == listed
+    verify_files(tmp_path / "run")
+
+
+def test_a_complete_run_by_other_code_is_not_reused(tmp_path, monkeypatch):
+    """Rollouts depend on the code: a complete run written at another commit is re-run,
+    not relabelled with the new commit."""
+    settings = dict(episodes=1, resolution=RESOLUTION, shard_size=1, workers=0, progress=False, summary=False)
+    evaluate("still", "test-1k", tmp_path / "run", **settings)
+    real, calls = evaluate_module.eval_shard, []
+
+    def counted(task, *args):
+        calls.append(task.first)
+        return real(task, *args)
+
+    monkeypatch.setattr(evaluate_module, "eval_shard", counted)
+    evaluate("still", "test-1k", tmp_path / "run", **settings)
+    assert calls == []
+    monkeypatch.setattr(evaluate_module, "git_commit", lambda: "0123456789abcdef0123456789abcdef01234567")
+    manifest = evaluate("still", "test-1k", tmp_path / "run", **settings)
+    assert calls == [0]
+    assert manifest.code.commit == "0123456789abcdef0123456789abcdef01234567"

@@ -41,6 +41,8 @@ REASONS = {
     "inf": r"frame \d+: action contains NaN/inf at row 1, column 0 \(value inf\)",
     "shape": r"frame \d+: action must have shape \(18,\) or \(H, 18\) with H >= 1, got \(17,\)",
     "raise": r"frame \d+: policy act raised ValueError: the model diverged",
+    "tensor": r"frame \d+: action is not a numeric array \(Unconvertible: RuntimeError: Can't call numpy\(\) on Tensor that requires grad\)",
+    "complex": r"frame \d+: action is not a real array \(complex values: complex64\)",
     "hang": rf"frame \d+: policy act exceeded its deadline of {DEADLINE_S:g} s",
     "reset": r"frame 18: policy reset raised RuntimeError: cannot load the weights",
 }

@@ -277,3 +277,15 @@ def test_policies_are_deterministic():
     for make in (PredictivePolicy, ChasePolicy):
         (_, (f1, i1)), (_, (f2, i2)) = rollout(make(), spec), rollout(make(), spec)
         assert f1.action.tobytes() == f2.action.tobytes() and i1 == i2, make.__name__
+
+
+def test_a_module_that_fails_while_importing_is_bad_input(tmp_path, monkeypatch, capsys):
+    from pipeline.cli import main
+
+    (tmp_path / "dyana_broken_policy.py").write_text("raise RuntimeError('weights file not found')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(SpecError, match="importing module 'dyana_broken_policy' raised RuntimeError: weights file not found"):
+        make_policy("dyana_broken_policy:make")
+    code = main(["serve", "--policy", "dyana_broken_policy:make", "--port", "0"])
+    err = capsys.readouterr().err
+    assert code == 2 and "RuntimeError: weights file not found" in err and len(err.strip().splitlines()) == 1

@@ -119,3 +119,20 @@ def test_replay_of_a_missing_folder_is_bad_input(tmp_path):
     result = _pipeline("replay", str(tmp_path / "nothing"))
     assert result.returncode == 2
     assert "catalog.json" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_tampered_mcap_on_disk_fails_even_with_the_manifest_untouched(built, tmp_path):
+    """Replay rewrites the shard and must compare it with the files on disk, not only
+    with the manifest's hashes: a corrupted or missing MCAP cannot pass."""
+    folder = _copy(built, tmp_path)
+    path = folder / load_manifest(folder).shards[0].files["mcap"].path
+    data = bytearray(path.read_bytes())
+    data[data.find(b"harmonic")] ^= 0x20
+    path.write_bytes(bytes(data))
+    with pytest.raises(ReplayMismatch, match=r"000000-000001\.mcap differs from the replayed shard") as caught:
+        replay(folder)
+    assert caught.value.column == "mcap"
+    path.unlink()
+    result = _pipeline("replay", str(folder))
+    assert result.returncode == 2 and "000000-000001.mcap: file is missing" in result.stderr
+    assert "Traceback" not in result.stderr

@@ -105,3 +105,24 @@ def test_verify_rebuild_catches_what_hashes_cannot(built, tmp_path):
     assert result.returncode == 2
     assert "000002-000002.episodes.parquet" in result.stderr
     assert "rebuilding gives different bytes" in result.stderr
+
+
+def test_view_leaves_no_temporary_file_behind_on_failure(built, tmp_path, monkeypatch):
+    import rerun as rr
+
+    from pipeline.view import write_recording
+    from schemas.errors import DyanaError
+
+    folder = tmp_path / "x.rrd"
+    folder.mkdir()
+    with pytest.raises(DyanaError, match="is a folder"):
+        write_recording(built, 0, folder)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.rrd"]
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("logging failed")
+
+    monkeypatch.setattr(rr, "Scalars", broken)
+    with pytest.raises(RuntimeError, match="logging failed"):
+        write_recording(built, 0, tmp_path / "y.rrd")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.rrd"]
