@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +59,10 @@ def rebuild_shard(directory: Path, manifest: Manifest, shard: ShardRecord, scrat
             f"{DATASET_VERSION!r}, so its shards cannot be rebuilt byte for byte (check out the commit "
             f"{manifest.code.commit or 'that built it'})"
         )
+    known = {f.name for f in fields(BuildSettings)}
+    unknown = sorted(set(manifest.settings) - known)
+    if unknown:
+        raise ShardError(f"{directory / 'catalog.json'}: unknown settings {unknown}: written by another version of Dyana?")
     settings = BuildSettings(**manifest.settings)
     specs = _stored_specs(directory, shard)
     rebuilt = write_ground_truth_shard(specs, shard.first, shard.end, settings, scratch)

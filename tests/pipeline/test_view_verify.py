@@ -126,3 +126,18 @@ def test_view_leaves_no_temporary_file_behind_on_failure(built, tmp_path, monkey
     with pytest.raises(RuntimeError, match="logging failed"):
         write_recording(built, 0, tmp_path / "y.rrd")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x.rrd"]
+
+
+def test_verify_names_settings_it_does_not_know(built, tmp_path):
+    from catalog.manifest import Manifest, load_manifest, write_manifest
+
+    copy = tmp_path / SLICE
+    shutil.copytree(built, copy)
+    manifest = load_manifest(copy)
+    settings = dict(manifest.settings, hdr=True)
+    write_manifest(copy, Manifest.create(manifest.slice, manifest.seed, settings, list(manifest.shards),
+                                         code=manifest.code, extra=manifest.extra))
+    result = _run("catalog", "verify", str(copy), "--quiet")
+    assert result.returncode == 2
+    assert "unknown settings ['hdr']" in result.stderr
+    assert "Traceback" not in result.stderr
