@@ -12,6 +12,8 @@ already holds a ``catalog.json`` is reused.
 
 from __future__ import annotations
 
+import bench_setup  # noqa: F401  (first: takes this folder off sys.path)
+
 import argparse
 import contextlib
 import io
@@ -21,10 +23,6 @@ import tempfile
 import time
 from pathlib import Path
 
-# Run as a script, this folder comes first on sys.path, where benchmarks/scoring.py
-# would shadow the scoring package.
-_HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
 
 from pipeline.cli import main as pipeline_main  # noqa: E402
 from scoring.cli import main as scoring_main  # noqa: E402
@@ -36,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=450)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", default=os.path.join(_HERE, "results"))
+    parser.add_argument("--out", default=os.path.join(bench_setup.HERE, "results"))
     parser.add_argument("--runs", help="keep the runs in this folder")
     args = parser.parse_args(argv)
     out = Path(args.out)

@@ -14,6 +14,8 @@ assumes two cores share the work evenly. The last line printed is JSON.
 
 from __future__ import annotations
 
+import bench_setup  # noqa: F401  (first: takes this folder off sys.path)
+
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -23,19 +25,6 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-
-# Run as a script, this folder comes first on sys.path (benchmarks/scoring.py would
-# shadow the scoring package).
-_HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
-
-
-def pin_one_core() -> str:
-    if hasattr(os, "sched_setaffinity"):
-        core = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {core})
-        return f"pinned to core {core}"
-    return "not pinned (no sched_setaffinity)"
 
 
 def timed(fn, items) -> float:
@@ -53,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.per_slice < 1 or args.repeats < 1 or args.cores < 1:
         parser.error("--per-slice, --repeats and --cores must be >= 1")
-    print(pin_one_core(), file=sys.stderr)
+    print(bench_setup.pin_one_core(), file=sys.stderr)
 
     from generators import motion
     from generators.recipe import slice_specs

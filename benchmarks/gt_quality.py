@@ -14,15 +14,12 @@ printed beside. The last line printed is JSON.
 
 from __future__ import annotations
 
+import bench_setup  # noqa: F401  (first: takes this folder off sys.path)
+
 import argparse
 import json
-import os
 import sys
 
-# Run as a script, this folder comes first on sys.path, where benchmarks/scoring.py
-# would shadow the scoring package.
-_HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
 
 import numpy as np  # noqa: E402
 

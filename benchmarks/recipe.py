@@ -13,6 +13,8 @@ per-episode seeded recipe pays at least. The last line printed is JSON.
 
 from __future__ import annotations
 
+import bench_setup  # noqa: F401  (first: takes this folder off sys.path)
+
 import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -26,14 +28,6 @@ import sys  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-
-def pin_one_core() -> str:
-    if hasattr(os, "sched_setaffinity"):
-        core = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {core})
-        return f"pinned to core {core}"
-    return "not pinned (no sched_setaffinity)"
 
 
 def episode_seeds(episodes: int) -> list[tuple[int, int]]:
@@ -95,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     episodes = total if args.episodes is None else args.episodes
     if not 1 <= episodes <= total or args.repeats < 1:
         parser.error(f"--episodes must be in [1, {total}] and --repeats >= 1")
-    print(pin_one_core(), file=sys.stderr)
+    print(bench_setup.pin_one_core(), file=sys.stderr)
 
     start = time.perf_counter()
     for motion_type in MOTION_TYPES:

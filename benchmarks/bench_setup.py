@@ -1,0 +1,23 @@
+"""Shared set-up of the benchmark scripts. Import it first, as ``import bench_setup``.
+
+Run as a script, a benchmark's own folder comes first on ``sys.path``, where
+``benchmarks/scoring.py`` would shadow the ``scoring`` package: importing this module
+(found there) removes that folder from the path for every later import.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != HERE]
+
+
+def pin_one_core() -> str:
+    """Pin this process to one core, so single-core numbers mean one core."""
+    if hasattr(os, "sched_setaffinity"):
+        core = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {core})
+        return f"pinned to core {core}"
+    return "not pinned (no sched_setaffinity)"
