@@ -5,8 +5,9 @@ Two ways to draw the same frame:
 - :meth:`Renderer.render_full` draws the whole scene every frame (the reference, and
   the benchmarks' baseline).
 - :meth:`Renderer.render` draws the static plate (floor and table) once per renderer,
-  with its depth buffer, then per frame only the moving bodies (object and hand), and
-  keeps a moving body's pixel where its depth is at least as near as the plate's.
+  with its depth buffer, then per frame only the moving bodies (object and hand, kept
+  in a second pybullet client of their own), and keeps a moving body's pixel where its
+  depth is at least as near as the plate's.
 
 Why that equals the full render pixel for pixel: TinyRenderer keeps a fragment when
 its depth is at least as near as the depth buffer's, drawing bodies in creation
@@ -16,6 +17,12 @@ plate's, else the plate. Depths come back as float32 values of a monotone functi
 the internal depth; where a moving and a static depth are too close to order
 exactly (within a few ulps), :meth:`Renderer.render` falls back to a full render for
 that frame (counted in :attr:`Renderer.fallbacks`). No shadows, explicit lights.
+
+Between two moving surfaces at exactly equal depth, the winner depends on
+TinyRenderer's internal draw order, which hiding, removing or adding bodies perturbs.
+Nothing is ever hidden or removed: every episode starts from empty clients filled in a
+fixed order (:meth:`Renderer.set_scene`), so a frame's bytes depend on its episode
+alone, not on what the process rendered before.
 
 Images are mirrored left-right so that world +X is on the image's right
 (:mod:`generators.camera`).
@@ -30,7 +37,6 @@ from __future__ import annotations
 
 import importlib.util
 import numbers
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Optional
 
@@ -44,7 +50,6 @@ from generators.scene import (
     load_hand,
     set_hand_pose,
     set_object_pose,
-    set_visible,
     visual_colours,
 )
 from schemas.errors import DyanaError, SpecError
@@ -60,8 +65,6 @@ LIGHT_AMBIENT = 0.55
 LIGHT_DIFFUSE = 0.45
 LIGHT_SPECULAR = 0.0
 
-#: How many (category, size) object bodies a renderer keeps loaded.
-OBJECT_CACHE_SIZE = 16
 #: Depths within this many float32 ulps count as a tie the plate cannot settle.
 TIE_ULPS = 4
 BACKENDS = ("tiny", "egl")
@@ -71,19 +74,13 @@ class RendererUnavailable(DyanaError):
     """The requested rendering backend cannot run on this machine."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Body:
-    """A loaded moving body, its original colours and (hands) its joint indices."""
+    """A loaded moving body, its colours and (hands) its joint indices."""
 
     body: int
     colours: tuple
     joints: Optional[np.ndarray] = None
-    visible: bool = True
-
-    def show(self, client: int, visible: bool) -> None:
-        if visible != self.visible:
-            set_visible(client, self.body, self.colours, visible)
-            self.visible = visible
 
 
 def _floats(values) -> Optional[np.ndarray]:
@@ -95,9 +92,9 @@ def _floats(values) -> Optional[np.ndarray]:
 
 
 class Renderer:
-    """Owns a pybullet DIRECT client holding the scene, both hands and a small cache of
-    object bodies; renders (H, W, 3) uint8 RGB frames. Use as a context manager or
-    call :meth:`close`."""
+    """Owns a pybullet DIRECT client holding the scene of one episode at a time (the
+    static bodies, its hand, its object) and the static plate; renders (H, W, 3) uint8
+    RGB frames. Use as a context manager or call :meth:`close`."""
 
     def __init__(self, resolution: int = DEFAULT_RESOLUTION, width: Optional[int] = None, backend: str = "tiny"):
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
@@ -111,49 +108,78 @@ class Renderer:
         self.backend = backend
         self.fallbacks = 0
         self._client = p.connect(p.DIRECT)
+        self._full_client = p.connect(p.DIRECT)
         try:
             if backend == "egl":
                 self._load_egl()
             self._setup()
         except BaseException:
-            p.disconnect(self._client)
+            self.close()
             raise
 
     def _load_egl(self) -> None:
         spec = importlib.util.find_spec("eglRenderer")
         if spec is None or spec.origin is None:
             raise RendererUnavailable("pybullet's eglRenderer plugin is not installed")
-        if p.loadPlugin(spec.origin, "_eglRendererPlugin", physicsClientId=self._client) < 0:
+        if p.loadPlugin(spec.origin, "_eglRendererPlugin", physicsClientId=self._full_client) < 0:
             raise RendererUnavailable(f"pybullet's EGL plugin {spec.origin} did not load (no EGL display?)")
 
     def _setup(self) -> None:
-        c = self._client
         self._view, self._proj = pybullet_matrices(self.width, self.height)
-        self._static = [(body, visual_colours(c, body)) for body in build_static(c)]
-        self._hands = {}
-        for side in HANDS:
-            body, indices = load_hand(c, side)
-            self._hands[side] = _Body(body, visual_colours(c, body), indices)
-            self._hands[side].show(c, False)
-        self._objects: OrderedDict[tuple[str, float], _Body] = OrderedDict()
-        self._object: Optional[_Body] = None
-        self._hand: Optional[_Body] = None
-        self._plate_rgb, self._plate_depth = self._draw()
+        self._scene: tuple = (None, None, None)
+        self._poses: tuple = (None, None, None)
+        self._hand = self._object = None
+        self._full_bodies: Optional[tuple] = None
+        p.resetSimulation(physicsClientId=self._full_client)
+        build_static(self._full_client)
+        self._plate_rgb, self._plate_depth = self._draw(self._full_client)
         self._plate_mirrored = np.ascontiguousarray(self._plate_rgb[:, ::-1])
         self._tie = TIE_ULPS * np.spacing(self._plate_depth)
-        self._show_static(False)
-        _, empty = self._draw()
+        _, empty = self._draw(self._client)
         self._empty_depth = float(empty.min())
 
-    def _show_static(self, visible: bool) -> None:
-        for body, colours in self._static:
-            set_visible(self._client, body, colours, visible)
+    def _add_moving(self, client: int) -> tuple[Optional[_Body], Optional[_Body]]:
+        """Create the episode's hand, then its object, in ``client``."""
+        _, size, hand = self._scene
+        name = self._scene[0]
+        hand_body = object_body = None
+        if hand is not None:
+            body, indices = load_hand(client, hand)
+            hand_body = _Body(body, visual_colours(client, body), indices)
+        if name is not None:
+            body = build_object(client, name, size)
+            object_body = _Body(body, visual_colours(client, body))
+        return hand_body, object_body
+
+    def _build(self) -> None:
+        """Empty the moving-bodies client and create the episode's hand and object in it.
+
+        TinyRenderer settles exact depth ties by its internal draw order, which adding,
+        removing or re-colouring bodies perturbs. So nothing is ever hidden or removed:
+        each episode starts from an empty client with bodies created in a fixed order,
+        which makes every frame a function of its episode alone, whatever the process
+        rendered before (1 or 2 workers, a replay). The full-scene client (static bodies,
+        then the same hand and object) is built the same way, only when a frame needs it.
+        """
+        p.resetSimulation(physicsClientId=self._client)
+        self._hand, self._object = self._add_moving(self._client)
+        self._full_bodies = None
+
+    def _full_scene(self) -> tuple[Optional[_Body], Optional[_Body]]:
+        if self._full_bodies is None:
+            c = self._full_client
+            p.resetSimulation(physicsClientId=c)
+            build_static(c)
+            self._full_bodies = self._add_moving(c)
+        return self._full_bodies
 
     # lifecycle ---------------------------------------------------------------
     def close(self) -> None:
-        if self._client is not None:
-            p.disconnect(self._client)
-            self._client = None
+        for name in ("_client", "_full_client"):
+            client = getattr(self, name, None)
+            if client is not None:
+                p.disconnect(client)
+                setattr(self, name, None)
 
     def __enter__(self) -> "Renderer":
         return self
@@ -163,9 +189,9 @@ class Renderer:
 
     # scene -------------------------------------------------------------------
     def set_scene(self, object_name: Optional[str], object_size: Optional[float], hand: Optional[str]) -> None:
-        """Choose the object (category and size; None for none) and the hand (side; None
-        for none) that the following frames show."""
-        new_object = None
+        """Start an episode: the object (category and size; None for none) and the hand
+        (side; None for none) that the following frames show. Rebuilds the scene (see
+        :meth:`_build`), so call it once per episode."""
         if object_name is not None:
             if not isinstance(object_name, str):
                 raise SpecError(f"object must be a category name or None, got {object_name!r}")
@@ -177,41 +203,20 @@ class Renderer:
                 or object_size <= 0
             ):
                 raise SpecError(f"object_size must be a finite number > 0, got {object_size!r}")
-            new_object = self._object_body(object_name, float(object_size))
-        if hand is not None and (not isinstance(hand, str) or hand not in self._hands):
+            object_size = float(object_size)
+        else:
+            object_size = None
+        if hand is not None and (not isinstance(hand, str) or hand not in HANDS):
             raise SpecError(f"hand must be one of {list(HANDS)} or None, got {hand!r}")
-        new_hand = self._hands[hand] if hand is not None else None
-        for old, new in ((self._object, new_object), (self._hand, new_hand)):
-            if old is not new:
-                if old is not None:
-                    old.show(self._client, False)
-                if new is not None:
-                    new.show(self._client, True)
-        self._object, self._hand = new_object, new_hand
-
-    def _object_body(self, name: str, size: float) -> _Body:
-        key = (name, size)
-        found = self._objects.get(key)
-        if found is not None:
-            self._objects.move_to_end(key)
-            return found
-        if len(self._objects) >= OBJECT_CACHE_SIZE:
-            _, old = self._objects.popitem(last=False)
-            if old is self._object:
-                self._object = None
-            p.removeBody(old.body, physicsClientId=self._client)
-        body = build_object(self._client, name, size)
-        found = _Body(body, visual_colours(self._client, body))
-        found.show(self._client, False)
-        self._objects[key] = found
-        return found
+        self._scene = (object_name, object_size, hand)
+        self._build()
 
     def _pose(self, object_pose, palm_pose, joint_angles) -> None:
+        pose = palm = joints = None
         if self._object is not None:
             pose = _floats(object_pose)
             if pose is None or pose.shape != (7,) or not np.all(np.isfinite(pose)):
                 raise SpecError(f"object_pose must be 7 finite numbers, got {object_pose!r}")
-            set_object_pose(self._client, self._object.body, pose)
         if self._hand is not None:
             palm, joints = _floats(palm_pose), _floats(joint_angles)
             if (
@@ -222,10 +227,18 @@ class Renderer:
                 or not (np.all(np.isfinite(palm)) and np.all(np.isfinite(joints)))
             ):
                 raise SpecError(f"palm_pose (6,) and joint_angles (15,) must be finite numbers, got {palm_pose!r}, {joint_angles!r}")
-            set_hand_pose(self._client, self._hand.body, self._hand.joints, palm, joints)
+        self._poses = (pose, palm, joints)
+        self._apply(self._client, self._hand, self._object)
+
+    def _apply(self, client: int, hand: Optional[_Body], obj: Optional[_Body]) -> None:
+        pose, palm, joints = self._poses
+        if obj is not None:
+            set_object_pose(client, obj.body, pose)
+        if hand is not None:
+            set_hand_pose(client, hand.body, hand.joints, palm, joints)
 
     # drawing -----------------------------------------------------------------
-    def _draw(self) -> tuple[np.ndarray, np.ndarray]:
+    def _draw(self, client: int) -> tuple[np.ndarray, np.ndarray]:
         """One TinyRenderer pass over whatever is in view: (H, W, 3) RGB and (H, W) depth,
         unmirrored."""
         _, _, rgba, depth, _ = p.getCameraImage(
@@ -242,18 +255,16 @@ class Renderer:
             lightSpecularCoeff=LIGHT_SPECULAR,
             renderer=p.ER_TINY_RENDERER if self.backend == "tiny" else p.ER_BULLET_HARDWARE_OPENGL,
             flags=p.ER_NO_SEGMENTATION_MASK,
-            physicsClientId=self._client,
+            physicsClientId=client,
         )
         rgba = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)
         depth = np.asarray(depth, dtype=np.float32).reshape(self.height, self.width)
         return rgba[:, :, :3], depth
 
     def _full(self) -> np.ndarray:
-        self._show_static(True)
-        try:
-            rgb, _ = self._draw()
-        finally:
-            self._show_static(False)
+        hand, obj = self._full_scene()
+        self._apply(self._full_client, hand, obj)
+        rgb, _ = self._draw(self._full_client)
         return np.ascontiguousarray(rgb[:, ::-1])
 
     def render_full(self, object_pose=None, palm_pose=None, joint_angles=None) -> np.ndarray:
@@ -269,7 +280,7 @@ class Renderer:
             return self._full()
         if self._object is None and self._hand is None:
             return self._plate_mirrored.copy()
-        rgb, depth = self._draw()
+        rgb, depth = self._draw(self._client)
         moving = depth < self._empty_depth
         rows = np.flatnonzero(moving.any(axis=1))
         out = self._plate_mirrored.copy()
