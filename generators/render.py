@@ -189,9 +189,10 @@ class Renderer:
 
     # scene -------------------------------------------------------------------
     def set_scene(self, object_name: Optional[str], object_size: Optional[float], hand: Optional[str]) -> None:
-        """Start an episode: the object (category and size; None for none) and the hand
-        (side; None for none) that the following frames show. Rebuilds the scene (see
-        :meth:`_build`), so call it once per episode."""
+        """Choose the object (category and size; None for none) and the hand (side; None
+        for none) that the following frames show. A different scene is rebuilt from empty
+        clients (see :meth:`_build`); the same scene again is kept as it is, which is
+        equivalent, since posing bodies never changes TinyRenderer's draw order."""
         if object_name is not None:
             if not isinstance(object_name, str):
                 raise SpecError(f"object must be a category name or None, got {object_name!r}")
@@ -208,6 +209,8 @@ class Renderer:
             object_size = None
         if hand is not None and (not isinstance(hand, str) or hand not in HANDS):
             raise SpecError(f"hand must be one of {list(HANDS)} or None, got {hand!r}")
+        if (object_name, object_size, hand) == self._scene:
+            return
         self._scene = (object_name, object_size, hand)
         self._build()
 
