@@ -2,7 +2,9 @@
 
 Run as a script, a benchmark's own folder comes first on ``sys.path``, where
 ``benchmarks/scoring.py`` would shadow the ``scoring`` package: importing this module
-(found there) removes that folder from the path for every later import.
+(found there) puts the repository's root first and that folder last on the path. The
+folder stays on it because Dask's spawned worker processes re-run the script's imports,
+this one included.
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != HERE]
+ROOT = os.path.dirname(HERE)
+sys.path[:] = [ROOT] + [p for p in sys.path if os.path.abspath(p or os.curdir) not in (HERE, ROOT)] + [HERE]
 
 
 def pin_one_core() -> str:

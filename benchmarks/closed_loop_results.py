@@ -12,7 +12,7 @@ already holds a ``catalog.json`` is reused.
 
 from __future__ import annotations
 
-import bench_setup  # noqa: F401  (first: takes this folder off sys.path)
+import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 
 import argparse
 import contextlib

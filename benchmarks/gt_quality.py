@@ -14,7 +14,7 @@ printed beside. The last line printed is JSON.
 
 from __future__ import annotations
 
-import bench_setup  # noqa: F401  (first: takes this folder off sys.path)
+import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 
 import argparse
 import json
