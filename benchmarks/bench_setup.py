@@ -1,10 +1,9 @@
 """Shared set-up of the benchmark scripts. Import it first, as ``import bench_setup``.
 
-Run as a script, a benchmark's own folder comes first on ``sys.path``, where
-``benchmarks/scoring.py`` would shadow the ``scoring`` package: importing this module
-(found there) puts the repository's root first and that folder last on the path. The
-folder stays on it because Dask's spawned worker processes re-run the script's imports,
-this one included.
+Importing it puts the repository's root first on ``sys.path`` (so a clone runs its own
+code even where another Dyana is installed) and keeps the benchmarks folder on the path
+last, because Dask's spawned worker processes re-run the script's imports, this one
+included.
 """
 
 from __future__ import annotations

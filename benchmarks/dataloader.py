@@ -41,7 +41,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 
 import catalog  # noqa: E402
 from catalog.manifest import CodeInfo, Manifest, write_manifest  # noqa: E402

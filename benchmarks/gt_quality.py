@@ -21,7 +21,6 @@ import json
 import sys
 
 
-import numpy as np  # noqa: E402
 
 #: Table 3, row GT.
 PAPER_GT = {"S_loc": 100.0, "E_loc": 0.16, "S_gra": 100.0, "E_gra": 0.09, "Q_smooth": 0.81, "Q_line": 0.96, "R_time": 0.16}
@@ -40,40 +39,24 @@ def main(argv: list[str] | None = None) -> int:
 
     from generators.recipe import slice_specs
     from pipeline.episode import episode
-    from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES, PHASES
-    from scoring.metrics import METRIC_NAMES, aggregate, episode_metrics
+    from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
+    from scoring.io import from_recordings
+    from scoring.metrics import METRIC_NAMES
+    from scoring.report import score_run
 
-    observe = PHASES.index("observe")
-    rows: dict[str, list[np.ndarray]] = {k: [] for k in ("palm", "obj", "joints", "tips", "grasp")}
-    lengths: list[int] = []
-    motion_of: list[str] = []
+    specs, recordings = [], []
     for motion_type in MOTION_TYPES:
         for setting, count in zip(INTERCEPT_SECONDS, split(args.per_type, len(INTERCEPT_SECONDS))):
             for spec in slice_specs(f"{motion_type}-{setting}", count):
-                frames = episode(spec)
-                acting = frames.phase != observe
-                rows["palm"].append(frames.palm_pose[acting, :3])
-                rows["obj"].append(frames.object_pose[acting, :3])
-                rows["joints"].append(frames.joint_angles[acting])
-                rows["tips"].append(frames.fingertip_distance[acting])
-                rows["grasp"].append(frames.grasp_angles[None])
-                lengths.append(int(acting.sum()))
-                motion_of.append(motion_type)
+                specs.append(spec)
+                recordings.append(episode(spec))
 
-    offsets = np.concatenate([[0], np.cumsum(lengths)])
-    per = episode_metrics(
-        offsets,
-        np.concatenate(rows["palm"]),
-        np.concatenate(rows["obj"]),
-        np.concatenate(rows["joints"]),
-        np.concatenate(rows["tips"]),
-        np.concatenate(rows["grasp"]),
-    )
-    errors = np.zeros(len(lengths), dtype=bool)
-    motion_of_arr = np.array(motion_of)
-    result = {"episodes": len(lengths), "metrics": aggregate(per, errors).metrics, "by_motion": {}}
-    for motion_type in MOTION_TYPES:
-        result["by_motion"][motion_type] = aggregate(per, errors, motion_of_arr == motion_type).metrics
+    report = score_run(from_recordings("ground truth", "gt_quality", specs, recordings))
+    result = {
+        "episodes": len(specs),
+        "metrics": report.overall.metrics,
+        "by_motion": {m: report.breakdowns["by_motion"][m].metrics for m in MOTION_TYPES},
+    }
 
     def fmt(value) -> str:
         return "   n/a" if value is None else f"{value:6.2f}" if abs(value) >= 10 else f"{value:6.3f}"

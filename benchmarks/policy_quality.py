@@ -3,8 +3,9 @@
 Runs each policy in :class:`pipeline.env.DyanaEnv` on the first ``--per-cell`` test-1k
 episodes of every one of the nine (motion type, interception setting) cells (test-1k
 episode ``i`` belongs to cell ``i mod 9``) at ``--resolution`` px, then scores the
-recordings' acting frames with :func:`scoring.metrics.episode_metrics` (the numbers
-``scoring eval`` would print for the same frames). The loop is the runner's, minus
+recordings with :func:`scoring.io.from_recordings` and :func:`scoring.report.score_run`
+(exactly what ``scoring eval`` would print for the same frames, R_time's acting budget
+included). The loop is the runner's, minus
 its threads and deadlines: ``task`` carries ``intercept_time_s``.
 
 Prints two lines per policy (success by motion type and setting, as S_loc/S_gra;
@@ -19,23 +20,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-# the repository first: this folder's scoring.py would shadow the scoring package
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 
 from generators.recipe import spec_for  # noqa: E402
 from pipeline.env import DyanaEnv, horizon  # noqa: E402
 from pipeline.policies.base import make_policy  # noqa: E402
 from pipeline.rollout import task_for  # noqa: E402
-from schemas.scene import PHASES  # noqa: E402
-from scoring.metrics import METRIC_NAMES, aggregate, episode_metrics  # noqa: E402
-
-OBSERVE = PHASES.index("observe")
+from scoring.io import from_recordings  # noqa: E402
+from scoring.metrics import METRIC_NAMES  # noqa: E402
+from scoring.report import score_run  # noqa: E402
 
 
 def predictive_without_text():
@@ -45,6 +42,10 @@ def predictive_without_text():
     policy = PredictivePolicy(text_hint=False)
     policy.name = "predictive-no-text"
     return policy
+
+
+def _rates(summary) -> dict:
+    return {"S_loc": summary.metrics["S_loc"], "S_gra": summary.metrics["S_gra"]}
 
 
 def rollout(env: DyanaEnv, policy, spec) -> tuple:
@@ -78,36 +79,18 @@ def main(argv=None) -> dict:
     results = {}
     for name in args.policies:
         policy = make_policy(name)
-        palm, obj, joints, tips, grasp, counts, steps, spent = [], [], [], [], [], [], 0, 0.0
+        recordings, steps, spent = [], 0, 0.0
         for spec in specs:
             frames, n, s = rollout(env, policy, spec)
-            acting = frames.phase != OBSERVE
-            palm.append(frames.palm_pose[acting, :3])
-            obj.append(frames.object_pose[acting, :3])
-            joints.append(frames.joint_angles[acting])
-            tips.append(frames.fingertip_distance[acting])
-            grasp.append(frames.grasp_angles)
-            counts.append(int(acting.sum()))
+            recordings.append(frames)
             steps, spent = steps + n, spent + s
-        offsets = np.concatenate([[0], np.cumsum(counts)])
-        m = episode_metrics(offsets, np.concatenate(palm), np.concatenate(obj), np.concatenate(joints),
-                            np.concatenate(tips), np.stack(grasp))
-        by_motion = {}
-        for motion in ("linear", "circular", "harmonic"):
-            pick = np.array([s.motion_type == motion for s in specs])
-            by_motion[motion] = {"S_loc": 100.0 * float(m.localized[pick].mean()),
-                                 "S_gra": 100.0 * float(m.grasped[pick].mean())}
-        by_setting = {}
-        for setting in ("fast", "medium", "slow"):
-            pick = np.array([s.intercept_setting == setting for s in specs])
-            by_setting[setting] = {"S_loc": 100.0 * float(m.localized[pick].mean()),
-                                   "S_gra": 100.0 * float(m.grasped[pick].mean())}
-        summary = aggregate(m, np.zeros(len(specs), dtype=bool))
+        report = score_run(from_recordings(name, "test-1k", specs, recordings, policy=name))
+        by_motion = {k: _rates(v) for k, v in report.breakdowns["by_motion"].items()}
+        by_setting = {k: _rates(v) for k, v in report.breakdowns["by_speed"].items()}
         results[name] = {
             "episodes": len(specs),
-            "S_loc": 100.0 * float(m.localized.mean()),
-            "S_gra": 100.0 * float(m.grasped.mean()),
-            "metrics": {k: summary.metrics[k] for k in METRIC_NAMES},
+            **_rates(report.overall),
+            "metrics": {k: report.overall.metrics[k] for k in METRIC_NAMES},
             "by_motion": by_motion,
             "by_setting": by_setting,
             "ms_per_step": 1000.0 * spent / max(steps, 1),

@@ -78,10 +78,3 @@ def signed_distance(points: np.ndarray, category: str, size: float, object_pose:
 def fingertip_distance(fingertips: np.ndarray, category: str, size: float, object_pose: np.ndarray) -> np.ndarray:
     """(n,) minimum over the fingertips (n, 5, 3) of the (unsigned) distance to the object's surface."""
     return np.abs(signed_distance(fingertips, category, size, object_pose)).min(axis=-1)
-
-
-def palm_xz_distance(palm_xyz: np.ndarray, object_xyz: np.ndarray) -> np.ndarray:
-    """(n,) distance in the XZ plane between the palm centre and the object's centre (its top's centre)."""
-    palm = np.asarray(palm_xyz, dtype=np.float64)
-    obj = np.asarray(object_xyz, dtype=np.float64)
-    return np.hypot(palm[..., 0] - obj[..., 0], palm[..., 2] - obj[..., 2])

@@ -29,10 +29,10 @@ the K = ``observe_frames`` frames of the observe window in the first observation
 empty (0, H, W, 3) afterwards (a fixed set of keys keeps the observation inside its
 Gymnasium space).
 
-Events are checked on every acting frame from the recorded float32 values, the way
-``scoring`` computes them: localization when the palm's XZ distance to the object's
-centre is within :data:`~schemas.scene.LOC_TOLERANCE`, grasp completion when every
-joint reaches :data:`~schemas.scene.GRASP_RATIO` of the ground-truth grasp angles.
+Events are checked on every acting frame from the recorded float32 values with the
+functions ``scoring`` uses (:mod:`schemas.events`: localization when the palm's XZ
+distance to the object's centre is within the tolerance, grasp completion when every
+joint reaches 0.8 of the ground-truth grasp angles).
 ``info``: ``localized``, ``grasped``, ``t_loc``, ``t_gra`` (acting frames from the
 first acting frame to the event, -1 before it), ``palm_distance`` and
 ``fingertip_distance`` of the current frame. Reward: 1.0 on the step where the grasp
@@ -59,7 +59,6 @@ Deterministic: the same spec and the same actions give identical arrays and byte
 
 from __future__ import annotations
 
-import math
 import string
 from dataclasses import dataclass
 from typing import Any, Optional
@@ -74,7 +73,8 @@ from generators.motion import object_pose
 from schemas.errors import DyanaError, PolicyError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.objects import object_category
-from schemas.scene import DEFAULT_RESOLUTION, GRASP_RATIO, LOC_TOLERANCE, PHASES, TABLE_X, TABLE_Z
+from schemas.events import grasp_closed, localized, palm_xz_distance
+from schemas.scene import DEFAULT_RESOLUTION, PHASES, TABLE_X, TABLE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -331,8 +331,7 @@ class DyanaEnv(_Base):
         obj = self._object_pose[k]
         tips = keypoints.reshape(1, 6, 6)[:, :5, :3]
         tip_distance = np.float32(fingertip_distance(tips, spec.object, spec.object_size, obj[None].astype(np.float64))[0])
-        palm64, obj64 = palm_pose.astype(np.float64), obj.astype(np.float64)
-        distance = math.hypot(palm64[0] - obj64[0], palm64[2] - obj64[2])
+        distance = float(palm_xz_distance(palm_pose, obj))
         f = self._frames
         f["palm_pose"].append(palm_pose)
         f["joint_angles"].append(joints.astype(np.float32))
@@ -344,10 +343,9 @@ class DyanaEnv(_Base):
         if k < self._first:
             phase = _PHASE["observe"]
         else:
-            if self._loc_frame is None and distance <= LOC_TOLERANCE:
+            if self._loc_frame is None and localized(palm_pose, obj):
                 self._loc_frame = k
-            closed = bool(np.all(joints.astype(np.float64) >= GRASP_RATIO * self._grasp.astype(np.float64)))
-            if self._gra_frame is None and closed:
+            if self._gra_frame is None and grasp_closed(joints, self._grasp):
                 self._gra_frame = k
             if self._gra_frame is not None and k > self._gra_frame:
                 phase = _PHASE["hold"]

@@ -20,9 +20,10 @@ import types
 import numpy as np
 
 from generators import motion
-from generators.contact import fingertip_distance, palm_xz_distance
+from generators.contact import fingertip_distance
 from generators.hand import forward_kinematics
 from generators.interception import HandPlan, plan_episode
+from schemas.events import palm_xz_distance
 from schemas.frames import EpisodeFrames
 from schemas.objects import object_category
 from schemas.spec import EpisodeSpec

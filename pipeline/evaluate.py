@@ -28,7 +28,6 @@ import numpy as np
 from catalog.atomic import remove_stray_temps
 from catalog.hashing import sha256_file
 from catalog.manifest import CodeInfo, Manifest, git_commit, load_manifest, manifest_path, write_manifest
-from catalog.parquet_io import column_to_numpy, read_episodes, read_frames
 from catalog.records import ShardRecord
 from pipeline.build import (
     STATE_FILE,
@@ -43,7 +42,6 @@ from pipeline.build import (
 )
 from pipeline.rollout import DEFAULT_DEADLINE_S, run_episode
 from schemas.errors import PolicyError, SpecError
-from schemas.scene import GRASP_RATIO, LOC_TOLERANCE
 from schemas.versions import CODE_VERSION
 
 DEFAULT_SHARD_SIZE = 32
@@ -226,42 +224,30 @@ class EvalSummary:
 
 
 def summarize(run_dir: str | Path) -> EvalSummary:
-    """Count episodes, errors, localizations and grasps from a run's shards."""
+    """Count episodes, errors, localizations and grasps of a run, through :mod:`scoring`
+    (the same reading, checks and event definitions as ``scoring eval``)."""
+    from scoring.io import load_run
+    from scoring.report import score_run
+
     root = Path(run_dir)
     manifest = load_manifest(root)
     if "policy" not in manifest.extra:
         raise SpecError(f"{root}: not a rollout run (catalog.json has no policy)")
-    errors, localized, grasped, reasons = 0, 0, 0, []
-    for shard in manifest.shards:
-        episodes = read_episodes(root / shard.files["episodes"].path, ["episode_index", "grasp_angles", "status", "error"])
-        frames = read_frames(
-            root / shard.files["frames"].path, ["episode_index", "phase", "palm_pose", "object_pose", "joint_angles"]
-        )
-        index = frames.column("episode_index").to_numpy()
-        acting = np.asarray(frames.column("phase").to_pylist()) != "observe"
-        palm = column_to_numpy(frames.column("palm_pose"))[:, :3].astype(np.float64)
-        obj = column_to_numpy(frames.column("object_pose"))[:, :3].astype(np.float64)
-        joints = column_to_numpy(frames.column("joint_angles")).astype(np.float64)
-        near = np.hypot(palm[:, 0] - obj[:, 0], palm[:, 2] - obj[:, 2]) <= LOC_TOLERANCE
-        angles = column_to_numpy(episodes.column("grasp_angles")).astype(np.float64)
-        for row, (episode, status, reason) in enumerate(
-            zip(episodes.column("episode_index").to_pylist(), episodes.column("status").to_pylist(), episodes.column("error").to_pylist())
-        ):
-            if status != "ok":
-                errors += 1
-                reasons.append((episode, reason))
-                continue
-            mine = (index == episode) & acting
-            localized += bool(near[mine].any())
-            grasped += bool(np.all(joints[mine] >= GRASP_RATIO * angles[row], axis=1).any())
+    data = load_run(root)
+    overall = score_run(data).overall
+    reasons = [
+        (int(index), str(message))
+        for index, message, failed in zip(data.episode_index, data.error_message, data.error)
+        if failed
+    ]
     return EvalSummary(
         policy=str(manifest.extra["policy"]),
         slice=manifest.slice,
         episodes=manifest.episodes,
         frames=manifest.frames,
-        errors=errors,
-        localized=localized,
-        grasped=grasped,
+        errors=overall.errors,
+        localized=overall.localized,
+        grasped=overall.grasped,
         error_reasons=reasons,
     )
 

@@ -8,6 +8,7 @@ of shards raises :class:`ShardError` naming the folder or file.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,14 +19,16 @@ import pyarrow.compute as pc
 from catalog.manifest import load_manifest
 from catalog.parquet_io import column_to_numpy, open_parquet, read_episodes, read_frames, table_kind
 from schemas.errors import ShardError
-from schemas.spec import acting_horizon
+from schemas.events import acting, acting_budget
+from schemas.frames import EpisodeFrames
 from schemas.scene import PHASES
+from schemas.spec import EpisodeSpec
 
 FRAME_COLUMNS = ("episode_index", "frame_index", "phase", "palm_pose", "object_pose", "joint_angles", "fingertip_distance")
 EPISODE_COLUMNS = (
     "episode_index", "motion_type", "intercept_setting", "object", "grasp_angles", "num_frames", "observe_frames",
 )
-ROLLOUT_COLUMNS = ("policy", "status")
+ROLLOUT_COLUMNS = ("policy", "status", "error")
 #: Phases in which the hand acts; every other frame is observation only.
 OBSERVE = "observe"
 
@@ -36,8 +39,8 @@ class RunData:
 
     ``offsets`` (n + 1) delimit each episode's acting frames, in frame order;
     ``policy`` is None for a built (ground-truth) slice, whose episodes are all ok.
-    ``acting_budget`` (n,) is R_time's N: a ground-truth episode's acting frames, a
-    rollout's acting horizon (the frames it was allowed: it stops at grasp completion).
+    ``acting_budget`` (n,) is R_time's N (:func:`schemas.events.acting_budget`);
+    ``error_message`` (n,) the recorded reason of each failed episode (None otherwise).
     """
 
     name: str
@@ -55,6 +58,7 @@ class RunData:
     object_xyz: np.ndarray
     joint_angles: np.ndarray
     fingertip_distance: np.ndarray
+    error_message: np.ndarray
 
     @property
     def episodes(self) -> int:
@@ -116,14 +120,6 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
     return _assemble(root, manifest.slice, episodes, frames, rollout)
 
 
-def _acting_budget(episodes: pa.Table, counts: np.ndarray, rollout: bool) -> np.ndarray:
-    if not rollout:
-        return counts.astype(np.int64)
-    num_frames = episodes.column("num_frames").to_numpy().astype(np.int64)
-    observe = episodes.column("observe_frames").to_numpy().astype(np.int64)
-    return acting_horizon(num_frames, observe)
-
-
 def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table, rollout: bool) -> RunData:
     where = os.fspath(root)
     index = episodes.column("episode_index").to_numpy()
@@ -139,9 +135,11 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         if unknown:
             raise ShardError(f"{where}: unknown episode status {unknown[0]!r} (expected 'ok' or 'error')")
         error = status == "error"
+        error_message = np.where(error, _strings(episodes.column("error")), None)
         policy = ", ".join(sorted(set(episodes.column("policy").to_pylist())))
     else:
         error = np.zeros(len(index), dtype=bool)
+        error_message = np.full(len(index), None, dtype=object)
         policy = None
 
     phases = set(pc.unique(frames.column("phase")).to_pylist())
@@ -193,9 +191,70 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         error=error,
         grasp_angles=grasp_angles,
         offsets=offsets,
-        acting_budget=_acting_budget(episodes, counts, rollout),
+        acting_budget=np.asarray(
+            acting_budget(
+                episodes.column("num_frames").to_numpy().astype(np.int64),
+                episodes.column("observe_frames").to_numpy().astype(np.int64),
+                rollout,
+                counts.astype(np.int64),
+            )
+        ),
         palm_xyz=frame_array("palm_pose")[:, :3],
         object_xyz=frame_array("object_pose")[:, :3],
         joint_angles=frame_array("joint_angles"),
         fingertip_distance=frame_array("fingertip_distance"),
+        error_message=error_message,
+    )
+
+
+def from_recordings(
+    name: str,
+    slice_name: str,
+    specs: Sequence[EpisodeSpec],
+    recordings: Sequence[EpisodeFrames],
+    policy: str | None = None,
+    errors: Sequence[str | None] | None = None,
+) -> RunData:
+    """A :class:`RunData` from episodes held in memory (a benchmark's, a notebook's),
+    scored exactly as their shards would be: ``policy`` None means ground truth; else
+    they are rollouts (R_time's N is the acting horizon) and ``errors`` holds each
+    episode's failure reason or None."""
+    if len(specs) != len(recordings) or not specs:
+        raise ValueError(f"need as many specs as recordings (at least one), got {len(specs)} and {len(recordings)}")
+    rollout = policy is not None
+    messages = np.array(list(errors) if errors is not None else [None] * len(specs), dtype=object)
+    if len(messages) != len(specs):
+        raise ValueError(f"errors must have {len(specs)} entries, got {len(messages)}")
+    picks = [acting(frames.phase) for frames in recordings]
+    counts = np.array([int(p.sum()) for p in picks], dtype=np.int64)
+
+    def stacked(field: str, width: slice | None = None) -> np.ndarray:
+        parts = [getattr(f, field)[p] for f, p in zip(recordings, picks)]
+        values = np.concatenate(parts)
+        return values if width is None else values[:, width]
+
+    return RunData(
+        name=name,
+        slice=slice_name,
+        policy=policy,
+        episode_index=np.array([s.episode_index for s in specs], dtype=np.int64),
+        motion_type=np.array([s.motion_type for s in specs], dtype=object),
+        intercept_setting=np.array([s.intercept_setting for s in specs], dtype=object),
+        object=np.array([s.object for s in specs], dtype=object),
+        error=np.array([m is not None for m in messages], dtype=bool) if rollout else np.zeros(len(specs), bool),
+        grasp_angles=np.stack([f.grasp_angles for f in recordings]),
+        offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        acting_budget=np.asarray(
+            acting_budget(
+                np.array([s.num_frames for s in specs], dtype=np.int64),
+                np.array([s.observe_frames for s in specs], dtype=np.int64),
+                rollout,
+                counts,
+            )
+        ),
+        palm_xyz=stacked("palm_pose", slice(0, 3)),
+        object_xyz=stacked("object_pose", slice(0, 3)),
+        joint_angles=stacked("joint_angles"),
+        fingertip_distance=stacked("fingertip_distance"),
+        error_message=messages if rollout else np.full(len(specs), None, dtype=object),
     )

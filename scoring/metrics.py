@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas.scene import GRASP_RATIO, LOC_TOLERANCE
+from schemas import events
 
 #: Steps no longer than this are dropped before measuring smoothness.
 STEP_MIN = 1e-4
@@ -161,11 +161,11 @@ def episode_metrics(
     local = np.arange(m, dtype=np.int64) - offsets[:-1][owner]
     never = np.iinfo(np.int64).max
 
-    d_xz = np.hypot(palm[:, 0] - obj[:, 0], palm[:, 2] - obj[:, 2])
+    d_xz = events.palm_xz_distance(palm, obj)
     e_loc = _segment_min(d_xz, offsets, np.nan)
     e_gra = _segment_min(tips, offsets, np.nan)
-    first_loc = _segment_min(np.where(d_xz <= LOC_TOLERANCE, local, never), offsets, never)
-    closed = np.all(joints >= GRASP_RATIO * grasp[owner], axis=1)
+    first_loc = _segment_min(np.where(events.within_tolerance(d_xz), local, never), offsets, never)
+    closed = events.grasp_closed(joints, grasp[owner])
     first_gra = _segment_min(np.where(closed, local, never), offsets, never)
     t_loc = np.where(first_loc == never, -1, first_loc)
     t_gra = np.where(first_gra == never, -1, first_gra)

@@ -6,9 +6,9 @@ import numpy as np
 import pybullet as p
 import pytest
 
+from schemas.events import palm_xz_distance
 from generators.contact import (
     fingertip_distance,
-    palm_xz_distance,
     quaternion_to_matrix,
     signed_distance,
     signed_distance_local,

@@ -10,7 +10,7 @@ catalog's pinned Parquet writer) to a temporary folder, then times, best of
 
 Prints a summary, then one JSON line ``{"episodes", "frames", "seconds",
 "read_seconds", "ratio"}`` (ratio = seconds / read_seconds).
-Tiny check: ``python benchmarks/scoring.py --episodes 20 --repeats 1``.
+Tiny check: ``python benchmarks/scoring_speed.py --episodes 20 --repeats 1``.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 
 from catalog.hashing import sha256_file  # noqa: E402
 from catalog.manifest import CodeInfo, Manifest, write_manifest  # noqa: E402

@@ -1,0 +1,65 @@
+"""The paper's two events, defined once (paper A.5).
+
+*Localization*: the palm centre is within :data:`~schemas.scene.LOC_TOLERANCE` of the
+object's centre in the XZ (table) plane. *Grasp*: every finger joint has reached
+:data:`~schemas.scene.GRASP_RATIO` of the episode's ground-truth grasp angles.
+
+The closed-loop environment (which labels phases and ends an episode on grasp), the
+evaluation's quick counts and every metric in :mod:`scoring` call these functions, so
+an episode localizes in the loop exactly when its recording scores as localized.
+Inputs are converted to float64 first: recorded float32 values give the same decision
+wherever they are read.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from schemas.scene import GRASP_RATIO, LOC_TOLERANCE, PHASES
+from schemas.spec import acting_horizon
+
+OBSERVE = PHASES.index("observe")
+
+
+def palm_xz_distance(palm_xyz: np.ndarray, object_xyz: np.ndarray) -> np.ndarray:
+    """Distance in the XZ plane between the palm centre and the object's centre, (...,)."""
+    palm = np.asarray(palm_xyz, dtype=np.float64)
+    obj = np.asarray(object_xyz, dtype=np.float64)
+    return np.hypot(palm[..., 0] - obj[..., 0], palm[..., 2] - obj[..., 2])
+
+
+def within_tolerance(distance: np.ndarray) -> np.ndarray:
+    """Whether a palm XZ distance counts as localized."""
+    return np.asarray(distance) <= LOC_TOLERANCE
+
+
+def localized(palm_xyz: np.ndarray, object_xyz: np.ndarray) -> np.ndarray:
+    """Whether the palm is over the object (per frame, (...,) bool)."""
+    return within_tolerance(palm_xz_distance(palm_xyz, object_xyz))
+
+
+def grasp_closed(joint_angles: np.ndarray, grasp_angles: np.ndarray) -> np.ndarray:
+    """Whether every joint reached ``GRASP_RATIO`` of its grasp angle (per frame, (...,) bool).
+
+    ``joint_angles`` (..., 15) broadcasts against ``grasp_angles`` (15,) or (..., 15).
+    """
+    joints = np.asarray(joint_angles, dtype=np.float64)
+    grasp = np.asarray(grasp_angles, dtype=np.float64)
+    return np.all(joints >= GRASP_RATIO * grasp, axis=-1)
+
+
+def acting(phase: np.ndarray) -> np.ndarray:
+    """Which frames are acting frames (every phase but ``observe``), from phase codes."""
+    return np.asarray(phase) != OBSERVE
+
+
+def acting_budget(num_frames, observe_frames, rollout: bool, recorded):
+    """R_time's N: the acting frames an episode could last.
+
+    A ground-truth episode lasts what it recorded; a rollout stops at grasp completion,
+    so its N is the acting horizon it was allowed (else R_time would always be 0).
+    Works on ints or numpy integer arrays.
+    """
+    if not rollout:
+        return recorded
+    return acting_horizon(num_frames, observe_frames)
