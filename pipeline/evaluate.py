@@ -2,9 +2,8 @@
 
 The run folder (RUN) has the layout of a built slice: ``shards/`` with the same
 three files per shard (the episodes table adds ``policy``, ``status``, ``error``)
-and ``RUN/catalog.json``, whose ``policy`` key marks it as rollouts. Shards run as
-Dask tasks through :func:`pipeline.build.run_tasks` and resume the same way
-(``.build-state.json``); each task makes its own policy: a built-in name or a
+and ``RUN/catalog.json``, whose ``policy`` key marks it as rollouts. Shards run
+through :func:`pipeline.runner.run_job` as a build's do (and resume the same way); each task makes its own policy: a built-in name or a
 ``module:callable`` ref is resolved inside the worker, a ``ws://`` URL is connected
 from the worker. After an episode fails the worker discards that policy (a hung
 thread or a broken connection may still hold it) and makes a fresh one.
@@ -25,24 +24,11 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from catalog.atomic import remove_stray_temps
-from catalog.hashing import sha256_file
-from catalog.manifest import CodeInfo, Manifest, git_commit, load_manifest, manifest_path, write_manifest
-from catalog.records import ShardRecord
-from pipeline.build import (
-    STATE_FILE,
-    BuildSettings,
-    Progress,
-    ShardTask,
-    _load_state,
-    _save_state,
-    remove_unlisted_shards,
-    run_tasks,
-    shard_ranges,
-)
+from catalog.manifest import Manifest, load_manifest, manifest_path
+from pipeline.build import BuildSettings
+from pipeline.runner import Job, ShardTask, default_workers, run_job, shard_ranges
 from pipeline.rollout import DEFAULT_DEADLINE_S, run_episode
 from schemas.errors import PolicyError, SpecError
-from schemas.versions import CODE_VERSION
 
 DEFAULT_SHARD_SIZE = 32
 #: Extra seconds a remote policy's socket waits beyond the deadline (the runner's
@@ -61,11 +47,9 @@ class EvalSettings:
     policy_name: str
     deadline_s: float
 
-    def as_dict(self) -> dict[str, Any]:
-        """The resume key (the policy's name, not its ref: a restarted server may move port)."""
-        return {**self.build.as_dict(), "slice": self.slice_name, "policy": self.policy_name, "deadline_s": self.deadline_s}
-
     def extra(self) -> dict[str, Any]:
+        """The manifest's rollout keys (the policy's name, not its ref: a restarted server
+        may move port, and the same run resumes)."""
         return {"policy": self.policy_name, "deadline_s": self.deadline_s}
 
 
@@ -252,40 +236,13 @@ def summarize(run_dir: str | Path) -> EvalSummary:
     )
 
 
-def _finished_shards(run_dir: Path, settings: EvalSettings, commit: str | None) -> dict[tuple[int, int], ShardRecord]:
-    """Shards of an earlier complete run of the same evaluation by the same code in
-    ``run_dir`` (files intact); a different run there is refused rather than overwritten,
-    and the same run by other code is re-run (its rollouts may differ)."""
-    if not manifest_path(run_dir).exists():
-        return {}
-    manifest = load_manifest(run_dir)
-    same = (
-        manifest.slice == settings.slice_name
-        and dict(manifest.settings) == settings.build.as_dict()
-        and dict(manifest.extra) == settings.extra()
-    )
-    if not same:
-        what = manifest.extra.get("policy", "a built slice (no policy)")
-        raise SpecError(
-            f"{run_dir} already holds another run ({what} on {manifest.slice}, settings {dict(manifest.settings)}, "
-            f"{dict(manifest.extra)}): choose another --out or remove it"
-        )
-    if manifest.code.commit != commit or manifest.code.version != CODE_VERSION:
-        return {}
-    return {
-        tuple(s.episodes): s
-        for s in manifest.shards
-        if all((run_dir / f.path).is_file() and sha256_file(run_dir / f.path) == f.sha256 for f in s.files.values())
-    }
-
-
 def evaluate(
     policy_ref: str,
     slice_name: str,
     out: str | Path,
     *,
     episodes: int | None = None,
-    workers: int = 2,
+    workers: int | None = None,
     scheduler: str | None = None,
     deadline_s: float = DEFAULT_DEADLINE_S,
     resolution: int = 224,
@@ -293,12 +250,14 @@ def evaluate(
     progress: bool = True,
     summary: bool = True,
     stream: TextIO | None = None,
+    overwrite: bool = False,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
 
-    ``workers=0`` (without a scheduler) runs the shards one after another in this
-    process, without Dask: same bytes, for debugging and tests."""
+    ``workers`` defaults to one per core; ``workers=0`` (without a scheduler) runs the
+    shards one after another in this process, without Dask: same bytes, for debugging
+    and tests. A folder holding another run is refused unless ``overwrite``."""
     from generators.encode import JPEG_QUALITY
     from schemas.slices import get_slice
 
@@ -316,57 +275,42 @@ def evaluate(
     ranges = shard_ranges(total, shard_size)
     name = describe_policy(policy_ref, float(deadline_s))
     settings = EvalSettings(build_settings, slice_name, policy_ref, name, float(deadline_s))
-
     run_dir = Path(out)
-    (run_dir / "shards").mkdir(parents=True, exist_ok=True)
-    remove_stray_temps(run_dir)
-    commit = git_commit()
-    done = _finished_shards(run_dir, settings, commit)
-    source = f"recipe:{slice_name}:{definition.seed}"
-    done.update(_load_state(run_dir, settings, commit, source))
-    done = {key: record for key, record in done.items() if key in set(ranges)}
-    tasks = [ShardTask(slice_name, first, end) for first, end in ranges if (first, end) not in done]
-
-    meter = Progress(len(ranges), total) if progress else None
-    if meter is not None and done:
-        print(f"resuming: {len(done)} of {len(ranges)} shards already evaluated", file=sys.stderr)
-        for key in sorted(done):
-            meter.update(done[key], skipped=True)
+    job = Job(
+        folder=run_dir,
+        slice_name=slice_name,
+        seed=definition.seed,
+        settings=build_settings.as_dict(),
+        extra=settings.extra(),
+        tasks=tuple(ShardTask(slice_name, first, end) for first, end in ranges),
+        task_fn=eval_shard,
+        payload=settings,
+        verb="evaluated",
+        key_prefix="eval",
+    )
     timing: dict[str, Any] = {"episodes": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
 
-    def on_done(result: dict) -> None:
-        record = ShardRecord.from_dict(result["record"])
-        done[tuple(record.episodes)] = record
-        _save_state(run_dir, settings, commit, source, done)
+    def on_result(result: dict) -> None:
         stats = result["stats"]
         for key in ("episodes", "steps", "calls", "policy_s"):
             timing[key] += stats[key]
         if stats["remote"] is not None:
             timing["remote"] = _merge_timing(timing["remote"], stats["remote"])
-        if meter is not None:
-            meter.update(record)
 
     start = time.monotonic()
-    if workers == 0 and scheduler is None:
-        for task in tasks:
-            on_done(eval_shard(task, settings, str(run_dir)))
-    else:
-        run_tasks(tasks, settings, run_dir, workers, scheduler, on_done, task_fn=eval_shard, key_prefix="eval")
-    elapsed = time.monotonic() - start
-
-    manifest = Manifest.create(
-        slice_name,
-        definition.seed,
-        build_settings.as_dict(),
-        [done[key] for key in ranges],
-        code=CodeInfo(CODE_VERSION, commit),
-        extra=settings.extra(),
+    manifest, up_to_date = run_job(
+        job,
+        workers=default_workers() if workers is None else workers,
+        scheduler=scheduler,
+        progress=progress,
+        overwrite=overwrite,
+        on_result=on_result,
     )
-    write_manifest(run_dir, manifest)
-    remove_unlisted_shards(run_dir, manifest)
-    (run_dir / STATE_FILE).unlink(missing_ok=True)
+    elapsed = time.monotonic() - start
     if summary:
         out_stream = sys.stdout if stream is None else stream
+        if up_to_date:
+            print(f"{run_dir}: up to date (the same run is complete; --overwrite to run it again)", file=out_stream)
         for line in summarize(run_dir).lines():
             print(line, file=out_stream)
         for line in _timing_lines(timing, elapsed):

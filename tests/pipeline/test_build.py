@@ -17,7 +17,9 @@ import pytest
 
 from catalog.integrity import verify_files
 from catalog.manifest import load_manifest
-from pipeline.build import STATE_FILE, build
+from pipeline.build import build
+from pipeline.runner import STATE_FILE
+from schemas.errors import SpecError
 
 SLICE = "linear-fast"
 EPISODES = 6
@@ -168,11 +170,10 @@ def test_bad_specs_file_names_the_line(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
-def test_an_edited_specs_file_is_not_resumed_from_stale_shards(tmp_path):
-    """A killed build's finished shards are reused only for the same episodes: after the
-    specs file is edited, the changed shard is rebuilt, the unchanged one reused."""
+def test_an_edited_specs_file_is_refused_then_replaced_only_with_overwrite(tmp_path):
+    """A folder built from one specs file is not silently rebuilt from another: the
+    refusal names the specs hash that differs; with overwrite the new episodes replace it."""
     import dataclasses
-    import hashlib
 
     from generators.recipe import spec_for
 
@@ -181,28 +182,29 @@ def test_an_edited_specs_file_is_not_resumed_from_stale_shards(tmp_path):
     path.write_text("".join(s.to_json() + "\n" for s in specs))
     out = tmp_path / "out"
     first = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False)
-    # The state file a build killed just before writing catalog.json leaves behind.
-    source = "specs:" + hashlib.sha256("\n".join(s.to_json() for s in specs).encode()).hexdigest()
-    (out / SLICE / STATE_FILE).write_text(json.dumps({
-        "settings": dict(first.settings), "commit": first.code.commit, "source": source,
-        "shards": [s.to_dict() for s in first.shards],
-    }))
     edited = [specs[0], dataclasses.replace(specs[1], text="Grasp it, please.")]
     path.write_text("".join(s.to_json() + "\n" for s in edited))
-    second = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False)
+    with pytest.raises(SpecError, match="another job.*specs_sha256"):
+        build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False)
+    assert load_manifest(out / SLICE).hash == first.hash
+    second = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False,
+                   overwrite=True)
     texts = [t for shard in second.shards
              for t in pq.read_table(out / SLICE / shard.files["episodes"].path).column("text").to_pylist()]
     assert texts == [specs[0].text, "Grasp it, please."]
 
 
 def test_rebuilding_with_another_shard_size_leaves_no_stale_shards(reference, tmp_path):
-    """A folder rebuilt with another --shard-size (or fewer episodes) holds only the new
-    shards: the old ones would fail `catalog verify` and be read by shards/* globs."""
+    """Another --shard-size is refused; replaced on purpose (overwrite), the folder holds
+    only the new shards: the old ones would fail `catalog verify` and be read by globs."""
     import shutil
 
     _, slice_dir = reference
     shutil.copytree(slice_dir, tmp_path / SLICE)
-    manifest = build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=1, progress=False)
+    with pytest.raises(SpecError, match="another job"):
+        build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=1, progress=False)
+    manifest = build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=1, progress=False,
+                     overwrite=True)
     listed = sorted(Path(f.path).name for s in manifest.shards for f in s.files.values())
     assert sorted(_files(tmp_path / SLICE)) == listed
     verify_files(tmp_path / SLICE)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import pipeline.evaluate as evaluate_module
+import pipeline.runner as runner_module
 from catalog.integrity import verify_files
 from catalog.manifest import load_manifest
 from catalog.shard import ShardWriter, rollout_frame_limit
@@ -119,7 +120,7 @@ def test_an_evaluation_resumes_after_an_interruption(tmp_path, monkeypatch):
     calls.clear()
     evaluate("still", "test-1k", tmp_path / "resumed", **settings)  # complete: nothing to do
     assert calls == []
-    with pytest.raises(SpecError, match="already holds another run"):
+    with pytest.raises(SpecError, match=r"holds another job \(extra.policy \"still\" -> \"oracle\""):
         evaluate("oracle", "test-1k", tmp_path / "resumed", **settings)
 
 
@@ -177,10 +178,12 @@ def test_an_output_folder_that_cannot_be_made_is_one_line_and_exit_2(command, tm
     assert err.startswith(f"pipeline {command}: ") and "Not a directory" in err and len(err.strip().splitlines()) == 1
 
 
-def test_a_rerun_with_another_layout_leaves_no_stale_shards(tmp_path):
+def test_a_rerun_with_another_layout_is_refused_and_overwrite_leaves_no_stale_shards(tmp_path):
     settings = dict(resolution=RESOLUTION, workers=0, progress=False, summary=False)
     evaluate("still", "test-1k", tmp_path / "run", episodes=2, shard_size=1, **settings)
-    manifest = evaluate("still", "test-1k", tmp_path / "run", episodes=2, shard_size=2, **settings)
+    with pytest.raises(SpecError, match="another job .*shards"):
+        evaluate("still", "test-1k", tmp_path / "run", episodes=2, shard_size=2, **settings)
+    manifest = evaluate("still", "test-1k", tmp_path / "run", episodes=2, shard_size=2, overwrite=True, **settings)
     listed = sorted(Path(f.path).name for s in manifest.shards for f in s.files.values())
     assert sorted(p.name for p in (tmp_path / "run" / "shards").iterdir()) == listed
     verify_files(tmp_path / "run")
@@ -200,7 +203,7 @@ def test_a_complete_run_by_other_code_is_not_reused(tmp_path, monkeypatch):
     monkeypatch.setattr(evaluate_module, "eval_shard", counted)
     evaluate("still", "test-1k", tmp_path / "run", **settings)
     assert calls == []
-    monkeypatch.setattr(evaluate_module, "git_commit", lambda: "0123456789abcdef0123456789abcdef01234567")
+    monkeypatch.setattr(runner_module, "git_commit", lambda: "0123456789abcdef0123456789abcdef01234567")
     manifest = evaluate("still", "test-1k", tmp_path / "run", **settings)
     assert calls == [0]
     assert manifest.code.commit == "0123456789abcdef0123456789abcdef01234567"

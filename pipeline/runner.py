@@ -1,0 +1,412 @@
+"""One driver for sharded jobs: `pipeline build`, `pipeline eval` and anything after them.
+
+A :class:`Job` names an output folder, what it will hold (slice, seed, settings, extra
+manifest keys such as a specs file's hash, shard ranges) and a worker function that writes one
+shard. :func:`run_job` owns everything around the shards:
+
+- the folder holds one job: a ``catalog.json`` (or a killed run's ``.build-state.json``)
+  describing anything else is refused with a message naming what differs, unless
+  ``overwrite``; a second process on the folder is refused by a lock;
+- stray temporaries of dead processes are removed; finished shards of an interrupted
+  run of the same job (same code commit) whose files still match their sha256 are kept,
+  so a killed run resumes, and a complete identical folder is reported up to date;
+- the shards run as Dask tasks (a local cluster of single-threaded worker processes,
+  one per core by default, or an existing ``--scheduler``), or in this process with
+  ``workers=0``; progress lines go to stderr;
+- ``catalog.json`` is written last (one way, :meth:`catalog.manifest.Manifest.create`),
+  then files of an earlier, replaced job are removed.
+
+The manifest's hash covers the settings and the ordered file hashes only, so the worker
+count, the scheduler and interruptions cannot change it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+import re
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from catalog.atomic import atomic_write_text, remove_stray_temps
+from catalog.hashing import sha256_file
+from catalog.manifest import CodeInfo, Manifest, git_commit, load_manifest, manifest_path, write_manifest
+from catalog.records import ShardRecord
+from schemas.errors import DyanaError, ShardError, SpecError
+from schemas.spec import EpisodeSpec
+from schemas.versions import CODE_VERSION
+
+STATE_FILE = ".build-state.json"
+LOCK_FILE = ".lock"
+#: The most local worker processes a run starts (each holds a simulator and a renderer).
+MAX_WORKERS = 64
+
+#: Worker settings for CPU-bound whole-shard tasks: no statistical profiler sampling the
+#: task thread every 10 ms, no work stealing of long tasks, no spilling (results are tiny).
+LEAN_WORKERS = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.scheduler.work-stealing": False,
+    "distributed.worker.memory.spill": False,
+    "distributed.worker.memory.target": False,
+}
+
+
+def default_workers() -> int:
+    """One worker per core this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+@dataclass(frozen=True)
+class ShardTask:
+    """One shard: episodes [first, end) of ``slice_name``, from the recipe or from given specs."""
+
+    slice_name: str
+    first: int
+    end: int
+    specs_json: tuple[str, ...] | None = None
+
+    def specs(self) -> list[EpisodeSpec]:
+        if self.specs_json is not None:
+            return [EpisodeSpec.from_json(text) for text in self.specs_json]
+        from generators.recipe import spec_for
+
+        return [spec_for(self.slice_name, i) for i in range(self.first, self.end)]
+
+
+def shard_ranges(episodes: int, shard_size: int) -> list[tuple[int, int]]:
+    """Fixed episode ranges [first, end) of at most ``shard_size`` episodes."""
+    if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
+        raise SpecError(f"--shard-size must be an integer >= 1, got {shard_size!r}")
+    return [(a, min(a + shard_size, episodes)) for a in range(0, episodes, shard_size)]
+
+
+@dataclass(frozen=True)
+class Job:
+    """A sharded job. ``task_fn(task, payload, folder)`` runs in a worker and returns a
+    dict with the shard's ``record`` (a ShardRecord dict) and anything else the caller's
+    ``on_result`` wants (timing). ``extra`` are the manifest's top-level keys beyond the
+    contract's; with ``settings``, ``slice``, ``seed`` and the shard ranges they say what
+    the folder holds."""
+
+    folder: Path
+    slice_name: str
+    seed: int | None
+    settings: Mapping[str, Any]
+    extra: Mapping[str, Any]
+    tasks: tuple[ShardTask, ...]
+    task_fn: Callable[[ShardTask, Any, str], dict]
+    payload: Any
+    verb: str = "built"
+    key_prefix: str = "shard"
+    ranges: tuple[tuple[int, int], ...] = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ranges", tuple((t.first, t.end) for t in self.tasks))
+
+    @property
+    def episodes(self) -> int:
+        return self.ranges[-1][1] if self.ranges else 0
+
+    def identity(self) -> dict[str, Any]:
+        """What the folder must already hold for this job to reuse it."""
+        return {
+            "slice": self.slice_name,
+            "seed": self.seed,
+            "episodes": self.episodes,
+            "shards": [list(r) for r in self.ranges],
+            "settings": dict(self.settings),
+            **{f"extra.{k}": v for k, v in sorted(self.extra.items())},
+        }
+
+
+def _manifest_identity(manifest: Manifest) -> dict[str, Any]:
+    return {
+        "slice": manifest.slice,
+        "seed": manifest.seed,
+        "episodes": manifest.episodes,
+        "shards": [list(s.episodes) for s in manifest.shards],
+        "settings": dict(manifest.settings),
+        **{f"extra.{k}": v for k, v in sorted(manifest.extra.items())},
+    }
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def describe_difference(held: Mapping[str, Any], wanted: Mapping[str, Any]) -> str:
+    """The first few keys on which two identities differ, as ``key held -> wanted``."""
+    keys = [k for k in sorted(set(held) | set(wanted)) if held.get(k) != wanted.get(k)]
+    if "shards" in keys and "episodes" in keys:
+        keys.remove("shards")
+    parts = [f"{k} {_short(held.get(k))} -> {_short(wanted.get(k))}" for k in keys[:3]]
+    if len(keys) > 3:
+        parts.append(f"and {len(keys) - 3} more")
+    return "; ".join(parts)
+
+
+class FolderBusy(DyanaError):
+    """Another process holds the folder's lock."""
+
+
+@contextlib.contextmanager
+def folder_lock(folder: Path) -> Iterator[None]:
+    """Hold ``folder/.lock`` for the duration: one job per folder at a time.
+
+    The lock is the kernel's (``flock``), so a killed holder releases it; the file is
+    removed while still held, leaving nothing behind after a finished run."""
+    path = folder / LOCK_FILE
+    handle = open(path, "a+")
+    held = False
+    try:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise FolderBusy(f"{folder}: another process is writing this folder (lock {path} is held)") from None
+        held = True
+        yield
+    finally:
+        if held:
+            path.unlink(missing_ok=True)
+        handle.close()
+
+
+def _intact(folder: Path, record: ShardRecord) -> bool:
+    return all((folder / f.path).is_file() and sha256_file(folder / f.path) == f.sha256 for f in record.files.values())
+
+
+def _previous_work(job: Job, commit: str | None, overwrite: bool) -> tuple[dict[tuple[int, int], ShardRecord], bool]:
+    """Finished shards this job may keep, and whether the folder is already complete.
+
+    Refuses (SpecError) a folder holding another job unless ``overwrite``."""
+    folder, wanted = job.folder, job.identity()
+    state_path = folder / STATE_FILE
+    held: dict[str, Any] | None = None
+    records: list[ShardRecord] = []
+    code: tuple[str | None, str | None] = (None, None)
+    complete = False
+    if manifest_path(folder).exists():
+        try:
+            manifest = load_manifest(folder)
+        except ShardError:
+            if not overwrite:
+                raise
+        else:
+            held, records, complete = _manifest_identity(manifest), list(manifest.shards), True
+            code = (manifest.code.version, manifest.code.commit)
+    if held is None and state_path.exists():
+        try:
+            state = json.loads(state_path.read_text())
+            held = state["identity"]
+            records = [ShardRecord.from_dict(raw) for raw in state["shards"]]
+            code = (state["code"]["version"], state["code"]["commit"])
+        except (OSError, ValueError, KeyError, TypeError, ShardError) as exc:
+            if not overwrite:
+                raise ShardError(
+                    f"{state_path}: unreadable state of an interrupted run ({type(exc).__name__}); "
+                    "pass --overwrite to start the folder afresh"
+                ) from None
+            held = None
+    if held is None:
+        return {}, False
+    if held != wanted:
+        if overwrite:
+            manifest_path(folder).unlink(missing_ok=True)
+            state_path.unlink(missing_ok=True)
+            return {}, False
+        what = "holds" if complete else "holds an unfinished run of"
+        raise SpecError(
+            f"{folder} {what} another job ({describe_difference(held, wanted)}): "
+            "choose another --out, or pass --overwrite to replace it"
+        )
+    if code != (CODE_VERSION, commit):
+        return {}, False
+    done = {tuple(r.episodes): r for r in records if _intact(folder, r)}
+    return done, complete and len(done) == len(records)
+
+
+def _save_state(job: Job, commit: str | None, done: Mapping[tuple[int, int], ShardRecord]) -> None:
+    state = {
+        "identity": job.identity(),
+        "code": {"version": CODE_VERSION, "commit": commit},
+        "shards": [done[key].to_dict() for key in sorted(done)],
+    }
+    atomic_write_text(job.folder / STATE_FILE, json.dumps(state, sort_keys=True, indent=2) + "\n")
+
+
+class Progress:
+    """One line per finished shard on stderr: shards, frames, frames/s, ETA."""
+
+    def __init__(self, total_shards: int, total_episodes: int, stream=sys.stderr) -> None:
+        self.total_shards = total_shards
+        self.total_episodes = total_episodes
+        self.stream = stream
+        self.start = time.monotonic()
+        self.shards = 0
+        self.episodes = 0
+        self.frames = 0
+
+    def update(self, record: ShardRecord, skipped: bool = False) -> None:
+        self.shards += 1
+        self.episodes += record.episodes[1] - record.episodes[0]
+        if skipped:
+            return
+        self.frames += record.frames
+        elapsed = max(time.monotonic() - self.start, 1e-9)
+        rate = self.frames / elapsed
+        left = self.total_episodes - self.episodes
+        eta = left * (self.frames / max(self.episodes, 1)) / max(rate, 1e-9)
+        print(
+            f"[{self.shards}/{self.total_shards} shards] {self.episodes}/{self.total_episodes} episodes, "
+            f"{self.frames} frames, {rate:.1f} frames/s, {self.shards / elapsed * 60:.1f} shards/min, "
+            f"eta {eta:.0f}s",
+            file=self.stream,
+            flush=True,
+        )
+
+
+def check_workers(workers: int, scheduler: str | None) -> None:
+    if scheduler:
+        return
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= MAX_WORKERS:
+        raise SpecError(f"--workers must be an integer in [1, {MAX_WORKERS}], got {workers!r}")
+
+
+def run_tasks(
+    tasks: Sequence[ShardTask],
+    task_fn: Callable[[ShardTask, Any, str], dict],
+    payload: Any,
+    folder: Path,
+    workers: int,
+    scheduler: str | None,
+    on_done: Callable[[dict], None],
+    key_prefix: str = "shard",
+) -> None:
+    """Run ``task_fn(task, payload, str(folder))`` for every task on a local cluster (one
+    single-threaded process per worker), on an existing scheduler, or in this process
+    (``workers == 0``); call ``on_done`` in the driver with each result as it finishes."""
+    if not tasks:
+        return
+    if workers == 0 and not scheduler:
+        for task in tasks:
+            on_done(task_fn(task, payload, str(folder)))
+        return
+    import dask
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    with dask.config.set(LEAN_WORKERS):
+        cluster = None
+        if scheduler:
+            try:
+                client = Client(scheduler, timeout="30s")
+            except (OSError, ValueError, TypeError) as exc:  # unreachable, timed out, or not an address
+                raise DyanaError(f"--scheduler {scheduler!r}: cannot connect to the Dask scheduler: {exc}") from None
+        else:
+            cluster = LocalCluster(
+                n_workers=min(workers, len(tasks)),
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=40,
+            )
+            try:
+                client = Client(cluster)
+            except BaseException:
+                cluster.close()
+                raise
+        try:
+            futures = [
+                client.submit(
+                    task_fn, task, payload, str(folder), key=f"{key_prefix}-{task.first:06d}-{task.end:06d}", pure=False
+                )
+                for task in tasks
+            ]
+            for future in as_completed(futures):
+                on_done(future.result())
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+_SHARD_FILE = re.compile(r"\d{6}-\d{6}\.(frames\.parquet|episodes\.parquet|mcap)")
+
+
+def remove_unlisted_shards(folder: Path, manifest: Manifest) -> list[Path]:
+    """Delete shard files in ``folder/shards`` that ``manifest`` does not list: what is
+    left of a job this one replaced (``--overwrite``), which would otherwise fail
+    ``catalog verify`` and be picked up by ``shards/*.parquet`` globs. Only files named
+    like shards are touched."""
+    listed = {path for path, _, _ in manifest.files()}
+    removed = []
+    shard_dir = folder / "shards"
+    for path in sorted(shard_dir.iterdir()) if shard_dir.is_dir() else []:
+        if _SHARD_FILE.fullmatch(path.name) and f"shards/{path.name}" not in listed and path.is_file():
+            path.unlink()
+            removed.append(path)
+    return removed
+
+
+def run_job(
+    job: Job,
+    *,
+    workers: int,
+    scheduler: str | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+    on_result: Callable[[dict], None] | None = None,
+) -> tuple[Manifest, bool]:
+    """Run ``job`` into its folder; the manifest, and whether the folder was already up to date."""
+    check_workers(workers, scheduler)
+    folder = job.folder
+    try:
+        (folder / "shards").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SpecError(f"{folder}: cannot create the output folder ({exc.strerror or exc})") from None
+    with folder_lock(folder):
+        remove_stray_temps(folder)
+        commit = git_commit()
+        done, complete = _previous_work(job, commit, overwrite)
+        if complete:
+            return load_manifest(folder), True
+        done = {key: record for key, record in done.items() if key in set(job.ranges)}
+        todo = [task for task in job.tasks if (task.first, task.end) not in done]
+
+        meter = Progress(len(job.ranges), job.episodes) if progress else None
+        if meter is not None and done:
+            print(f"resuming: {len(done)} of {len(job.ranges)} shards already {job.verb}", file=sys.stderr)
+            for key in sorted(done):
+                meter.update(done[key], skipped=True)
+
+        def on_done(result: dict) -> None:
+            record = ShardRecord.from_dict(result["record"])
+            done[tuple(record.episodes)] = record
+            _save_state(job, commit, done)
+            if on_result is not None:
+                on_result(result)
+            if meter is not None:
+                meter.update(record)
+
+        run_tasks(todo, job.task_fn, job.payload, folder, workers, scheduler, on_done, job.key_prefix)
+
+        manifest = Manifest.create(
+            job.slice_name,
+            job.seed,
+            job.settings,
+            [done[key] for key in job.ranges],
+            code=CodeInfo(CODE_VERSION, commit),
+            extra=job.extra,
+        )
+        write_manifest(folder, manifest)
+        remove_unlisted_shards(folder, manifest)
+        (folder / STATE_FILE).unlink(missing_ok=True)
+    return manifest, False
