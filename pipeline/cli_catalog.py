@@ -6,24 +6,20 @@
 inspect, edit and build with ``pipeline build --specs``.
 
 It lives in ``pipeline`` because it needs the recipe (``generators``), which the
-``catalog`` package may not import. Each subcommand is one ``_add_*`` function that
-registers its parser and handler; errors print one line and exit with code 2.
+``catalog`` package may not import. Each subcommand is a :class:`schemas.cli.Command`;
+errors print one line and exit with code 2 (see :mod:`schemas.cli`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-from typing import Callable
+from collections.abc import Sequence
 
-from pipeline.cli_args import OneLineParser, positive_int
-from schemas.errors import DyanaError
+from schemas import cli
 from schemas.slices import get_slice
 from schemas.versions import FPS
-
-EXIT_ERROR = 2
 
 
 def _print_json(data) -> None:
@@ -47,10 +43,8 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_list(sub) -> None:
-    p = sub.add_parser("list", help="list the slices with their episode and frame counts")
-    p.add_argument("--json", action="store_true", help="print a JSON list instead of a table")
-    p.set_defaults(func=cmd_list)
+def _list_arguments(p: argparse.ArgumentParser) -> None:
+    cli.add_json(p, "print a JSON list instead of a table")
 
 
 def cmd_stats(args: argparse.Namespace) -> int:
@@ -75,12 +69,10 @@ def cmd_stats(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_stats(sub) -> None:
-    p = sub.add_parser("stats", help="enumerate a slice's recipe and print its statistics")
+def _stats_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("slice", metavar="SLICE", help="slice name (see `catalog list`)")
-    p.add_argument("--episodes", type=int, default=None, metavar="N", help="only the first N episodes")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=cmd_stats)
+    cli.add_episodes(p)
+    cli.add_json(p, "print one JSON object")
 
 
 def cmd_specs(args: argparse.Namespace) -> int:
@@ -94,11 +86,9 @@ def cmd_specs(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_specs(sub) -> None:
-    p = sub.add_parser("specs", help="print a slice's episode specs as JSONL (edit, then `pipeline build --specs`)")
+def _specs_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("slice", metavar="SLICE", help="slice name (see `catalog list`)")
-    p.add_argument("--episodes", type=int, default=None, metavar="N", help="only the first N episodes")
-    p.set_defaults(func=cmd_specs)
+    cli.add_episodes(p)
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
@@ -115,39 +105,24 @@ def cmd_verify(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_verify(sub) -> None:
-    p = sub.add_parser("verify", help="check every file's sha256 and rebuild shards to compare bytes")
+def _verify_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", metavar="DIR", help="a built slice or rollout folder (holding catalog.json)")
-    p.add_argument("--sample", type=positive_int, default=None, metavar="K", help="rebuild only K shards (default: all)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.set_defaults(func=cmd_verify)
+    p.add_argument("--sample", type=cli.positive_int, default=None, metavar="K", help="rebuild only K shards (default: all)")
+    cli.add_quiet(p)
 
 
-#: Subcommand registrars, in help order; add one function per new subcommand.
-SUBCOMMANDS: list[Callable] = [_add_list, _add_stats, _add_specs, _add_verify]
+COMMANDS = (
+    cli.Command("list", "list the slices with their episode and frame counts", _list_arguments, cmd_list),
+    cli.Command("stats", "enumerate a slice's recipe and print its statistics", _stats_arguments, cmd_stats),
+    cli.Command(
+        "specs", "print a slice's episode specs as JSONL (edit, then `pipeline build --specs`)", _specs_arguments, cmd_specs
+    ),
+    cli.Command("verify", "check every file's sha256 and rebuild shards to compare bytes", _verify_arguments, cmd_verify),
+)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineParser(prog="catalog", description="Dyana slices: list, statistics, episode specs and verification.")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
-    sub.required = True
-    for add in SUBCOMMANDS:
-        add(sub)
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except DyanaError as exc:
-        message = " ".join(str(exc).split())
-        print(f"catalog: error: {message}", file=sys.stderr)
-        return EXIT_ERROR
-    except BrokenPipeError:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        return 1
+def main(argv: Sequence[str] | None = None) -> int:
+    return cli.run("catalog", "Dyana slices: list, statistics, episode specs and verification.", COMMANDS, argv)
 
 
 if __name__ == "__main__":

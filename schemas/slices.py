@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from schemas.names import shorten
 from schemas.errors import SliceError, SpecError
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
 
@@ -96,4 +97,4 @@ def get_slice(name: str) -> SliceDef:
     """Look a slice up by name; an unknown name raises :class:`SliceError` listing the known ones."""
     if isinstance(name, str) and name in SLICES:
         return SLICES[name]
-    raise SliceError(f"unknown slice {name!r} (expected one of: {', '.join(SLICES)})")
+    raise SliceError(f"unknown slice {shorten(name)!r} (expected one of: {', '.join(SLICES)})")

@@ -16,6 +16,7 @@ from typing import Any
 from schemas.errors import SpecError
 from schemas.motion import Motion, _load_json
 from schemas.objects import object_category
+from schemas.names import validate_name
 from schemas.scene import GRASP_FRAMES, HANDS, HORIZON_FACTOR, INTERCEPT_SECONDS, MOTION_TYPES, ROLLOUT_FORMATS
 from schemas.versions import FPS
 
@@ -88,8 +89,7 @@ class EpisodeSpec:
     text: str
 
     def __post_init__(self) -> None:
-        if not isinstance(self.slice, str) or not self.slice:
-            raise SpecError(f"spec.slice must be a non-empty string, got {self.slice!r}")
+        validate_name("spec.slice", self.slice)
         object.__setattr__(self, "episode_index", _int("episode_index", self.episode_index, 0, _INT64_MAX))
         object.__setattr__(self, "seed", _int("seed", self.seed, 0, _INT64_MAX))
         _choice("motion_type", self.motion_type, _MOTION_TYPES)

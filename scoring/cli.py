@@ -13,21 +13,18 @@ import sys
 from collections.abc import Sequence
 
 from catalog.atomic import atomic_open
+from schemas import cli
 from schemas.errors import DyanaError
 from scoring.io import load_run
 from scoring.report import RunReport, csv_text, default_label, format_table, markdown, report_dict, score_run, unique_labels
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="scoring", description="Score recorded rollouts with the paper's metrics.")
-    commands = parser.add_subparsers(dest="command", required=True)
-    evaluate = commands.add_parser("eval", help="score one or more runs (or built slices for the GT row)")
-    evaluate.add_argument("runs", nargs="+", metavar="RUN", help="a folder with catalog.json and its shards")
-    evaluate.add_argument("--json", action="store_true", help="print JSON (an object for one run, a list for several)")
-    evaluate.add_argument("--plot", metavar="FILE.png", help="write a radar chart and per-motion bars")
-    evaluate.add_argument("--markdown", metavar="FILE.md", help="write the tables as Markdown")
-    evaluate.add_argument("--csv", metavar="FILE.csv", help="write every summary row as CSV")
-    return parser
+def _eval_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("runs", nargs="+", metavar="RUN", help="a folder with catalog.json and its shards")
+    cli.add_json(p, "print JSON (an object for one run, a list for several)")
+    p.add_argument("--plot", metavar="FILE.png", help="write a radar chart and per-motion bars")
+    p.add_argument("--markdown", metavar="FILE.md", help="write the tables as Markdown")
+    p.add_argument("--csv", metavar="FILE.csv", help="write every summary row as CSV")
 
 
 def evaluate(runs: Sequence[str]) -> list[RunReport]:
@@ -45,7 +42,7 @@ def _write(path: str, text: str) -> None:
         raise DyanaError(f"{path}: cannot write: {exc.strerror or exc}") from None
 
 
-def _run_eval(args: argparse.Namespace) -> None:
+def cmd_eval(args: argparse.Namespace) -> int:
     reports = evaluate(args.runs)
     if args.json:
         payload = [report_dict(r) for r in reports]
@@ -63,17 +60,14 @@ def _run_eval(args: argparse.Namespace) -> None:
             plot_runs(reports, args.plot)
         except OSError as exc:
             raise DyanaError(f"{args.plot}: cannot write: {exc.strerror or exc}") from None
+    return 0
+
+
+COMMANDS = (cli.Command("eval", "score one or more runs (or built slices for the GT row)", _eval_arguments, cmd_eval),)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        if args.command == "eval":
-            _run_eval(args)
-    except DyanaError as exc:
-        print(f"scoring: error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return cli.run("scoring", "Score recorded rollouts with the paper's metrics.", COMMANDS, argv)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,207 @@
+"""One command-line layer for the three console scripts (`pipeline`, `catalog`, `scoring`).
+
+A program is a list of :class:`Command` (name, help, arguments, handler) given to
+:func:`run`. Shared options are defined once here (:func:`add_episodes`,
+:func:`add_workers`, ...), so a flag means and checks the same in every command. The
+layer guarantees what users and scripts rely on:
+
+- usage errors and every expected failure are one line, ``PROG CMD: error: MESSAGE``
+  on stderr, with bad values echoed truncated; never a traceback;
+- exit codes come from one map (:data:`EXIT_CODES`): 2 for bad input or an unusable
+  file, 1 for a replay that differs, 130 on Ctrl-C, 141 when the reader of stdout went
+  away (``catalog specs ... | head``), 0 otherwise;
+- a full or closed stdout is reported once, cleanly, even when only the final flush
+  finds it;
+- ``--version`` on the program and on every command.
+
+It lives in ``schemas`` (which imports nothing of ours but itself) so that ``scoring``,
+which must not import ``pipeline``, shares it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import os
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from schemas.errors import DyanaError, ReplayMismatch
+from schemas.names import shorten
+from schemas.versions import CODE_VERSION
+
+#: The longest error line printed (values inside it are cut shorter, see schemas.names).
+MESSAGE_LIMIT = 600
+EXIT_OK, EXIT_DIFFERENT, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 0, 1, 2, 130, 141
+#: Exception type -> exit code, most specific first.
+EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (
+    (ReplayMismatch, EXIT_DIFFERENT),
+    (DyanaError, EXIT_BAD_INPUT),
+    (OSError, EXIT_BAD_INPUT),
+)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line and exit 2, like every other Dyana error."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {shorten(message, MESSAGE_LIMIT)} (see --help)\n")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One subcommand: ``add_arguments(parser)`` declares its flags, ``run(args)`` returns the exit code."""
+
+    name: str
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+
+
+# --- argument types --------------------------------------------------------------
+
+
+def positive_int(text: str) -> int:
+    """A whole number >= 1, with a message naming the bad value."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {shorten(text)!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {shorten(text)!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {shorten(text)!r}") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {shorten(text)!r}")
+    return value
+
+
+def port(text: str) -> int:
+    """A TCP port, 0 meaning any free one."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {shorten(text)!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port in [0, 65535] (0 = any free port), got {shorten(text)!r}")
+    return value
+
+
+# --- shared options ----------------------------------------------------------------
+
+
+def add_episodes(parser: argparse.ArgumentParser, what: str = "only the first N episodes") -> None:
+    parser.add_argument("--episodes", type=positive_int, metavar="N", help=what)
+
+
+def add_workers(parser: argparse.ArgumentParser) -> None:
+    """``--workers`` and ``--scheduler``: where the shards run."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    parser.add_argument(
+        "--workers", type=positive_int, default=None,
+        help=f"local single-threaded worker processes (default: one per core, {cores} here)",
+    )
+    parser.add_argument("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
+
+
+def add_resolution(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--resolution", type=positive_int, default=224, help="image side in pixels (default: 224)")
+
+
+def add_shard_size(parser: argparse.ArgumentParser, default: int) -> None:
+    parser.add_argument(
+        "--shard-size", type=positive_int, default=default, help=f"episodes per shard (default: {default})"
+    )
+
+
+def add_overwrite(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--overwrite", action="store_true",
+        help="replace what the output folder holds if it is another build or run (nothing is replaced without it)",
+    )
+
+
+def add_quiet(parser: argparse.ArgumentParser, what: str = "no progress lines") -> None:
+    parser.add_argument("--quiet", action="store_true", help=what)
+
+
+def add_json(parser: argparse.ArgumentParser, what: str = "print JSON instead of a table") -> None:
+    parser.add_argument("--json", action="store_true", help=what)
+
+
+# --- running ---------------------------------------------------------------------------
+
+
+def _version(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--version", action="version", version=f"%(prog)s (dyana {CODE_VERSION})")
+
+
+def make_parser(prog: str, description: str, commands: Sequence[Command]) -> OneLineParser:
+    parser = OneLineParser(prog=prog, description=description)
+    _version(parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=OneLineParser)
+    for command in commands:
+        p = sub.add_parser(command.name, help=command.help, description=command.help)
+        _version(p)
+        command.add_arguments(p)
+        p.set_defaults(run=command.run)
+    return parser
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush cannot fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+
+
+def exit_code(exc: BaseException) -> int:
+    for kind, code in EXIT_CODES:
+        if isinstance(exc, kind):
+            return code
+    raise exc
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one short line (OSError by its reason and file)."""
+    if isinstance(exc, OSError) and not isinstance(exc, DyanaError) and exc.strerror:
+        where = f"{exc.filename}: " if exc.filename else ""
+        text = f"{where}{exc.strerror}"
+    else:
+        text = str(exc) or type(exc).__name__
+    return shorten(" ".join(text.split()), MESSAGE_LIMIT)
+
+
+def run(prog: str, description: str, commands: Sequence[Command], argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv``, run the command, map failures to one line and an exit code."""
+    args = make_parser(prog, description, commands).parse_args(argv)
+    where = f"{prog} {args.command}"
+    try:
+        code = args.run(args)
+        sys.stdout.flush()
+        return code
+    except KeyboardInterrupt:
+        print(f"{where}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
+    except (DyanaError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EPIPE, errno.EIO) and exc.filename is None:
+            _silence_stdout()
+            message = f"cannot write the output: {exc.strerror}"
+        else:
+            message = one_line(exc)
+        print(f"{where}: error: {message}", file=sys.stderr)
+        return exit_code(exc)

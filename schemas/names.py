@@ -1,0 +1,37 @@
+"""Names that come from input, and how input is echoed back in messages.
+
+A slice name, a policy name or an episode id from a spec, a manifest or the command
+line is a *name*, never a path: :func:`validate_name` accepts a short lower-case word
+(letters, digits, ``.``, ``_``, ``-``; no separator, no leading dot, not ``.``/``..``),
+so joining it under an output folder cannot leave that folder. :func:`shorten` keeps
+an echoed value short, so a 100 MB field gives a one-line error.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from schemas.errors import SpecError
+
+NAME_PATTERN = re.compile(r"[a-z0-9][a-z0-9._-]{0,63}")
+ECHO_LIMIT = 120
+
+
+def shorten(value: Any, limit: int = ECHO_LIMIT) -> str:
+    """``value`` as text of at most ``limit`` characters (``...`` and the full length when cut)."""
+    text = value if isinstance(value, str) else repr(value)
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit - 3]}... ({len(text):,} characters)"
+
+
+def validate_name(kind: str, value: Any) -> str:
+    """``value`` if it is a valid name; SpecError naming ``kind`` and the value otherwise."""
+    if not isinstance(value, str) or not NAME_PATTERN.fullmatch(value) or set(value) <= {"."}:
+        raise SpecError(
+            f"{kind} must be a name of 1-64 characters a-z, 0-9, '.', '_', '-' starting with a letter or digit "
+            f"(never a path), got {shorten(value)!r}" if isinstance(value, str) else
+            f"{kind} must be a name (a string), got {shorten(value)}"
+        )
+    return value

@@ -1,0 +1,75 @@
+"""The one CLI layer (schemas.cli) as users meet it through the three console scripts:
+one-line errors, exit codes, --version, pipes and full devices."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from schemas.versions import CODE_VERSION
+
+BIN = Path(sys.executable).parent
+
+
+def run(*args: str, stdout=subprocess.PIPE) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / args[0]), *args[1:]], stdout=stdout, stderr=subprocess.PIPE, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    "args",
+    [("pipeline",), ("pipeline", "build"), ("pipeline", "eval"), ("catalog",), ("catalog", "specs"), ("scoring", "eval")],
+)
+def test_version_everywhere(args):
+    result = run(*args, "--version")
+    assert result.returncode == 0, result.stderr
+    assert f"dyana {CODE_VERSION}" in result.stdout
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("pipeline", "build", "--slice", "linear-fast", "--episodes", "0"),
+        ("pipeline", "eval", "--policy", "still", "--out", "x", "--episodes", "0"),
+        ("catalog", "stats", "linear-fast", "--episodes", "0"),
+        ("catalog", "specs", "linear-fast", "--episodes", "0"),
+    ],
+)
+def test_episodes_zero_is_refused_alike_by_every_command(args):
+    result = run(*args)
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1
+    assert "argument --episodes: expected a number >= 1, got '0'" in result.stderr
+
+
+@pytest.mark.parametrize("prog", ["pipeline", "catalog", "scoring"])
+def test_usage_errors_are_one_line_with_the_program_named(prog):
+    result = run(prog, "no-such-command")
+    assert result.returncode == 2
+    assert result.stderr.startswith(f"{prog}: error: ") and result.stderr.count("\n") == 1
+
+
+def test_a_huge_bad_value_gives_a_short_line():
+    result = run("pipeline", "build", "--slice", "x" * 100_000, "--episodes", "1")
+    assert result.returncode == 2
+    assert len(result.stderr) < 1000 and "100,000 characters" in result.stderr
+
+
+def test_a_reader_that_goes_away_is_no_traceback():
+    shell = f"{BIN / 'catalog'} specs linear-fast --episodes 2000 | head -1"
+    result = subprocess.run(["bash", "-o", "pipefail", "-c", shell], capture_output=True, text=True, timeout=120)
+    assert result.stdout.count("\n") == 1
+    assert result.stderr == ""
+    assert result.returncode == 141
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.parametrize("args", [("catalog", "list"), ("catalog", "specs", "test-1k", "--episodes", "50")])
+def test_a_full_stdout_is_one_line_and_exit_2(args):
+    with open("/dev/full", "w") as full:
+        result = run(*args, stdout=full)
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and "No space left on device" in result.stderr
+    assert "Traceback" not in result.stderr and "Exception ignored" not in result.stderr
