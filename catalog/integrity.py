@@ -14,12 +14,17 @@ from pathlib import Path
 import numpy as np
 
 from catalog.atomic import find_stray_temps
-from catalog.hashing import sha256_file
 from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.mcap_io import check_mcap
 from catalog.parquet_io import check_parquet, open_parquet, table_kind
+from catalog.reader import check_file
 from catalog.records import SHARDS_DIR, ShardRecord
-from schemas.errors import ShardError
+from schemas.errors import (
+    ShardError,
+    ShardHashMismatch,
+    ShardMissing,
+    ShardSizeMismatch,
+)
 
 #: Problem kinds, in the order a file is checked.
 KINDS = ("missing", "size", "sha256", "unreadable", "stray-temp", "unlisted")
@@ -40,15 +45,11 @@ class Problem:
 def _check_file(root: Path, shard: ShardRecord, kind: str, full: bool) -> Problem | None:
     record = shard.files[kind]
     path = root / record.path
-    if not path.is_file():
-        return Problem(record.path, "missing", "file is missing")
-    size = path.stat().st_size
-    if size != record.size:
-        state = "truncated" if size < record.size else "longer than recorded"
-        return Problem(record.path, "size", f"{state}: {size} bytes, catalog.json says {record.size}")
-    digest = sha256_file(path)
-    if digest != record.sha256:
-        return Problem(record.path, "sha256", f"content changed: sha256 {digest}, catalog.json says {record.sha256}")
+    try:
+        check_file(root, record, "sha256")
+    except ShardError as exc:
+        found = {ShardMissing: "missing", ShardSizeMismatch: "size", ShardHashMismatch: "sha256"}.get(type(exc), "unreadable")
+        return Problem(record.path, found, str(exc).removeprefix(f"{path}: "))
     try:
         if kind == "frames":
             check_parquet(path, "frames", rows=shard.frames)

@@ -27,7 +27,13 @@ import numpy as np
 from catalog import atomic
 from catalog.hashing import FILE_KINDS, canonical_json, sha256_file
 from catalog.mcap_io import McapShardWriter
-from catalog.parquet_io import TableWriter, episode_row, episodes_table, frames_table, write_table
+from catalog.parquet_io import (
+    TableWriter,
+    episode_row,
+    episodes_table,
+    frames_table,
+    write_table,
+)
 from catalog.records import FileRecord, ShardRecord, shard_paths
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames

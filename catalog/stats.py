@@ -28,9 +28,10 @@ from typing import Any
 import numpy as np
 
 from catalog.atomic import atomic_write_text
-from catalog.hashing import is_sha256, sha256_file
+from catalog.hashing import is_sha256
 from catalog.manifest import Manifest, load_manifest
-from catalog.parquet_io import column_to_numpy, read_frames
+from catalog.parquet_io import column_to_numpy
+from catalog.reader import open_folder
 from schemas.errors import ShardError
 from schemas.tables import ARRAY_WIDTHS, STATE_COLUMNS
 
@@ -163,17 +164,14 @@ def compute_stats(
     ``verify`` also checks each frames file's sha256 against the manifest (reading,
     not decoding, the image bytes); page checksums are verified either way.
     """
-    root = Path(directory)
-    manifest = load_manifest(root) if manifest is None else manifest
+    folder = open_folder(directory, verify="sha256" if verify else "size")
+    if manifest is not None and manifest.hash != folder.manifest.hash:
+        raise ShardError(f"{folder.root}: catalog.json changed while its statistics were computed")
+    manifest = folder.manifest
     accumulators = {name: _Accumulator(SHAPES[name]) for name in STATS_COLUMNS}
-    for shard in manifest.shards:
-        record = shard.files["frames"]
-        path = root / record.path
-        if verify and path.is_file() and sha256_file(path) != record.sha256:
-            raise ShardError(f"{path}: content changed: sha256 does not match catalog.json")
-        table = read_frames(path, list(STATS_COLUMNS))
-        if table.num_rows != shard.frames:
-            raise ShardError(f"{path}: has {table.num_rows} rows, catalog.json says {shard.frames}")
+    for shard in folder:
+        path = shard.path("frames")
+        table = shard.frames(list(STATS_COLUMNS))
         for name in STATS_COLUMNS:
             values = column_to_numpy(table.column(name))
             if not np.isfinite(values).all():
@@ -238,11 +236,6 @@ def combine(parts: Sequence[Stats]) -> Stats:
     return Stats(None, sum(p.frames for p in parts), columns)
 
 
-def normalise(values: np.ndarray, column: ColumnStats, eps: float = 1e-8) -> np.ndarray:
-    """``(values - mean) / max(std, eps)`` as float32."""
-    return ((values - column.mean) / np.maximum(column.std, eps)).astype(np.float32)
-
-
 __all__ = [
     "STATS_COLUMNS",
     "STATS_NAME",
@@ -251,7 +244,6 @@ __all__ = [
     "combine",
     "compute_stats",
     "load_stats",
-    "normalise",
     "read_stats",
     "write_stats",
 ]

@@ -65,15 +65,21 @@ from typing import Any, Optional
 
 import numpy as np
 
-from generators.encode import JPEG_QUALITY, decode_jpeg, encode_jpeg
 from generators.contact import fingertip_distance
+from generators.encode import JPEG_QUALITY, decode_jpeg, encode_jpeg
 from generators.grasp import grasp_angles
-from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, forward_kinematics
+from generators.hand import (
+    JOINT_LOWER,
+    JOINT_UPPER,
+    REST_JOINTS,
+    REST_PALM,
+    forward_kinematics,
+)
 from generators.motion import object_pose
 from schemas.errors import DyanaError, PolicyError, SpecError
+from schemas.events import grasp_closed, localized, palm_xz_distance
 from schemas.frames import EpisodeFrames
 from schemas.objects import object_category
-from schemas.events import grasp_closed, localized, palm_xz_distance
 from schemas.scene import DEFAULT_RESOLUTION, PHASES, TABLE_X, TABLE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS

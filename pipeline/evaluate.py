@@ -26,8 +26,8 @@ import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
 from pipeline.build import BuildSettings
-from pipeline.runner import Job, ShardTask, default_workers, run_job, shard_ranges
 from pipeline.rollout import DEFAULT_DEADLINE_S, run_episode
+from pipeline.runner import Job, ShardTask, default_workers, run_job, shard_ranges
 from schemas.errors import PolicyError, SpecError
 
 DEFAULT_SHARD_SIZE = 32

@@ -20,17 +20,15 @@ import os
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
-from catalog.hashing import sha256_file
-from catalog.manifest import load_manifest
-from catalog.parquet_io import episode_row, episodes_table, frames_table, read_episodes, read_frames
+from catalog.parquet_io import episode_row, episodes_table, frames_table
+from catalog.reader import ShardReader, open_folder
 from catalog.records import ShardRecord, shard_stem
-from schemas.errors import PolicyError, ReplayMismatch, ShardError
+from schemas.errors import PolicyError, ReplayMismatch
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
@@ -148,12 +146,14 @@ def _rollout_recording(env: Any, spec: EpisodeSpec, actions: np.ndarray, status:
     return frames, list(images)
 
 
-def _replay_shard(root: Path, settings: dict, shard: ShardRecord, rollout: bool, env: Any) -> int:
+def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
     from catalog.shard import ShardWriter
 
+    root, shard, rollout = reader.root, reader.record, reader.rollout
     stem = shard_stem(shard.first, shard.end)
-    episodes = read_episodes(root / shard.files["episodes"].path)
-    frames = read_frames(root / shard.files["frames"].path)
+    reader.check_files()
+    episodes = reader.episodes()
+    frames = reader.frames(None, episodes)
     frame_episode = frames.column("episode_index").to_numpy()
     resolution, quality = settings["resolution"], settings["jpeg_quality"]
     fps = settings.get("fps", FPS)
@@ -195,17 +195,12 @@ def _replay_shard(root: Path, settings: dict, shard: ShardRecord, rollout: bool,
                 writer.add_episode(spec, ep_frames, images, **{k: (v or None) for k, v in extra.items()})
         for kind, record in shard.files.items():
             again = writer.record.files[kind]
-            on_disk = root / record.path
-            actual = sha256_file(on_disk) if on_disk.is_file() else None
-            if actual is None:
-                raise ShardError(f"{on_disk}: file is missing")
-            for where, digest in (("catalog.json's", record.sha256), ("file's", actual)):
-                if again.sha256 != digest:
-                    raise _mismatch(
-                        f"{root}: shard {stem}: {record.path} differs from the replayed shard's "
-                        f"(sha256 {again.sha256[:12]}… instead of the {where} {digest[:12]}…) although every column matches",
-                        shard=stem, column=kind,
-                    )
+            if again.sha256 != record.sha256:  # the file on disk matches record.sha256 (checked above)
+                raise _mismatch(
+                    f"{root}: shard {stem}: {record.path} differs from the replayed shard's "
+                    f"(sha256 {again.sha256[:12]}… instead of {record.sha256[:12]}…) although every column matches",
+                    shard=stem, column=kind,
+                )
     return sum(f.num_frames for _, f, _, _ in replayed)
 
 
@@ -215,14 +210,13 @@ def replay(
     on_shard: Callable[[ShardRecord], None] | None = None,
 ) -> ReplayReport:
     """Re-execute a built slice or a run (``shards``: only those first-episode indices)."""
-    root = Path(path)
-    manifest = load_manifest(root)
-    rollout = "policy" in manifest.extra
+    folder = open_folder(path, verify="sha256")
+    manifest, rollout = folder.manifest, folder.rollout
     settings = dict(manifest.settings)
-    chosen = list(manifest.shards)
+    chosen = list(folder.shards)
     if shards is not None:
         wanted = set(shards)
-        chosen = [s for s in chosen if s.first in wanted]
+        chosen = [s for s in chosen if s.record.first in wanted]
     env = None
     if rollout:
         from pipeline.env import DyanaEnv
@@ -231,10 +225,10 @@ def replay(
     episodes = frames = 0
     try:
         for shard in chosen:
-            frames += _replay_shard(root, settings, shard, rollout, env)
-            episodes += shard.num_episodes
+            frames += _replay_shard(shard, settings, env)
+            episodes += shard.record.num_episodes
             if on_shard is not None:
-                on_shard(shard)
+                on_shard(shard.record)
     finally:
         close = getattr(env, "close", None)
         if callable(close):

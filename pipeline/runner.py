@@ -36,7 +36,14 @@ from typing import Any
 
 from catalog.atomic import atomic_write_text, remove_stray_temps
 from catalog.hashing import sha256_file
-from catalog.manifest import CodeInfo, Manifest, git_commit, load_manifest, manifest_path, write_manifest
+from catalog.manifest import (
+    CodeInfo,
+    Manifest,
+    git_commit,
+    load_manifest,
+    manifest_path,
+    write_manifest,
+)
 from catalog.records import ShardRecord
 from schemas.errors import DyanaError, ShardError, SpecError
 from schemas.spec import EpisodeSpec

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from catalog.atomic import commit, discard, temp_path
-from catalog.manifest import load_manifest
-from catalog.parquet_io import column_to_numpy, read_episodes, read_frames
+from catalog.parquet_io import column_to_numpy
+from catalog.reader import open_folder
 from schemas.errors import SpecError
 from schemas.scene import LOC_TOLERANCE, PHASES
 
@@ -23,18 +23,11 @@ OBJECT_COLOUR = (230, 60, 60)
 
 
 def _episode_rows(directory: Path, episode: int):
-    manifest = load_manifest(directory)
-    for shard in manifest.shards:
-        if shard.first <= episode < shard.end:
-            frames = read_frames(directory / shard.files["frames"].path)
-            episodes = read_episodes(directory / shard.files["episodes"].path)
-            index = frames.column("episode_index").to_numpy()
-            rows = frames.filter(index == episode)
-            meta = episodes.filter(episodes.column("episode_index").to_numpy() == episode)
-            if rows.num_rows == 0 or meta.num_rows != 1:
-                break
-            return manifest, rows, meta.to_pylist()[0]
-    raise SpecError(f"{directory}: no episode {episode} (it holds episodes [0, {manifest.episodes}))")
+    """The folder's manifest, one episode's frames and its row, read through the checked
+    reader (sizes and sha256 of the shard read, settings, numbering)."""
+    folder = open_folder(directory, verify="sha256")
+    row, rows = folder.episode(episode)
+    return folder.manifest, rows, row
 
 
 def _skeleton(joint_poses: np.ndarray, keypoints: np.ndarray) -> list[np.ndarray]:

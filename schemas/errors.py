@@ -34,3 +34,56 @@ class PolicyError(DyanaError):
 
 class ReplayMismatch(DyanaError):
     """Re-executing a recording did not reproduce it byte for byte."""
+
+
+class ShardMissing(ShardError):
+    """A file the manifest lists is not on disk."""
+
+    def __init__(self, path: object) -> None:
+        self.path = str(path)
+        super().__init__(f"{self.path}: file is missing")
+
+
+class ShardSizeMismatch(ShardError):
+    """A file's size differs from the manifest's (truncated or appended to)."""
+
+    def __init__(self, path: object, expected: int, actual: int) -> None:
+        self.path, self.expected, self.actual = str(path), expected, actual
+        state = "truncated" if actual < expected else "longer than recorded"
+        super().__init__(f"{self.path}: {state}: {actual} bytes, catalog.json says {expected}")
+
+
+class ShardHashMismatch(ShardError):
+    """A file's sha256 differs from the manifest's (its content changed)."""
+
+    def __init__(self, path: object, expected: str, actual: str) -> None:
+        self.path, self.expected, self.actual = str(path), expected, actual
+        super().__init__(f"{self.path}: content changed: sha256 {actual}, catalog.json says {expected}")
+
+
+class ShardContentError(ShardError):
+    """A shard's rows contradict the manifest or the contract (counts, ranges, numbering)."""
+
+    def __init__(self, path: object, detail: str) -> None:
+        self.path, self.detail = str(path), detail
+        super().__init__(f"{self.path}: {detail}")
+
+
+class DuplicateEpisode(ShardContentError):
+    """An episode index appears twice where each must appear once."""
+
+    def __init__(self, path: object, episode: int) -> None:
+        self.episode = episode
+        super().__init__(path, f"episode_index {episode} is listed twice (a duplicate)")
+
+
+class FrameNumberingError(ShardContentError):
+    """An episode's frames are not numbered 0..n-1 in order."""
+
+
+class SettingsMismatch(ShardError):
+    """A folder's settings or dataset version are not what the reader supports or asked for."""
+
+    def __init__(self, path: object, key: str, expected: object, actual: object) -> None:
+        self.path, self.key, self.expected, self.actual = str(path), key, expected, actual
+        super().__init__(f"{self.path}: settings {key} is {actual!r}, expected {expected!r}")

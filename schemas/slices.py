@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from schemas.names import shorten
 from schemas.errors import SliceError, SpecError
+from schemas.names import shorten
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
 
 #: Figure 4(a): episodes of each motion type in Dyana-12M.

@@ -15,9 +15,16 @@ from typing import Any
 
 from schemas.errors import SpecError
 from schemas.motion import Motion, _load_json
-from schemas.objects import object_category
 from schemas.names import validate_name
-from schemas.scene import GRASP_FRAMES, HANDS, HORIZON_FACTOR, INTERCEPT_SECONDS, MOTION_TYPES, ROLLOUT_FORMATS
+from schemas.objects import object_category
+from schemas.scene import (
+    GRASP_FRAMES,
+    HANDS,
+    HORIZON_FACTOR,
+    INTERCEPT_SECONDS,
+    MOTION_TYPES,
+    ROLLOUT_FORMATS,
+)
 from schemas.versions import FPS
 
 SPEC_FIELDS = (

@@ -16,7 +16,16 @@ from catalog.atomic import atomic_open
 from schemas import cli
 from schemas.errors import DyanaError
 from scoring.io import load_run
-from scoring.report import RunReport, csv_text, default_label, format_table, markdown, report_dict, score_run, unique_labels
+from scoring.report import (
+    RunReport,
+    csv_text,
+    default_label,
+    format_table,
+    markdown,
+    report_dict,
+    score_run,
+    unique_labels,
+)
 
 
 def _eval_arguments(p: argparse.ArgumentParser) -> None:

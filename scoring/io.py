@@ -16,8 +16,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from catalog.manifest import load_manifest
-from catalog.parquet_io import column_to_numpy, open_parquet, read_episodes, read_frames, table_kind
+from catalog.parquet_io import column_to_numpy
+from catalog.reader import open_folder
 from schemas.errors import ShardError
 from schemas.events import acting, acting_budget
 from schemas.frames import EpisodeFrames
@@ -73,61 +73,26 @@ def _strings(column: pa.ChunkedArray) -> np.ndarray:
     return np.asarray(column.to_pylist(), dtype=object)
 
 
-def _read_episodes(path: Path) -> tuple[pa.Table, bool]:
-    rollout = table_kind(open_parquet(path)) == "rollout_episodes"
-    columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if rollout else ())
-    return read_episodes(path, columns), rollout
-
-
-def _check_range(path: Path, values: np.ndarray, first: int, end: int) -> None:
-    if len(values) and (values.min() < first or values.max() >= end):
-        bad = values[(values < first) | (values >= end)][0]
-        raise ShardError(f"{path}: episode_index {bad} lies outside the shard's episodes [{first}, {end})")
-
-
 def load_run(folder: str | os.PathLike[str]) -> RunData:
-    """Read a run or slice folder (``catalog.json`` + shards) for scoring."""
-    root = Path(folder)
-    if not root.is_dir():
-        raise ShardError(f"{os.fspath(folder)}: no such folder")
-    if not (root / "catalog.json").is_file():
-        raise ShardError(f"{os.fspath(folder)}: not a rollout set or slice (no catalog.json)")
-    manifest = load_manifest(root)
-    if not manifest.shards or manifest.episodes == 0:
+    """Read a run or slice folder (``catalog.json`` + shards) for scoring, through
+    :func:`catalog.reader.open_folder` (the checks every reader makes)."""
+    reader = open_folder(folder)
+    if not reader.shards or reader.manifest.episodes == 0:
         raise ShardError(f"{os.fspath(folder)}: the run is empty (no episodes)")
-
-    episode_tables, frame_tables, rollout_flags = [], [], []
-    for shard in manifest.shards:
-        first, end = shard.episodes
-        episodes_path = root / shard.files["episodes"].path
-        frames_path = root / shard.files["frames"].path
-        table, rollout = _read_episodes(episodes_path)
-        _check_range(episodes_path, table.column("episode_index").to_numpy(), first, end)
-        frames = read_frames(frames_path, FRAME_COLUMNS)
-        if frames.num_rows != shard.frames:
-            raise ShardError(f"{frames_path}: has {frames.num_rows} frames, catalog.json lists {shard.frames}")
-        _check_range(frames_path, frames.column("episode_index").to_numpy(), first, end)
-        episode_tables.append(table)
-        frame_tables.append(frames)
-        rollout_flags.append(rollout)
-    if len(set(rollout_flags)) > 1:
-        raise ShardError(f"{os.fspath(folder)}: mixes rollout shards with ground-truth shards")
-    rollout = rollout_flags[0]
-    episodes = pa.concat_tables(episode_tables)
-    frames = pa.concat_tables(frame_tables)
-    if episodes.num_rows == 0:
-        raise ShardError(f"{os.fspath(folder)}: the run is empty (no episodes)")
-    return _assemble(root, manifest.slice, episodes, frames, rollout)
+    columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if reader.rollout else ())
+    episode_tables, frame_tables = [], []
+    for shard in reader:
+        episodes = shard.episodes(columns)
+        episode_tables.append(episodes)
+        frame_tables.append(shard.frames(FRAME_COLUMNS, episodes))
+    return _assemble(
+        reader.root, reader.manifest.slice, pa.concat_tables(episode_tables), pa.concat_tables(frame_tables), reader.rollout
+    )
 
 
 def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table, rollout: bool) -> RunData:
     where = os.fspath(root)
     index = episodes.column("episode_index").to_numpy()
-    order = np.argsort(index, kind="stable")
-    index = index[order]
-    if np.any(np.diff(index) == 0):
-        raise ShardError(f"{where}: episode {index[np.flatnonzero(np.diff(index) == 0)[0]]} is listed twice")
-    episodes = episodes.take(pa.array(order))
 
     if rollout:
         status = _strings(episodes.column("status"))
@@ -146,23 +111,9 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
     if not phases <= set(PHASES):
         raise ShardError(f"{where}: unknown phase {sorted(phases - set(PHASES))[0]!r} (expected one of {list(PHASES)})")
     frame_episode = frames.column("episode_index").to_numpy()
-    frame_index = frames.column("frame_index").to_numpy()
     acting = pc.not_equal(frames.column("phase"), OBSERVE).to_numpy(zero_copy_only=False)
-    order = np.lexsort((frame_index, frame_episode))
-    if not np.all(order[1:] > order[:-1]):
-        frame_episode, frame_index, acting = frame_episode[order], frame_index[order], acting[order]
-    else:
-        order = None
-    repeated = (np.diff(frame_episode) == 0) & (np.diff(frame_index) == 0)
-    if repeated.any():
-        at = np.flatnonzero(repeated)[0]
-        raise ShardError(f"{where}: frame {frame_index[at]} of episode {frame_episode[at]} is recorded twice")
     row = np.searchsorted(index, frame_episode)
-    orphan = (row >= len(index)) | (index[np.minimum(row, len(index) - 1)] != frame_episode)
-    if orphan.any():
-        raise ShardError(f"{where}: frames of episode {frame_episode[orphan][0]} have no row in the episodes table")
-
-    pick = np.flatnonzero(acting) if order is None else order[acting]
+    pick = np.flatnonzero(acting)
     counts = np.bincount(row[acting], minlength=len(index))
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 

@@ -18,7 +18,13 @@ import numpy as np
 from schemas.objects import OBJECTS
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
 from scoring.io import RunData
-from scoring.metrics import METRIC_NAMES, EpisodeMetrics, Summary, aggregate, episode_metrics
+from scoring.metrics import (
+    METRIC_NAMES,
+    EpisodeMetrics,
+    Summary,
+    aggregate,
+    episode_metrics,
+)
 
 #: Breakdowns: JSON key, the episode attribute grouped on, canonical group order, title.
 BREAKDOWNS = (

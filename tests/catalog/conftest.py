@@ -15,6 +15,7 @@ import pytest
 
 from catalog.manifest import CodeInfo, Manifest, write_manifest
 from catalog.shard import ShardWriter
+from schemas.versions import DATASET_VERSION
 from schemas.frames import EpisodeFrames
 from schemas.motion import ArcToken, LineToken, Motion
 from schemas.scene import GRASP_FRAMES
@@ -22,7 +23,7 @@ from schemas.spec import EpisodeSpec
 from schemas.tables import ARRAY_WIDTHS
 
 RESOLUTION = 32
-SETTINGS = {"fps": 20, "resolution": RESOLUTION, "image_format": "jpeg", "jpeg_quality": 90}
+SETTINGS = {"fps": 20, "resolution": RESOLUTION, "image_format": "jpeg", "jpeg_quality": 90, "dataset_version": DATASET_VERSION}
 CODE = CodeInfo("0.1.0", "0123456789abcdef0123456789abcdef01234567")
 
 

@@ -15,7 +15,8 @@ import pyarrow.parquet as pq
 import pytest
 
 import catalog
-from catalog.dataset import FrameDataset, FrameStream
+from catalog.dataset import FrameDataset
+from catalog.stream import FrameStream
 from catalog.manifest import Manifest, load_manifest, write_manifest
 from catalog.shard import ShardWriter
 from catalog.stats import STATS_NAME, compute_stats, load_stats, read_stats

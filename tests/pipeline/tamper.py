@@ -18,14 +18,19 @@ from catalog.records import FileRecord, ShardRecord
 def rewrite_frames(folder: Path, shard_index: int, mutate: Callable[[pa.Table], pa.Table]) -> ShardRecord:
     """Rewrite one shard's frames file through ``mutate`` with the pinned writer options,
     then update its sha256/size and the manifest hash, so integrity checks still pass."""
+    path = folder / load_manifest(folder).shards[shard_index].files["frames"].path
+    write_table(path, mutate(read_frames(path)), "frames")
+    return rehash(folder, shard_index, "frames")
+
+
+def rehash(folder: Path, shard_index: int, kind: str) -> ShardRecord:
+    """Record a rewritten file's new sha256 and size (and the new slice hash) in the manifest."""
     manifest = load_manifest(folder)
     shard = manifest.shards[shard_index]
-    record = shard.files["frames"]
+    record = shard.files[kind]
     path = folder / record.path
-    table = mutate(read_frames(path))
-    write_table(path, table, "frames")
     files = dict(shard.files)
-    files["frames"] = FileRecord(record.path, sha256_file(path), path.stat().st_size)
+    files[kind] = FileRecord(record.path, sha256_file(path), path.stat().st_size)
     shards = list(manifest.shards)
     shards[shard_index] = ShardRecord(shard.episodes, shard.frames, files)
     updated = Manifest.create(

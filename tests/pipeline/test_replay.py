@@ -16,7 +16,7 @@ from catalog.manifest import load_manifest
 from pipeline.build import build
 from pipeline.evaluate import evaluate
 from pipeline.replay import replay
-from schemas.errors import ReplayMismatch
+from schemas.errors import ShardHashMismatch, ReplayMismatch
 
 from .tamper import flip_image_byte, rewrite_frames, set_state_value
 
@@ -122,16 +122,16 @@ def test_replay_of_a_missing_folder_is_bad_input(tmp_path):
 
 
 def test_a_tampered_mcap_on_disk_fails_even_with_the_manifest_untouched(built, tmp_path):
-    """Replay rewrites the shard and must compare it with the files on disk, not only
-    with the manifest's hashes: a corrupted or missing MCAP cannot pass."""
+    """Replay reads through the checked reader: a corrupted or missing MCAP cannot pass
+    (the file's sha256 no longer matches catalog.json)."""
     folder = _copy(built, tmp_path)
     path = folder / load_manifest(folder).shards[0].files["mcap"].path
     data = bytearray(path.read_bytes())
     data[data.find(b"harmonic")] ^= 0x20
     path.write_bytes(bytes(data))
-    with pytest.raises(ReplayMismatch, match=r"000000-000001\.mcap differs from the replayed shard") as caught:
+    with pytest.raises(ShardHashMismatch, match=r"000000-000001\.mcap: content changed") as caught:
         replay(folder)
-    assert caught.value.column == "mcap"
+    assert caught.value.path == str(path)
     path.unlink()
     result = _pipeline("replay", str(folder))
     assert result.returncode == 2 and "000000-000001.mcap: file is missing" in result.stderr

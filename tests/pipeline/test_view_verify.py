@@ -45,6 +45,24 @@ def test_view_rejects_an_episode_the_folder_does_not_hold(built, tmp_path):
     assert not (tmp_path / "x.rrd").exists()
 
 
+@pytest.mark.parametrize("damage", ["flip", "truncate"])
+def test_view_refuses_a_damaged_shard_naming_it(built, tmp_path, damage):
+    copy = tmp_path / SLICE
+    shutil.copytree(built, copy)
+    victim = copy / "shards" / "000002-000002.frames.parquet"
+    data = bytearray(victim.read_bytes())
+    if damage == "flip":
+        data[len(data) // 2] ^= 0xFF
+    else:
+        data = data[:-100]
+    victim.write_bytes(bytes(data))
+    result = _run("pipeline", "view", str(copy), "--episode", "2", "--out", str(tmp_path / "x.rrd"))
+    assert result.returncode == 2
+    assert "000002-000002.frames.parquet" in result.stderr and result.stderr.count("\n") == 1
+    assert ("content changed" if damage == "flip" else "truncated") in result.stderr
+    assert not (tmp_path / "x.rrd").exists()
+
+
 def test_verify_rebuilds_identical_shards(built):
     result = _run("catalog", "verify", str(built))
     assert result.returncode == 0, result.stderr

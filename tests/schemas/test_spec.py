@@ -74,7 +74,12 @@ def test_integral_floats_are_accepted_as_integers():
 @pytest.mark.parametrize(
     "field, value, message",
     [
-        ("slice", "", r"spec.slice must be a non-empty string, got ''"),
+        ("slice", "", r"spec.slice must be a name of 1-64 characters.*got ''"),
+        ("slice", "../../victim/linear-slow", r"spec.slice must be a name .*never a path.*'../../victim/linear-slow'"),
+        ("slice", "/abs/path", r"never a path"),
+        ("slice", "a/b", r"never a path"),
+        ("slice", ".", r"never a path"),
+        ("slice", "x\x00y", r"never a path"),
         ("episode_index", -1, r"spec.episode_index must be >= 0, got -1"),
         ("episode_index", 2.5, r"spec.episode_index must be an integer, got 2.5"),
         ("seed", True, r"spec.seed must be an integer, got True"),

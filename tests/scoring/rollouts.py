@@ -14,6 +14,7 @@ from catalog.hashing import sha256_file
 from catalog.manifest import CodeInfo, Manifest, write_manifest
 from catalog.parquet_io import write_table
 from catalog.records import FileRecord, ShardRecord, shard_paths
+from schemas.versions import DATASET_VERSION
 from schemas.tables import ARRAY_WIDTHS, EPISODES_SCHEMA, FRAMES_SCHEMA, ROLLOUT_EPISODES_SCHEMA, STATE_COLUMNS
 
 CLOSED = np.ones(15, dtype=np.float32)
@@ -124,7 +125,7 @@ def write_run(
             for kind, rel in paths.items()
         }
         shards.append(ShardRecord((first, end), frames.num_rows, files))
-    settings = {"fps": 20, "resolution": 224, "image_format": "jpeg"}
+    settings = {"fps": 20, "resolution": 224, "image_format": "jpeg", "jpeg_quality": 90, "dataset_version": DATASET_VERSION}
     extra = {} if policy is None else {"policy": policy}
     manifest = Manifest.create("test", 1, settings, shards, code=CodeInfo("0.1.0", None), extra=extra)
     write_manifest(folder, manifest)

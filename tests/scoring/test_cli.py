@@ -9,6 +9,8 @@ import json
 import numpy as np
 import pytest
 
+from tests.pipeline.tamper import rehash
+
 from scoring.cli import main
 from scoring.io import load_run
 from tests.scoring.rollouts import CLOSED, Ep, write_run
@@ -234,6 +236,7 @@ def test_null_values_in_a_column_are_refused_in_one_line(tmp_path, capsys):
     values[3] = None
     index = table.schema.get_field_index("palm_pose")
     pq.write_table(table.set_column(index, pa.field("palm_pose", column.type), pa.array(values, column.type)), path)
+    rehash(folder, 0, "frames")
     code, out, err = run_main(capsys, "eval", str(folder), "--json")
     assert code == 2 and out == ""
     assert "frames.parquet" in err and "'palm_pose'" in err and "null" in err

@@ -13,8 +13,9 @@ from scoring.cli import main
 
 episode_module = pytest.importorskip("pipeline.episode")
 recipe = pytest.importorskip("generators.recipe")
+from schemas.versions import DATASET_VERSION  # noqa: E402
 
-SETTINGS = {"fps": 20, "resolution": 32, "image_format": "jpeg"}
+SETTINGS = {"fps": 20, "resolution": 32, "image_format": "jpeg", "jpeg_quality": 90, "dataset_version": DATASET_VERSION}
 
 
 def write_slice(folder, specs, policy=None):
@@ -28,7 +29,8 @@ def write_slice(folder, specs, policy=None):
                 extra = {} if policy is None else {"policy": policy, "status": "ok"}
                 shard.add_episode(spec, frames, images, **extra)
         shards.append(shard.record)
-    write_manifest(folder, Manifest.create(specs[0].slice, 1, SETTINGS, shards, code=CodeInfo("0.1.0", None)))
+    extra = {} if policy is None else {"policy": policy}
+    write_manifest(folder, Manifest.create(specs[0].slice, 1, SETTINGS, shards, code=CodeInfo("0.1.0", None), extra=extra))
     return folder
 
 

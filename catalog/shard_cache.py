@@ -1,0 +1,172 @@
+"""The shards one process has open, for the dataloader: an LRU of loaded float matrices and
+JPEG offsets, bounded by bytes, checked on first load (size, sha256 or page CRCs, the
+index columns the dataset was opened with). See :mod:`catalog.dataset` for the guarantees.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+from collections import OrderedDict
+from collections.abc import Sequence
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from catalog.index import (
+    FLOAT_COLUMNS,
+    FLOAT_WIDTH,
+    LAYOUT,
+    SHARD_COLUMNS,
+    ShardFile,
+    index_digest,
+)
+from catalog.pages import image_offsets
+from catalog.parquet_io import check_columns, column_to_numpy, table_kind
+from schemas.errors import (
+    ShardError,
+    ShardHashMismatch,
+    ShardMissing,
+    ShardSizeMismatch,
+)
+from schemas.scene import PHASES
+
+
+class Descriptor:
+    """Owns an open file descriptor and closes it when the last reference goes, so a
+    shard evicted from the cache while an item is still being read from it keeps a
+    valid descriptor (a closed number could be reused by another file)."""
+
+    __slots__ = ("fd",)
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def __del__(self) -> None:
+        try:
+            os.close(self.fd)
+        except Exception:  # already closed, or interpreter shutdown
+            pass
+
+
+class OpenShard:
+    """A frames file in use: its descriptor, float columns, timestamps, phases and JPEG offsets."""
+
+    __slots__ = ("path", "owner", "fd", "floats", "timestamp", "phase", "offsets", "lengths", "nbytes")
+
+    def __init__(self, path, owner, floats, timestamp, phase, offsets, lengths) -> None:
+        self.path, self.owner, self.fd = path, owner, owner.fd
+        self.floats, self.timestamp, self.phase = floats, timestamp, phase
+        self.offsets, self.lengths = offsets, lengths
+        # Python int lists (faster to index than numpy): about 72 bytes a row for the two.
+        self.nbytes = floats.nbytes + timestamp.nbytes + phase.nbytes + 72 * len(offsets)
+
+    def jpeg(self, row: int) -> bytes:
+        length = self.lengths[row]
+        data = os.pread(self.fd, length, self.offsets[row])
+        if len(data) != length:
+            raise ShardError(f"{self.path}: image of row {row} is cut off (file truncated while open)")
+        return data
+
+
+def parquet_file(handle: io.FileIO, path: str, checksums: bool) -> pq.ParquetFile:
+    """The Parquet reader of an open file (the very file that was hashed, even if the path
+    has since been replaced), verifying page checksums if asked."""
+    try:
+        return pq.ParquetFile(handle, page_checksum_verification=checksums)
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        raise ShardError(f"{path}: not a readable Parquet file (truncated or corrupt): {exc}") from None
+
+
+class ShardCache:
+    """The shards one process has open, in an LRU bounded by bytes (and by open files)."""
+
+    MAX_OPEN = 128
+
+    def __init__(self, files: Sequence[ShardFile], verify: str, budget: int) -> None:
+        self.pid = os.getpid()
+        self.files = files
+        self.verify = verify
+        self.budget = budget
+        self.cache: OrderedDict[int, OpenShard] = OrderedDict()
+        self.bytes = 0
+        self.verified: set[int] = set()
+        self.last: tuple[int, OpenShard | None] = (-1, None)  # one tuple: swapped atomically between threads
+
+    def get(self, key: int) -> OpenShard:
+        last_key, last = self.last
+        if key == last_key:
+            return last
+        shard = self.cache.get(key)
+        if shard is None:
+            shard = self._load(key)
+            self.cache[key] = shard
+            self.bytes += shard.nbytes
+            while len(self.cache) > 1 and (self.bytes > self.budget or len(self.cache) > self.MAX_OPEN):
+                _, old = self.cache.popitem(last=False)
+                self.bytes -= old.nbytes
+        else:
+            self.cache.move_to_end(key)
+        self.last = (key, shard)
+        return shard
+
+    def _load(self, key: int) -> OpenShard:
+        record = self.files[key]
+        path = record.path
+        try:
+            owner = Descriptor(os.open(path, os.O_RDONLY))
+        except FileNotFoundError:
+            raise ShardMissing(path) from None
+        except OSError as exc:
+            raise ShardError(f"{path}: cannot open: {exc}") from None
+        fd = owner.fd
+        size = os.fstat(fd).st_size
+        if size != record.size:
+            raise ShardSizeMismatch(path, record.size, size)
+        hashed = self.verify == "sha256" and key not in self.verified
+        hasher = hashlib.sha256() if hashed else None
+        # Right after hashing every byte, page checksums are redundant; otherwise they are checked.
+        with io.FileIO(os.dup(fd), "r") as handle, parquet_file(handle, path, checksums=not hashed) as parquet:
+            offsets, lengths = image_offsets(fd, path, parquet.metadata, check_crc=not hashed, hasher=hasher, size=size)
+            if hasher is not None:
+                digest = hasher.hexdigest()
+                if digest != record.sha256:
+                    raise ShardHashMismatch(path, record.sha256, digest)
+                self.verified.add(key)
+            if table_kind(parquet) != "frames":
+                raise ShardError(f"{path}: not a frames table")
+            check_columns(path, parquet, "frames", SHARD_COLUMNS)
+            if parquet.metadata.num_rows != record.frames:
+                raise ShardError(f"{path}: has {parquet.metadata.num_rows} rows, catalog.json says {record.frames}")
+            try:
+                table = parquet.read(columns=list(SHARD_COLUMNS), use_threads=False)
+            except (pa.ArrowException, OSError, ValueError) as exc:
+                raise ShardError(f"{path}: corrupt Parquet data: {exc}") from None
+        episode = column_to_numpy(table.column("episode_index"))
+        frame = column_to_numpy(table.column("frame_index"))
+        if index_digest(episode, frame) != record.index_digest:
+            raise ShardError(f"{path}: episode_index/frame_index changed since the dataset was opened")
+        for name in SHARD_COLUMNS:
+            if table.column(name).null_count:
+                raise ShardError(f"{path}: column {name!r} holds null values (the contract has none)")
+        n = table.num_rows
+        floats = np.empty((n, FLOAT_WIDTH), dtype=np.float32)
+        for name in FLOAT_COLUMNS:
+            start, stop = LAYOUT[name]
+            floats[:, start:stop] = column_to_numpy(table.column(name)).reshape(n, stop - start)
+        codes = pc.index_in(table.column("phase"), value_set=pa.array(PHASES))
+        if codes.null_count:
+            raise ShardError(f"{path}: phase holds a value outside {list(PHASES)}")
+        phase = column_to_numpy(codes).astype(np.int8)
+        timestamp = np.ascontiguousarray(column_to_numpy(table.column("timestamp")), dtype=np.float64)
+        return OpenShard(path, owner, floats, timestamp, phase, offsets, lengths)
+
+    def close(self) -> None:
+        """Forget every loaded shard (descriptors close as soon as no item is being read from them)."""
+        self.cache.clear()
+        self.bytes = 0
+        self.last = (-1, None)
+
