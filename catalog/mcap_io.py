@@ -71,6 +71,7 @@ from mcap_protobuf.schema import register_schema
 from catalog.hashing import canonical_json
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
+from schemas.rotations import euler_to_quaternion, matrix_to_quaternion
 from schemas.scene import CAMERA_EYE, CAMERA_FOV_DEG, CAMERA_TARGET
 from schemas.versions import CODE_VERSION, FPS, SCHEMA_VERSION
 
@@ -127,41 +128,8 @@ def to_foxglove_quaternion(q: np.ndarray) -> np.ndarray:
     return np.stack([-q[..., 0], -q[..., 2], -q[..., 1], q[..., 3]], axis=-1)
 
 
-def euler_to_quaternion(rpy: np.ndarray) -> np.ndarray:
-    """(roll, pitch, yaw) (..., 3) -> (qx, qy, qz, qw) of ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    rpy = np.asarray(rpy, dtype=np.float64)
-    cr, sr = np.cos(rpy[..., 0] / 2), np.sin(rpy[..., 0] / 2)
-    cp, sp = np.cos(rpy[..., 1] / 2), np.sin(rpy[..., 1] / 2)
-    cy, sy = np.cos(rpy[..., 2] / 2), np.sin(rpy[..., 2] / 2)
-    return np.stack(
-        [
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy,
-        ],
-        axis=-1,
-    )
 
 
-def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
-    """A 3x3 rotation matrix -> (qx, qy, qz, qw) with qw >= 0."""
-    m = np.asarray(m, dtype=np.float64)
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    if trace > 0:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
-    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-    elif m[1, 1] >= m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
-    q = np.array(q)
-    return -q if q[3] < 0 else q
 
 
 def camera_pose() -> tuple[np.ndarray, np.ndarray]:

@@ -13,7 +13,14 @@ import math
 
 import numpy as np
 
-from schemas.scene import CAMERA_EYE, CAMERA_FAR, CAMERA_FOV_DEG, CAMERA_NEAR, CAMERA_TARGET, CAMERA_UP
+from schemas.scene import (
+    CAMERA_EYE,
+    CAMERA_FAR,
+    CAMERA_FOV_DEG,
+    CAMERA_NEAR,
+    CAMERA_TARGET,
+    CAMERA_UP,
+)
 
 
 def view_matrix() -> np.ndarray:
@@ -76,3 +83,35 @@ def unproject_to_plane(pixels: np.ndarray, width: int, height: int, plane_y: flo
     eye = np.asarray(CAMERA_EYE, dtype=np.float64)
     scale = (plane_y - eye[1]) / dirs[..., 1]
     return eye + dirs * scale[..., None]
+
+def _camera_rows() -> tuple[tuple[float, ...], ...]:
+    view = view_matrix()
+    proj = projection_matrix(1.0)
+    return tuple(tuple(float(v) for v in row) for row in view[:3]) + ((float(proj[0, 0]), float(proj[1, 1])),)
+
+
+_CAMERA = _camera_rows()
+
+
+def in_view(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Whether world points lie inside the camera's (square-image) view frustum.
+
+    Elementwise arithmetic (no matrix product), so the answer for a point never depends
+    on how many others are checked with it.
+    """
+    (r00, r01, r02, t0), (r10, r11, r12, t1), (r20, r21, r22, t2), (p00, p11) = _CAMERA
+    cx = r00 * x + r01 * y + r02 * z + t0
+    cy = r10 * x + r11 * y + r12 * z + t1
+    depth = -(r20 * x + r21 * y + r22 * z + t2)
+    return (
+        (depth > CAMERA_NEAR)
+        & (depth < CAMERA_FAR)
+        & (np.abs(p00 * cx) <= depth)
+        & (np.abs(p11 * cy) <= depth)
+    )
+
+
+def points_in_view(points: np.ndarray) -> np.ndarray:
+    """(...,) whether world points (..., 3) lie inside the view frustum (see :func:`in_view`)."""
+    pts = np.asarray(points, dtype=np.float64)
+    return in_view(pts[..., 0], pts[..., 1], pts[..., 2])

@@ -18,7 +18,14 @@ import numbers
 import numpy as np
 
 from generators.contact import signed_distance_local
-from generators.hand import FINGER_RADII, JOINT_LOWER, JOINT_UPPER, REST_JOINTS, SIDES, chain_frames
+from generators.hand import (
+    FINGER_RADII,
+    JOINT_LOWER,
+    JOINT_UPPER,
+    REST_JOINTS,
+    SIDES,
+    chain_frames,
+)
 from schemas.errors import SpecError
 from schemas.objects import object_category
 from schemas.scene import PALM_HOVER

@@ -46,10 +46,14 @@ from functools import lru_cache
 
 import numpy as np
 
-from generators.camera import projection_matrix, view_matrix
+from generators.camera import in_view
 from schemas.errors import SpecError
 from schemas.objects import OBJECTS
-from schemas.scene import CAMERA_FAR, CAMERA_NEAR, MOTION_TYPES, WORKSPACE_X, WORKSPACE_Z
+from schemas.scene import (
+    MOTION_TYPES,
+    WORKSPACE_X,
+    WORKSPACE_Z,
+)
 
 #: Figure 4(b): unique parameter configurations of each motion type in Dyana-12M.
 TABLE_SIZES = {"linear": 23_520, "circular": 44_508, "harmonic": 27_021}
@@ -184,31 +188,7 @@ def max_speed(motion_type: str, cols: dict[str, np.ndarray], seconds: np.ndarray
     raise SpecError(f"unknown motion type {motion_type!r} (expected one of {list(MOTION_TYPES)})")
 
 
-def _camera_rows() -> tuple[tuple[float, ...], ...]:
-    view = view_matrix()
-    proj = projection_matrix(1.0)
-    return tuple(tuple(float(v) for v in row) for row in view[:3]) + ((float(proj[0, 0]), float(proj[1, 1])),)
 
-
-_CAMERA = _camera_rows()
-
-
-def in_view(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Whether world points lie inside the camera's (square-image) view frustum.
-
-    Elementwise arithmetic (no matrix product), so the answer for a point never depends
-    on how many others are checked with it.
-    """
-    (r00, r01, r02, t0), (r10, r11, r12, t1), (r20, r21, r22, t2), (p00, p11) = _CAMERA
-    cx = r00 * x + r01 * y + r02 * z + t0
-    cy = r10 * x + r11 * y + r12 * z + t1
-    depth = -(r20 * x + r21 * y + r22 * z + t2)
-    return (
-        (depth > CAMERA_NEAR)
-        & (depth < CAMERA_FAR)
-        & (np.abs(p00 * cx) <= depth)
-        & (np.abs(p11 * cy) <= depth)
-    )
 
 
 def feasible(

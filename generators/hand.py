@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from schemas.errors import SpecError
+from schemas.rotations import euler_to_matrix, matrix_to_euler
 from schemas.scene import HANDS, PALM_REST
 
 SIDES = HANDS
@@ -107,32 +108,8 @@ def _side(side: str) -> str:
 _CACHE = {side: (root_positions(side), root_rotations(side)) for side in SIDES}
 
 
-def euler_to_matrix(euler: np.ndarray) -> np.ndarray:
-    """(..., 3) roll, pitch, yaw -> (..., 3, 3) rotation ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    e = np.asarray(euler, dtype=np.float64)
-    cr, sr = np.cos(e[..., 0]), np.sin(e[..., 0])
-    cp, sp = np.cos(e[..., 1]), np.sin(e[..., 1])
-    cy, sy = np.cos(e[..., 2]), np.sin(e[..., 2])
-    out = np.empty(e.shape[:-1] + (3, 3))
-    out[..., 0, 0] = cy * cp
-    out[..., 0, 1] = cy * sp * sr - sy * cr
-    out[..., 0, 2] = cy * sp * cr + sy * sr
-    out[..., 1, 0] = sy * cp
-    out[..., 1, 1] = sy * sp * sr + cy * cr
-    out[..., 1, 2] = sy * sp * cr - cy * sr
-    out[..., 2, 0] = -sp
-    out[..., 2, 1] = cp * sr
-    out[..., 2, 2] = cp * cr
-    return out
 
 
-def matrix_to_euler(rot: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation -> (..., 3) roll, pitch, yaw (inverse of :func:`euler_to_matrix`)."""
-    r = np.asarray(rot, dtype=np.float64)
-    roll = np.arctan2(r[..., 2, 1], r[..., 2, 2])
-    pitch = np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))
-    yaw = np.arctan2(r[..., 1, 0], r[..., 0, 0])
-    return np.stack([roll, pitch, yaw], axis=-1)
 
 
 def mirror_palm_pose(palm_pose: np.ndarray) -> np.ndarray:

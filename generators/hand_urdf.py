@@ -29,15 +29,15 @@ from generators.hand import (
     FINGERS,
     JOINT_LOWER,
     JOINT_NAMES,
+    JOINT_UPPER,
     KEYPOINT_NAMES,
     PALM_HALF_EXTENTS,
     SEGMENT_LENGTHS,
     WRIST_OFFSET,
+    _side,
     matrix_to_euler,
     root_positions,
     root_rotations,
-    JOINT_UPPER,
-    _side,
 )
 
 SKIN = (0.93, 0.76, 0.64, 1.0)

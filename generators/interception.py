@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generators.camera import projection_matrix, view_matrix
+from generators.camera import points_in_view
 from generators.grasp import grasp_angles, lowest_fingertip_offset
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
 from schemas.errors import InfeasibleError
@@ -43,7 +43,6 @@ MIN_APPROACH_STEP = 1e-4
 #: Lowest a fingertip may go (the table top is Y = 0).
 MIN_FINGERTIP_HEIGHT = 0.0
 _PHASE = {name: i for i, name in enumerate(PHASES)}
-_CLIP_FROM_WORLD = projection_matrix(1.0) @ view_matrix()
 
 
 @dataclass(frozen=True)
@@ -128,16 +127,10 @@ def closure_profile(num_frames: int, intercept_frame: int) -> np.ndarray:
     return minimum_jerk(k / (GRASP_FRAMES - 1))
 
 
-def in_view(points: np.ndarray) -> np.ndarray:
-    """(n,) whether world points (n, 3) project inside the camera's square image (any resolution;
-    a wider :class:`generators.render.Renderer` image sees more)."""
-    clip = points @ _CLIP_FROM_WORLD[:, :3].T + _CLIP_FROM_WORLD[:, 3]
-    w = clip[:, 3]
-    return (w > 0) & (np.abs(clip[:, 0]) <= w) & (np.abs(clip[:, 1]) <= w)
 
 
 def _check_in_view(name: str, points: np.ndarray) -> None:
-    inside = in_view(points)
+    inside = points_in_view(points)
     if not inside.all():
         raise InfeasibleError(f"the {name} leaves the camera's view at frame {int(np.argmin(inside))}")
 

@@ -38,11 +38,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generators.grids import OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES, OBJECT_TOPS, SIZE_FACTORS, config_pool, feasible
+from generators.grids import (
+    OBJECT_NAMES,
+    OBJECT_RADII,
+    OBJECT_SIZES,
+    OBJECT_TOPS,
+    SIZE_FACTORS,
+    config_pool,
+    feasible,
+)
 from schemas.errors import InfeasibleError, SpecError
 from schemas.motion import ArcToken, HarmonicToken, LineToken, Motion, token_to_dict
 from schemas.objects import OBJECTS
-from schemas.scene import GRASP_FRAMES, HANDS, HOLD_FRAMES, INTERCEPT_SECONDS, MOTION_TYPES
+from schemas.scene import (
+    GRASP_FRAMES,
+    HANDS,
+    HOLD_FRAMES,
+    INTERCEPT_SECONDS,
+    MOTION_TYPES,
+)
 from schemas.slices import ATOMIC_SLICES, SLICES, SliceDef, get_slice
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS

@@ -41,8 +41,8 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from generators.bullet import p
 
+from generators.bullet import p
 from generators.camera import pybullet_matrices
 from generators.scene import (
     build_object,
@@ -50,7 +50,6 @@ from generators.scene import (
     load_hand,
     set_hand_pose,
     set_object_pose,
-    visual_colours,
 )
 from schemas.errors import DyanaError, SpecError
 from schemas.frames import EpisodeFrames
@@ -76,10 +75,9 @@ class RendererUnavailable(DyanaError):
 
 @dataclass(frozen=True)
 class _Body:
-    """A loaded moving body, its colours and (hands) its joint indices."""
+    """A loaded moving body and (hands) its joint indices."""
 
     body: int
-    colours: tuple
     joints: Optional[np.ndarray] = None
 
 
@@ -145,10 +143,10 @@ class Renderer:
         hand_body = object_body = None
         if hand is not None:
             body, indices = load_hand(client, hand)
-            hand_body = _Body(body, visual_colours(client, body), indices)
+            hand_body = _Body(body, indices)
         if name is not None:
             body = build_object(client, name, size)
-            object_body = _Body(body, visual_colours(client, body))
+            object_body = _Body(body)
         return hand_body, object_body
 
     def _build(self) -> None:

@@ -30,8 +30,8 @@ import tempfile
 from dataclasses import dataclass
 
 import numpy as np
-from generators.bullet import p
 
+from generators.bullet import p
 from generators.hand_urdf import joint_indices, set_hand_state, write_hand_urdf
 from schemas.objects import object_category
 from schemas.scene import TABLE_X, TABLE_Z
@@ -219,25 +219,3 @@ def set_object_pose(client: int, body: int, object_pose) -> None:
 def set_hand_pose(client: int, body: int, indices: np.ndarray, palm_pose, joint_angles) -> None:
     """Pose a loaded hand: palm pose (6,), joint angles (15,)."""
     set_hand_state(body, palm_pose, joint_angles, client=client, indices=indices)
-
-
-def visual_colours(client: int, body: int) -> tuple[tuple[int, int, RGBA], ...]:
-    """``(link, shape index within the link, rgba)`` of each visual of ``body``; read it
-    right after creation, before any colour change."""
-    counts: dict[int, int] = {}
-    out = []
-    for shape in p.getVisualShapeData(body, physicsClientId=client):
-        link = shape[1]
-        k = counts.get(link, 0)
-        counts[link] = k + 1
-        out.append((link, k, tuple(float(v) for v in shape[7])))
-    return tuple(out)
-
-
-def set_visible(client: int, body: int, colours: tuple[tuple[int, int, RGBA], ...], visible: bool) -> None:
-    """Show a body in its colours, or hide it: TinyRenderer skips shapes of zero alpha
-    without processing them, so hidden bodies cost nothing to draw."""
-    for link, k, rgba in colours:
-        p.changeVisualShape(
-            body, link, shapeIndex=k, rgbaColor=rgba if visible else (0.0, 0.0, 0.0, 0.0), physicsClientId=client
-        )

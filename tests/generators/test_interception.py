@@ -13,17 +13,16 @@ import generators.interception as interception
 from generators.interception import (
     HandPlan,
     closure_profile,
-    in_view,
     minimum_jerk,
     phases,
     plan_episode,
     quintic,
 )
-from generators.camera import project
+from generators.camera import points_in_view, project
 from generators.hand import REST_JOINTS, REST_PALM
 from schemas.errors import InfeasibleError
 from schemas.objects import object_category
-from schemas.scene import GRASP_FRAMES, GRASP_RATIO, LOC_TOLERANCE, PALM_HOVER, PHASES
+from schemas.scene import CAMERA_FAR, CAMERA_NEAR, GRASP_FRAMES, GRASP_RATIO, LOC_TOLERANCE, PALM_HOVER, PHASES
 from schemas.versions import FPS
 from tests.generators.spec_strategies import in_workspace, make_spec, random_specs, spec_motion, specs
 
@@ -174,11 +173,12 @@ def test_closure_and_phases():
     assert ph[0] == PHASES.index("approach") and ph[-1] == PHASES.index("hold")
 
 
-def test_in_view_matches_the_camera_projection():
+def test_points_in_view_matches_the_camera_projection_within_near_and_far():
     pts = np.random.default_rng(0).uniform(-12, 12, (5000, 3))
     pixels, depth = project(pts, 1, 1)
-    expected = (depth > 0) & np.all((pixels >= 0) & (pixels <= 1), axis=-1)
-    np.testing.assert_array_equal(in_view(pts), expected)
+    expected = (depth > CAMERA_NEAR) & (depth < CAMERA_FAR) & np.all((pixels >= 0) & (pixels <= 1), axis=-1)
+    assert expected.any() and (~expected).any()
+    np.testing.assert_array_equal(points_in_view(pts), expected)
 
 
 # ------------------------------------------------------------------ infeasible plans

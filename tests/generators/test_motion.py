@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from generators import motion as gm
+from generators import segments, tracks
 from generators.motion import (
     arc_length,
     curvature,
@@ -64,7 +64,7 @@ def finite_differences(m: Motion, t: np.ndarray, h: float = 1e-5):
 def interior_times(m: Motion, n: int = 60) -> np.ndarray:
     """Times away from every join (where one-sided derivatives may differ)."""
     t = np.linspace(0.01, m.duration + 0.5, n)
-    cuts = [s.t0 for s in gm._segments(m)]
+    cuts = [s.t0 for s in segments._segments(m)]
     keep = np.min(np.abs(t[:, None] - np.array(cuts)[None, :]), axis=1) > 2e-3
     return t[keep]
 
@@ -95,16 +95,16 @@ def test_line_closed_form_values():
 def test_clothoid_fresnel_form_matches_quadrature():
     s = np.linspace(0.0, 6.0, 25)
     for h0, k0, c in [(0.2, 0.7, 0.5), (0.2, -0.7, 0.5), (0.2, 0.7, -0.5), (1.0, 2.0, -0.05), (0.0, 0.0, 0.3), (3.0, -1.5, 2.0)]:
-        exact = gm._clothoid_integral(h0, k0, c, s)
-        assert np.abs(exact - gm._clothoid_quadrature(h0, k0, c, s)).max() < 1e-12
+        exact = tracks._clothoid_integral(h0, k0, c, s)
+        assert np.abs(exact - tracks._clothoid_quadrature(h0, k0, c, s)).max() < 1e-12
 
 
 def test_clothoid_with_tiny_slope_stays_accurate():
     """Far from its inflection point the Fresnel form loses digits: the quadrature path
     takes over and stays within the slope's effect of the arc with the same start."""
     s = np.linspace(0.0, 6.0, 25)
-    tiny = gm._clothoid_integral(0.2, 0.7, 1e-9, s)
-    arc = gm._clothoid_integral(0.2, 0.7, 0.0, s)
+    tiny = tracks._clothoid_integral(0.2, 0.7, 1e-9, s)
+    arc = tracks._clothoid_integral(0.2, 0.7, 0.0, s)
     assert np.abs(tiny - arc).max() < 1e-9 * 6.0**3
     assert np.abs(tiny - arc).max() > 0.0
 
@@ -340,7 +340,7 @@ def test_integrated_orientation_matches_exact_arc():
     for speed, kappa in ((1.5, 0.7), (4.0, 2.0)):
         exact = Motion.of(ClothoidToken(0.0, 5.0, (0.0, 3.0), 0.2, speed, kappa))
         grid = Motion.of(ClothoidToken(1e-13, 5.0, (0.0, 3.0), 0.2, speed, kappa))
-        assert gm._segments(grid)[0].kind == "general"
+        assert segments._segments(grid)[0].kind == "general"
         for cat in (BALL, CAN):
             q_exact, q_grid = object_orientation(exact, cat, 0.6, t), object_orientation(grid, cat, 0.6, t)
             assert np.abs(q_exact - q_grid).max() < 1e-7
@@ -387,9 +387,9 @@ def test_signed_zero_does_not_change_the_output():
     a = Motion.of(LineToken((0.0, 0.0), 0.0, 1.0, 0.0, 1.0))
     b = Motion.of(LineToken((-0.0, -0.0), -0.0, 1.0, -0.0, 1.0))
     t = np.array([0.0, 0.5])
-    gm._compile.cache_clear()
+    tracks._compile.cache_clear()
     first = evaluate(b, t).position.tobytes()
-    gm._compile.cache_clear()
+    tracks._compile.cache_clear()
     evaluate(a, t)
     assert evaluate(b, t).position.tobytes() == first
 
@@ -462,3 +462,16 @@ def test_property_random_token_sequences(tokens):
     for cat in (BALL, CAN):
         q = object_orientation(m, cat, 0.6, np.linspace(0.0, m.duration, 400))
         assert np.allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+
+
+def test_token_starts_are_the_exact_prefix_sums_of_durations():
+    """Each token starts at the correctly rounded sum of the durations before it (what
+    math.fsum of the prefix gives), though the compiler now sums once per token."""
+    import math
+
+    rng = np.random.default_rng(11)
+    durations = [round(float(d), int(k)) for d, k in zip(rng.uniform(0.001, 0.3, 500), rng.integers(2, 9, 500))]
+    track = Track(tuple(LineToken((0.0, 4.0), 0.3, 0.2, 0.0, float(d)) for d in durations), start=0.1)
+    compiled = tracks._compile(track)
+    expected = [0.1 + math.fsum(durations[:i]) for i in range(len(durations))]
+    assert compiled.starts.tolist() == expected

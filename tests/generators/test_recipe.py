@@ -18,9 +18,9 @@ from generators.grids import (
     centre_bounds,
     config_pool,
     feasible,
-    in_view,
     worst_object,
 )
+from generators.camera import in_view
 from generators.motion import evaluate, motion_bounds
 from generators.recipe import (
     APPROACH_FRAMES,
