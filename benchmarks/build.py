@@ -23,8 +23,8 @@ from pathlib import Path
 
 from generators.recipe import slice_specs
 from generators.render import Renderer
-from pipeline.build import build
-from pipeline.episode import episode
+from pipeline.jobs.build import build
+from pipeline.stages.episode import episode
 from schemas.slices import get_slice
 
 

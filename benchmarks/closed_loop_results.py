@@ -12,8 +12,6 @@ already holds a ``catalog.json`` is reused.
 
 from __future__ import annotations
 
-import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
-
 import argparse
 import contextlib
 import io
@@ -23,6 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 
 from pipeline.cli import main as pipeline_main  # noqa: E402
 from scoring.cli import main as scoring_main  # noqa: E402

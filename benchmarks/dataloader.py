@@ -38,10 +38,9 @@ import tempfile
 import time
 from pathlib import Path
 
+import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 import cv2
 import numpy as np
-
-import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 
 import catalog  # noqa: E402
 from catalog.manifest import CodeInfo, Manifest, write_manifest  # noqa: E402

@@ -1,4 +1,4 @@
-"""Benchmark: the episode stage (``pipeline.episode``, no rendering) on one core.
+"""Benchmark: the episode stage (``pipeline.stages.episode``, no rendering) on one core.
 
 A mix of recipe specs, the first ``--per-slice`` episodes of each of the nine atomic
 slices, runs through ``episode(spec)``. The baseline, measured in the same run on the
@@ -14,9 +14,9 @@ assumes two cores share the work evenly. The last line printed is JSON.
 
 from __future__ import annotations
 
-import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
-
 import os
+
+import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from generators import motion
     from generators.recipe import slice_specs
-    from pipeline.episode import episode, frame_times
+    from pipeline.stages.episode import episode, frame_times
     from schemas.slices import SLICES, get_slice
 
     parts = get_slice("dyana-12m").parts

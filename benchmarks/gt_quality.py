@@ -1,7 +1,7 @@
 """Ground-truth quality: the paper's Table 3 metrics of the episode stage's own plans.
 
 For each motion type, ``--per-type`` recipe episodes (split evenly over its fast,
-medium and slow slices, the first ones of each) run through ``pipeline.episode`` and
+medium and slow slices, the first ones of each) run through ``pipeline.stages.episode`` and
 are scored by :mod:`scoring.metrics` exactly as rollouts are: over the acting frames
 (phase != observe); E_loc is the minimum palm-to-object XZ distance, E_gra the minimum
 fingertip-to-surface distance, Q_smooth/Q_line are measured on the palm path from the
@@ -14,13 +14,11 @@ printed beside. The last line printed is JSON.
 
 from __future__ import annotations
 
-import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
-
 import argparse
 import json
 import sys
 
-
+import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 
 #: Table 3, row GT.
 PAPER_GT = {"S_loc": 100.0, "E_loc": 0.16, "S_gra": 100.0, "E_gra": 0.09, "Q_smooth": 0.81, "Q_line": 0.96, "R_time": 0.16}
@@ -38,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--per-type must be >= 3")
 
     from generators.recipe import slice_specs
-    from pipeline.episode import episode
+    from pipeline.stages.episode import episode
     from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
     from scoring.io import from_recordings
     from scoring.metrics import METRIC_NAMES

@@ -1,6 +1,6 @@
 """How well the built-in policies do in the closed loop, per (motion type, setting) cell.
 
-Runs each policy in :class:`pipeline.env.DyanaEnv` on the first ``--per-cell`` test-1k
+Runs each policy in :class:`pipeline.loop.env.DyanaEnv` on the first ``--per-cell`` test-1k
 episodes of every one of the nine (motion type, interception setting) cells (test-1k
 episode ``i`` belongs to cell ``i mod 9``) at ``--resolution`` px, then scores the
 recordings with :func:`scoring.io.from_recordings` and :func:`scoring.report.score_run`
@@ -22,14 +22,13 @@ import argparse
 import json
 import time
 
+import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 import numpy as np
 
-import bench_setup  # noqa: F401  (puts the repository first on sys.path)
-
 from generators.recipe import spec_for  # noqa: E402
-from pipeline.env import DyanaEnv, horizon  # noqa: E402
+from pipeline.loop.env import DyanaEnv, horizon  # noqa: E402
+from pipeline.loop.rollout import task_for  # noqa: E402
 from pipeline.policies.base import make_policy  # noqa: E402
-from pipeline.rollout import task_for  # noqa: E402
 from scoring.io import from_recordings  # noqa: E402
 from scoring.metrics import METRIC_NAMES  # noqa: E402
 from scoring.report import score_run  # noqa: E402

@@ -13,9 +13,9 @@ per-episode seeded recipe pays at least. The last line printed is JSON.
 
 from __future__ import annotations
 
-import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
-
 import os
+
+import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")

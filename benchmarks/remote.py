@@ -2,11 +2,11 @@
 
 Starts ``pipeline serve --policy P --port 0`` in a subprocess, replays the same
 observations (from short ``still`` rollouts of test-1k episodes) to the policy in
-process and through :class:`~pipeline.remote.RemotePolicy`, and reports per ``act``
+process and through :class:`~pipeline.remote.client.RemotePolicy`, and reports per ``act``
 the in-process time and the round trip, separately for the first observation of an
 episode (it carries the observe window) and for the others, and over all acts the
 protocol overhead (round trip minus the server's own ``server_time_ms``). Then, with ``--eval-episodes``, evaluates the
-same episodes in process and over the wire with ``pipeline.evaluate`` and checks
+same episodes in process and over the wire with ``pipeline.jobs.evaluate`` and checks
 the shards are byte-identical.
 
     python benchmarks/remote.py [--policy predictive] [--resolution 224] [--episodes 4] [--eval-episodes 0]
@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from generators.recipe import spec_for
-from pipeline.env import DyanaEnv, horizon
+from pipeline.loop.env import DyanaEnv, horizon
+from pipeline.loop.rollout import task_for
 from pipeline.policies.base import make_policy
-from pipeline.remote import RemotePolicy
-from pipeline.rollout import task_for
+from pipeline.remote.client import RemotePolicy
 
 
 def _observations(resolution: int, episodes: int) -> list[tuple[object, list[dict]]]:
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             "ratio": float(np.mean(remote_rest) / max(np.mean(local_rest), 1e-9)),
         }
         if args.eval_episodes:
-            from pipeline.evaluate import evaluate
+            from pipeline.jobs.evaluate import evaluate
 
             common = dict(episodes=args.eval_episodes, resolution=args.resolution, workers=2, progress=False, summary=False)
             with tempfile.TemporaryDirectory() as scratch:

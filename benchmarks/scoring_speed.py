@@ -22,11 +22,10 @@ import tempfile
 import time
 from pathlib import Path
 
+import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-
-import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 
 from catalog.hashing import sha256_file  # noqa: E402
 from catalog.manifest import CodeInfo, Manifest, write_manifest  # noqa: E402

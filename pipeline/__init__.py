@@ -1,11 +1,33 @@
-"""Composition and execution: the episode stage, the Dask build, the closed loop, the CLI."""
+"""Composition and execution, grouped by job:
+
+- :mod:`pipeline.stages`: the episode stage chain (spec -> states and actions -> frames);
+- :mod:`pipeline.loop`: the closed loop (environment, checker, rollout with deadlines);
+- :mod:`pipeline.policies`: the built-in policies and the policy protocol;
+- :mod:`pipeline.remote`: policies over the network (protocol, server, client);
+- :mod:`pipeline.jobs`: sharded jobs and their folders (runner, build, eval, replay, verify, view);
+- :mod:`pipeline.cli`, :mod:`pipeline.cli_catalog`: the ``pipeline`` and ``catalog`` commands.
+
+Importing the package stays light: :func:`episode` loads the stage on first call.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from schemas.frames import EpisodeFrames
+    from schemas.spec import EpisodeSpec
 
 
-def __getattr__(name: str):
-    # Lazy, so that importing the package stays light: ``pipeline.episode(spec)`` loads
-    # the episode stage on first use (the submodule is itself callable).
-    if name == "episode":
-        import importlib
+def episode(spec: EpisodeSpec) -> EpisodeFrames:
+    """Ground-truth states and actions of every frame of ``spec`` (float32 arrays, no
+    rendering): :func:`pipeline.stages.episode.episode`.
 
-        return importlib.import_module("pipeline.episode")
-    raise AttributeError(f"module 'pipeline' has no attribute {name!r}")
+    Raises :class:`schemas.errors.InfeasibleError` when the interception cannot be planned.
+    """
+    from pipeline.stages.episode import episode as run
+
+    return run(spec)
+
+
+__all__ = ["episode"]

@@ -24,7 +24,7 @@ def _build_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from pipeline.build import build_job
+    from pipeline.jobs.build import build_job
 
     if args.slice is None and args.specs is None:
         raise DyanaError("pipeline build needs --slice NAME or --specs FILE.jsonl")
@@ -79,7 +79,7 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from pipeline.evaluate import evaluate
+    from pipeline.jobs.evaluate import evaluate
 
     _importable_cwd(args.policy)
     evaluate(
@@ -105,7 +105,7 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from pipeline.serve import serve
+    from pipeline.remote.serve import serve
 
     _importable_cwd(args.policy)
     serve(args.policy, args.host, args.port)
@@ -118,7 +118,7 @@ def _replay_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from pipeline.replay import replay
+    from pipeline.jobs.replay import replay
 
     def progress(shard) -> None:
         if not args.quiet:
@@ -140,7 +140,7 @@ def _view_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from pipeline.view import write_recording
+    from pipeline.jobs.view import write_recording
 
     out = write_recording(args.dir, args.episode, args.out)
     print(f"wrote {out} (open it with: rerun {out})")

@@ -92,7 +92,7 @@ def _specs_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
-    from pipeline.verify import verify
+    from pipeline.jobs.verify import verify
 
     def progress(shard) -> None:
         print(f"rebuilt shard episodes [{shard.first}, {shard.end}): identical", file=sys.stderr, flush=True)

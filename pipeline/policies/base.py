@@ -10,7 +10,7 @@ A policy has three attributes and two methods:
   (the interception setting's time, part of the public task description) when the
   runner provides it, plus ``"spec"`` (the spec's JSON) for privileged policies;
 * ``act(obs) -> ndarray`` (18,) or (H, 18) float32, from the observation
-  (:mod:`pipeline.env`). Policies are deterministic given the same observations.
+  (:mod:`pipeline.loop.env`). Policies are deterministic given the same observations.
 
 :func:`make_policy` resolves a reference: a built-in name (:data:`BUILTIN`) or
 ``module:attribute`` (dots in the attribute walk into it). The attribute may be a

@@ -1,6 +1,6 @@
 """``oracle``: the ground-truth plan, the upper bound. Privileged: its task carries the
 spec, from which it plans the episode exactly as the build does
-(:func:`pipeline.episode.episode`) and replays the plan's actions by frame index, so
+(:func:`pipeline.stages.episode.episode`) and replays the plan's actions by frame index, so
 through the environment it reproduces the ground truth's states."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ class OraclePolicy:
         self._actions: np.ndarray | None = None
 
     def reset(self, task: dict) -> None:
-        from pipeline.episode import episode
+        from pipeline.stages.episode import episode
 
         if "spec" not in task:
             raise PolicyError("the oracle needs the spec in its task (it is privileged)")

@@ -15,12 +15,12 @@ import pytest
 
 from catalog.manifest import CodeInfo, Manifest, write_manifest
 from catalog.shard import ShardWriter
-from schemas.versions import DATASET_VERSION
 from schemas.frames import EpisodeFrames
 from schemas.motion import ArcToken, LineToken, Motion
 from schemas.scene import GRASP_FRAMES
 from schemas.spec import EpisodeSpec
 from schemas.tables import ARRAY_WIDTHS
+from schemas.versions import DATASET_VERSION
 
 RESOLUTION = 32
 SETTINGS = {"fps": 20, "resolution": RESOLUTION, "image_format": "jpeg", "jpeg_quality": 90, "dataset_version": DATASET_VERSION}

@@ -16,14 +16,23 @@ import pytest
 
 import catalog
 from catalog.dataset import FrameDataset
-from catalog.stream import FrameStream
 from catalog.manifest import Manifest, load_manifest, write_manifest
 from catalog.shard import ShardWriter
 from catalog.stats import STATS_NAME, compute_stats, load_stats, read_stats
+from catalog.stream import FrameStream
 from schemas.errors import ShardError, SpecError
 from schemas.scene import PHASES
 from schemas.tables import STATE_COLUMNS
-from .conftest import CODE, SETTINGS, make_episode, make_frames, make_images, make_spec, write_slice
+
+from .conftest import (
+    CODE,
+    SETTINGS,
+    make_episode,
+    make_frames,
+    make_images,
+    make_spec,
+    write_slice,
+)
 
 EPISODES, SHARD_SIZE = 5, 2
 

@@ -6,7 +6,14 @@ from dataclasses import replace
 import pytest
 
 from catalog.hashing import canonical_json, sha256_bytes, sha256_file, slice_hash
-from catalog.manifest import CodeInfo, Manifest, compute_hash, git_commit, load_manifest, write_manifest
+from catalog.manifest import (
+    CodeInfo,
+    Manifest,
+    compute_hash,
+    git_commit,
+    load_manifest,
+    write_manifest,
+)
 from catalog.records import FileRecord, ShardRecord, shard_paths
 from schemas.errors import ShardError
 

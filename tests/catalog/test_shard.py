@@ -19,7 +19,12 @@ from catalog.shard import ShardWriter
 from schemas.errors import ShardError
 from schemas.motion import Motion
 from schemas.spec import EpisodeSpec
-from schemas.tables import EPISODES_SCHEMA, FRAMES_SCHEMA, ROLLOUT_EPISODES_SCHEMA, STATE_COLUMNS
+from schemas.tables import (
+    EPISODES_SCHEMA,
+    FRAMES_SCHEMA,
+    ROLLOUT_EPISODES_SCHEMA,
+    STATE_COLUMNS,
+)
 
 from .conftest import SETTINGS, make_episode, make_frames, make_images, make_spec
 

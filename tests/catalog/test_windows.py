@@ -7,7 +7,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catalog.windows import episode_starts, history_window, horizon_window, locate, window
+from catalog.windows import (
+    episode_starts,
+    history_window,
+    horizon_window,
+    locate,
+    window,
+)
 
 
 def test_history_pads_at_the_episode_start_oldest_first():

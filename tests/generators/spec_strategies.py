@@ -12,7 +12,13 @@ from hypothesis import strategies as st
 
 from schemas.motion import ArcToken, HarmonicToken, LineToken, Motion
 from schemas.objects import OBJECTS
-from schemas.scene import GRASP_FRAMES, HOLD_FRAMES, INTERCEPT_SECONDS, WORKSPACE_X, WORKSPACE_Z
+from schemas.scene import (
+    GRASP_FRAMES,
+    HOLD_FRAMES,
+    INTERCEPT_SECONDS,
+    WORKSPACE_X,
+    WORKSPACE_Z,
+)
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 

@@ -8,7 +8,13 @@ from generators.contact import signed_distance_local
 from generators.encode import decode_jpeg, encode_jpeg
 from generators.grasp import grasp_angles, lowest_fingertip_offset
 from generators.hand import forward_kinematics
-from generators.motion import arc_length, evaluate, motion_bounds, object_angular_velocity, object_pose
+from generators.motion import (
+    arc_length,
+    evaluate,
+    motion_bounds,
+    object_angular_velocity,
+    object_pose,
+)
 from schemas.errors import ShardError, SpecError
 from schemas.motion import HarmonicToken, LineToken, Motion, Track
 

@@ -6,7 +6,6 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from schemas.events import palm_xz_distance
 from generators.contact import (
     fingertip_distance,
     quaternion_to_matrix,
@@ -14,6 +13,7 @@ from generators.contact import (
     signed_distance_local,
     to_local,
 )
+from schemas.events import palm_xz_distance
 from schemas.objects import OBJECTS
 
 PROBE_RADIUS = 0.01

@@ -5,9 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from generators.grasp import SYNERGY_END, _finger_clearance, grasp_angles, lowest_fingertip_offset
-from generators.hand import FINGER_RADII, JOINT_LOWER, JOINT_UPPER, fingertip_positions
 from generators.contact import signed_distance_local
+from generators.grasp import (
+    SYNERGY_END,
+    _finger_clearance,
+    grasp_angles,
+    lowest_fingertip_offset,
+)
+from generators.hand import FINGER_RADII, JOINT_LOWER, JOINT_UPPER, fingertip_positions
 from schemas.errors import SpecError
 from schemas.objects import OBJECTS
 from schemas.scene import PALM_HOVER

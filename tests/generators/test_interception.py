@@ -10,6 +10,8 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 
 import generators.interception as interception
+from generators.camera import points_in_view, project
+from generators.hand import REST_JOINTS, REST_PALM
 from generators.interception import (
     HandPlan,
     closure_profile,
@@ -18,13 +20,25 @@ from generators.interception import (
     plan_episode,
     quintic,
 )
-from generators.camera import points_in_view, project
-from generators.hand import REST_JOINTS, REST_PALM
 from schemas.errors import InfeasibleError
 from schemas.objects import object_category
-from schemas.scene import CAMERA_FAR, CAMERA_NEAR, GRASP_FRAMES, GRASP_RATIO, LOC_TOLERANCE, PALM_HOVER, PHASES
+from schemas.scene import (
+    CAMERA_FAR,
+    CAMERA_NEAR,
+    GRASP_FRAMES,
+    GRASP_RATIO,
+    LOC_TOLERANCE,
+    PALM_HOVER,
+    PHASES,
+)
 from schemas.versions import FPS
-from tests.generators.spec_strategies import in_workspace, make_spec, random_specs, spec_motion, specs
+from tests.generators.spec_strategies import (
+    in_workspace,
+    make_spec,
+    random_specs,
+    spec_motion,
+    specs,
+)
 
 STEP_MIN = 1e-4
 

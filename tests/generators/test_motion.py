@@ -21,7 +21,14 @@ from generators.motion import (
     qmul,
 )
 from schemas.errors import SpecError
-from schemas.motion import ArcToken, ClothoidToken, HarmonicToken, LineToken, Motion, Track
+from schemas.motion import (
+    ArcToken,
+    ClothoidToken,
+    HarmonicToken,
+    LineToken,
+    Motion,
+    Track,
+)
 from schemas.objects import OBJECTS
 
 TOKENS = {

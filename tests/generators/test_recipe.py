@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import generators.recipe as recipe
-from generators.camera import project
+from generators.camera import in_view, project
 from generators.grids import (
     GRID_AXES,
     MAX_SPEED,
@@ -20,7 +20,6 @@ from generators.grids import (
     feasible,
     worst_object,
 )
-from generators.camera import in_view
 from generators.motion import evaluate, motion_bounds
 from generators.recipe import (
     APPROACH_FRAMES,

@@ -308,7 +308,7 @@ def test_a_frame_does_not_depend_on_what_the_renderer_drew_before():
     perturb (1 and 2 build workers then disagreed on one pixel). Fresh and used renderers,
     composited and full renders must all agree."""
     from generators.recipe import spec_for
-    from pipeline.episode import episode
+    from pipeline.stages.episode import episode
 
     def tie_frame(renderer: Renderer) -> tuple[np.ndarray, np.ndarray]:
         spec = spec_for("circular-medium", 116)

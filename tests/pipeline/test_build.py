@@ -17,8 +17,8 @@ import pytest
 
 from catalog.integrity import verify_files
 from catalog.manifest import load_manifest
-from pipeline.build import build
-from pipeline.runner import STATE_FILE
+from pipeline.jobs.build import build
+from pipeline.jobs.runner import STATE_FILE
 from schemas.errors import SpecError
 
 SLICE = "linear-fast"

@@ -16,7 +16,7 @@ import pytest
 from generators.encode import encode_jpeg
 from generators.recipe import slice_specs, spec_for
 from generators.render import Renderer
-from pipeline.episode import episode
+from pipeline.stages.episode import episode
 from schemas.frames import FRAME_ARRAYS
 from schemas.slices import SLICES
 

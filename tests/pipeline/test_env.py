@@ -11,10 +11,10 @@ from generators.encode import JPEG_QUALITY, decode_jpeg
 from generators.grasp import grasp_angles
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
 from generators.recipe import spec_for
-from pipeline.env import ENV_ID, PALM_BOX, DyanaEnv, as_chunk, horizon, run_chunk
-from pipeline.env_checker import check_env
-from pipeline.episode import episode
-from pipeline.record import encoded_frames
+from pipeline.loop.env import ENV_ID, PALM_BOX, DyanaEnv, as_chunk, horizon, run_chunk
+from pipeline.loop.env_checker import check_env
+from pipeline.stages.episode import episode
+from pipeline.stages.record import encoded_frames
 from schemas.errors import DyanaError, PolicyError, SpecError
 from schemas.scene import GRASP_RATIO, PHASES
 
@@ -253,8 +253,8 @@ def test_gymnasium_registration_and_checker():
 def test_the_recording_keeps_actions_a_policy_later_reuses(env):
     """A policy may return the same buffer every call and refill it: the recording must
     hold each action as issued, not the buffer's last contents."""
+    from pipeline.loop.rollout import run_episode
     from pipeline.policies.base import state_action
-    from pipeline.rollout import run_episode
 
     class Reusing:
         name, action_horizon, privileged = "reusing", 1, False

@@ -12,7 +12,7 @@ from generators import motion
 from generators.contact import fingertip_distance
 from generators.hand import REST_JOINTS, REST_PALM
 from generators.recipe import spec_for
-from pipeline.episode import assemble_frames, episode, frame_times
+from pipeline.stages.episode import assemble_frames, episode, frame_times
 from schemas.errors import InfeasibleError
 from schemas.frames import FRAME_ARRAYS
 from schemas.objects import object_category

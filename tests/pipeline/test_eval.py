@@ -11,16 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import pipeline.evaluate as evaluate_module
-import pipeline.runner as runner_module
+import pipeline.jobs.evaluate as evaluate_module
+import pipeline.jobs.runner as runner_module
 from catalog.integrity import verify_files
 from catalog.manifest import load_manifest
 from catalog.shard import ShardWriter, rollout_frame_limit
 from generators.recipe import spec_for
-from pipeline.env import DyanaEnv, horizon
-from pipeline.evaluate import evaluate
+from pipeline.jobs.evaluate import evaluate
+from pipeline.loop.env import DyanaEnv, horizon
+from pipeline.loop.rollout import run_episode
 from pipeline.policies.base import make_policy
-from pipeline.rollout import run_episode
 from schemas.errors import ShardError, SpecError
 from schemas.frames import EpisodeFrames
 
@@ -81,7 +81,7 @@ def test_a_run_is_a_verifiable_rollout_folder(runs):
 def test_the_oracle_reproduces_the_ground_truth_states(runs):
     """Through the environment, the oracle's frames are the build's frames up to grasp completion."""
     from catalog.parquet_io import column_to_numpy, read_frames
-    from pipeline.episode import episode
+    from pipeline.stages.episode import episode
 
     root, _ = runs
     manifest = load_manifest(root / "oracle")

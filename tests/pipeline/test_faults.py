@@ -21,12 +21,12 @@ from catalog.manifest import load_manifest
 from catalog.parquet_io import read_episodes, read_frames
 from catalog.shard import ShardWriter
 from generators.recipe import spec_for
-from pipeline import protocol
-from pipeline.env import DyanaEnv
-from pipeline.evaluate import evaluate, summarize
+from pipeline.jobs.evaluate import evaluate, summarize
+from pipeline.jobs.replay import replay
+from pipeline.loop.env import DyanaEnv
+from pipeline.loop.rollout import run_episode
 from pipeline.policies.base import state_action
-from pipeline.replay import replay
-from pipeline.rollout import run_episode
+from pipeline.remote import protocol
 
 from .faulty_policies import FAULT_CALL, HANG_S, Single
 

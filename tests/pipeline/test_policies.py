@@ -12,15 +12,20 @@ from generators import motion
 from generators.encode import decode_jpeg, encode_jpeg
 from generators.hand import REST_JOINTS, REST_PALM, forward_kinematics
 from generators.recipe import spec_for
-from pipeline.env import DyanaEnv, horizon
-from pipeline.episode import episode
+from pipeline.loop.env import DyanaEnv, horizon
 from pipeline.policies.base import BUILTIN, FunctionPolicy, Policy, make_policy
 from pipeline.policies.chase import ChasePolicy
 from pipeline.policies.fitting import fit_line, fit_motion
-from pipeline.policies.perception import ObjectLocator, hand_mask, object_from_text, table_colour
+from pipeline.policies.perception import (
+    ObjectLocator,
+    hand_mask,
+    object_from_text,
+    table_colour,
+)
 from pipeline.policies.predictive import PredictivePolicy, motion_hint
 from pipeline.policies.still import StillPolicy
-from pipeline.record import renderer_for
+from pipeline.stages.episode import episode
+from pipeline.stages.record import renderer_for
 from schemas.errors import SpecError
 from schemas.motion import ArcToken, HarmonicToken, LineToken, Motion
 from schemas.objects import OBJECTS

@@ -9,8 +9,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from pipeline import protocol
-from pipeline.protocol import ProtocolError
+from pipeline.remote import protocol
+from pipeline.remote.protocol import ProtocolError
 from schemas.errors import PolicyError
 
 #: Every dtype and shape the closed loop sends, plus the other accepted dtypes.

@@ -17,12 +17,12 @@ import pytest
 from websockets.sync.client import connect
 
 from generators.recipe import spec_for
-from pipeline import protocol
-from pipeline.env import DyanaEnv, horizon
-from pipeline.evaluate import evaluate
+from pipeline.jobs.evaluate import evaluate
+from pipeline.loop.env import DyanaEnv, horizon
+from pipeline.loop.rollout import task_for
 from pipeline.policies.base import make_policy
-from pipeline.remote import RemotePolicy
-from pipeline.rollout import task_for
+from pipeline.remote import protocol
+from pipeline.remote.client import RemotePolicy
 from schemas.errors import PolicyError
 
 BIN = Path(sys.executable).parent

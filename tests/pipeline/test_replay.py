@@ -13,10 +13,10 @@ import pytest
 
 from catalog.integrity import verify_files
 from catalog.manifest import load_manifest
-from pipeline.build import build
-from pipeline.evaluate import evaluate
-from pipeline.replay import replay
-from schemas.errors import ShardHashMismatch, ReplayMismatch
+from pipeline.jobs.build import build
+from pipeline.jobs.evaluate import evaluate
+from pipeline.jobs.replay import replay
+from schemas.errors import ReplayMismatch, ShardHashMismatch
 
 from .tamper import flip_image_byte, rewrite_frames, set_state_value
 

@@ -10,8 +10,16 @@ from pathlib import Path
 import pytest
 
 from catalog.records import shard_paths
-from pipeline import runner
-from pipeline.runner import FolderBusy, Job, ShardTask, default_workers, folder_lock, run_job, shard_ranges
+from pipeline.jobs import runner
+from pipeline.jobs.runner import (
+    FolderBusy,
+    Job,
+    ShardTask,
+    default_workers,
+    folder_lock,
+    run_job,
+    shard_ranges,
+)
 from schemas.errors import SpecError
 
 CALLS: list[int] = []

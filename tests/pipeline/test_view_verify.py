@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.build import build
+from pipeline.jobs.build import build
 
 BIN = Path(sys.executable).parent
 SLICE = "circular-fast"
@@ -128,7 +128,7 @@ def test_verify_rebuild_catches_what_hashes_cannot(built, tmp_path):
 def test_view_leaves_no_temporary_file_behind_on_failure(built, tmp_path, monkeypatch):
     import rerun as rr
 
-    from pipeline.view import write_recording
+    from pipeline.jobs.view import write_recording
     from schemas.errors import DyanaError
 
     folder = tmp_path / "x.rrd"

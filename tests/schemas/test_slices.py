@@ -4,7 +4,15 @@ import pytest
 
 from schemas.errors import DyanaError, SliceError, SpecError
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
-from schemas.slices import ATOMIC_SLICES, FIGURE4_EPISODES, SLICES, TEST_SEED, SliceDef, get_slice, slice_names
+from schemas.slices import (
+    ATOMIC_SLICES,
+    FIGURE4_EPISODES,
+    SLICES,
+    TEST_SEED,
+    SliceDef,
+    get_slice,
+    slice_names,
+)
 
 
 def test_registry_lists_nine_atomic_slices_then_test_and_union():

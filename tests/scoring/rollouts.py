@@ -14,8 +14,14 @@ from catalog.hashing import sha256_file
 from catalog.manifest import CodeInfo, Manifest, write_manifest
 from catalog.parquet_io import write_table
 from catalog.records import FileRecord, ShardRecord, shard_paths
+from schemas.tables import (
+    ARRAY_WIDTHS,
+    EPISODES_SCHEMA,
+    FRAMES_SCHEMA,
+    ROLLOUT_EPISODES_SCHEMA,
+    STATE_COLUMNS,
+)
 from schemas.versions import DATASET_VERSION
-from schemas.tables import ARRAY_WIDTHS, EPISODES_SCHEMA, FRAMES_SCHEMA, ROLLOUT_EPISODES_SCHEMA, STATE_COLUMNS
 
 CLOSED = np.ones(15, dtype=np.float32)
 

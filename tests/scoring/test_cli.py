@@ -9,10 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from tests.pipeline.tamper import rehash
-
 from scoring.cli import main
 from scoring.io import load_run
+from tests.pipeline.tamper import rehash
 from tests.scoring.rollouts import CLOSED, Ep, write_run
 
 OPEN = np.zeros(15, np.float32)

@@ -11,7 +11,7 @@ from catalog.manifest import CodeInfo, Manifest, write_manifest
 from catalog.shard import ShardWriter
 from scoring.cli import main
 
-episode_module = pytest.importorskip("pipeline.episode")
+episode_module = pytest.importorskip("pipeline.stages.episode")
 recipe = pytest.importorskip("generators.recipe")
 from schemas.versions import DATASET_VERSION  # noqa: E402
 

@@ -4,7 +4,7 @@ Integrity (sha256, sizes, readable Parquet/MCAP, no stray temps) comes from
 ``catalog.integrity``. Rebuilding re-runs the episode stage, the renderer and the writers
 on the specs stored in each shard's episodes table (so slices built from a user's
 ``--specs`` file verify too) into a temporary folder, and compares the bytes.
-Rollout sets are re-executed through ``pipeline.replay`` instead.
+Rollout sets are re-executed through ``pipeline.jobs.replay`` instead.
 """
 
 from __future__ import annotations
@@ -49,8 +49,8 @@ def _stored_specs(directory: Path, shard: ShardRecord) -> list[EpisodeSpec]:
 
 def rebuild_shard(directory: Path, manifest: Manifest, shard: ShardRecord, scratch: Path) -> int:
     """Rebuild one ground-truth shard into ``scratch`` and compare its files' bytes."""
-    from pipeline.build import BuildSettings
-    from pipeline.record import write_ground_truth_shard
+    from pipeline.jobs.build import BuildSettings
+    from pipeline.stages.record import write_ground_truth_shard
 
     built_with = manifest.settings.get("dataset_version")
     if built_with != DATASET_VERSION:
@@ -88,7 +88,7 @@ def verify(
     manifest = verify_files(directory)
     shards = _sample_shards(manifest, sample, rng)
     if "policy" in manifest.extra:
-        from pipeline.replay import replay
+        from pipeline.jobs.replay import replay
 
         replay(directory, shards=[s.first for s in shards])
         return VerifyReport(manifest.slice, len(manifest.shards), len(shards), 0)

@@ -19,8 +19,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from pipeline import protocol
-from pipeline.worker_thread import WorkerThread
+from pipeline.loop.worker_thread import WorkerThread
+from pipeline.remote import protocol
 from schemas.errors import DyanaError
 
 PolicyFactory = Callable[[], Any]

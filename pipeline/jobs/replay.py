@@ -168,8 +168,8 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
             actions = _column_values(recorded.column("action"))
             ep_frames, images = _rollout_recording(env, spec, actions, row["status"], {"prefix": prefix, "ids": ids})
         else:
-            from pipeline.episode import episode
-            from pipeline.record import encoded_frames
+            from pipeline.stages.episode import episode
+            from pipeline.stages.record import encoded_frames
 
             ep_frames = episode(spec)
             images = encoded_frames(spec, ep_frames, resolution, quality)
@@ -219,7 +219,7 @@ def replay(
         chosen = [s for s in chosen if s.record.first in wanted]
     env = None
     if rollout:
-        from pipeline.env import DyanaEnv
+        from pipeline.loop.env import DyanaEnv
 
         env = DyanaEnv(resolution=settings["resolution"], jpeg_quality=settings["jpeg_quality"])
     episodes = frames = 0

@@ -3,7 +3,7 @@
 The run folder (RUN) has the layout of a built slice: ``shards/`` with the same
 three files per shard (the episodes table adds ``policy``, ``status``, ``error``)
 and ``RUN/catalog.json``, whose ``policy`` key marks it as rollouts. Shards run
-through :func:`pipeline.runner.run_job` as a build's do (and resume the same way); each task makes its own policy: a built-in name or a
+through :func:`pipeline.jobs.runner.run_job` as a build's do (and resume the same way); each task makes its own policy: a built-in name or a
 ``module:callable`` ref is resolved inside the worker, a ``ws://`` URL is connected
 from the worker. After an episode fails the worker discards that policy (a hung
 thread or a broken connection may still hold it) and makes a fresh one.
@@ -25,9 +25,9 @@ from typing import Any, TextIO
 import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
-from pipeline.build import BuildSettings
-from pipeline.rollout import DEFAULT_DEADLINE_S, run_episode
-from pipeline.runner import Job, ShardTask, default_workers, run_job, shard_ranges
+from pipeline.jobs.build import BuildSettings
+from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
+from pipeline.loop.rollout import DEFAULT_DEADLINE_S, run_episode
 from schemas.errors import PolicyError, SpecError
 
 DEFAULT_SHARD_SIZE = 32
@@ -71,7 +71,7 @@ class _Unavailable:
 
 def open_policy(ref: str, deadline_s: float) -> Any:
     """A fresh policy for ``ref``: RemotePolicy for ``ws://``, else ``make_policy(ref)``."""
-    from pipeline.remote import RemotePolicy, is_remote
+    from pipeline.remote.client import RemotePolicy, is_remote
 
     if is_remote(ref):
         return RemotePolicy(ref, timeout_s=deadline_s + REMOTE_SLACK_S)
@@ -92,7 +92,7 @@ def _close(policy: Any) -> None:
 def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[str, Any]:
     """Worker side: roll out one shard's episodes and write them; the record and timing."""
     from catalog.shard import ShardWriter
-    from pipeline.env import DyanaEnv
+    from pipeline.loop.env import DyanaEnv
 
     env = DyanaEnv(resolution=settings.build.resolution, jpeg_quality=settings.build.jpeg_quality)
     stats = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
@@ -136,7 +136,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
 
 def _retire(policy: Any, stats: dict[str, Any]) -> None:
     """Close a policy, keeping its remote timing (if any) in ``stats``."""
-    from pipeline.remote import RemotePolicy
+    from pipeline.remote.client import RemotePolicy
 
     if policy is None:
         return
@@ -158,7 +158,7 @@ def _merge_timing(total: dict | None, part: dict) -> dict:
 def describe_policy(ref: str, deadline_s: float) -> str:
     """The policy's name, resolving ``ref`` once in the driver so that a bad name, an
     unimportable callable or an unreachable server fails before any work starts."""
-    from pipeline.remote import is_remote
+    from pipeline.remote.client import is_remote
 
     try:
         policy = open_policy(ref, deadline_s)

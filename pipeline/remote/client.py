@@ -18,7 +18,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
-from pipeline import protocol
+from pipeline.remote import protocol
 from schemas.errors import PolicyError, SpecError
 
 DEFAULT_TIMEOUT_S = 30.0

@@ -3,7 +3,7 @@
 Each shard task (:func:`build_shard`) runs the episode stage, renders, JPEG-encodes and
 writes Parquet + MCAP under temporary names, then renames. Everything around the shards
 (the folder's one-job rule, resume, progress, Dask, the manifest) is
-:func:`pipeline.runner.run_job`'s. ``catalog.json`` is written last, then ``stats.json``
+:func:`pipeline.jobs.runner.run_job`'s. ``catalog.json`` is written last, then ``stats.json``
 (normalisation statistics of states and actions, computed without decoding images).
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from catalog.manifest import Manifest
 from catalog.stats import load_stats
-from pipeline.runner import Job, ShardTask, default_workers, run_job, shard_ranges
+from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
 from schemas.errors import SpecError
 from schemas.spec import EpisodeSpec
 from schemas.versions import DATASET_VERSION, FPS
@@ -45,7 +45,7 @@ class BuildSettings:
 
 def build_shard(task: ShardTask, settings: BuildSettings, slice_dir: str) -> dict:
     """Worker side: write one shard; its record as a plain dict."""
-    from pipeline.record import write_ground_truth_shard
+    from pipeline.stages.record import write_ground_truth_shard
 
     record = write_ground_truth_shard(task.specs(), task.first, task.end, settings, Path(slice_dir))
     return {"record": record.to_dict()}

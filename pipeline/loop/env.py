@@ -201,7 +201,7 @@ _Base = gymnasium.Env if gymnasium is not None else object
 
 class DyanaEnv(_Base):
     """Closed-loop dynamic grasping (module docstring). One episode at a time; frames
-    are rendered by this process's shared renderer (:func:`pipeline.record.renderer_for`)."""
+    are rendered by this process's shared renderer (:func:`pipeline.stages.record.renderer_for`)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
 
@@ -329,7 +329,7 @@ class DyanaEnv(_Base):
     # internals ---------------------------------------------------------------
     def _add_frame(self, k: int, palm_xyz: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """Append frame ``k`` with this hand state; returns the decoded image."""
-        from pipeline.record import renderer_for
+        from pipeline.stages.record import renderer_for
 
         spec = self.episode_spec
         palm_pose = np.concatenate([palm_xyz, REST_PALM[3:].astype(np.float32)]).astype(np.float32)
@@ -425,16 +425,16 @@ def run_chunk(env: DyanaEnv, action: Any) -> ChunkResult:
 def register() -> bool:
     """Register :data:`ENV_ID` with Gymnasium (idempotent); False without Gymnasium.
 
-    Done on import: ``gymnasium.make("pipeline.env:Dyana/Grasp-v0")`` imports this
+    Done on import: ``gymnasium.make("pipeline.loop.env:Dyana/Grasp-v0")`` imports this
     module first, ``gymnasium.make("Dyana/Grasp-v0")`` works once it is imported.
     """
     if gymnasium is None:
         return False
     if ENV_ID not in gymnasium.registry:
         # Gymnasium's passive checker would warn on every make() that the float
-        # timestamp is cast to an array; pipeline.env_checker.check_env (and Gymnasium's
+        # timestamp is cast to an array; pipeline.loop.env_checker.check_env (and Gymnasium's
         # own check_env, in the tests) check the contract instead
-        gymnasium.register(id=ENV_ID, entry_point="pipeline.env:DyanaEnv", disable_env_checker=True)
+        gymnasium.register(id=ENV_ID, entry_point="pipeline.loop.env:DyanaEnv", disable_env_checker=True)
     return True
 
 

@@ -1,6 +1,6 @@
 """``check_env(env)``: does an environment honour the closed loop's contract?
 
-Like Gymnasium's env checker, but for what Dyana promises (:mod:`pipeline.env`):
+Like Gymnasium's env checker, but for what Dyana promises (:mod:`pipeline.loop.env`):
 observation keys, dtypes and shapes; the observe window (K images, the hand held
 still); invalid actions refused with :class:`~schemas.errors.PolicyError` without
 advancing; recordings that match what the policy saw, byte for byte; determinism
@@ -36,7 +36,7 @@ def _hold(obs: dict) -> np.ndarray:
 
 
 def _check_observation(env: Any, obs: dict, frame: int, window: int) -> None:
-    from pipeline.env import OBSERVATION_KEYS
+    from pipeline.loop.env import OBSERVATION_KEYS
 
     assert set(obs) == set(OBSERVATION_KEYS), f"observation keys {sorted(obs)} != {sorted(OBSERVATION_KEYS)}"
     res = env.resolution
@@ -65,7 +65,7 @@ def _check_observation(env: Any, obs: dict, frame: int, window: int) -> None:
 
 
 def _check_info(info: dict) -> None:
-    from pipeline.env import INFO_KEYS
+    from pipeline.loop.env import INFO_KEYS
 
     assert set(info) == set(INFO_KEYS), f"info keys {sorted(info)} != {sorted(INFO_KEYS)}"
     assert info["localized"] == (info["t_loc"] >= 0) and info["grasped"] == (info["t_gra"] >= 0), (
@@ -99,7 +99,7 @@ def check_env(env: Any, spec: Optional[EpisodeSpec] = None, steps: Optional[int]
         from generators.recipe import spec_for
 
         spec = spec_for("test-1k", 4)
-    from pipeline.env import horizon
+    from pipeline.loop.env import horizon
 
     a = spec.observe_frames
     obs, info = env.reset(options={"spec": spec})

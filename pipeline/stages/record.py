@@ -47,7 +47,7 @@ def write_ground_truth_shard(
     specs: Sequence[EpisodeSpec], first: int, end: int, settings, slice_dir: Path
 ) -> ShardRecord:
     """Episodes ``[first, end)`` of a slice, ground truth, as one atomic shard."""
-    from pipeline.episode import episode
+    from pipeline.stages.episode import episode
 
     with ShardWriter(slice_dir, first, end, settings.as_dict()) as writer:
         for index, spec in zip(range(first, end), specs):

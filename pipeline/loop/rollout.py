@@ -3,14 +3,14 @@
 :func:`run_episode` resets the environment with the spec (the observe window runs
 inside the reset), gives the policy its task, then asks it for actions until the
 episode terminates (grasp complete) or truncates (horizon). An action is one row
-(18,) or a chunk (H, 18), executed open loop one row per frame (:func:`pipeline.env.run_chunk`,
+(18,) or a chunk (H, 18), executed open loop one row per frame (:func:`pipeline.loop.env.run_chunk`,
 which checks the whole chunk first). The environment casts every action to float32,
 as a trip over the wire does, so in-process and remote runs see identical numbers.
 
 Faults fail the episode, never the run: an action that is not a finite (18,) or
 (H, 18) array, an exception in ``reset``/``act``, a call that overruns
 ``deadline_s`` (calls run on a daemon worker thread, see
-:mod:`pipeline.worker_thread`) or a dropped connection gives status ``error`` with
+:mod:`pipeline.loop.worker_thread`) or a dropped connection gives status ``error`` with
 the reason, and the frames recorded up to that point are kept (at least the first
 acting frame, after the observe window).
 
@@ -27,7 +27,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from pipeline.worker_thread import CallTimeout, WorkerThread
+from pipeline.loop.worker_thread import CallTimeout, WorkerThread
 from schemas.errors import PolicyError
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
@@ -99,7 +99,7 @@ def run_episode(env: Any, policy: Any, spec: EpisodeSpec, deadline_s: float = DE
     """
     if not (isinstance(deadline_s, (int, float)) and math.isfinite(deadline_s) and deadline_s > 0):
         raise PolicyError(f"deadline must be a finite number of seconds > 0, got {deadline_s!r}")
-    from pipeline.env import horizon, run_chunk
+    from pipeline.loop.env import horizon, run_chunk
 
     obs, info = env.reset(options={"spec": spec})
     worker = WorkerThread()

@@ -7,15 +7,10 @@ fingertip distance to its surface). The build records its output; the closed loo
 uses :func:`assemble_frames` to turn the states its policy produced into the same
 arrays.
 
-This module is callable: ``pipeline.episode(spec)`` and
-``pipeline.episode.episode(spec)`` are the same function (a package attribute and its
-submodule cannot otherwise share the name ``episode``).
+``pipeline.episode(spec)`` is this module's :func:`episode`, loaded on first call.
 """
 
 from __future__ import annotations
-
-import sys
-import types
 
 import numpy as np
 
@@ -88,10 +83,3 @@ def episode(spec: EpisodeSpec) -> EpisodeFrames:
         spec, hand.phase, poses, velocity, hand.palm_pose, hand.joint_angles, hand.action, hand.grasp_angles
     )
 
-
-class _CallableModule(types.ModuleType):
-    def __call__(self, spec: EpisodeSpec) -> EpisodeFrames:
-        return episode(spec)
-
-
-sys.modules[__name__].__class__ = _CallableModule

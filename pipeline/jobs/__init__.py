@@ -1,0 +1,1 @@
+"""Sharded jobs and what runs over their folders: the runner, build, eval, replay, verify, view."""

@@ -1,0 +1,1 @@
+"""The episode stage chain: a spec -> per-frame states and actions -> rendered, encoded frames."""
