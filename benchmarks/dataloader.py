@@ -199,8 +199,11 @@ def main(argv: list[str] | None = None) -> int:
             best["decode"] = min(best["decode"], _time(decode))
             for name, positions in (("random", order), ("sequential", range(n))):
                 fresh = opened()
-                best[name] = min(best[name], _time(lambda: load(fresh, positions)))
-                best[f"warm_{name}"] = min(best[f"warm_{name}"], _time(lambda: load(fresh, positions)))
+                def run(fresh=fresh, positions=positions):
+                    return load(fresh, positions)
+
+                best[name] = min(best[name], _time(run))
+                best[f"warm_{name}"] = min(best[f"warm_{name}"], _time(run))
 
         ds = catalog.open(root, verify=args.verify)
         warm = max(1, n // 10)

@@ -189,7 +189,7 @@ class FrameDataset:
         start = self._starts[k]
         return range(start, start + self._spans[k][2])
 
-    def episode(self, k: int) -> "FrameDataset":
+    def episode(self, k: int) -> FrameDataset:
         """The frames of ``episodes[k]`` alone (same options), as a dataset."""
         if not -len(self._episodes) <= k < len(self._episodes):
             raise IndexError(f"episode {k} is out of range for {len(self._episodes)} episodes")
@@ -204,7 +204,7 @@ class FrameDataset:
         object: str | Iterable[str] | None = None,
         episodes: range | Iterable[int] | int | None = None,
         where: Callable[[Episode], bool] | None = None,
-    ) -> "FrameDataset":
+    ) -> FrameDataset:
         """The episodes matching every given filter (values may be one or several; ``episodes``
         filters on ``episode_index``, e.g. ``range(0, 100)``; ``where`` is any predicate)."""
         motions = _choices("motion_type", motion_type, (*MOTION_TYPES, "custom"))
@@ -226,7 +226,7 @@ class FrameDataset:
             keep.append(k)
         return self._view(keep)
 
-    def _view(self, keep: Sequence[int]) -> "FrameDataset":
+    def _view(self, keep: Sequence[int]) -> FrameDataset:
         return FrameDataset(
             self._roots,
             self._manifests,
@@ -352,7 +352,7 @@ class FrameDataset:
         rank: int | None = None,
         world_size: int | None = None,
         mix: int = 4,
-    ) -> "FrameStream":
+    ) -> FrameStream:
         """An iterable over the frames, split by shard across distributed ranks and DataLoader workers."""
         return FrameStream(self, shuffle=shuffle, seed=seed, rank=rank, world_size=world_size, mix=mix)
 
@@ -367,7 +367,7 @@ class FrameDataset:
         if self._reader is not None and self._reader.pid == os.getpid():
             self._reader.close()
 
-    def __enter__(self) -> "FrameDataset":
+    def __enter__(self) -> FrameDataset:
         return self
 
     def __exit__(self, *exc: Any) -> None:

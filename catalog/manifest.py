@@ -45,7 +45,7 @@ class CodeInfo:
             raise ShardError(f"code.commit must be a hex git sha or null, got {self.commit!r}")
 
     @classmethod
-    def current(cls) -> "CodeInfo":
+    def current(cls) -> CodeInfo:
         """This installation's version and commit."""
         return cls(CODE_VERSION, git_commit())
 
@@ -134,7 +134,7 @@ class Manifest:
         shards: Sequence[ShardRecord],
         code: CodeInfo | None = None,
         extra: Mapping[str, Any] | None = None,
-    ) -> "Manifest":
+    ) -> Manifest:
         """Totals and hash computed; shards sorted by first episode; ``code`` defaults to this installation."""
         ordered = tuple(sorted(shards, key=lambda s: s.first))
         return cls(
@@ -168,7 +168,7 @@ class Manifest:
         return json.dumps(self.to_dict(), sort_keys=True, indent=2, ensure_ascii=True, allow_nan=False) + "\n"
 
     @classmethod
-    def from_dict(cls, data: Any) -> "Manifest":
+    def from_dict(cls, data: Any) -> Manifest:
         if not isinstance(data, dict):
             raise ShardError(f"manifest must be a JSON object, got {type(data).__name__}")
         missing = [k for k in CORE_KEYS if k not in data]

@@ -7,10 +7,11 @@ under ``shards/`` (DESIGN.md, "Catalog manifest"), named by the first and the la
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import PurePosixPath
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
 
 from catalog.hashing import FILE_KINDS, is_sha256
 from schemas.errors import ShardError
@@ -61,7 +62,7 @@ class FileRecord:
         return {"path": self.path, "sha256": self.sha256, "size": self.size}
 
     @classmethod
-    def from_dict(cls, data: Any, where: str = "file record") -> "FileRecord":
+    def from_dict(cls, data: Any, where: str = "file record") -> FileRecord:
         if not isinstance(data, dict):
             raise ShardError(f"{where} must be an object, got {data!r}")
         missing = [k for k in ("path", "sha256", "size") if k not in data]
@@ -121,7 +122,7 @@ class ShardRecord:
         }
 
     @classmethod
-    def from_dict(cls, data: Any, where: str = "shard") -> "ShardRecord":
+    def from_dict(cls, data: Any, where: str = "shard") -> ShardRecord:
         if not isinstance(data, dict):
             raise ShardError(f"{where} must be an object, got {data!r}")
         missing = [k for k in ("episodes", "frames", "files") if k not in data]

@@ -86,7 +86,7 @@ class ShardWriter:
 
     # --- lifecycle ----------------------------------------------------------------------
 
-    def start(self) -> "ShardWriter":
+    def start(self) -> ShardWriter:
         """Open the temporary files."""
         if self._state != "new":
             raise ShardError(f"shard {self.paths['frames']}: start() called twice")
@@ -107,7 +107,7 @@ class ShardWriter:
             raise
         return self
 
-    def __enter__(self) -> "ShardWriter":
+    def __enter__(self) -> ShardWriter:
         return self.start()
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
@@ -176,10 +176,17 @@ class ShardWriter:
         self._frames += n
         self._next = index + 1
 
+    @property
+    def result(self) -> ShardRecord:
+        """The finished shard's record (after :meth:`finish` or leaving the ``with`` block)."""
+        if self.record is None:
+            raise ShardError(f"shard [{self.first}, {self.end}) is not finished")
+        return self.record
+
     def finish(self) -> ShardRecord:
         """Complete the three files, rename them into place and return their record."""
         if self._state == "finished":
-            return self.record
+            return self.result
         if self._state != "open":
             state = self._state
             if state == "failed":  # a write failed mid-episode: its temps are incomplete, delete them

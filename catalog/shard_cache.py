@@ -98,7 +98,7 @@ class ShardCache:
 
     def get(self, key: int) -> OpenShard:
         last_key, last = self.last
-        if key == last_key:
+        if key == last_key and last is not None:
             return last
         shard = self.cache.get(key)
         if shard is None:

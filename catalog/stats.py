@@ -89,7 +89,7 @@ class Stats:
         return json.dumps(self.to_dict(), sort_keys=True, indent=2, ensure_ascii=True, allow_nan=False) + "\n"
 
     @classmethod
-    def from_dict(cls, data: Any) -> "Stats":
+    def from_dict(cls, data: Any) -> Stats:
         """Parse and validate; ValueError naming the bad key."""
         if not isinstance(data, dict) or data.get("version") != STATS_VERSION:
             raise ValueError(f"not a version-{STATS_VERSION} stats object")
@@ -217,7 +217,7 @@ def load_stats(
         try:
             write_stats(directory, stats)
         except OSError as exc:
-            warnings.warn(f"{stats_path(directory)}: cannot write the statistics ({exc}); using them unsaved")
+            warnings.warn(f"{stats_path(directory)}: cannot write the statistics ({exc}); using them unsaved", stacklevel=2)
     return stats
 
 

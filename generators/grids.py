@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -264,7 +264,7 @@ def worst_object() -> tuple[float, float]:
     return float(OBJECT_RADII.max()), float(OBJECT_TOPS.max())
 
 
-@lru_cache(maxsize=None)
+@cache
 def config_pool(motion_type: str) -> ConfigPool:
     """Enumerate, filter and order a motion type's product grid (cached per process)."""
     if motion_type not in GRID_AXES:

@@ -38,7 +38,6 @@ from __future__ import annotations
 import importlib.util
 import numbers
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -78,10 +77,10 @@ class _Body:
     """A loaded moving body and (hands) its joint indices."""
 
     body: int
-    joints: Optional[np.ndarray] = None
+    joints: np.ndarray | None = None
 
 
-def _floats(values) -> Optional[np.ndarray]:
+def _floats(values) -> np.ndarray | None:
     """``values`` as a float64 array, or None when they are not numbers."""
     try:
         return np.asarray(values, dtype=np.float64)
@@ -94,7 +93,7 @@ class Renderer:
     static bodies, its hand, its object) and the static plate; renders (H, W, 3) uint8
     RGB frames. Use as a context manager or call :meth:`close`."""
 
-    def __init__(self, resolution: int = DEFAULT_RESOLUTION, width: Optional[int] = None, backend: str = "tiny"):
+    def __init__(self, resolution: int = DEFAULT_RESOLUTION, width: int | None = None, backend: str = "tiny"):
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
             raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
         self.height = int(resolution)
@@ -127,7 +126,7 @@ class Renderer:
         self._scene: tuple = (None, None, None)
         self._poses: tuple = (None, None, None)
         self._hand = self._object = None
-        self._full_bodies: Optional[tuple] = None
+        self._full_bodies: tuple | None = None
         p.resetSimulation(physicsClientId=self._full_client)
         build_static(self._full_client)
         self._plate_rgb, self._plate_depth = self._draw(self._full_client)
@@ -136,7 +135,7 @@ class Renderer:
         _, empty = self._draw(self._client)
         self._empty_depth = float(empty.min())
 
-    def _add_moving(self, client: int) -> tuple[Optional[_Body], Optional[_Body]]:
+    def _add_moving(self, client: int) -> tuple[_Body | None, _Body | None]:
         """Create the episode's hand, then its object, in ``client``."""
         _, size, hand = self._scene
         name = self._scene[0]
@@ -163,7 +162,7 @@ class Renderer:
         self._hand, self._object = self._add_moving(self._client)
         self._full_bodies = None
 
-    def _full_scene(self) -> tuple[Optional[_Body], Optional[_Body]]:
+    def _full_scene(self) -> tuple[_Body | None, _Body | None]:
         if self._full_bodies is None:
             c = self._full_client
             p.resetSimulation(physicsClientId=c)
@@ -179,14 +178,14 @@ class Renderer:
                 p.disconnect(client)
                 setattr(self, name, None)
 
-    def __enter__(self) -> "Renderer":
+    def __enter__(self) -> Renderer:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
 
     # scene -------------------------------------------------------------------
-    def set_scene(self, object_name: Optional[str], object_size: Optional[float], hand: Optional[str]) -> None:
+    def set_scene(self, object_name: str | None, object_size: float | None, hand: str | None) -> None:
         """Choose the object (category and size; None for none) and the hand (side; None
         for none) that the following frames show. A different scene is rebuilt from empty
         clients (see :meth:`_build`); the same scene again is kept as it is, which is
@@ -231,7 +230,7 @@ class Renderer:
         self._poses = (pose, palm, joints)
         self._apply(self._client, self._hand, self._object)
 
-    def _apply(self, client: int, hand: Optional[_Body], obj: Optional[_Body]) -> None:
+    def _apply(self, client: int, hand: _Body | None, obj: _Body | None) -> None:
         pose, palm, joints = self._poses
         if obj is not None:
             set_object_pose(client, obj.body, pose)

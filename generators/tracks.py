@@ -4,8 +4,8 @@ motion at any times (the semantics are in :mod:`generators.motion`)."""
 from __future__ import annotations
 
 import math
-from fractions import Fraction
 from dataclasses import dataclass
+from fractions import Fraction
 from functools import lru_cache
 
 import numpy as np

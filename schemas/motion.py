@@ -22,7 +22,7 @@ import json
 import math
 import numbers
 from dataclasses import MISSING, dataclass, field, fields
-from typing import Any, ClassVar, Union
+from typing import Any, ClassVar
 
 from schemas.errors import SpecError
 
@@ -171,7 +171,7 @@ def _load_json(what: str, text: Any) -> Any:
         raise SpecError(f"{what} JSON is nested too deeply") from None
 
 
-Token = Union[LineToken, ArcToken, HarmonicToken, ClothoidToken]
+Token = LineToken | ArcToken | HarmonicToken | ClothoidToken
 TOKEN_TYPES: dict[str, type] = {cls.type: cls for cls in (LineToken, ArcToken, HarmonicToken, ClothoidToken)}
 
 
@@ -195,7 +195,7 @@ def token_from_dict(data: Any) -> Token:
     if cls is None:
         raise SpecError(f"unknown token type {kind!r} (expected one of {sorted(TOKEN_TYPES)})")
     names = {f.name for f in fields(cls)}
-    unknown = sorted((str(k) for k in set(data) - names - {"type"}))
+    unknown = sorted(str(k) for k in set(data) - names - {"type"})
     if unknown:
         raise SpecError(f"{kind} token has unknown field(s) {unknown}")
     required = [f.name for f in fields(cls) if f.default is MISSING]
@@ -252,7 +252,7 @@ class Motion:
         object.__setattr__(self, "overlays", overlays)
 
     @classmethod
-    def of(cls, *tokens: Token) -> "Motion":
+    def of(cls, *tokens: Token) -> Motion:
         """A single-track motion."""
         return cls(Track(tuple(tokens)))
 
@@ -273,7 +273,7 @@ class Motion:
         }
 
     @classmethod
-    def from_dict(cls, data: Any) -> "Motion":
+    def from_dict(cls, data: Any) -> Motion:
         if isinstance(data, list):
             data = {"base": data}
         if not isinstance(data, dict):
@@ -305,6 +305,6 @@ class Motion:
         return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
 
     @classmethod
-    def from_json(cls, text: str) -> "Motion":
+    def from_json(cls, text: str) -> Motion:
         data = _load_json("motion", text)
         return cls.from_dict(data)

@@ -92,8 +92,8 @@ def matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
     else:
         s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
         q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
-    q = np.array(q)
-    return -q if q[3] < 0 else q
+    quat = np.array(q)
+    return -quat if quat[3] < 0 else quat
 
 
 def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -171,7 +171,7 @@ class EpisodeSpec:
         return hashlib.sha256(self.to_json().encode()).hexdigest()
 
     @classmethod
-    def from_dict(cls, data: Any) -> "EpisodeSpec":
+    def from_dict(cls, data: Any) -> EpisodeSpec:
         if not isinstance(data, dict):
             raise SpecError(f"a spec must be a JSON object, got {data!r}")
         missing = [n for n in SPEC_FIELDS if n not in data]
@@ -185,7 +185,7 @@ class EpisodeSpec:
         return cls(**values)
 
     @classmethod
-    def from_json(cls, text: str) -> "EpisodeSpec":
+    def from_json(cls, text: str) -> EpisodeSpec:
         return cls.from_dict(_load_json("spec", text))
 
 

@@ -100,7 +100,8 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         if unknown:
             raise ShardError(f"{where}: unknown episode status {unknown[0]!r} (expected 'ok' or 'error')")
         error = status == "error"
-        error_message = np.where(error, _strings(episodes.column("error")), None)
+        error_message = _strings(episodes.column("error"))
+        error_message[~error] = None
         policy = ", ".join(sorted(set(episodes.column("policy").to_pylist())))
     else:
         error = np.zeros(len(index), dtype=bool)

@@ -101,8 +101,9 @@ def build_job(
             if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
                 raise SpecError(f"--episodes must be >= 1, got {episodes!r}")
             specs = specs[:episodes]
-        specs_json: list[str] | None = [s.to_json() for s in specs]
-        extra["specs_sha256"] = hashlib.sha256("\n".join(specs_json).encode()).hexdigest()
+        lines = [s.to_json() for s in specs]
+        specs_json: list[str] | None = lines
+        extra["specs_sha256"] = hashlib.sha256("\n".join(lines).encode()).hexdigest()
         total = len(specs)
     else:
         from schemas.slices import get_slice

@@ -95,7 +95,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
     from pipeline.loop.env import DyanaEnv
 
     env = DyanaEnv(resolution=settings.build.resolution, jpeg_quality=settings.build.jpeg_quality)
-    stats = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
+    stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
     policy = None
     start = time.perf_counter()
     try:
@@ -131,7 +131,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
         if callable(close_env):
             close_env()
     stats["seconds"] = time.perf_counter() - start
-    return {"record": writer.record.to_dict(), "stats": stats}
+    return {"record": writer.result.to_dict(), "stats": stats}
 
 
 def _retire(policy: Any, stats: dict[str, Any]) -> None:

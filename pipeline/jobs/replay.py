@@ -183,7 +183,8 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
             raise _mismatch(f"{prefix}, frame {frame}, column {column}{detail}", frame=frame, column=column, **ids)
         extra = {k: row[k] for k in ROLLOUT_COLUMNS} if rollout else {}
         expected_row = episodes_table([episode_row(spec, ep_frames.grasp_angles, **extra)], rollout)
-        found = _first_difference(episodes.filter(pa.array(episodes.column("episode_index").to_numpy() == index)), expected_row, expected_row.column_names)
+        recorded_row = episodes.filter(pa.array(episodes.column("episode_index").to_numpy() == index))
+        found = _first_difference(recorded_row, expected_row, expected_row.column_names)
         if found is not None:
             _, column, detail = found
             raise _mismatch(f"{prefix}, episodes table, column {column}{detail}", frame=None, column=column, **ids)
@@ -194,7 +195,7 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
             for spec, ep_frames, images, extra in replayed:
                 writer.add_episode(spec, ep_frames, images, **{k: (v or None) for k, v in extra.items()})
         for kind, record in shard.files.items():
-            again = writer.record.files[kind]
+            again = writer.result.files[kind]
             if again.sha256 != record.sha256:  # the file on disk matches record.sha256 (checked above)
                 raise _mismatch(
                     f"{root}: shard {stem}: {record.path} differs from the replayed shard's "

@@ -237,7 +237,7 @@ def _previous_work(job: Job, commit: str | None, overwrite: bool) -> tuple[dict[
         )
     if code != (CODE_VERSION, commit):
         return {}, False
-    done = {tuple(r.episodes): r for r in records if _intact(folder, r)}
+    done = {(r.first, r.end): r for r in records if _intact(folder, r)}
     return done, complete and len(done) == len(records)
 
 
@@ -396,7 +396,7 @@ def run_job(
 
         def on_done(result: dict) -> None:
             record = ShardRecord.from_dict(result["record"])
-            done[tuple(record.episodes)] = record
+            done[(record.first, record.end)] = record
             _save_state(job, commit, done)
             if on_result is not None:
                 on_result(result)

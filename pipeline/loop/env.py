@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import string
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -171,7 +171,7 @@ def _spaces(resolution: int):
         return None, None
     image = spaces.Box(0, 255, (resolution, resolution, 3), np.uint8)
 
-    def vec(n: int) -> "spaces.Box":
+    def vec(n: int) -> spaces.Box:
         return spaces.Box(-np.inf, np.inf, (n,), np.float32)
 
     observation = spaces.Dict(
@@ -205,7 +205,7 @@ class DyanaEnv(_Base):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
 
-    def __init__(self, resolution: int = DEFAULT_RESOLUTION, jpeg_quality: int = JPEG_QUALITY, render_mode: Optional[str] = None):
+    def __init__(self, resolution: int = DEFAULT_RESOLUTION, jpeg_quality: int = JPEG_QUALITY, render_mode: str | None = None):
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
             raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
         if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, (int, np.integer)) or not 1 <= jpeg_quality <= 100:
@@ -216,13 +216,26 @@ class DyanaEnv(_Base):
         self.jpeg_quality = int(jpeg_quality)
         self.render_mode = render_mode
         self.observation_space, self.action_space = _spaces(self.resolution)
-        self.episode_spec: Optional[EpisodeSpec] = None
+        self.episode_spec: EpisodeSpec | None = None
         self._next_index = 0
         self._done = True
         self._frames: dict[str, list] = {}
 
     # episode -----------------------------------------------------------------
-    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None) -> tuple[dict, dict]:
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start an episode and run its observe window; returns ``(observation, info)``.
+
+        Args:
+            seed: picks test-1k episode ``seed % 1000`` when no spec is given (and seeds
+                Gymnasium's ``np_random``); without either, the next test-1k episode.
+            options: ``{"spec": EpisodeSpec | dict | JSON}`` runs that episode instead.
+
+        Returns:
+            observation: the dict described in the module docstring, at the first acting
+                frame, with the observe window's frames in ``observe_images``.
+            info: ``localized``, ``grasped``, ``t_loc``, ``t_gra``, ``palm_distance``,
+                ``fingertip_distance``.
+        """
         if gymnasium is not None:
             super().reset(seed=seed)
         options = options or {}
@@ -247,8 +260,8 @@ class DyanaEnv(_Base):
         self._grasp = grasp_angles(spec.object, spec.object_size, spec.hand).astype(np.float32)
         self._frames = {name: [] for name in ("phase", "palm_pose", "joint_angles", "joint_poses", "keypoints",
                                                 "action", "fingertip_distance", "palm_distance", "images")}
-        self._loc_frame: Optional[int] = None
-        self._gra_frame: Optional[int] = None
+        self._loc_frame: int | None = None
+        self._gra_frame: int | None = None
         self._done = False
         rest = _REST_STATE
         observe_images = []
@@ -266,6 +279,20 @@ class DyanaEnv(_Base):
         return self._observation(image, observe), self._info()
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
+        """Apply one action for one frame (1/20 s); returns ``(observation, reward,
+        terminated, truncated, info)``.
+
+        Args:
+            action: (18,) palm target xyz + 15 joint targets (cast to float32, then
+                clipped to the workspace and the joint limits).
+
+        Returns:
+            observation: the next frame's observation (``observe_images`` empty).
+            reward: 1.0 on the step where the grasp completes, else 0.0.
+            terminated: the grasp completed (every joint at 0.8 of its grasp angle).
+            truncated: the acting horizon (ceil(1.2 x the ground truth's)) is reached.
+            info: as for :meth:`reset`, updated.
+        """
         if self.episode_spec is None:
             raise DyanaError("step() before reset(): call reset() first")
         if self._done:
@@ -317,7 +344,7 @@ class DyanaEnv(_Base):
         )
         return frames, list(f["images"])
 
-    def render(self) -> Optional[np.ndarray]:
+    def render(self) -> np.ndarray | None:
         """The latest frame as the policy saw it (``render_mode="rgb_array"``), else None."""
         if self.render_mode != "rgb_array" or not self._frames.get("images"):
             return None

@@ -10,7 +10,7 @@ the horizon. Raises AssertionError naming the first broken promise.
 
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -88,7 +88,7 @@ def _check_recording(env: Any, last_obs: dict, frames_expected: int) -> tuple:
     return frames, images
 
 
-def check_env(env: Any, spec: Optional[EpisodeSpec] = None, steps: Optional[int] = None) -> None:
+def check_env(env: Any, spec: EpisodeSpec | None = None, steps: int | None = None) -> None:
     """Check ``env`` on ``spec`` (default: test-1k episode 4, which has an observe window).
 
     Runs the episode twice with a fixed sequence of actions (the hand moving toward
@@ -131,7 +131,7 @@ def check_env(env: Any, spec: Optional[EpisodeSpec] = None, steps: Optional[int]
     limit = horizon(spec) - 1 if steps is None else steps
     plan = actions(obs, limit)
     runs = []
-    for attempt in range(2):
+    for _attempt in range(2):
         obs, info = env.reset(options={"spec": spec})
         taken = 0
         ended = (False, False)

@@ -15,8 +15,6 @@ oscillations, and falls behind fast ones. Deterministic; numpy only.
 
 from __future__ import annotations
 
-from typing import Optional
-
 import numpy as np
 
 from generators.hand import REST_JOINTS
@@ -43,14 +41,14 @@ class ChasePolicy:
     privileged = False
 
     def __init__(self) -> None:
-        self._locator: Optional[ObjectLocator] = None
+        self._locator: ObjectLocator | None = None
 
     def reset(self, task: dict) -> None:
         self._locator = ObjectLocator(str(task["text"]), int(task["resolution"]))
         self._hand = str(task["hand"])
-        self._target: Optional[np.ndarray] = None
-        self._close_start: Optional[int] = None
-        self._grip: Optional[np.ndarray] = None
+        self._target: np.ndarray | None = None
+        self._close_start: int | None = None
+        self._grip: np.ndarray | None = None
 
     def act(self, obs: dict) -> np.ndarray:
         if self._locator is None:

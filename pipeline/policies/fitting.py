@@ -26,8 +26,8 @@ Every fitted model is a :class:`MotionFit`: coefficients ``C`` (2, k) over a bas
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Optional, Sequence
 
 import numpy as np
 
@@ -97,7 +97,7 @@ def basis(kind: str, omega: float, t: np.ndarray, order: int = 0) -> np.ndarray:
     return np.stack([lead[0], lead[1], trig[0], trig[1]], axis=-1)
 
 
-def _solve(design: np.ndarray, target: np.ndarray, ridge: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray]:
+def _solve(design: np.ndarray, target: np.ndarray, ridge: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Batched least squares via normal equations: design (..., n, k), target (..., n, d)
     -> coefficients (..., k, d) and residual sums (...,)."""
     gram = np.swapaxes(design, -1, -2) @ design
@@ -218,7 +218,7 @@ def fit_harmonic(t: np.ndarray, xz: np.ndarray) -> MotionFit:
     return MotionFit("harmonic", coef[0], omega, float(np.sum(resid * resid)), len(t), 8)
 
 
-def _fit_family(kind: str, t: np.ndarray, xz: np.ndarray) -> Optional[MotionFit]:
+def _fit_family(kind: str, t: np.ndarray, xz: np.ndarray) -> MotionFit | None:
     if len(t) < MIN_SAMPLES[kind]:
         return None
     if kind == "line":
@@ -231,7 +231,7 @@ def residuals(fit: MotionFit, t: np.ndarray, xz: np.ndarray) -> np.ndarray:
     return np.linalg.norm(fit.position(t) - xz, axis=1)
 
 
-def fit_motion(t: Sequence[float], xz: Sequence[Sequence[float]], kinds: Sequence[str] = KINDS) -> Optional[MotionFit]:
+def fit_motion(t: Sequence[float], xz: Sequence[Sequence[float]], kinds: Sequence[str] = KINDS) -> MotionFit | None:
     """The best model of ``kinds`` for samples at times ``t`` (n,) with positions ``xz``
     (n, 2), by :func:`selection_score` after one pass of outlier rejection; None with too few samples."""
     t = np.asarray(t, dtype=np.float64)
@@ -241,7 +241,7 @@ def fit_motion(t: Sequence[float], xz: Sequence[Sequence[float]], kinds: Sequenc
     unknown = [k for k in kinds if k not in KINDS]
     if unknown:
         raise ValueError(f"unknown motion model(s) {unknown}; expected some of {list(KINDS)}")
-    best: Optional[MotionFit] = None
+    best: MotionFit | None = None
     best_score = np.inf
     for kind in kinds:
         fit = _fit_family(kind, t, xz)

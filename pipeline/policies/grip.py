@@ -10,8 +10,6 @@ the end of its synergy.
 
 from __future__ import annotations
 
-from typing import Optional
-
 import numpy as np
 
 from generators.grasp import SYNERGY_END, grasp_angles
@@ -23,7 +21,7 @@ from schemas.scene import GRASP_FRAMES
 GRIP_MARGIN = 0.85
 
 
-def grip_angles(category: Optional[str], size: Optional[float], hand: str) -> np.ndarray:
+def grip_angles(category: str | None, size: float | None, hand: str) -> np.ndarray:
     """(15,) joint angles to close to."""
     if category is None or size is None:
         return np.clip(SYNERGY_END.reshape(15), JOINT_LOWER, JOINT_UPPER)

@@ -41,7 +41,6 @@ from __future__ import annotations
 import functools
 import re
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 from scipy import ndimage
@@ -88,7 +87,7 @@ ROI_HALF_PX = 48
 MAX_CENTROID_CORRECTION_PX = 2.0
 
 
-def object_from_text(text: str) -> Optional[str]:
+def object_from_text(text: str) -> str | None:
     """The object category the task text names (the longest matching name), or None."""
     lowered = " ".join(re.findall(r"[a-z]+", str(text).lower()))
     found = [name for name in OBJECTS if re.search(rf"\b{name.replace('_', ' ')}\b", lowered)]
@@ -193,7 +192,7 @@ def _window(lo: np.ndarray, hi: np.ndarray, width: int, height: int):
 
 def hand_mask(
     palm_pose: np.ndarray, joint_poses: np.ndarray, keypoints: np.ndarray, width: int, height: int,
-    margin: float = HAND_MARGIN_PX, window: Optional[tuple[int, int, int, int]] = None,
+    margin: float = HAND_MARGIN_PX, window: tuple[int, int, int, int] | None = None,
 ) -> np.ndarray:
     """(H, W) bool: the pixels the hand covers, predicted from its state and geometry
     (palm box, wrist cylinder, finger capsules), grown by ``margin`` pixels; only
@@ -267,7 +266,7 @@ class Template:
 
 def template(
     category: ObjectCategory, size: float, centre_xz: np.ndarray, heading: float, width: int, height: int
-) -> Optional[Template]:
+) -> Template | None:
     """The silhouette of the object resting at ``centre_xz``, rasterised and grown by
     :data:`HALO_PX` (JPEG's halo around every edge, which the blob includes), or None
     if off-image. ``area`` counts the silhouette itself."""
@@ -342,7 +341,7 @@ class Detection:
     mismatch: float
 
 
-def find_blob(foreground: np.ndarray, hand: np.ndarray) -> Optional[np.ndarray]:
+def find_blob(foreground: np.ndarray, hand: np.ndarray) -> np.ndarray | None:
     """(H, W) bool mask of the object's blob: the largest component of the foreground
     outside the hand, with the components near it; None when nothing is left."""
     labels, count = ndimage.label(foreground & ~hand)
@@ -389,19 +388,19 @@ class ObjectLocator:
     Deterministic: the same frames give the same answers.
     """
 
-    def __init__(self, text: str, width: int, height: Optional[int] = None):
+    def __init__(self, text: str, width: int, height: int | None = None):
         self.width = int(width)
         self.height = int(width if height is None else height)
         name = object_from_text(text)
-        self.category: Optional[ObjectCategory] = OBJECTS[name] if name else None
-        self._table_rgb: Optional[np.ndarray] = None
+        self.category: ObjectCategory | None = OBJECTS[name] if name else None
+        self._table_rgb: np.ndarray | None = None
         self._squares: list[np.ndarray] = []
-        self._heading: Optional[int] = None
-        self._last_pixel: Optional[np.ndarray] = None
+        self._heading: int | None = None
+        self._last_pixel: np.ndarray | None = None
         self._size_samples: list[float] = []
 
     @property
-    def size(self) -> Optional[float]:
+    def size(self) -> float | None:
         """The estimated object size (None when the category is unknown)."""
         if self.category is None:
             return None
@@ -425,7 +424,7 @@ class ObjectLocator:
 
     def locate(
         self, image: np.ndarray, palm_pose: np.ndarray, joint_poses: np.ndarray, keypoints: np.ndarray
-    ) -> Optional[Detection]:
+    ) -> Detection | None:
         """The object in ``image`` (H, W, 3 uint8), given the hand's state at that frame."""
         image = np.asarray(image)
         if self._table_rgb is None:

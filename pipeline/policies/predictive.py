@@ -9,7 +9,8 @@ a smooth approach there and closes the hand.
 * **Fit.** The sightings that show most of the object (:func:`reliable`) are fitted
   with line, arc and harmonic models (:mod:`.fitting`), the best by BIC; when the
   task text names the motion ("straight line", "circle", "back and forth") only that
-  family is fitted (``PredictivePolicy(text_hint=False)`` always picks by residual). The fit is redone every frame a new reliable sighting arrives.
+  family is fitted (``PredictivePolicy(text_hint=False)`` always picks by residual).
+  The fit is redone every frame a new reliable sighting arrives.
 * **Plan.** The interception frame is ``observe_frames + round(intercept_time_s x
   fps)``, the public interception setting of the task. Each frame the palm's path is
   re-planned as a quintic from its current position, velocity and acceleration to
@@ -27,7 +28,6 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -64,7 +64,7 @@ def motion_hint(text: str) -> tuple[str, ...]:
     return named if len(named) == 1 else KINDS
 
 
-def reliable(seen: Optional[Detection]) -> bool:
+def reliable(seen: Detection | None) -> bool:
     """Whether a sighting is good enough to fit: most of the object in view."""
     return seen is not None and seen.coverage >= MIN_COVERAGE and seen.mismatch <= MAX_MISMATCH
 
@@ -78,7 +78,7 @@ class Quintic:
     coef: np.ndarray
 
     @classmethod
-    def between(cls, t0: float, t1: float, start: tuple[np.ndarray, ...], end: tuple[np.ndarray, ...]) -> "Quintic":
+    def between(cls, t0: float, t1: float, start: tuple[np.ndarray, ...], end: tuple[np.ndarray, ...]) -> Quintic:
         """Position, velocity and acceleration ``start`` at ``t0`` and ``end`` at ``t1``."""
         (p0, v0, a0), (p1, v1, a1) = start, end
         T = t1 - t0
@@ -109,7 +109,7 @@ class PredictivePolicy:
 
     def __init__(self, text_hint: bool = True) -> None:
         self.text_hint = bool(text_hint)
-        self._locator: Optional[ObjectLocator] = None
+        self._locator: ObjectLocator | None = None
 
     def reset(self, task: dict) -> None:
         self._fps = float(task["fps"])
@@ -120,10 +120,10 @@ class PredictivePolicy:
         self._intercept = int(task["observe_frames"]) + int(round(seconds * self._fps))
         self._times: list[float] = []
         self._points: list[np.ndarray] = []
-        self._latest: Optional[np.ndarray] = None
-        self._fit: Optional[MotionFit] = None
-        self._plan: Optional[Quintic] = None
-        self._grip: Optional[np.ndarray] = None
+        self._latest: np.ndarray | None = None
+        self._fit: MotionFit | None = None
+        self._plan: Quintic | None = None
+        self._grip: np.ndarray | None = None
         self._started = False
 
     # sensing -------------------------------------------------------------------

@@ -89,7 +89,7 @@ class RemotePolicy:
         """Close the connection (idempotent; safe from another thread while a call waits)."""
         self._stack.close()
 
-    def __enter__(self) -> "RemotePolicy":
+    def __enter__(self) -> RemotePolicy:
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -145,7 +145,7 @@ async def serve_async(
         server.close()
         try:  # a session stuck in a hung policy call must not block shutdown
             await asyncio.wait_for(server.wait_closed(), SHUTDOWN_GRACE_S)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             pass
 
 

@@ -50,8 +50,8 @@ def write_ground_truth_shard(
     from pipeline.stages.episode import episode
 
     with ShardWriter(slice_dir, first, end, settings.as_dict()) as writer:
-        for index, spec in zip(range(first, end), specs):
+        for _index, spec in zip(range(first, end), specs):
             frames = episode(spec)
             images = encoded_frames(spec, frames, settings.resolution, settings.jpeg_quality)
             writer.add_episode(spec, frames, images)
-    return writer.record
+    return writer.result

@@ -622,5 +622,5 @@ def test_non_finite_values_give_a_shard_error_for_stats(tmp_path):
         writer.add_episode(spec, replace(frames, object_velocity=velocity), images)
     write_manifest(root, Manifest.create("linear-fast", 1, SETTINGS, [writer.record], code=CODE))
     with pytest.raises(ShardError, match=r"frames\.parquet: column 'object_velocity' holds non-finite"):
-        catalog.open(root).stats
+        _ = catalog.open(root).stats
     assert not (root / STATS_NAME).exists()

@@ -175,7 +175,7 @@ def test_terminates_when_the_grasp_completes(env):
     grasp = grasp_angles(spec.object, spec.object_size, spec.hand)
     obs, _ = env.reset(options={"spec": spec})
     ramp = [0.3, 0.6, 0.79, 0.81, 1.0]  # fractions of the grasp; complete at 0.8
-    for j, fraction in enumerate(ramp):
+    for j, fraction in enumerate(ramp):  # noqa: B007  (j is read after the loop)
         action = np.concatenate([obs["palm_pose"][:3], fraction * grasp])
         obs, reward, terminated, truncated, info = env.step(action)
         if terminated:
