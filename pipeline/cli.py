@@ -37,18 +37,7 @@ def cmd_build(args: argparse.Namespace) -> int:
             names = list(definition.parts)
             print(f"{args.slice} is built as its {len(names)} parts: {', '.join(names)}", file=sys.stderr)
     for name in names:
-        manifest, up_to_date = build_job(
-            name,
-            Path(args.out),
-            episodes=args.episodes,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            resolution=args.resolution,
-            shard_size=args.shard_size,
-            specs_path=args.specs,
-            progress=not args.quiet,
-            overwrite=args.overwrite,
-        )
+        manifest, up_to_date = build_job(name, Path(args.out), specs_path=args.specs, **cli.job_options(args))
         verb = "up to date" if up_to_date else "built"
         print(
             f"{verb} {manifest.slice}: {manifest.episodes} episodes, {manifest.frames} frames, "
@@ -82,19 +71,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from pipeline.jobs.evaluate import evaluate
 
     _importable_cwd(args.policy)
-    evaluate(
-        args.policy,
-        args.slice,
-        Path(args.out),
-        episodes=args.episodes,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        deadline_s=args.deadline,
-        resolution=args.resolution,
-        shard_size=args.shard_size,
-        progress=not args.quiet,
-        overwrite=args.overwrite,
-    )
+    evaluate(args.policy, args.slice, Path(args.out), deadline_s=args.deadline, **cli.job_options(args))
     return 0
 
 

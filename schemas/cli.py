@@ -26,6 +26,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from schemas.errors import DyanaError, ReplayMismatch
 from schemas.names import shorten
@@ -64,35 +65,27 @@ class Command:
 
 def positive_int(text: str) -> int:
     """A whole number >= 1, with a message naming the bad value."""
+    return _number(text, int, "a whole number", lambda v: v >= 1, "a number >= 1")
+
+
+def _number(text: str, convert: Callable[[str], Any], what: str, valid: Callable[[Any], bool], wanted: str) -> Any:
     try:
-        value = int(text)
+        value = convert(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {shorten(text)!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {shorten(text)!r}")
+        raise argparse.ArgumentTypeError(f"expected {what}, got {shorten(text)!r}") from None
+    if not valid(value):
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {shorten(text)!r}")
     return value
 
 
 def positive_float(text: str) -> float:
     """A finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {shorten(text)!r}") from None
-    if not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {shorten(text)!r}")
-    return value
+    return _number(text, float, "a number", lambda v: 0 < v < float("inf"), "a number > 0")
 
 
 def port(text: str) -> int:
     """A TCP port, 0 meaning any free one."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a port number, got {shorten(text)!r}") from None
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"expected a port in [0, 65535] (0 = any free port), got {shorten(text)!r}")
-    return value
+    return _number(text, int, "a port number", lambda v: 0 <= v <= 65535, "a port in [0, 65535] (0 = any free port)")
 
 
 # --- shared options ----------------------------------------------------------------
@@ -131,6 +124,19 @@ def add_overwrite(parser: argparse.ArgumentParser) -> None:
 
 def add_quiet(parser: argparse.ArgumentParser, what: str = "no progress lines") -> None:
     parser.add_argument("--quiet", action="store_true", help=what)
+
+
+def job_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The options every sharded job takes, from the shared flags above."""
+    return {
+        "episodes": args.episodes,
+        "workers": args.workers,
+        "scheduler": args.scheduler,
+        "resolution": args.resolution,
+        "shard_size": args.shard_size,
+        "progress": not args.quiet,
+        "overwrite": args.overwrite,
+    }
 
 
 def add_json(parser: argparse.ArgumentParser, what: str = "print JSON instead of a table") -> None:

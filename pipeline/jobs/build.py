@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 from catalog.manifest import Manifest
 from catalog.stats import load_stats
@@ -51,28 +52,10 @@ def build_shard(task: ShardTask, settings: BuildSettings, slice_dir: str) -> dic
     return {"record": record.to_dict()}
 
 
-def build(
-    slice_name: str | None,
-    out: Path,
-    *,
-    episodes: int | None = None,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    resolution: int = 224,
-    shard_size: int = DEFAULT_SHARD_SIZE,
-    specs_path: str | None = None,
-    progress: bool = True,
-    overwrite: bool = False,
-) -> Manifest:
-    """Build a slice (or a specs file) into ``out/<slice>/`` and return its manifest.
-
-    ``workers`` defaults to one per core (0: in this process, no Dask). A folder holding
-    another build is refused unless ``overwrite``; a complete identical one is kept."""
-    manifest, _ = build_job(
-        slice_name, out, episodes=episodes, workers=workers, scheduler=scheduler, resolution=resolution,
-        shard_size=shard_size, specs_path=specs_path, progress=progress, overwrite=overwrite,
-    )
-    return manifest
+def build(slice_name: str | None, out: Path, **options: Any) -> Manifest:
+    """Build a slice (or a specs file) into ``out/<slice>/`` and return its manifest;
+    the options are :func:`build_job`'s."""
+    return build_job(slice_name, out, **options)[0]
 
 
 def build_job(
@@ -88,7 +71,11 @@ def build_job(
     progress: bool = True,
     overwrite: bool = False,
 ) -> tuple[Manifest, bool]:
-    """:func:`build`, also saying whether the folder was already up to date."""
+    """Build a slice (or a specs file) into ``out/<slice>/``: its manifest, and whether
+    the folder already held this complete build (then nothing is redone).
+
+    ``workers`` defaults to one per core (0: in this process, no Dask). A folder holding
+    another build is refused unless ``overwrite``."""
     from generators.encode import JPEG_QUALITY
 
     settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY)
