@@ -17,6 +17,7 @@ Usage::
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -232,14 +233,16 @@ class ShardWriter:
         if self._state in ("finished", "aborted"):
             return
         self._state = "aborted"
-        if self._frames_writer is not None:
-            self._frames_writer.abort()
-            self._frames_writer = None
-        if self._mcap_stream is not None:
-            self._mcap_stream.close()
-        self._mcap, self._mcap_stream = None, None
-        for temp in self._temps.values():
-            atomic.discard(temp)
+        frames_writer, stream = self._frames_writer, self._mcap_stream
+        self._frames_writer, self._mcap, self._mcap_stream = None, None, None
+        try:
+            for close in (frames_writer.abort if frames_writer else None, stream.close if stream else None):
+                if close is not None:
+                    with contextlib.suppress(OSError):  # a full disk fails the final flush; the file goes anyway
+                        close()
+        finally:
+            for temp in self._temps.values():
+                atomic.discard(temp)
 
     @property
     def _kind(self) -> str:

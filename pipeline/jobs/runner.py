@@ -403,7 +403,10 @@ def run_job(
             if meter is not None:
                 meter.update(record)
 
-        run_tasks(todo, job.task_fn, job.payload, folder, workers, scheduler, on_done, job.key_prefix)
+        try:
+            run_tasks(todo, job.task_fn, job.payload, folder, workers, scheduler, on_done, job.key_prefix)
+        finally:
+            remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
 
         manifest = Manifest.create(
             job.slice_name,

@@ -249,3 +249,27 @@ def test_failure_while_renaming_leaves_no_partial_shard(tmp_path, monkeypatch):
         _write(tmp_path)
     assert len(calls) == 3
     assert list((tmp_path / "shards").iterdir()) == []
+
+
+class _FullDiskStream:
+    """A file whose final flush fails as on a full disk (every close raises ENOSPC)."""
+
+    def __init__(self, real):
+        self.real = real
+
+    def __getattr__(self, name):
+        return getattr(self.real, name)
+
+    def close(self):
+        self.real.close()
+        raise OSError(28, "No space left on device")
+
+
+def test_a_full_disk_at_close_leaves_no_temporary_file(tmp_path):
+    writer = ShardWriter(tmp_path, 0, 1, SETTINGS).start()
+    writer.add_episode(*make_episode(0))
+    writer._mcap_stream = _FullDiskStream(writer._mcap_stream)
+    with pytest.raises(OSError, match="No space left"):
+        writer.finish()
+    assert find_stray_temps(tmp_path) == []
+    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []

@@ -218,3 +218,51 @@ def test_a_bad_scheduler_address_is_one_line_and_exit_2(tmp_path, address):
     )
     assert result.returncode == 2, result.stderr
     assert f"--scheduler {address!r}: cannot connect" in result.stderr and "Traceback" not in result.stderr
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / "pipeline"), *args], capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("name", ["../../victim/linear-slow", "/abs/path", "a/b", ".", "..", "x\u0000y"])
+def test_a_spec_slice_name_is_never_a_path(reference, tmp_path, name):
+    """A spec's slice name cannot point the build at (and delete) another folder."""
+    import json as _json
+    import shutil
+
+    from generators.recipe import spec_for
+
+    _, slice_dir = reference
+    victim = tmp_path / "victim" / "linear-slow"
+    shutil.copytree(slice_dir, victim)
+    before = _files(victim)
+    spec = _json.loads(spec_for(SLICE, 0).to_json())
+    spec["slice"] = name
+    path = tmp_path / "work" / "specs.jsonl"
+    path.parent.mkdir()
+    path.write_text(_json.dumps(spec) + "\n")
+    result = _cli("build", "--specs", str(path), "--out", str(tmp_path / "work" / "out"), "--resolution", "32")
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert f"{path}:1" in result.stderr and "never a path" in result.stderr and "Traceback" not in result.stderr
+    assert _files(victim) == before and not (tmp_path / "work" / "out").exists()
+
+
+def test_custom_specs_never_replace_a_recipe_build_unasked_and_a_rebuild_is_up_to_date(reference, tmp_path):
+    import shutil
+
+    manifest, slice_dir = reference
+    shutil.copytree(slice_dir, tmp_path / SLICE)
+    common = ["--out", str(tmp_path), "--resolution", str(RESOLUTION), "--shard-size", str(SHARD), "--workers", "1"]
+    again = _cli("build", "--slice", SLICE, "--episodes", str(EPISODES), *common)
+    assert again.returncode == 0, again.stderr
+    assert again.stdout.startswith(f"up to date {SLICE}: {EPISODES} episodes")
+    specs = tmp_path / "mine.jsonl"
+    listed = subprocess.run([str(BIN / "catalog"), "specs", SLICE, "--episodes", "2"], capture_output=True, text=True)
+    specs.write_text(listed.stdout)
+    refused = _cli("build", "--specs", str(specs), *common)
+    assert refused.returncode == 2 and "holds another job" in refused.stderr and "specs_sha256" in refused.stderr
+    assert "--overwrite" in refused.stderr
+    assert load_manifest(tmp_path / SLICE).hash == manifest.hash and _files(tmp_path / SLICE) == _files(slice_dir)
+    replaced = _cli("build", "--specs", str(specs), "--overwrite", *common)
+    assert replaced.returncode == 0, replaced.stderr
+    assert load_manifest(tmp_path / SLICE).episodes == 2
