@@ -271,6 +271,11 @@ class FrameDataset:
                 image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
         if image is None or image.ndim != 3 or image.shape[2] != 3:
             raise ShardError(f"{shard.path}: the image of row {row} does not decode to an RGB picture")
+        if image.shape[:2] != (shard.resolution, shard.resolution):
+            raise ShardError(
+                f"{shard.path}: the image of row {row} is {image.shape[1]}x{image.shape[0]} px, "
+                f"catalog.json says {shard.resolution}"
+            )
         resize = self._options.resize
         if resize is not None and image.shape[:2] != resize:
             image = cv2.resize(image, (resize[1], resize[0]), interpolation=cv2.INTER_AREA)

@@ -6,12 +6,15 @@ separators ``","`` and ``":"`` (no spaces), ASCII only (non-ASCII escaped as
 
 The slice hash (:func:`slice_hash`) is the hex sha256 of the canonical JSON of::
 
-    {"files": [<hex sha256>, ...], "settings": <the manifest's settings object>}
+    {"files": [<hex sha256>, ...], "seed": <int or null>, "settings": <settings object>,
+     "slice": <name>, "stats": <hex sha256 of stats.json or null>}
 
 where ``files`` lists the sha256 of every file of every shard: shards in manifest
 order (increasing first episode), and within a shard the kinds in the order
-``frames``, ``episodes``, ``mcap`` (:data:`FILE_KINDS`). Paths, sizes and episode
-ranges are not hashed: they are implied by the files and the settings.
+``frames``, ``episodes``, ``mcap`` (:data:`FILE_KINDS`). So everything a reader relies
+on (the shards, the normalisation statistics, the settings with the dataset version,
+the slice name and seed) is covered. Paths, sizes and episode ranges are not hashed:
+they are implied by the files and the settings.
 """
 
 from __future__ import annotations
@@ -53,11 +56,19 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
     return digest.hexdigest()
 
 
-def slice_hash(settings: Mapping[str, Any], file_hashes: Iterable[str]) -> str:
-    """The slice hash over ``settings`` and the ordered ``file_hashes``."""
+def slice_hash(
+    settings: Mapping[str, Any],
+    file_hashes: Iterable[str],
+    *,
+    slice_name: str | None = None,
+    seed: int | None = None,
+    stats: str | None = None,
+) -> str:
+    """The slice hash over ``settings``, the ordered ``file_hashes``, the slice name,
+    the seed and the statistics file's sha256."""
     hashes = list(file_hashes)
-    for value in hashes:
+    for value in [*hashes, *([stats] if stats is not None else [])]:
         if not is_sha256(value):
             raise ValueError(f"not a sha256 hex digest: {value!r}")
-    payload = {"files": hashes, "settings": dict(settings)}
+    payload = {"files": hashes, "seed": seed, "settings": dict(settings), "slice": slice_name, "stats": stats}
     return sha256_bytes(canonical_json(payload).encode("utf-8"))

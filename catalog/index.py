@@ -79,6 +79,7 @@ class ShardFile:
     sha256: str
     frames: int
     index_digest: str  # sha256 of its episode_index + frame_index columns, as read at open
+    resolution: int  # side of its square images, as its folder's settings say
 
 
 @dataclass(frozen=True)
@@ -117,7 +118,12 @@ def load_source(root: Path, source: int, verify: str, files: list[ShardFile]):
         runs = frame_runs(frames_path, episode, frame, *shard.record.episodes)
         record = shard.record.files["frames"]
         key = len(files)
-        files.append(ShardFile(str(frames_path), record.size, record.sha256, shard.record.frames, index_digest(episode, frame)))
+        files.append(
+            ShardFile(
+                str(frames_path), record.size, record.sha256, shard.record.frames, index_digest(episode, frame),
+                folder.manifest.settings["resolution"],
+            )
+        )
         values = table.to_pydict()
         for row, episode_index in enumerate(values["episode_index"]):
             start, count = runs.get(episode_index, (0, 0))

@@ -18,7 +18,7 @@ from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.mcap_io import check_mcap
 from catalog.parquet_io import check_parquet, open_parquet, table_kind
 from catalog.reader import check_file
-from catalog.records import SHARDS_DIR, ShardRecord
+from catalog.records import SHARDS_DIR, FileRecord, ShardRecord
 from schemas.errors import (
     ShardError,
     ShardHashMismatch,
@@ -42,14 +42,22 @@ class Problem:
         return f"{self.path}: {self.detail}"
 
 
-def _check_file(root: Path, shard: ShardRecord, kind: str, full: bool) -> Problem | None:
-    record = shard.files[kind]
-    path = root / record.path
+def _file_problem(root: Path, record: FileRecord) -> Problem | None:
+    """A listed file that is missing, of another size or another sha256."""
     try:
         check_file(root, record, "sha256")
     except ShardError as exc:
         found = {ShardMissing: "missing", ShardSizeMismatch: "size", ShardHashMismatch: "sha256"}.get(type(exc), "unreadable")
-        return Problem(record.path, found, str(exc).removeprefix(f"{path}: "))
+        return Problem(record.path, found, str(exc).removeprefix(f"{root / record.path}: "))
+    return None
+
+
+def _check_file(root: Path, shard: ShardRecord, kind: str, full: bool) -> Problem | None:
+    record = shard.files[kind]
+    path = root / record.path
+    problem = _file_problem(root, record)
+    if problem is not None:
+        return problem
     try:
         if kind == "frames":
             check_parquet(path, "frames", rows=shard.frames)
@@ -96,6 +104,10 @@ def check_files(
             problem = _check_file(root, shard, kind, full)
             if problem is not None:
                 problems.append(problem)
+    if manifest.stats is not None:
+        problem = _file_problem(root, manifest.stats)
+        if problem is not None:
+            problems.append(problem)
     for temp in find_stray_temps(root):
         rel = temp.relative_to(root).as_posix()
         problems.append(Problem(rel, "stray-temp", "temporary file of an unfinished write (remove it or rebuild)"))

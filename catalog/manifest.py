@@ -22,12 +22,14 @@ from typing import Any
 
 from catalog.atomic import atomic_write_text
 from catalog.hashing import canonical_json, is_sha256, slice_hash
-from catalog.records import ShardRecord
+from catalog.records import FileRecord, ShardRecord
 from schemas.errors import ShardError
 from schemas.versions import CODE_VERSION
 
 MANIFEST_NAME = "catalog.json"
 CORE_KEYS = ("slice", "seed", "episodes", "frames", "code", "settings", "shards", "hash")
+#: Keys of the contract a manifest may lack: ``stats`` (the statistics file's record).
+OPTIONAL_KEYS = ("stats",)
 _COMMIT = re.compile(r"^[0-9a-f]{40}([0-9a-f]{24})?$")
 
 
@@ -53,9 +55,22 @@ class CodeInfo:
         return {"version": self.version, "commit": self.commit}
 
 
-def compute_hash(settings: Mapping[str, Any], shards: Sequence[ShardRecord]) -> str:
-    """The slice hash of ``settings`` and the shards' file hashes, in the given shard order."""
-    return slice_hash(settings, [h for shard in shards for h in shard.file_hashes()])
+def compute_hash(
+    settings: Mapping[str, Any],
+    shards: Sequence[ShardRecord],
+    slice_name: str | None = None,
+    seed: int | None = None,
+    stats: FileRecord | None = None,
+) -> str:
+    """The slice hash of ``settings``, the shards' file hashes (in the given shard order),
+    the slice name, the seed and the statistics file."""
+    return slice_hash(
+        settings,
+        [h for shard in shards for h in shard.file_hashes()],
+        slice_name=slice_name,
+        seed=seed,
+        stats=None if stats is None else stats.sha256,
+    )
 
 
 @dataclass(frozen=True)
@@ -75,6 +90,7 @@ class Manifest:
     shards: tuple[ShardRecord, ...]
     hash: str
     extra: Mapping[str, Any] = field(default_factory=dict)
+    stats: FileRecord | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.slice, str) or not self.slice:
@@ -110,7 +126,7 @@ class Manifest:
             raise ShardError(f"episodes is {self.episodes!r} but the shards hold {episodes}")
         if self.frames != frames:
             raise ShardError(f"frames is {self.frames!r} but the shards hold {frames}")
-        clash = sorted(set(self.extra) & set(CORE_KEYS))
+        clash = sorted(set(self.extra) & {*CORE_KEYS, *OPTIONAL_KEYS})
         if clash:
             raise ShardError(f"extra keys must not redefine {clash}")
         extra = dict(self.extra)
@@ -121,9 +137,14 @@ class Manifest:
         object.__setattr__(self, "extra", MappingProxyType(extra))
         if not is_sha256(self.hash):
             raise ShardError(f"hash must be a sha256 hex digest, got {self.hash!r}")
-        expected = compute_hash(settings, shards)
+        if self.stats is not None and not isinstance(self.stats, FileRecord):
+            raise ShardError(f"stats must be a file record, got {self.stats!r}")
+        expected = compute_hash(settings, shards, self.slice, self.seed, self.stats)
         if self.hash != expected:
-            raise ShardError(f"hash {self.hash} does not match the settings and file hashes ({expected})")
+            raise ShardError(
+                f"hash {self.hash} does not match the slice, seed, settings, statistics and file hashes ({expected}): "
+                "edited, or written before Dyana's manifests covered all of them (rebuild it with --overwrite)"
+            )
 
     @classmethod
     def create(
@@ -134,6 +155,7 @@ class Manifest:
         shards: Sequence[ShardRecord],
         code: CodeInfo | None = None,
         extra: Mapping[str, Any] | None = None,
+        stats: FileRecord | None = None,
     ) -> Manifest:
         """Totals and hash computed; shards sorted by first episode; ``code`` defaults to this installation."""
         ordered = tuple(sorted(shards, key=lambda s: s.first))
@@ -145,8 +167,9 @@ class Manifest:
             code=CodeInfo.current() if code is None else code,
             settings=dict(settings),
             shards=ordered,
-            hash=compute_hash(settings, ordered),
+            hash=compute_hash(settings, ordered, slice, seed, stats),
             extra=dict(extra or {}),
+            stats=stats,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -160,6 +183,8 @@ class Manifest:
             "shards": [s.to_dict() for s in self.shards],
             "hash": self.hash,
         }
+        if self.stats is not None:
+            out["stats"] = self.stats.to_dict()
         out.update(self.extra)
         return out
 
@@ -189,7 +214,8 @@ class Manifest:
             settings=data["settings"],
             shards=shards,
             hash=data["hash"],
-            extra={k: v for k, v in data.items() if k not in CORE_KEYS},
+            extra={k: v for k, v in data.items() if k not in CORE_KEYS and k not in OPTIONAL_KEYS},
+            stats=None if data.get("stats") is None else FileRecord.from_dict(data["stats"], "stats"),
         )
 
     def files(self) -> list[tuple[str, str, int]]:

@@ -55,10 +55,10 @@ class Descriptor:
 class OpenShard:
     """A frames file in use: its descriptor, float columns, timestamps, phases and JPEG offsets."""
 
-    __slots__ = ("path", "owner", "fd", "floats", "timestamp", "phase", "offsets", "lengths", "nbytes")
+    __slots__ = ("path", "owner", "fd", "floats", "timestamp", "phase", "offsets", "lengths", "nbytes", "resolution")
 
-    def __init__(self, path, owner, floats, timestamp, phase, offsets, lengths) -> None:
-        self.path, self.owner, self.fd = path, owner, owner.fd
+    def __init__(self, path, owner, floats, timestamp, phase, offsets, lengths, resolution) -> None:
+        self.path, self.owner, self.fd, self.resolution = path, owner, owner.fd, resolution
         self.floats, self.timestamp, self.phase = floats, timestamp, phase
         self.offsets, self.lengths = offsets, lengths
         # Python int lists (faster to index than numpy): about 72 bytes a row for the two.
@@ -162,7 +162,7 @@ class ShardCache:
             raise ShardError(f"{path}: phase holds a value outside {list(PHASES)}")
         phase = column_to_numpy(codes).astype(np.int8)
         timestamp = np.ascontiguousarray(column_to_numpy(table.column("timestamp")), dtype=np.float64)
-        return OpenShard(path, owner, floats, timestamp, phase, offsets, lengths)
+        return OpenShard(path, owner, floats, timestamp, phase, offsets, lengths, record.resolution)
 
     def close(self) -> None:
         """Forget every loaded shard (descriptors close as soon as no item is being read from them)."""

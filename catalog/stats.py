@@ -9,16 +9,17 @@ over every frame of the folder. They are computed from those columns only (the
 manifest order, merged with the pairwise (Chan et al.) update, so the same folder
 always gives the same numbers.
 
-``stats.json`` records the manifest's ``hash``: a file whose hash, frame count or
-layout does not match the folder is stale and is recomputed (and rewritten,
-atomically). It is canonical JSON (sorted keys, 2-space indent, trailing newline).
+Every job writes ``stats.json`` (canonical JSON: sorted keys, 2-space indent,
+trailing newline) before ``catalog.json``, which lists it with its sha256 and size and
+covers that sha256 with its hash: an edited file is refused by every reader
+(:class:`~schemas.errors.ShardHashMismatch`), never served. A folder whose manifest
+lists no statistics (written by other tools) gets them computed in memory, unsaved.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,15 +29,16 @@ from typing import Any
 import numpy as np
 
 from catalog.atomic import atomic_write_text
-from catalog.hashing import is_sha256
+from catalog.hashing import sha256_file
 from catalog.manifest import Manifest, load_manifest
 from catalog.parquet_io import column_to_numpy
-from catalog.reader import open_folder
+from catalog.reader import ShardReader, check_file, open_folder
+from catalog.records import FileRecord, ShardRecord
 from schemas.errors import ShardError
 from schemas.tables import ARRAY_WIDTHS, STATE_COLUMNS
 
 STATS_NAME = "stats.json"
-STATS_VERSION = 1
+STATS_VERSION = 2
 #: The columns described, in frames-table order; ``fingertip_distance`` is a scalar (shape ()).
 STATS_COLUMNS = (*STATE_COLUMNS, "action", "fingertip_distance")
 SHAPES = {name: (ARRAY_WIDTHS[name],) for name in (*STATE_COLUMNS, "action")} | {"fingertip_distance": ()}
@@ -64,7 +66,6 @@ class ColumnStats:
 class Stats:
     """Statistics of every column in :data:`STATS_COLUMNS`; ``stats["action"].mean``."""
 
-    manifest_hash: str | None
     frames: int
     columns: Mapping[str, ColumnStats]
 
@@ -80,7 +81,6 @@ class Stats:
     def to_dict(self) -> dict[str, Any]:
         return {
             "version": STATS_VERSION,
-            "manifest_hash": self.manifest_hash,
             "frames": self.frames,
             "columns": {name: self.columns[name].to_dict() for name in STATS_COLUMNS},
         }
@@ -114,10 +114,7 @@ class Stats:
                     raise ValueError(f"columns.{name}.{key} must be finite of shape {SHAPES[name]}")
                 values[key] = array
             parsed[name] = ColumnStats(frames, **values)
-        manifest_hash = data.get("manifest_hash")
-        if manifest_hash is not None and not is_sha256(manifest_hash):
-            raise ValueError(f"manifest_hash must be a sha256 or null, got {manifest_hash!r}")
-        return cls(manifest_hash, frames, parsed)
+        return cls(frames, parsed)
 
 
 class _Accumulator:
@@ -157,67 +154,54 @@ class _Accumulator:
 
 
 def compute_stats(
-    directory: str | os.PathLike[str], manifest: Manifest | None = None, *, verify: bool = False
+    directory: str | os.PathLike[str], shards: Sequence[ShardRecord] | None = None, *, verify: bool = False
 ) -> Stats:
-    """Statistics of every frame of a folder, from the float columns of its frames files.
-
-    ``verify`` also checks each frames file's sha256 against the manifest (reading,
-    not decoding, the image bytes); page checksums are verified either way.
-    """
-    folder = open_folder(directory, verify="sha256" if verify else "size")
-    if manifest is not None and manifest.hash != folder.manifest.hash:
-        raise ShardError(f"{folder.root}: catalog.json changed while its statistics were computed")
-    manifest = folder.manifest
+    """Statistics of every frame of a folder (or of the given ``shards`` of it, before its
+    manifest exists), from the float columns of its frames files, checked as every reader
+    checks them. ``verify`` also compares each frames file's sha256 (reading, not
+    decoding, the image bytes); page checksums are verified either way."""
+    root = Path(directory)
+    records = open_folder(root).manifest.shards if shards is None else tuple(shards)
     accumulators = {name: _Accumulator(SHAPES[name]) for name in STATS_COLUMNS}
-    for shard in folder:
+    frames = 0
+    for record in records:
+        shard = ShardReader(root, record, rollout=False, verify="sha256" if verify else "size")
         path = shard.path("frames")
         table = shard.frames(list(STATS_COLUMNS))
+        frames += table.num_rows
         for name in STATS_COLUMNS:
             values = column_to_numpy(table.column(name))
             if not np.isfinite(values).all():
                 raise ShardError(f"{path}: column {name!r} holds non-finite values (NaN or infinity)")
             accumulators[name].add(values)
-    return Stats(manifest.hash, manifest.frames, {name: accumulators[name].result() for name in STATS_COLUMNS})
+    return Stats(frames, {name: accumulators[name].result() for name in STATS_COLUMNS})
 
 
 def stats_path(directory: str | os.PathLike[str]) -> Path:
     return Path(directory) / STATS_NAME
 
 
-def write_stats(directory: str | os.PathLike[str], stats: Stats) -> Path:
-    """Write ``DIR/stats.json`` atomically."""
-    return atomic_write_text(stats_path(directory), stats.to_json())
+def write_stats(directory: str | os.PathLike[str], stats: Stats) -> FileRecord:
+    """Write ``DIR/stats.json`` atomically; its record for the manifest."""
+    path = atomic_write_text(stats_path(directory), stats.to_json())
+    return FileRecord(STATS_NAME, sha256_file(path), path.stat().st_size)
 
 
-def read_stats(directory: str | os.PathLike[str], manifest: Manifest) -> Stats | None:
-    """The stored statistics if ``stats.json`` exists, parses and matches ``manifest``; else None."""
+def load_stats(directory: str | os.PathLike[str], manifest: Manifest | None = None, *, verify: bool = False) -> Stats:
+    """The folder's statistics: ``stats.json`` once its size and sha256 match the manifest's
+    record (else a typed ShardError naming it), or computed in memory when the manifest
+    lists none."""
+    root = Path(directory)
+    manifest = load_manifest(root) if manifest is None else manifest
+    if manifest.stats is None:
+        return compute_stats(root, manifest.shards, verify=verify)
+    path = check_file(root, manifest.stats, "sha256")
     try:
-        data = json.loads(stats_path(directory).read_text(encoding="utf-8"))
-        stats = Stats.from_dict(data)
-    except (OSError, UnicodeDecodeError, ValueError):
-        return None
-    if stats.manifest_hash != manifest.hash or stats.frames != manifest.frames:
-        return None
-    return stats
-
-
-def load_stats(
-    directory: str | os.PathLike[str], manifest: Manifest | None = None, *, write: bool = True, verify: bool = False
-) -> Stats:
-    """The folder's statistics: ``stats.json`` when it is current, else computed (and written if ``write``).
-
-    A folder that cannot be written (read-only media) still gets its statistics, with a warning.
-    """
-    manifest = load_manifest(directory) if manifest is None else manifest
-    stored = read_stats(directory, manifest)
-    if stored is not None:
-        return stored
-    stats = compute_stats(directory, manifest, verify=verify)
-    if write:
-        try:
-            write_stats(directory, stats)
-        except OSError as exc:
-            warnings.warn(f"{stats_path(directory)}: cannot write the statistics ({exc}); using them unsaved", stacklevel=2)
+        stats = Stats.from_dict(json.loads(path.read_text(encoding="utf-8")))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise ShardError(f"{path}: not valid statistics: {exc}") from None
+    if stats.frames != manifest.frames:
+        raise ShardError(f"{path}: describes {stats.frames} frames, catalog.json lists {manifest.frames}")
     return stats
 
 
@@ -233,7 +217,7 @@ def combine(parts: Sequence[Stats]) -> Stats:
             if column.count:
                 total.merge(column.count, column.mean, column.std**2 * column.count, column.min, column.max)
         columns[name] = total.result()
-    return Stats(None, sum(p.frames for p in parts), columns)
+    return Stats(sum(p.frames for p in parts), columns)
 
 
 __all__ = [
@@ -244,6 +228,5 @@ __all__ = [
     "combine",
     "compute_stats",
     "load_stats",
-    "read_stats",
     "write_stats",
 ]

@@ -2,9 +2,8 @@
 
 Each shard task (:func:`build_shard`) runs the episode stage, renders, JPEG-encodes and
 writes Parquet + MCAP under temporary names, then renames. Everything around the shards
-(the folder's one-job rule, resume, progress, Dask, the manifest) is
-:func:`pipeline.jobs.runner.run_job`'s. ``catalog.json`` is written last, then ``stats.json``
-(normalisation statistics of states and actions, computed without decoding images).
+(the folder's one-job rule, resume, progress, Dask, statistics, the manifest) is
+:func:`pipeline.jobs.runner.run_job`'s.
 """
 
 from __future__ import annotations
@@ -15,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from catalog.manifest import Manifest
-from catalog.stats import load_stats
 from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
 from schemas.errors import SpecError
 from schemas.spec import EpisodeSpec
@@ -126,7 +124,6 @@ def build_job(
         job, workers=default_workers() if workers is None else workers, scheduler=scheduler, progress=progress,
         overwrite=overwrite,
     )
-    load_stats(job.folder, manifest)
     return manifest, up_to_date
 
 

@@ -13,11 +13,12 @@ shard. :func:`run_job` owns everything around the shards:
 - the shards run as Dask tasks (a local cluster of single-threaded worker processes,
   one per core by default, or an existing ``--scheduler``), or in this process with
   ``workers=0``; progress lines go to stderr;
-- ``catalog.json`` is written last (one way, :meth:`catalog.manifest.Manifest.create`),
-  then files of an earlier, replaced job are removed.
+- ``stats.json`` (normalisation statistics of states and actions) is computed from the
+  finished shards, then ``catalog.json`` is written last (one way,
+  :meth:`catalog.manifest.Manifest.create`), then files of a replaced job are removed.
 
-The manifest's hash covers the settings and the ordered file hashes only, so the worker
-count, the scheduler and interruptions cannot change it.
+The manifest's hash covers the slice, seed, settings, statistics and the ordered file
+hashes, so the worker count, the scheduler and interruptions cannot change it.
 """
 
 from __future__ import annotations
@@ -44,7 +45,8 @@ from catalog.manifest import (
     manifest_path,
     write_manifest,
 )
-from catalog.records import ShardRecord
+from catalog.records import FileRecord, ShardRecord
+from catalog.stats import compute_stats, write_stats
 from schemas.errors import DyanaError, ShardError, SpecError
 from schemas.spec import EpisodeSpec
 from schemas.versions import CODE_VERSION
@@ -113,6 +115,7 @@ class Job:
     payload: Any
     verb: str = "built"
     key_prefix: str = "shard"
+    with_stats: bool = True
     ranges: tuple[tuple[int, int], ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -187,8 +190,13 @@ def folder_lock(folder: Path) -> Iterator[None]:
         handle.close()
 
 
+def _file_intact(folder: Path, record: FileRecord) -> bool:
+    path = folder / record.path
+    return path.is_file() and path.stat().st_size == record.size and sha256_file(path) == record.sha256
+
+
 def _intact(folder: Path, record: ShardRecord) -> bool:
-    return all((folder / f.path).is_file() and sha256_file(folder / f.path) == f.sha256 for f in record.files.values())
+    return all(_file_intact(folder, f) for f in record.files.values())
 
 
 def _previous_work(job: Job, commit: str | None, overwrite: bool) -> tuple[dict[tuple[int, int], ShardRecord], bool]:
@@ -208,7 +216,8 @@ def _previous_work(job: Job, commit: str | None, overwrite: bool) -> tuple[dict[
             if not overwrite:
                 raise
         else:
-            held, records, complete = _manifest_identity(manifest), list(manifest.shards), True
+            held, records = _manifest_identity(manifest), list(manifest.shards)
+            complete = _file_intact(folder, manifest.stats) if manifest.stats is not None else not job.with_stats
             code = (manifest.code.version, manifest.code.commit)
     if held is None and state_path.exists():
         try:
@@ -408,13 +417,16 @@ def run_job(
         finally:
             remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
 
+        shards = [done[key] for key in job.ranges]
+        stats = write_stats(folder, compute_stats(folder, shards)) if job.with_stats else None
         manifest = Manifest.create(
             job.slice_name,
             job.seed,
             job.settings,
-            [done[key] for key in job.ranges],
+            shards,
             code=CodeInfo(CODE_VERSION, commit),
             extra=job.extra,
+            stats=stats,
         )
         write_manifest(folder, manifest)
         remove_unlisted_shards(folder, manifest)

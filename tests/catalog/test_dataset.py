@@ -18,7 +18,7 @@ import catalog
 from catalog.dataset import FrameDataset
 from catalog.manifest import Manifest, load_manifest, write_manifest
 from catalog.shard import ShardWriter
-from catalog.stats import STATS_NAME, compute_stats, load_stats, read_stats
+from catalog.stats import STATS_NAME, compute_stats, load_stats, write_stats
 from catalog.stream import FrameStream
 from schemas.errors import ShardError, SpecError
 from schemas.scene import PHASES
@@ -425,26 +425,27 @@ def test_stats_match_numpy_and_are_stored(copy):
         np.testing.assert_array_equal(column.min, values.min(axis=0))
         np.testing.assert_array_equal(column.max, values.max(axis=0))
     assert stats["fingertip_distance"].mean.shape == () and stats["action"].std.shape == (18,)
-    stored = json.loads((copy / STATS_NAME).read_text())
-    assert stored["manifest_hash"] == load_manifest(copy).hash and stored["frames"] == len(ds)
-    again = read_stats(copy, load_manifest(copy))
-    np.testing.assert_array_equal(again["keypoints"].std, stats["keypoints"].std)
+    assert not (copy / STATS_NAME).exists()  # this manifest lists none: computed in memory, nothing written
 
 
-def test_stale_or_corrupt_stats_are_recomputed(copy):
+def test_listed_stats_are_served_only_while_their_hash_matches(copy):
+    """stats.json is covered by the manifest's hash: an edited file is refused, never served."""
     manifest = load_manifest(copy)
-    good = load_stats(copy, manifest)
+    good = compute_stats(copy)
+    record = write_stats(copy, good)
+    listed = Manifest.create(manifest.slice, manifest.seed, manifest.settings, manifest.shards, code=manifest.code,
+                             stats=record)
+    write_manifest(copy, listed)
+    assert listed.hash != manifest.hash
+    np.testing.assert_array_equal(catalog.open(copy).stats["action"].mean, good["action"].mean)
     path = copy / STATS_NAME
     data = json.loads(path.read_text())
-    data["manifest_hash"] = "0" * 64
     data["columns"]["action"]["mean"] = [5.0] * 18
-    path.write_text(json.dumps(data))
-    assert read_stats(copy, manifest) is None
-    fresh = load_stats(copy, manifest)
-    np.testing.assert_array_equal(fresh["action"].mean, good["action"].mean)
-    assert json.loads(path.read_text())["manifest_hash"] == manifest.hash
-    path.write_text("{not json")
-    np.testing.assert_array_equal(load_stats(copy, manifest)["palm_pose"].max, good["palm_pose"].max)
+    path.write_text(json.dumps(data, sort_keys=True, indent=2) + "\n")
+    with pytest.raises(ShardError, match="stats.json"):
+        load_stats(copy)
+    with pytest.raises(ShardError, match="stats.json"):
+        _ = catalog.open(copy).stats
 
 
 def test_stats_never_read_the_image_column(copy):
@@ -552,13 +553,14 @@ def test_image_offsets_span_pages_and_row_groups(tmp_path):
     from catalog.parquet_io import DATA_PAGE_SIZE, read_frames
 
     root = tmp_path / "big"
-    with ShardWriter(root, 0, 50, SETTINGS) as writer:
+    settings = {**SETTINGS, "resolution": 64}
+    with ShardWriter(root, 0, 50, settings) as writer:
         for i in range(50):
             spec = make_spec(i)
             rng = np.random.default_rng([11, i])
             frames = make_frames(spec, rng)
             writer.add_episode(spec, frames, make_images(frames.num_frames, rng, size=64))
-    write_manifest(root, Manifest.create("linear-fast", 7, SETTINGS, [writer.record], code=CODE))
+    write_manifest(root, Manifest.create("linear-fast", 7, settings, [writer.record], code=CODE))
     path = _frames_path(root)
     metadata = pq.ParquetFile(path).metadata
     assert metadata.num_row_groups == 2
@@ -624,3 +626,11 @@ def test_non_finite_values_give_a_shard_error_for_stats(tmp_path):
     with pytest.raises(ShardError, match=r"frames\.parquet: column 'object_velocity' holds non-finite"):
         _ = catalog.open(root).stats
     assert not (root / STATS_NAME).exists()
+
+
+def test_images_of_another_size_than_the_settings_say_are_refused(tmp_path):
+    """A manifest claiming 16 px (with a consistent hash) over 32 px images is not served."""
+    root = tmp_path / "linear-fast"
+    write_slice(root, episodes=2, settings={**SETTINGS, "resolution": 16})
+    with pytest.raises(ShardError, match="is 32x32 px, catalog.json says 16"):
+        catalog.open(root)[0]

@@ -37,8 +37,14 @@ def test_sha256_file_streams(tmp_path):
 
 def test_slice_hash_definition():
     hashes = [h for s in SHARDS for h in s.file_hashes()]
-    payload = '{"files":[' + ",".join(f'"{h}"' for h in hashes) + '],"settings":' + canonical_json(SETTINGS) + "}"
-    assert compute_hash(SETTINGS, SHARDS) == slice_hash(SETTINGS, hashes) == sha256_bytes(payload.encode())
+    stats = FileRecord("stats.json", sha256_bytes(b"stats"), 5)
+    payload = (
+        '{"files":[' + ",".join(f'"{h}"' for h in hashes) + '],"seed":7,"settings":' + canonical_json(SETTINGS)
+        + f',"slice":"linear-fast","stats":"{stats.sha256}"' + "}"
+    )
+    expected = sha256_bytes(payload.encode())
+    assert compute_hash(SETTINGS, SHARDS, "linear-fast", 7, stats) == expected
+    assert slice_hash(SETTINGS, hashes, slice_name="linear-fast", seed=7, stats=stats.sha256) == expected
     assert [h for h in SHARDS[0].file_hashes()] == [SHARDS[0].files[k].sha256 for k in ("frames", "episodes", "mcap")]
 
 
@@ -56,7 +62,10 @@ def test_hash_changes_with_any_file_hash_or_setting():
     for key, value in [("fps", 10), ("resolution", 64), ("jpeg_quality", 91), ("extra", True)]:
         seen.add(compute_hash({**SETTINGS, key: value}, SHARDS))
     seen.add(compute_hash(SETTINGS, SHARDS[::-1]))
-    assert len(seen) == 1 + 6 + 4 + 1
+    seen.add(compute_hash(SETTINGS, SHARDS, "linear-slow"))
+    seen.add(compute_hash(SETTINGS, SHARDS, None, 2))
+    seen.add(compute_hash(SETTINGS, SHARDS, None, None, FileRecord("stats.json", sha256_bytes(b"x"), 1)))
+    assert len(seen) == 1 + 6 + 4 + 1 + 3
 
 
 def test_manifest_round_trip_is_canonical(tmp_path):

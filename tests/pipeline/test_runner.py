@@ -37,7 +37,7 @@ def fake_shard(task: ShardTask, payload: str, folder: str) -> dict:
 
 def job(folder: Path, episodes: int = 4, shard_size: int = 2, payload: str = "a", extra: dict | None = None) -> Job:
     tasks = tuple(ShardTask("linear-fast", a, b) for a, b in shard_ranges(episodes, shard_size))
-    return Job(folder, "linear-fast", 1, {"resolution": 32}, extra or {}, tasks, fake_shard, payload)
+    return Job(folder, "linear-fast", 1, {"resolution": 32}, extra or {}, tasks, fake_shard, payload, with_stats=False)
 
 
 @pytest.fixture(autouse=True)
@@ -89,7 +89,7 @@ def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):
         return fake_shard(task, payload, folder)
 
     with pytest.raises(KeyboardInterrupt):
-        run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, job(tmp_path).tasks, dies, "a"),
+        run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, job(tmp_path).tasks, dies, "a", with_stats=False),
                 workers=0, progress=False)
     assert (tmp_path / runner.STATE_FILE).exists() and not (tmp_path / "catalog.json").exists()
     with pytest.raises(SpecError, match="unfinished run of another job"):

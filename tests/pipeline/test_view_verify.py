@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from catalog.manifest import load_manifest
 from pipeline.jobs.build import build
+from schemas.errors import ShardError
 
 BIN = Path(sys.executable).parent
 SLICE = "circular-fast"
@@ -159,3 +161,21 @@ def test_verify_names_settings_it_does_not_know(built, tmp_path):
     assert result.returncode == 2
     assert "unknown settings ['hdr']" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_edited_statistics_are_caught_by_verify_and_refused_by_the_loader(built, tmp_path):
+    import json
+
+    import catalog
+
+    copy = tmp_path / SLICE
+    shutil.copytree(built, copy)
+    manifest = load_manifest(copy)
+    assert manifest.stats is not None and manifest.stats.path == "stats.json"
+    data = json.loads((copy / "stats.json").read_text())
+    data["columns"]["action"]["std"] = [1.0] * 18
+    (copy / "stats.json").write_text(json.dumps(data, sort_keys=True, indent=2) + "\n")
+    result = _run("catalog", "verify", str(copy))
+    assert result.returncode == 2 and "stats.json" in result.stderr and "Traceback" not in result.stderr
+    with pytest.raises(ShardError, match="stats.json: "):
+        _ = catalog.open(copy).stats
