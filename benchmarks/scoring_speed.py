@@ -111,6 +111,7 @@ def _shard_tables(rng: np.random.Generator, first: int, end: int, frames: int, i
         "text": [""] * n,
         "spec": ["{}"] * n,
         "policy": ["synthetic"] * n,
+        "privileged": [False] * n,
         "status": status.tolist(),
         "error": ["policy raised" if s == "error" else "" for s in status],
     }

@@ -155,8 +155,10 @@ def episode_row(
     policy: str | None = None,
     status: str | None = None,
     error: str | None = None,
+    privileged: bool = False,
 ) -> dict[str, Any]:
-    """One episodes-table row as a dict of Python values; rollouts pass ``policy`` and ``status``."""
+    """One episodes-table row as a dict of Python values; rollouts pass ``policy`` and
+    ``status`` (and ``privileged``: whether the policy received the ground-truth spec)."""
     angles = np.asarray(grasp_angles, dtype=np.float32)
     if angles.shape != (ARRAY_WIDTHS["joint_angles"],):
         raise ShardError(f"episode {spec.episode_index}: grasp_angles must have shape (15,), got {angles.shape}")
@@ -196,7 +198,9 @@ def episode_row(
             f"episode {spec.episode_index}: error must be a non-empty reason exactly when status is 'error', "
             f"got status={status!r} error={error!r}"
         )
-    row.update(policy=policy, status=status, error=error)
+    if not isinstance(privileged, bool):
+        raise ShardError(f"episode {spec.episode_index}: privileged must be a bool, got {privileged!r}")
+    row.update(policy=policy, privileged=privileged, status=status, error=error)
     return row
 
 

@@ -127,6 +127,7 @@ class ShardWriter:
         policy: str | None = None,
         status: str | None = None,
         error: str | None = None,
+        privileged: bool = False,
     ) -> None:
         """Append one episode: its frames rows, MCAP messages and episodes row.
 
@@ -161,12 +162,14 @@ class ShardWriter:
             if policy is not None or status is not None or error is not None:
                 raise ShardError(f"episode {spec.episode_id}: policy/status/error belong to rollout shards only")
         angles = frames.grasp_angles if grasp_angles is None else grasp_angles
-        row = episode_row(spec, angles, policy=policy, status=status, error=error)
+        row = episode_row(spec, angles, policy=policy, status=status, error=error, privileged=privileged)
         table = frames_table(index, frames, images, fps=self.fps)
         self._mcap.check_episode(index, frames, images)
         metadata = {"episode_id": spec.episode_id, "spec": spec.to_json()}
         if self.rollout:
             metadata.update(policy=row["policy"], status=row["status"], error=row["error"])
+            if privileged:
+                metadata["privileged"] = "true"
         try:
             self._mcap.add_episode(index, frames, images, metadata)
             self._frames_writer.write(table)

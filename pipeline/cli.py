@@ -60,7 +60,11 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     cli.add_episodes(p)
     p.add_argument("--out", required=True, help="run folder: RUN/catalog.json and RUN/shards/")
     cli.add_workers(p)
-    p.add_argument("--deadline", type=cli.positive_float, default=10.0, help="seconds allowed per policy call (default: 10)")
+    p.add_argument(
+        "--deadline", type=cli.positive_float, default=None,
+        help="opt-in seconds allowed per policy call, recorded in the manifest (default: none, so load never "
+        "decides a result; a 300 s watchdog still fails a call that hangs)",
+    )
     cli.add_resolution(p)
     cli.add_shard_size(p, 32)
     cli.add_overwrite(p)

@@ -64,6 +64,7 @@ EPISODES_SCHEMA = pa.schema(
 #: Columns evaluated rollouts add to the episodes table.
 ROLLOUT_FIELDS = [
     pa.field("policy", pa.string(), nullable=False),
+    pa.field("privileged", pa.bool_(), nullable=False),
     pa.field("status", pa.string(), nullable=False),
     pa.field("error", pa.string(), nullable=False),
 ]

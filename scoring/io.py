@@ -28,7 +28,7 @@ FRAME_COLUMNS = ("episode_index", "frame_index", "phase", "palm_pose", "object_p
 EPISODE_COLUMNS = (
     "episode_index", "motion_type", "intercept_setting", "object", "grasp_angles", "num_frames", "observe_frames",
 )
-ROLLOUT_COLUMNS = ("policy", "status", "error")
+ROLLOUT_COLUMNS = ("policy", "privileged", "status", "error")
 #: Phases in which the hand acts; every other frame is observation only.
 OBSERVE = "observe"
 
@@ -40,7 +40,8 @@ class RunData:
     ``offsets`` (n + 1) delimit each episode's acting frames, in frame order;
     ``policy`` is None for a built (ground-truth) slice, whose episodes are all ok.
     ``acting_budget`` (n,) is R_time's N (:func:`schemas.events.acting_budget`);
-    ``error_message`` (n,) the recorded reason of each failed episode (None otherwise).
+    ``error_message`` (n,) the recorded reason of each failed episode (None otherwise);
+    ``privileged``: the policy read the ground-truth spec (an upper bound, not a fair entry).
     """
 
     name: str
@@ -59,6 +60,7 @@ class RunData:
     joint_angles: np.ndarray
     fingertip_distance: np.ndarray
     error_message: np.ndarray
+    privileged: bool = False
 
     @property
     def episodes(self) -> int:
@@ -103,10 +105,12 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         error_message = _strings(episodes.column("error"))
         error_message[~error] = None
         policy = ", ".join(sorted(set(episodes.column("policy").to_pylist())))
+        privileged = any(episodes.column("privileged").to_pylist())
     else:
         error = np.zeros(len(index), dtype=bool)
         error_message = np.full(len(index), None, dtype=object)
         policy = None
+        privileged = False
 
     phases = set(pc.unique(frames.column("phase")).to_pylist())
     if not phases <= set(PHASES):
@@ -156,6 +160,7 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         joint_angles=frame_array("joint_angles"),
         fingertip_distance=frame_array("fingertip_distance"),
         error_message=error_message,
+        privileged=privileged,
     )
 
 

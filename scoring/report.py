@@ -45,6 +45,7 @@ class RunReport:
     name: str
     slice: str
     policy: str | None
+    privileged: bool
     overall: Summary
     breakdowns: dict[str, dict[str, Summary]]
 
@@ -77,14 +78,18 @@ def score_run(data: RunData, label: str | None = None) -> RunReport:
         name=data.name,
         slice=data.slice,
         policy=data.policy,
+        privileged=data.privileged,
         overall=aggregate(per, data.error),
         breakdowns=breakdowns,
     )
 
 
 def default_label(data: RunData) -> str:
-    """The policy's name for rollouts; ``GT (<folder>)`` for a built ground-truth slice."""
-    return data.policy if data.policy else f"GT ({data.name})"
+    """The policy's name for rollouts (``(privileged)`` added when it read the ground-truth
+    spec); ``GT (<folder>)`` for a built ground-truth slice."""
+    if not data.policy:
+        return f"GT ({data.name})"
+    return f"{data.policy} (privileged)" if data.privileged else data.policy
 
 
 def unique_labels(labels: Sequence[str], names: Sequence[str]) -> list[str]:
@@ -127,6 +132,7 @@ def report_dict(report: RunReport) -> dict[str, Any]:
         "slice": report.slice,
         "policy": report.policy,
         "ground_truth": report.ground_truth,
+        "privileged": report.privileged,
         "episodes": overall.episodes,
         "errors": overall.errors,
         "localized": overall.localized,
@@ -146,7 +152,10 @@ MAIN_HEADERS = (
     "E_gra v", "Q_smooth ^", "Q_line ^", "R_time ^",
 )
 GROUP_HEADERS = ("Run", "Group", "Episodes", "Errors", "S_loc (%)", "E_loc", "S_gra (%)", "E_gra", "Q_smooth", "Q_line", "R_time")
-LEGEND = "^ higher is better, v lower is better; CI: 95% Wilson interval; - : nothing to average over."
+LEGEND = (
+    "^ higher is better, v lower is better; CI: 95% Wilson interval; - : nothing to average over; "
+    "(privileged): the policy read the ground-truth spec (an upper bound, not a fair entry)."
+)
 
 
 def _num(value: float | None) -> str:

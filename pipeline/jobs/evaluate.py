@@ -8,9 +8,11 @@ through :func:`pipeline.jobs.runner.run_job` as a build's do (and resume the sam
 from the worker. After an episode fails the worker discards that policy (a hung
 thread or a broken connection may still hold it) and makes a fresh one.
 
-The recorded bytes depend only on the slice, the settings, the policy's actions and
-the deadline (which decides which episodes fail): not on the number of workers, the
-transport (in-process or WebSocket) or timing, as long as no call nears its deadline.
+The recorded bytes depend only on the slice, the settings and the policy's actions: not
+on the number of workers, the transport (in-process or WebSocket), machine load or
+timing. A per-call deadline is opt-in (``--deadline``, recorded in the manifest as
+``deadline_s``; it then decides which slow calls fail); without one, only a call that
+never returns meets the generous watchdog and fails its episode as "hung".
 """
 
 from __future__ import annotations
@@ -27,30 +29,37 @@ import numpy as np
 from catalog.manifest import Manifest, load_manifest, manifest_path
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
-from pipeline.loop.rollout import DEFAULT_DEADLINE_S, run_episode
+from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
 from schemas.errors import PolicyError, SpecError
 
 DEFAULT_SHARD_SIZE = 32
-#: Extra seconds a remote policy's socket waits beyond the deadline (the runner's
-#: deadline fires first and names the fault).
+#: Extra seconds a remote policy's socket waits beyond the deadline or watchdog (the
+#: runner's fires first and names the fault).
 REMOTE_SLACK_S = 5.0
 
 
 @dataclass(frozen=True)
 class EvalSettings:
     """Everything that determines a run's bytes besides the specs: the build settings
-    (in ``catalog.json``'s ``settings``), the policy and the deadline (its top-level keys)."""
+    (in ``catalog.json``'s ``settings``), the policy, whether it is privileged (it reads
+    the ground-truth spec) and the opt-in deadline (its top-level keys; ``deadline_s``
+    null means none: results then never depend on timing)."""
 
     build: BuildSettings
     slice_name: str
     policy_ref: str
     policy_name: str
-    deadline_s: float
+    privileged: bool
+    deadline_s: float | None
+
+    @property
+    def call_timeout_s(self) -> float:
+        return WATCHDOG_S if self.deadline_s is None else self.deadline_s
 
     def extra(self) -> dict[str, Any]:
         """The manifest's rollout keys (the policy's name, not its ref: a restarted server
         may move port, and the same run resumes)."""
-        return {"policy": self.policy_name, "deadline_s": self.deadline_s}
+        return {"policy": self.policy_name, "privileged": self.privileged, "deadline_s": self.deadline_s}
 
 
 class _Unavailable:
@@ -69,12 +78,13 @@ class _Unavailable:
         raise PolicyError(self.reason)
 
 
-def open_policy(ref: str, deadline_s: float) -> Any:
-    """A fresh policy for ``ref``: RemotePolicy for ``ws://``, else ``make_policy(ref)``."""
+def open_policy(ref: str, timeout_s: float = WATCHDOG_S) -> Any:
+    """A fresh policy for ``ref``: RemotePolicy for ``ws://`` (its socket waits a little
+    longer than ``timeout_s``), else ``make_policy(ref)``."""
     from pipeline.remote.client import RemotePolicy, is_remote
 
     if is_remote(ref):
-        return RemotePolicy(ref, timeout_s=deadline_s + REMOTE_SLACK_S)
+        return RemotePolicy(ref, timeout_s=timeout_s + REMOTE_SLACK_S)
     from pipeline.policies.base import make_policy
 
     return make_policy(ref)
@@ -103,7 +113,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
             for spec in task.specs():
                 if policy is None:
                     try:
-                        policy = open_policy(settings.policy_ref, settings.deadline_s)
+                        policy = open_policy(settings.policy_ref, settings.call_timeout_s)
                     except PolicyError as exc:
                         policy = _Unavailable(settings.policy_name, str(exc))
                     except Exception as exc:
@@ -114,6 +124,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
                     result.frames,
                     result.images,
                     policy=settings.policy_name,
+                    privileged=settings.privileged,
                     status=result.status,
                     error=result.error or None,
                 )
@@ -155,13 +166,13 @@ def _merge_timing(total: dict | None, part: dict) -> dict:
     return merged
 
 
-def describe_policy(ref: str, deadline_s: float) -> str:
-    """The policy's name, resolving ``ref`` once in the driver so that a bad name, an
-    unimportable callable or an unreachable server fails before any work starts."""
+def describe_policy(ref: str, timeout_s: float = WATCHDOG_S) -> tuple[str, bool]:
+    """The policy's name and privileged flag, resolving ``ref`` once in the driver so that
+    a bad name, an unimportable callable or an unreachable server fails before any work starts."""
     from pipeline.remote.client import is_remote
 
     try:
-        policy = open_policy(ref, deadline_s)
+        policy = open_policy(ref, timeout_s)
     except PolicyError as exc:
         where = f"{ref}: " if is_remote(ref) else ""
         raise PolicyError(f"{where}{exc}") from None
@@ -169,7 +180,10 @@ def describe_policy(ref: str, deadline_s: float) -> str:
         name = getattr(policy, "name", None)
         if not isinstance(name, str) or not name:
             raise SpecError(f"policy {ref!r} has no name (a Policy needs a non-empty str attribute name)")
-        return name
+        privileged = getattr(policy, "privileged", False)
+        if not isinstance(privileged, bool):
+            raise SpecError(f"policy {ref!r}: privileged must be True or False, got {privileged!r}")
+        return name, privileged
     finally:
         _close(policy)
 
@@ -244,7 +258,7 @@ def evaluate(
     episodes: int | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
-    deadline_s: float = DEFAULT_DEADLINE_S,
+    deadline_s: float | None = None,
     resolution: int = 224,
     shard_size: int = DEFAULT_SHARD_SIZE,
     progress: bool = True,
@@ -263,8 +277,11 @@ def evaluate(
 
     if not isinstance(policy_ref, str) or not policy_ref:
         raise SpecError(f"--policy must be a name, module:callable or ws://HOST:PORT, got {policy_ref!r}")
-    if isinstance(deadline_s, bool) or not isinstance(deadline_s, (int, float)) or not 0 < deadline_s < float("inf"):
-        raise SpecError(f"--deadline must be a number of seconds > 0, got {deadline_s!r}")
+    if deadline_s is not None:
+        try:
+            deadline_s = check_seconds("--deadline", deadline_s)
+        except PolicyError as exc:
+            raise SpecError(str(exc)) from None
     definition = get_slice(slice_name)
     if definition.union:
         raise SpecError(f"{slice_name} is the union of {', '.join(definition.parts)}: evaluate on one of them or test-1k")
@@ -273,8 +290,8 @@ def evaluate(
         raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
     build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY)
     ranges = shard_ranges(total, shard_size)
-    name = describe_policy(policy_ref, float(deadline_s))
-    settings = EvalSettings(build_settings, slice_name, policy_ref, name, float(deadline_s))
+    name, privileged = describe_policy(policy_ref, WATCHDOG_S if deadline_s is None else deadline_s)
+    settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s)
     run_dir = Path(out)
     job = Job(
         folder=run_dir,

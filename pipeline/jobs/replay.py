@@ -33,7 +33,7 @@ from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
-ROLLOUT_COLUMNS = ("policy", "status", "error")
+ROLLOUT_COLUMNS = ("policy", "privileged", "status", "error")
 
 
 @dataclass(frozen=True)
@@ -193,7 +193,9 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
     with tempfile.TemporaryDirectory(prefix="dyana-replay-") as scratch:
         with ShardWriter(scratch, shard.first, shard.end, settings, rollout=rollout) as writer:
             for spec, ep_frames, images, extra in replayed:
-                writer.add_episode(spec, ep_frames, images, **{k: (v or None) for k, v in extra.items()})
+                writer.add_episode(
+                    spec, ep_frames, images, **{k: (v if k == "privileged" else (v or None)) for k, v in extra.items()}
+                )
         for kind, record in shard.files.items():
             again = writer.result.files[kind]
             if again.sha256 != record.sha256:  # the file on disk matches record.sha256 (checked above)

@@ -33,8 +33,10 @@ from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
-#: Default per-call deadline (seconds) for a policy's ``reset`` and each ``act``.
-DEFAULT_DEADLINE_S = 10.0
+#: Without a deadline, a call that has not returned after this long is taken for a hang
+#: (the episode fails with a "hung" reason). Generous on purpose: machine load never
+#: decides a result; only a policy that truly stops answering meets it.
+WATCHDOG_S = 300.0
 
 
 @dataclass(frozen=True)
@@ -79,10 +81,12 @@ def task_for(spec: EpisodeSpec, resolution: int, privileged: bool, horizon: int)
     return task
 
 
-def _call(worker: WorkerThread, fn: Any, arg: Any, deadline_s: float, what: str) -> Any:
+def _call(worker: WorkerThread, fn: Any, arg: Any, deadline_s: float | None, watchdog_s: float, what: str) -> Any:
     try:
-        return worker.call(fn, arg, timeout=deadline_s)
+        return worker.call(fn, arg, timeout=watchdog_s if deadline_s is None else deadline_s)
     except CallTimeout:
+        if deadline_s is None:
+            raise PolicyError(f"policy {what} hung: no answer within the {watchdog_s:g} s watchdog") from None
         raise PolicyError(f"policy {what} exceeded its deadline of {deadline_s:g} s") from None
     except PolicyError:
         raise
@@ -91,14 +95,26 @@ def _call(worker: WorkerThread, fn: Any, arg: Any, deadline_s: float, what: str)
         raise PolicyError(f"policy {what} raised {type(exc).__name__}" + (f": {text}" if text else "")) from None
 
 
-def run_episode(env: Any, policy: Any, spec: EpisodeSpec, deadline_s: float = DEFAULT_DEADLINE_S) -> RolloutResult:
+def check_seconds(name: str, value: Any) -> float:
+    """A finite number of seconds > 0, or PolicyError naming it."""
+    if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise PolicyError(f"{name} must be a finite number of seconds > 0, got {value!r}")
+    return float(value)
+
+
+def run_episode(
+    env: Any, policy: Any, spec: EpisodeSpec, deadline_s: float | None = None, watchdog_s: float = WATCHDOG_S
+) -> RolloutResult:
     """Run ``policy`` on ``spec`` in ``env`` and return the recording (see the module docstring).
 
-    Errors of the environment itself (a bad spec, a simulator failure) propagate;
-    only the policy's faults become an ``error`` episode.
+    Without ``deadline_s`` the result depends on the policy's answers only, never on how
+    long they took; ``watchdog_s`` still ends a call that never returns (a "hung"
+    error). Errors of the environment itself (a bad spec, a simulator failure)
+    propagate; only the policy's faults become an ``error`` episode.
     """
-    if not (isinstance(deadline_s, (int, float)) and math.isfinite(deadline_s) and deadline_s > 0):
-        raise PolicyError(f"deadline must be a finite number of seconds > 0, got {deadline_s!r}")
+    if deadline_s is not None:
+        deadline_s = check_seconds("deadline", deadline_s)
+    watchdog_s = check_seconds("watchdog", watchdog_s)
     from pipeline.loop.env import horizon, run_chunk
 
     obs, info = env.reset(options={"spec": spec})
@@ -109,13 +125,13 @@ def run_episode(env: Any, policy: Any, spec: EpisodeSpec, deadline_s: float = DE
     waited = 0.0
     try:
         task = task_for(spec, env.resolution, bool(getattr(policy, "privileged", False)), horizon(spec))
-        _call(worker, policy.reset, task, deadline_s, "reset")
+        _call(worker, policy.reset, task, deadline_s, watchdog_s, "reset")
         done = bool(getattr(env, "done", False))
         while not done:
             calls += 1
             start = time.perf_counter()
             try:
-                raw = _call(worker, policy.act, obs, deadline_s, "act")
+                raw = _call(worker, policy.act, obs, deadline_s, watchdog_s, "act")
             finally:
                 waited += time.perf_counter() - start
             ran = run_chunk(env, raw)

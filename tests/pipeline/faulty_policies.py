@@ -87,3 +87,21 @@ class Mixed:
     def act(self, obs: dict):
         self.calls += 1
         return faulty_action(self.fault, obs, self.calls)
+
+
+class Slow:
+    """Answers correctly (stands still) but takes ``delay_s`` per call, for a few calls."""
+
+    name = "slow"
+    action_horizon = 1
+    privileged = False
+    delay_s = 0.25
+
+    def reset(self, task: dict) -> None:
+        self.calls = 0
+
+    def act(self, obs: dict):
+        self.calls += 1
+        if self.calls <= 3:
+            time.sleep(self.delay_s)
+        return state_action(obs)

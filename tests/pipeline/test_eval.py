@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -72,10 +73,10 @@ def test_a_run_is_a_verifiable_rollout_folder(runs):
     root, _ = runs
     run = root / "oracle"
     manifest = verify_files(run)
-    assert manifest.extra == {"policy": "oracle", "deadline_s": 10.0}
+    assert manifest.extra == {"policy": "oracle", "privileged": True, "deadline_s": None}
     assert manifest.slice == "test-1k" and manifest.settings["resolution"] == RESOLUTION
     assert [tuple(s.episodes) for s in manifest.shards] == [(0, 3), (3, 6)]
-    assert sorted(p.name for p in run.iterdir()) == ["catalog.json", "shards"]
+    assert sorted(p.name for p in run.iterdir()) == ["catalog.json", "shards", "stats.json"]
 
 
 def test_the_oracle_reproduces_the_ground_truth_states(runs):
@@ -207,3 +208,68 @@ def test_a_complete_run_by_other_code_is_not_reused(tmp_path, monkeypatch):
     manifest = evaluate("still", "test-1k", tmp_path / "run", **settings)
     assert calls == [0]
     assert manifest.code.commit == "0123456789abcdef0123456789abcdef01234567"
+
+
+def test_a_privileged_policy_is_recorded_and_labelled(runs, capsys):
+    """A policy that reads the ground-truth spec is marked in the manifest, in every
+    episodes row and in the scores (as an upper bound, not a fair entry)."""
+    import pyarrow.parquet as pq
+
+    from scoring.cli import main as scoring_main
+
+    root, _ = runs
+    run = root / "oracle"
+    manifest = load_manifest(run)
+    assert manifest.extra["privileged"] is True
+    for shard in manifest.shards:
+        assert pq.read_table(run / shard.files["episodes"].path).column("privileged").to_pylist() == [True] * 3
+    assert scoring_main(["eval", str(run), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["privileged"] is True and report["label"] == "oracle (privileged)"
+
+
+def _burn(seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+
+
+def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
+    """No wall-clock deadline by default: two CPU-burning processes beside the run change
+    nothing in its bytes (they once turned slow calls into deadline errors)."""
+    import multiprocessing
+
+    settings = dict(episodes=2, resolution=RESOLUTION, shard_size=2, workers=0, progress=False, summary=False)
+    idle = evaluate("predictive", "test-1k", tmp_path / "idle", **settings)
+    burners = [multiprocessing.get_context("spawn").Process(target=_burn, args=(120.0,), daemon=True) for _ in range(2)]
+    for burner in burners:
+        burner.start()
+    try:
+        loaded = evaluate("predictive", "test-1k", tmp_path / "loaded", **settings)
+    finally:
+        for burner in burners:
+            burner.kill()
+    assert loaded.hash == idle.hash
+    assert loaded.extra["deadline_s"] is None
+
+
+def test_a_slow_policy_fails_only_with_an_explicit_deadline(tmp_path, monkeypatch):
+    """Slowness is not a fault unless the user asks for a deadline (then it is recorded)."""
+    from tests.pipeline import faulty_policies
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
+    settings = dict(episodes=1, resolution=RESOLUTION, shard_size=1, workers=0, progress=False, summary=False)
+    slow = "tests.pipeline.faulty_policies:Slow"
+    assert faulty_policies.Slow.delay_s > 0.2
+    relaxed = evaluate(slow, "test-1k", tmp_path / "relaxed", **settings)
+    strict = evaluate(slow, "test-1k", tmp_path / "strict", deadline_s=0.05, **settings)
+    assert relaxed.extra["deadline_s"] is None and strict.extra["deadline_s"] == 0.05
+    import pyarrow.parquet as pq
+
+    def statuses(manifest, run):
+        return [(r["status"], r["error"]) for s in manifest.shards
+                for r in pq.read_table(run / s.files["episodes"].path).to_pylist()]
+
+    assert statuses(relaxed, tmp_path / "relaxed") == [("ok", "")]
+    [(status, error)] = statuses(strict, tmp_path / "strict")
+    assert status == "error" and "exceeded its deadline of 0.05 s" in error

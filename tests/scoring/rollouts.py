@@ -91,7 +91,7 @@ def episodes_table(first_index: int, episodes: list[Ep], policy: str | None) -> 
             "intercept_time_s": 0.5, "observe_frames": ep.phases.count("observe"), "intercept_frame": 0,
             "num_frames": len(ep.phases), "grasp_angles": np.asarray(ep.grasp, np.float32), "seed": 1,
             "spec_hash": "0" * 64, "text": "", "spec": "{}",
-            "policy": policy, "status": ep.status, "error": "boom" if ep.status == "error" else "",
+            "policy": policy, "privileged": False, "status": ep.status, "error": "boom" if ep.status == "error" else "",
         })
     columns = []
     for f in schema:
