@@ -25,39 +25,40 @@ from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar
 
 from schemas.errors import SpecError
+from schemas.names import shorten
 
 Vec2 = tuple[float, float]
 
 
 def _finite(owner: str, name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise SpecError(f"{owner}.{name} must be a number, got {value!r}")
+        raise SpecError(f"{owner}.{name} must be a number, got {shorten(repr(value))}")
     try:
         value = float(value)
     except OverflowError:
-        raise SpecError(f"{owner}.{name} must be finite, got {value!r}") from None
+        raise SpecError(f"{owner}.{name} must be finite, got {shorten(repr(value))}") from None
     if not math.isfinite(value):
-        raise SpecError(f"{owner}.{name} must be finite, got {value!r}")
+        raise SpecError(f"{owner}.{name} must be finite, got {shorten(repr(value))}")
     return value
 
 
 def _vec2(owner: str, name: str, value: Any) -> Vec2:
     if not isinstance(value, (tuple, list)) or len(value) != 2:
-        raise SpecError(f"{owner}.{name} must be a pair [x, z], got {value!r}")
+        raise SpecError(f"{owner}.{name} must be a pair [x, z], got {shorten(repr(value))}")
     return (_finite(owner, f"{name}[0]", value[0]), _finite(owner, f"{name}[1]", value[1]))
 
 
 def _positive(owner: str, name: str, value: Any) -> float:
     value = _finite(owner, name, value)
     if value <= 0:
-        raise SpecError(f"{owner}.{name} must be > 0, got {value!r}")
+        raise SpecError(f"{owner}.{name} must be > 0, got {shorten(repr(value))}")
     return value
 
 
 def _non_negative(owner: str, name: str, value: Any) -> float:
     value = _finite(owner, name, value)
     if value < 0:
-        raise SpecError(f"{owner}.{name} must be >= 0, got {value!r}")
+        raise SpecError(f"{owner}.{name} must be >= 0, got {shorten(repr(value))}")
     return value
 
 
@@ -101,7 +102,7 @@ class ArcToken:
         object.__setattr__(self, "angular_velocity", _non_negative("A", "angular_velocity", self.angular_velocity))
         object.__setattr__(self, "start_angle", _finite("A", "start_angle", self.start_angle))
         if self.turn not in (1, -1) or isinstance(self.turn, bool):
-            raise SpecError(f"A.turn must be +1 or -1, got {self.turn!r}")
+            raise SpecError(f"A.turn must be +1 or -1, got {shorten(repr(self.turn))}")
         object.__setattr__(self, "turn", int(self.turn))
         object.__setattr__(self, "duration", _positive("A", "duration", self.duration))
 
@@ -167,11 +168,17 @@ def _load_json(what: str, text: Any) -> Any:
         return json.loads(text)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise SpecError(f"{what} is not valid JSON: {exc}") from exc
+    except ValueError as exc:  # e.g. an integer over Python's 4,300-digit conversion limit
+        raise SpecError(f"{what} holds a number Dyana cannot read: {shorten(str(exc), 160)}") from None
     except RecursionError:
         raise SpecError(f"{what} JSON is nested too deeply") from None
 
 
 Token = LineToken | ArcToken | HarmonicToken | ClothoidToken
+#: Bounds that keep a spec's cost small (the recipe uses one token and no overlay; the
+#: episode stage is linear in the token count, these only cap a hostile input).
+MAX_TRACK_TOKENS = 256
+MAX_OVERLAYS = 16
 TOKEN_TYPES: dict[str, type] = {cls.type: cls for cls in (LineToken, ArcToken, HarmonicToken, ClothoidToken)}
 
 
@@ -187,13 +194,13 @@ def token_to_dict(token: Token) -> dict[str, Any]:
 def token_from_dict(data: Any) -> Token:
     """Validate and build a token from its dict; names the bad field on error."""
     if not isinstance(data, dict):
-        raise SpecError(f"a token must be an object, got {data!r}")
+        raise SpecError(f"a token must be an object, got {shorten(repr(data))}")
     if "type" not in data:
-        raise SpecError(f"token is missing field 'type' (one of {sorted(TOKEN_TYPES)}), got {data!r}")
+        raise SpecError(f"token is missing field 'type' (one of {sorted(TOKEN_TYPES)}), got {shorten(repr(data))}")
     kind = data["type"]
     cls = TOKEN_TYPES.get(kind) if isinstance(kind, str) else None
     if cls is None:
-        raise SpecError(f"unknown token type {kind!r} (expected one of {sorted(TOKEN_TYPES)})")
+        raise SpecError(f"unknown token type {shorten(repr(kind))} (expected one of {sorted(TOKEN_TYPES)})")
     names = {f.name for f in fields(cls)}
     unknown = sorted(str(k) for k in set(data) - names - {"type"})
     if unknown:
@@ -215,10 +222,12 @@ class Track:
     def __post_init__(self) -> None:
         tokens = tuple(self.tokens) if isinstance(self.tokens, (tuple, list)) else self.tokens
         if not isinstance(tokens, tuple) or not tokens:
-            raise SpecError(f"a track needs at least one token, got {self.tokens!r}")
+            raise SpecError(f"a track needs at least one token, got {shorten(self.tokens)}")
+        if len(tokens) > MAX_TRACK_TOKENS:
+            raise SpecError(f"a track holds at most {MAX_TRACK_TOKENS} tokens, got {len(tokens):,}")
         for token in tokens:
             if not isinstance(token, tuple(TOKEN_TYPES.values())):
-                raise SpecError(f"not a motion token: {token!r}")
+                raise SpecError(f"not a motion token: {shorten(repr(token))}")
         object.__setattr__(self, "tokens", tokens)
         object.__setattr__(self, "start", _non_negative("track", "start", self.start))
 
@@ -240,15 +249,17 @@ class Motion:
 
     def __post_init__(self) -> None:
         if not isinstance(self.base, Track):
-            raise SpecError(f"motion.base must be a Track, got {self.base!r}")
+            raise SpecError(f"motion.base must be a Track, got {shorten(repr(self.base))}")
         if self.base.start != 0.0:
-            raise SpecError(f"motion.base must start at 0, got start={self.base.start!r}")
+            raise SpecError(f"motion.base must start at 0, got start={shorten(repr(self.base.start))}")
         if not isinstance(self.overlays, (tuple, list)):
-            raise SpecError(f"motion.overlays must be a sequence of Tracks, got {self.overlays!r}")
+            raise SpecError(f"motion.overlays must be a sequence of Tracks, got {shorten(repr(self.overlays))}")
         overlays = tuple(self.overlays)
+        if len(overlays) > MAX_OVERLAYS:
+            raise SpecError(f"a motion holds at most {MAX_OVERLAYS} overlay tracks, got {len(overlays):,}")
         for overlay in overlays:
             if not isinstance(overlay, Track):
-                raise SpecError(f"motion overlay must be a Track, got {overlay!r}")
+                raise SpecError(f"motion overlay must be a Track, got {shorten(repr(overlay))}")
         object.__setattr__(self, "overlays", overlays)
 
     @classmethod
@@ -277,7 +288,7 @@ class Motion:
         if isinstance(data, list):
             data = {"base": data}
         if not isinstance(data, dict):
-            raise SpecError(f"motion must be an object with 'base', got {data!r}")
+            raise SpecError(f"motion must be an object with 'base', got {shorten(repr(data))}")
         unknown = sorted(str(k) for k in set(data) - {"base", "overlays"})
         if unknown:
             raise SpecError(f"motion has unknown field(s) {unknown}")
@@ -285,19 +296,19 @@ class Motion:
             raise SpecError("motion is missing field 'base'")
         base = data["base"]
         if not isinstance(base, list):
-            raise SpecError(f"motion.base must be a list of tokens, got {base!r}")
+            raise SpecError(f"motion.base must be a list of tokens, got {shorten(repr(base))}")
         items = data.get("overlays", [])
         if not isinstance(items, list):
-            raise SpecError(f"motion.overlays must be a list of tracks, got {items!r}")
+            raise SpecError(f"motion.overlays must be a list of tracks, got {shorten(repr(items))}")
         overlays = []
         for i, item in enumerate(items):
             if not isinstance(item, dict) or "tokens" not in item:
-                raise SpecError(f"motion.overlays[{i}] must be an object with 'tokens', got {item!r}")
+                raise SpecError(f"motion.overlays[{i}] must be an object with 'tokens', got {shorten(repr(item))}")
             unknown = sorted(str(k) for k in set(item) - {"start", "tokens"})
             if unknown:
                 raise SpecError(f"motion.overlays[{i}] has unknown field(s) {unknown}")
             if not isinstance(item["tokens"], list):
-                raise SpecError(f"motion.overlays[{i}].tokens must be a list of tokens, got {item['tokens']!r}")
+                raise SpecError(f"motion.overlays[{i}].tokens must be a list of tokens, got {shorten(repr(item['tokens']))}")
             overlays.append(Track(tuple(token_from_dict(t) for t in item["tokens"]), item.get("start", 0.0)))
         return cls(Track(tuple(token_from_dict(t) for t in base)), tuple(overlays))
 

@@ -11,8 +11,13 @@ import math
 from dataclasses import dataclass
 
 from schemas.errors import SpecError
+from schemas.names import shorten
 
 SHAPES = ("sphere", "cylinder", "box")
+
+
+#: An object's allowed width as multiples of its nominal width (see ObjectCategory.size_range).
+SIZE_RANGE = (0.5, 2.0)
 
 
 @dataclass(frozen=True)
@@ -32,16 +37,22 @@ class ObjectCategory:
 
     def __post_init__(self) -> None:
         if self.shape not in SHAPES:
-            raise SpecError(f"object {self.name!r}: unknown shape {self.shape!r}")
+            raise SpecError(f"object {shorten(repr(self.name))}: unknown shape {shorten(repr(self.shape))}")
         expected = {"sphere": 1, "cylinder": 2, "box": 3}[self.shape]
         if len(self.dims) != expected or not all(math.isfinite(d) and d > 0 for d in self.dims):
-            raise SpecError(f"object {self.name!r}: bad dims {self.dims!r}")
+            raise SpecError(f"object {shorten(repr(self.name))}: bad dims {shorten(repr(self.dims))}")
 
     @property
     def nominal_size(self) -> float:
         if self.shape == "box":
             return 2.0 * max(self.dims[0], self.dims[2])
         return 2.0 * self.dims[0]
+
+    @property
+    def size_range(self) -> tuple[float, float]:
+        """Widths a spec may give this object: half to twice its nominal width (the recipe
+        varies it by 0.85-1.15x); beyond, it is another object (a 50 cm tennis ball)."""
+        return SIZE_RANGE[0] * self.nominal_size, SIZE_RANGE[1] * self.nominal_size
 
     def scaled_dims(self, size: float) -> tuple[float, ...]:
         """Geometry scaled so that the characteristic width equals ``size``."""
@@ -85,4 +96,4 @@ def object_category(name: str) -> ObjectCategory:
     try:
         return OBJECTS[name]
     except (KeyError, TypeError):
-        raise SpecError(f"unknown object {name!r} (expected one of {sorted(OBJECTS)})") from None
+        raise SpecError(f"unknown object {shorten(repr(name))} (expected one of {sorted(OBJECTS)})") from None

@@ -15,7 +15,7 @@ from typing import Any
 
 from schemas.errors import SpecError
 from schemas.motion import Motion, _load_json
-from schemas.names import validate_name
+from schemas.names import shorten, validate_name
 from schemas.objects import object_category
 from schemas.scene import (
     GRASP_FRAMES,
@@ -57,18 +57,18 @@ def _int(name: str, value: Any, minimum: int, maximum: int) -> int:
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         else:
-            raise SpecError(f"spec.{name} must be an integer, got {value!r}")
+            raise SpecError(f"spec.{name} must be an integer, got {shorten(repr(value))}")
     value = int(value)
     if value < minimum:
-        raise SpecError(f"spec.{name} must be >= {minimum}, got {value!r}")
+        raise SpecError(f"spec.{name} must be >= {minimum}, got {shorten(repr(value))}")
     if value > maximum:
-        raise SpecError(f"spec.{name} must be <= {maximum}, got {value!r}")
+        raise SpecError(f"spec.{name} must be <= {maximum}, got {shorten(repr(value))}")
     return value
 
 
 def _choice(name: str, value: Any, options: tuple[str, ...]) -> str:
     if value not in options:
-        raise SpecError(f"spec.{name} must be one of {list(options)}, got {value!r}")
+        raise SpecError(f"spec.{name} must be one of {list(options)}, got {shorten(repr(value))}")
     return value
 
 
@@ -101,22 +101,28 @@ class EpisodeSpec:
         object.__setattr__(self, "seed", _int("seed", self.seed, 0, _INT64_MAX))
         _choice("motion_type", self.motion_type, _MOTION_TYPES)
         if not isinstance(self.motion, Motion):
-            raise SpecError(f"spec.motion must be a Motion, got {self.motion!r}")
+            raise SpecError(f"spec.motion must be a Motion, got {shorten(repr(self.motion))}")
         if not isinstance(self.object, str):
-            raise SpecError(f"spec.object must be an object category name, got {self.object!r}")
+            raise SpecError(f"spec.object must be an object category name, got {shorten(repr(self.object))}")
         object_category(self.object)
         size = self.object_size
         if isinstance(size, bool) or not isinstance(size, numbers.Real) or not math.isfinite(size) or size <= 0:
-            raise SpecError(f"spec.object_size must be a finite number > 0, got {size!r}")
+            raise SpecError(f"spec.object_size must be a finite number > 0, got {shorten(size)}")
+        low, high = object_category(self.object).size_range
+        if not low <= size <= high:
+            raise SpecError(
+                f"spec.object_size of a {self.object} must be in [{low:.3f}, {high:.3f}] units "
+                f"(half to twice its nominal width), got {shorten(size)}"
+            )
         object.__setattr__(self, "object_size", float(size))
         _choice("hand", self.hand, HANDS)
         _choice("rollout_format", self.rollout_format, ROLLOUT_FORMATS)
         _choice("intercept_setting", self.intercept_setting, tuple(INTERCEPT_SECONDS))
         object.__setattr__(self, "observe_frames", _int("observe_frames", self.observe_frames, 0, _INT32_MAX))
         if self.rollout_format == "direct-act" and self.observe_frames != 0:
-            raise SpecError(f"spec.observe_frames must be 0 for direct-act, got {self.observe_frames!r}")
+            raise SpecError(f"spec.observe_frames must be 0 for direct-act, got {shorten(repr(self.observe_frames))}")
         if self.rollout_format == "observe-before-act" and self.observe_frames < 1:
-            raise SpecError(f"spec.observe_frames must be >= 1 for observe-before-act, got {self.observe_frames!r}")
+            raise SpecError(f"spec.observe_frames must be >= 1 for observe-before-act, got {shorten(repr(self.observe_frames))}")
         minimum = self.intercept_frame + GRASP_FRAMES + 1
         object.__setattr__(self, "num_frames", _int("num_frames", self.num_frames, minimum, _INT32_MAX))
         needed = (self.num_frames - 1) / FPS
@@ -125,7 +131,22 @@ class EpisodeSpec:
                 f"spec.motion lasts {self.motion.duration:.3f} s but {self.num_frames} frames need {needed:.3f} s"
             )
         if not isinstance(self.text, str):
-            raise SpecError(f"spec.text must be a string, got {self.text!r}")
+            raise SpecError(f"spec.text must be a string, got {shorten(self.text)}")
+        if len(self.text) > MAX_TEXT:
+            raise SpecError(f"spec.text holds at most {MAX_TEXT:,} characters, got {len(self.text):,}")
+        try:
+            self.text.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise SpecError(
+                f"spec.text is not valid Unicode text ({exc.reason} at character {exc.start}: "
+                f"{shorten(repr(self.text[exc.start]))}), got {shorten(self.text)!r}"
+            ) from None
+        implied = implied_motion_types(self.motion)
+        if self.motion_type != "custom" and self.motion_type not in implied:
+            raise SpecError(
+                f"spec.motion_type {shorten(repr(self.motion_type))} contradicts the motion's tokens, which make it "
+                f"{' or '.join(repr(t) for t in sorted(implied)) or 'no motion type (only connectors)'}"
+            )
 
     @property
     def fps(self) -> int:
@@ -173,7 +194,7 @@ class EpisodeSpec:
     @classmethod
     def from_dict(cls, data: Any) -> EpisodeSpec:
         if not isinstance(data, dict):
-            raise SpecError(f"a spec must be a JSON object, got {data!r}")
+            raise SpecError(f"a spec must be a JSON object, got {shorten(repr(data))}")
         missing = [n for n in SPEC_FIELDS if n not in data]
         if missing:
             raise SpecError(f"spec is missing field(s) {missing}")
@@ -189,6 +210,25 @@ class EpisodeSpec:
         return cls.from_dict(_load_json("spec", text))
 
 
+#: Motion type of each token kind; ``C`` (clothoid) only connects the others.
+TOKEN_MOTION_TYPES = {"L": "linear", "A": "circular", "H": "harmonic"}
+#: Longest instruction text a spec may carry.
+MAX_TEXT = 10_000
+
+
+def implied_motion_types(motion: Motion) -> set[str]:
+    """The motion types a motion may be labelled with: those of its tokens (base and
+    overlays), connectors aside. A one-token recipe motion has exactly one; a composed
+    motion (a line joined to an arc) may be labelled by any of its parts, or ``custom``
+    (which any motion may be)."""
+    return {
+        TOKEN_MOTION_TYPES[token.type]
+        for track in (motion.base, *motion.overlays)
+        for token in track.tokens
+        if token.type in TOKEN_MOTION_TYPES
+    }
+
+
 def acting_horizon(num_frames, observe_frames):
     """``ceil(HORIZON_FACTOR * (num_frames - observe_frames))`` in exact integer
     arithmetic, for ints or numpy integer arrays."""
@@ -198,7 +238,12 @@ def acting_horizon(num_frames, observe_frames):
 
 def read_specs_jsonl(path: str) -> list[EpisodeSpec]:
     """Load and validate a JSONL file of specs; errors name the file and line."""
-    specs: list[EpisodeSpec] = []
+    return [spec for _, spec in read_specs_lines(path)]
+
+
+def read_specs_lines(path: str) -> list[tuple[int, EpisodeSpec]]:
+    """:func:`read_specs_jsonl` with each spec's line number, for later messages."""
+    specs: list[tuple[int, EpisodeSpec]] = []
     try:
         handle = open(path, "rb")
     except (OSError, TypeError, ValueError) as exc:
@@ -212,7 +257,7 @@ def read_specs_jsonl(path: str) -> list[EpisodeSpec]:
             if not line.strip():
                 continue
             try:
-                specs.append(EpisodeSpec.from_json(line))
+                specs.append((lineno, EpisodeSpec.from_json(line)))
             except SpecError as exc:
                 raise SpecError(f"{path}:{lineno}: {exc}") from exc
     if not specs:

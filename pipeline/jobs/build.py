@@ -15,7 +15,7 @@ from typing import Any
 
 from catalog.manifest import Manifest
 from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
-from schemas.errors import SpecError
+from schemas.errors import InfeasibleError, SpecError
 from schemas.spec import EpisodeSpec
 from schemas.versions import DATASET_VERSION, FPS
 
@@ -128,10 +128,24 @@ def build_job(
 
 
 def _load_user_specs(path: str, slice_name: str | None) -> list[EpisodeSpec]:
-    """A specs file's episodes, numbered 0..n-1 in their own ``episode_index`` order."""
-    from schemas.spec import read_specs_jsonl
+    """A specs file's episodes, numbered 0..n-1 in their own ``episode_index`` order, each
+    checked feasible here (a refusal names the file and line, before any work starts)."""
+    from pipeline.stages.episode import plan
+    from schemas.spec import read_specs_lines
 
-    specs = read_specs_jsonl(path)
+    lines = read_specs_lines(path)
+    seen: dict[int, int] = {}
+    for lineno, spec in lines:
+        if spec.episode_index in seen:
+            raise SpecError(
+                f"{path}:{lineno}: episode_index {spec.episode_index} is a duplicate (line {seen[spec.episode_index]} has it)"
+            )
+        seen[spec.episode_index] = lineno
+        try:
+            plan(spec)
+        except InfeasibleError as exc:
+            raise SpecError(f"{path}:{lineno}: infeasible episode {spec.episode_id}: {exc}") from None
+    specs = [spec for _, spec in lines]
     names = sorted({s.slice for s in specs})
     if len(names) != 1:
         raise SpecError(f"{path}: all specs must share one slice name, got {names}")

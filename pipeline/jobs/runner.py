@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import json
+import logging
 import os
 import re
 import sys
@@ -48,6 +49,7 @@ from catalog.manifest import (
 from catalog.records import FileRecord, ShardRecord
 from catalog.stats import compute_stats, write_stats
 from schemas.errors import DyanaError, ShardError, SpecError
+from schemas.names import shorten
 from schemas.spec import EpisodeSpec
 from schemas.versions import CODE_VERSION
 
@@ -297,6 +299,19 @@ def check_workers(workers: int, scheduler: str | None) -> None:
         raise SpecError(f"--workers must be an integer in [1, {MAX_WORKERS}], got {workers!r}")
 
 
+@contextlib.contextmanager
+def _quiet_dask() -> Iterator[None]:
+    """Keep Dask's own log lines (a task's traceback, shutdown chatter) out of the
+    driver's output: a failure reaches the user once, as Dyana's one-line error."""
+    logger = logging.getLogger("distributed")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def run_tasks(
     tasks: Sequence[ShardTask],
     task_fn: Callable[[ShardTask, Any, str], dict],
@@ -319,20 +334,23 @@ def run_tasks(
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
-    with dask.config.set(LEAN_WORKERS):
+    with dask.config.set(LEAN_WORKERS), _quiet_dask():
         cluster = None
         if scheduler:
             try:
                 client = Client(scheduler, timeout="30s")
-            except (OSError, ValueError, TypeError) as exc:  # unreachable, timed out, or not an address
-                raise DyanaError(f"--scheduler {scheduler!r}: cannot connect to the Dask scheduler: {exc}") from None
+            except (OSError, ValueError, TypeError, MemoryError) as exc:  # unreachable, not an address, not a scheduler
+                detail = "it did not answer as a Dask scheduler" if isinstance(exc, MemoryError) else exc
+                raise DyanaError(
+                    f"--scheduler {shorten(scheduler)!r}: cannot connect to the Dask scheduler: {shorten(str(detail), 200)}"
+                ) from None
         else:
             cluster = LocalCluster(
                 n_workers=min(workers, len(tasks)),
                 threads_per_worker=1,
                 processes=True,
-                dashboard_address=None,
-                silence_logs=40,
+                dashboard_address="127.0.0.1:0",  # None still starts one on 8787 (dask/distributed#8136)
+                silence_logs=logging.CRITICAL,
             )
             try:
                 client = Client(cluster)

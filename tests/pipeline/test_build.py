@@ -266,3 +266,50 @@ def test_custom_specs_never_replace_a_recipe_build_unasked_and_a_rebuild_is_up_t
     replaced = _cli("build", "--specs", str(specs), "--overwrite", *common)
     assert replaced.returncode == 0, replaced.stderr
     assert load_manifest(tmp_path / SLICE).episodes == 2
+
+
+def _spec_lines(*changes: dict) -> str:
+    import json as _json
+
+    from generators.recipe import spec_for
+
+    lines = []
+    for i, change in enumerate(changes):
+        spec = _json.loads(spec_for(SLICE, i).to_json())
+        spec.update(change)
+        lines.append(_json.dumps(spec))
+    return "\n".join(lines) + "\n"
+
+
+def test_a_duplicate_episode_index_is_named_as_a_duplicate(tmp_path):
+    path = tmp_path / "dup.jsonl"
+    path.write_text(_spec_lines({}, {"episode_index": 0}))
+    result = _cli("build", "--specs", str(path), "--out", str(tmp_path / "out"))
+    assert result.returncode == 2 and result.stderr.count("\n") == 1
+    assert f"{path}:2: episode_index 0 is a duplicate (line 1 has it)" in result.stderr
+
+
+def test_an_infeasible_spec_is_one_line_with_its_file_and_line_and_no_dask_noise(tmp_path):
+    path = tmp_path / "far.jsonl"
+    fast = {"motion": {"base": [{"type": "L", "start": [0.0, 3.0], "direction": 0.0, "speed": 40.0,
+                                 "acceleration": 0.0, "duration": 4.0}]}}
+    path.write_text(_spec_lines({}, fast))
+    result = _cli("build", "--specs", str(path), "--out", str(tmp_path / "out"), "--workers", "2")
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.count("\n") == 1 and f"{path}:2: infeasible episode" in result.stderr
+    assert "Traceback" not in result.stderr and "Compute Failed" not in result.stderr
+
+
+def test_a_dask_build_prints_only_dyana_lines_even_beside_another_dashboard(tmp_path):
+    """No dashboard is bound to 8787 (so no 'Port 8787 is already in use' warning), and no
+    Dask log line (heartbeats, comm closing) reaches the user."""
+    with socket.socket() as taken:
+        try:
+            taken.bind(("127.0.0.1", 8787))
+        except OSError:
+            pass  # already taken by something else: the point holds either way
+        result = _cli("build", "--slice", SLICE, "--episodes", "4", "--shard-size", "2", "--workers", "2",
+                      "--resolution", "32", "--out", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    lines = result.stderr.splitlines()
+    assert lines and all(line.startswith("[") for line in lines), result.stderr

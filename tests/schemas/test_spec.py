@@ -154,3 +154,48 @@ def test_read_specs_jsonl(tmp_path):
         read_specs_jsonl(str(empty))
     with pytest.raises(SpecError, match="cannot read specs file"):
         read_specs_jsonl(str(tmp_path / "missing.jsonl"))
+
+
+# --- holes found by outside testing (issue 11) --------------------------------------
+
+
+def test_a_motion_type_that_contradicts_the_tokens_is_refused():
+    with pytest.raises(SpecError, match=r"spec.motion_type 'circular' contradicts the motion's tokens, which make it 'linear'"):
+        EpisodeSpec.from_dict(spec_dict(motion_type="circular"))
+    assert EpisodeSpec.from_dict(spec_dict(motion_type="custom")).motion_type == "custom"
+
+
+def test_an_object_far_outside_its_size_is_refused():
+    with pytest.raises(SpecError, match=r"spec.object_size of a tennis_ball must be in \[0.335, 1.340\].*got 5.0"):
+        EpisodeSpec.from_dict(spec_dict(object_size=5.0))
+
+
+def test_every_recipe_spec_is_valid_under_the_new_rules():
+    from generators.recipe import slice_specs
+
+    for name in ("linear-fast", "circular-medium", "harmonic-slow", "test-1k"):
+        for spec in slice_specs(name, 300):
+            assert EpisodeSpec.from_json(spec.to_json()) == spec
+
+
+def test_a_lone_surrogate_in_the_text_is_one_clear_error():
+    with pytest.raises(SpecError, match=r"spec.text is not valid Unicode text \(surrogates not allowed"):
+        EpisodeSpec.from_json(json.dumps(spec_dict(text="grasp \ud800 it")))
+
+
+def test_a_huge_integer_is_one_clear_error():
+    line = json.dumps(spec_dict()).replace('"seed": 7', '"seed": ' + "9" * 5000)
+    with pytest.raises(SpecError, match="holds a number Dyana cannot read"):
+        EpisodeSpec.from_json(line)
+
+
+def test_a_huge_bad_value_is_echoed_short():
+    with pytest.raises(SpecError) as caught:
+        EpisodeSpec.from_dict(spec_dict(hand="x" * 10_000_000))
+    assert len(str(caught.value)) < 400 and "10,000,002 characters" in str(caught.value)
+
+
+def test_token_and_overlay_counts_are_bounded():
+    token = {"type": "L", "start": [0.0, 3.0], "direction": 0.5, "speed": 0.01, "acceleration": 0.0, "duration": 0.01}
+    with pytest.raises(SpecError, match="at most 256 tokens, got 20,000"):
+        EpisodeSpec.from_dict(spec_dict(motion={"base": [token] * 20_000}))
