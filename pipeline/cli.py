@@ -83,13 +83,24 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", required=True, help="oracle, still, chase, predictive or module:callable")
     p.add_argument("--host", default="127.0.0.1", help="interface to listen on (default: 127.0.0.1)")
     p.add_argument("--port", type=cli.port, default=8000, help="port (default: 8000; 0 picks a free one, printed)")
+    p.add_argument(
+        "--max-message-mb", type=cli.positive_int, default=64,
+        help="largest request accepted, in MiB (default: 64: a 94-frame observe window up to 448 px)",
+    )
+    p.add_argument(
+        "--max-connections", type=cli.positive_int, default=4,
+        help="connections served at once; more are told the server is busy (default: 4)",
+    )
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from pipeline.remote.serve import serve
 
     _importable_cwd(args.policy)
-    serve(args.policy, args.host, args.port)
+    serve(
+        args.policy, args.host, args.port,
+        max_message_bytes=args.max_message_mb << 20, max_connections=args.max_connections,
+    )
     return 0
 
 

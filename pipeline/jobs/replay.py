@@ -193,9 +193,8 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
     with tempfile.TemporaryDirectory(prefix="dyana-replay-") as scratch:
         with ShardWriter(scratch, shard.first, shard.end, settings, rollout=rollout) as writer:
             for spec, ep_frames, images, extra in replayed:
-                writer.add_episode(
-                    spec, ep_frames, images, **{k: (v if k == "privileged" else (v or None)) for k, v in extra.items()}
-                )
+                options: dict[str, Any] = {k: (v if k == "privileged" else (v or None)) for k, v in extra.items()}
+                writer.add_episode(spec, ep_frames, images, **options)
         for kind, record in shard.files.items():
             again = writer.result.files[kind]
             if again.sha256 != record.sha256:  # the file on disk matches record.sha256 (checked above)

@@ -56,7 +56,7 @@ class RemotePolicy:
                 connect(
                     url,
                     compression=None,
-                    max_size=protocol.MAX_MESSAGE_BYTES,
+                    max_size=protocol.MAX_REPLY_BYTES,
                     open_timeout=open_timeout_s,
                     proxy=None if host in _LOOPBACK else True,
                 )

@@ -28,8 +28,13 @@ from schemas.errors import PolicyError
 
 PROTOCOL = "dyana/1"
 ARRAY_KEY = "__ndarray__"
-#: Largest message either side accepts (an observe window of 94 frames at 224 px is ~14 MB).
-MAX_MESSAGE_BYTES = 1 << 28
+#: Largest request a server accepts by default: an act message with a 94-frame observe
+#: window up to 448 px (~57 MB) fits; beyond, raise it (``pipeline serve --max-message-mb``).
+MAX_MESSAGE_BYTES = 64 << 20
+#: Largest reply a client accepts: metadata, ready, an (H, 18) action or an error.
+MAX_REPLY_BYTES = 1 << 20
+#: Connections a server handles at once by default; more are refused (busy).
+MAX_CONNECTIONS = 4
 MAX_NDIM = 8
 
 #: dtype strings accepted on the wire -> numpy dtype (little-endian or byte-order-free).
@@ -136,6 +141,18 @@ def _ext_hook(code: int, data: bytes) -> Any:
     raise ProtocolError(f"msgpack extension type {code} is not part of {PROTOCOL} (arrays are typed-buffer maps)")
 
 
+def _refuse_extensions(value: Any) -> None:
+    """msgpack decodes its timestamp extension (-1) itself, past ``ext_hook``: refuse it here."""
+    if isinstance(value, msgpack.Timestamp):
+        raise ProtocolError(f"msgpack extension type -1 (timestamp) is not part of {PROTOCOL}")
+    if isinstance(value, dict):
+        for item in value.values():
+            _refuse_extensions(item)
+    elif isinstance(value, list):
+        for item in value:
+            _refuse_extensions(item)
+
+
 def decode(data: bytes) -> dict[str, Any]:
     """msgpack bytes -> a message dict with arrays rebuilt (writable, native byte order)."""
     if isinstance(data, str):
@@ -154,6 +171,7 @@ def decode(data: bytes) -> dict[str, Any]:
         raise ProtocolError(f"not a msgpack message ({type(exc).__name__}: {exc})") from None
     if not isinstance(message, dict):
         raise ProtocolError(f"a message must be a msgpack map, got {type(message).__name__}")
+    _refuse_extensions(message)
     return message
 
 
@@ -171,6 +189,8 @@ def check(message: dict[str, Any], expected: tuple[str, ...] | None = None) -> d
         if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
             wanted = " or ".join(t.__name__ for t in types)
             raise ProtocolError(f"{kind} message field {name!r} must be {wanted}, got {type(value).__name__}")
+    if kind == "action" and message["action"].dtype.kind not in "fiu":
+        raise ProtocolError(f"an action must be a real-valued array, got dtype {message['action'].dtype}")
     if kind == "metadata":
         if message["protocol"] != PROTOCOL:
             raise ProtocolError(f"server speaks protocol {message['protocol']!r}, this client speaks {PROTOCOL!r}")
@@ -203,8 +223,12 @@ def act_message(observation: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def action_message(action: Any, server_time_ms: float) -> dict[str, Any]:
-    """The action as sent: a float32 array (a policy's float64 output is cast, as in-process)."""
-    return {"type": "action", "action": np.asarray(action, dtype=np.float32), "server_time_ms": float(server_time_ms)}
+    """The action as sent: a float32 ``(H, 18)`` chunk (a policy's float64 output is cast, as
+    in-process; a single ``(18,)`` row becomes a chunk of one)."""
+    array = np.asarray(action, dtype=np.float32)
+    if array.ndim == 1:
+        array = array[None]
+    return {"type": "action", "action": array, "server_time_ms": float(server_time_ms)}
 
 
 def error_message(message: str) -> dict[str, Any]:

@@ -31,12 +31,27 @@ SHUTDOWN_GRACE_S = 5.0
 def policy_factory(policy: str | PolicyFactory) -> PolicyFactory:
     """A zero-argument factory from a policy name / ``module:callable`` ref, or the factory itself.
 
-    A name is resolved once here so that an unknown one fails before listening.
+    A name is resolved once here, and the policy it makes must describe itself (name,
+    action horizon, privileged flag), so that a bad one fails before listening.
     """
     if isinstance(policy, str):
         from pipeline.policies.base import make_policy
 
-        make_policy(policy)
+        sample = make_policy(policy)
+        try:
+            protocol.check(protocol.metadata_message(sample.name, sample.action_horizon, sample.privileged))
+            if not isinstance(sample.name, str) or not sample.name:
+                raise protocol.ProtocolError(f"policy name must be a non-empty string, got {sample.name!r}")
+            if isinstance(sample.action_horizon, bool) or not isinstance(sample.action_horizon, int):
+                raise protocol.ProtocolError(f"action_horizon must be an integer >= 1, got {sample.action_horizon!r}")
+            if not isinstance(sample.privileged, bool):
+                raise protocol.ProtocolError(f"privileged must be True or False, got {sample.privileged!r}")
+        except (AttributeError, TypeError, ValueError, protocol.ProtocolError) as exc:
+            raise DyanaError(f"policy {policy!r} cannot be served: {_describe(exc)}") from None
+        finally:
+            close = getattr(sample, "close", None)
+            if callable(close):
+                close()
         return lambda: make_policy(policy)
     if callable(policy):
         return policy
@@ -116,18 +131,41 @@ async def serve_async(
     *,
     on_listening: Callable[[str, int], None] | None = None,
     stop: asyncio.Future | None = None,
+    max_message_bytes: int = protocol.MAX_MESSAGE_BYTES,
+    max_connections: int = protocol.MAX_CONNECTIONS,
 ) -> None:
-    """Serve until ``stop`` completes (or forever); ``on_listening(host, port)`` gets the bound port."""
+    """Serve until ``stop`` completes (or forever); ``on_listening(host, port)`` gets the bound port.
+
+    A request over ``max_message_bytes`` closes its connection (code 1009); a connection
+    beyond ``max_connections`` open at once is told the server is busy and closed (1013),
+    so memory stays bounded by about their product."""
     from websockets.asyncio.server import serve as ws_serve
 
+    for name, value in (("max_message_bytes", max_message_bytes), ("max_connections", max_connections)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise DyanaError(f"{name} must be an integer >= 1, got {value!r}")
     factory = policy_factory(policy)
+    open_sessions = 0
+
+    async def handler(websocket) -> None:
+        nonlocal open_sessions
+        if open_sessions >= max_connections:
+            await _send(websocket, protocol.error_message(f"server busy: at most {max_connections} connections at once"))
+            await websocket.close(1013, "busy")
+            return
+        open_sessions += 1
+        try:
+            await _session(websocket, factory)
+        finally:
+            open_sessions -= 1
+
     try:
         server = await ws_serve(
-            lambda ws: _session(ws, factory),
+            handler,
             host,
             port,
             compression=None,
-            max_size=protocol.MAX_MESSAGE_BYTES,
+            max_size=max_message_bytes,
             ping_interval=20,
             ping_timeout=60,
         )
@@ -149,7 +187,14 @@ async def serve_async(
             pass
 
 
-def serve(policy: str | PolicyFactory, host: str = "127.0.0.1", port: int = 8000) -> None:
+def serve(
+    policy: str | PolicyFactory,
+    host: str = "127.0.0.1",
+    port: int = 8000,
+    *,
+    max_message_bytes: int = protocol.MAX_MESSAGE_BYTES,
+    max_connections: int = protocol.MAX_CONNECTIONS,
+) -> None:
     """Serve ``policy`` on ``ws://host:port`` until SIGINT/SIGTERM; prints the address on stderr."""
 
     def listening(bound_host: str, bound_port: int) -> None:
@@ -164,6 +209,9 @@ def serve(policy: str | PolicyFactory, host: str = "127.0.0.1", port: int = 8000
                 loop.add_signal_handler(sig, lambda: stop.done() or stop.set_result(None))
             except (NotImplementedError, RuntimeError):
                 pass
-        await serve_async(policy, host, port, on_listening=listening, stop=stop)
+        await serve_async(
+            policy, host, port, on_listening=listening, stop=stop,
+            max_message_bytes=max_message_bytes, max_connections=max_connections,
+        )
 
     asyncio.run(main())

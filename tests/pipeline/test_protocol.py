@@ -80,7 +80,7 @@ def test_every_message_type_round_trips_and_checks():
 
 def test_action_message_is_float32_chunk():
     back = protocol.parse(protocol.encode(protocol.action_message(np.ones(18, dtype=np.float64) / 3, 0.1)))
-    assert back["action"].dtype == np.float32
+    assert back["action"].dtype == np.float32 and back["action"].shape == (1, 18)  # (H, 18), as documented
     assert back["action"].tobytes() == (np.ones(18, dtype=np.float64) / 3).astype(np.float32).tobytes()
 
 
@@ -134,6 +134,21 @@ def test_extension_types_are_refused():
     data = msgpack.packb({"type": "act", "observation": msgpack.ExtType(42, b"\x80\x04")}, use_bin_type=True)
     with pytest.raises(ProtocolError, match="extension type 42"):
         protocol.decode(data)
+
+
+def test_the_timestamp_extension_is_refused_too():
+    """msgpack decodes extension -1 (timestamp) itself, without the ext hook."""
+    data = msgpack.packb({"type": "act", "observation": {"t": [msgpack.Timestamp(1, 2)]}}, use_bin_type=True)
+    with pytest.raises(ProtocolError, match="extension type -1"):
+        protocol.decode(data)
+
+
+@pytest.mark.parametrize("dtype", ["|b1", "<c8"])
+def test_boolean_and_complex_actions_are_refused(dtype):
+    raw = {"type": "action", "server_time_ms": 1.0,
+           "action": {"__ndarray__": True, "dtype": dtype, "shape": [1, 18], "data": bytes(18 * np.dtype(dtype).itemsize)}}
+    with pytest.raises(ProtocolError, match="real-valued|not accepted"):
+        protocol.parse(msgpack.packb(raw, use_bin_type=True), ("action",))
 
 
 @pytest.mark.parametrize(

@@ -189,3 +189,46 @@ def test_the_readme_example_server_works(tmp_path):
     assert mine.extra["policy"] == "my-still"
     frames = mine.shards[0].files["frames"].path
     assert (tmp_path / "mine" / frames).read_bytes() == (tmp_path / "still" / frames).read_bytes()
+
+
+def test_serve_refuses_a_policy_that_cannot_describe_itself_before_listening(tmp_path):
+    module = tmp_path / "nameless_policy.py"
+    module.write_text(
+        "class Nameless:\n    name = ''\n    action_horizon = 0\n    privileged = False\n"
+        "    def reset(self, task): pass\n    def act(self, obs): return None\n"
+    )
+    result = subprocess.run(
+        [str(BIN / "pipeline"), "serve", "--policy", "nameless_policy:Nameless", "--port", "0"],
+        capture_output=True, text=True, timeout=60, cwd=tmp_path,
+    )
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "cannot be served" in result.stderr and "serving" not in result.stderr
+
+
+def test_connections_beyond_the_limit_are_told_busy_and_big_requests_are_cut(tmp_path):
+    """Memory is bounded: at most --max-connections sessions, requests of at most --max-message-mb."""
+    import contextlib
+
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    proc, url = start_server("still", "--max-connections", "2", "--max-message-mb", "1")
+    try:
+        with contextlib.ExitStack() as stack:
+            first, second = (stack.enter_context(connect(url, max_size=None)) for _ in range(2))
+            for ws in (first, second):
+                assert protocol.decode(ws.recv(timeout=10))["type"] == "metadata"
+            with connect(url, max_size=None) as third:
+                busy = protocol.decode(third.recv(timeout=10))
+                assert busy["type"] == "error" and "server busy: at most 2" in busy["message"]
+                with pytest.raises(ConnectionClosed):
+                    third.recv(timeout=10)
+            first.send(bytes(2 << 20))
+            with pytest.raises(ConnectionClosed) as closed:
+                first.recv(timeout=10)
+            assert closed.value.rcvd is not None and closed.value.rcvd.code == 1009
+        with connect(url, max_size=None) as again:  # the slots free up
+            assert protocol.decode(again.recv(timeout=10))["type"] == "metadata"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
