@@ -67,6 +67,11 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     cli.add_resolution(p)
     cli.add_shard_size(p, 32)
+    p.add_argument(
+        "--in-process", action="store_true",
+        help="run a module:callable policy inside the eval workers (faster start, but its crash or exit "
+        "takes the run down; by default it runs in a child process and fails only its episode)",
+    )
     cli.add_overwrite(p)
     cli.add_quiet(p)
 
@@ -75,7 +80,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from pipeline.jobs.evaluate import evaluate
 
     _importable_cwd(args.policy)
-    evaluate(args.policy, args.slice, Path(args.out), deadline_s=args.deadline, **cli.job_options(args))
+    evaluate(
+        args.policy, args.slice, Path(args.out), deadline_s=args.deadline, isolate=not args.in_process,
+        **cli.job_options(args),
+    )
     return 0
 
 

@@ -51,6 +51,7 @@ class EvalSettings:
     policy_name: str
     privileged: bool
     deadline_s: float | None
+    isolate: bool = True
 
     @property
     def call_timeout_s(self) -> float:
@@ -78,13 +79,18 @@ class _Unavailable:
         raise PolicyError(self.reason)
 
 
-def open_policy(ref: str, timeout_s: float = WATCHDOG_S) -> Any:
+def open_policy(ref: str, timeout_s: float = WATCHDOG_S, isolate: bool = True) -> Any:
     """A fresh policy for ``ref``: RemotePolicy for ``ws://`` (its socket waits a little
-    longer than ``timeout_s``), else ``make_policy(ref)``."""
+    longer than ``timeout_s``); a user's ``module:callable`` in a child process unless
+    ``isolate`` is False (:mod:`pipeline.remote.isolated`); else ``make_policy(ref)``."""
     from pipeline.remote.client import RemotePolicy, is_remote
 
     if is_remote(ref):
         return RemotePolicy(ref, timeout_s=timeout_s + REMOTE_SLACK_S)
+    if isolate and ":" in ref:
+        from pipeline.remote.isolated import IsolatedPolicy
+
+        return IsolatedPolicy(ref, timeout_s=timeout_s + REMOTE_SLACK_S)
     from pipeline.policies.base import make_policy
 
     return make_policy(ref)
@@ -113,7 +119,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
             for spec in task.specs():
                 if policy is None:
                     try:
-                        policy = open_policy(settings.policy_ref, settings.call_timeout_s)
+                        policy = open_policy(settings.policy_ref, settings.call_timeout_s, settings.isolate)
                     except PolicyError as exc:
                         policy = _Unavailable(settings.policy_name, str(exc))
                     except Exception as exc:
@@ -148,10 +154,11 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
 def _retire(policy: Any, stats: dict[str, Any]) -> None:
     """Close a policy, keeping its remote timing (if any) in ``stats``."""
     from pipeline.remote.client import RemotePolicy
+    from pipeline.remote.isolated import IsolatedPolicy
 
     if policy is None:
         return
-    if isinstance(policy, RemotePolicy) and policy.calls:
+    if isinstance(policy, (RemotePolicy, IsolatedPolicy)) and policy.timing()["calls"]:
         stats["remote"] = _merge_timing(stats["remote"], policy.timing())
     _close(policy)
 
@@ -166,13 +173,13 @@ def _merge_timing(total: dict | None, part: dict) -> dict:
     return merged
 
 
-def describe_policy(ref: str, timeout_s: float = WATCHDOG_S) -> tuple[str, bool]:
+def describe_policy(ref: str, timeout_s: float = WATCHDOG_S, isolate: bool = True) -> tuple[str, bool]:
     """The policy's name and privileged flag, resolving ``ref`` once in the driver so that
     a bad name, an unimportable callable or an unreachable server fails before any work starts."""
     from pipeline.remote.client import is_remote
 
     try:
-        policy = open_policy(ref, timeout_s)
+        policy = open_policy(ref, timeout_s, isolate)
     except PolicyError as exc:
         where = f"{ref}: " if is_remote(ref) else ""
         raise PolicyError(f"{where}{exc}") from None
@@ -265,13 +272,16 @@ def evaluate(
     summary: bool = True,
     stream: TextIO | None = None,
     overwrite: bool = False,
+    isolate: bool = True,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
 
     ``workers`` defaults to one per core; ``workers=0`` (without a scheduler) runs the
     shards one after another in this process, without Dask: same bytes, for debugging
-    and tests. A folder holding another run is refused unless ``overwrite``."""
+    and tests. A folder holding another run is refused unless ``overwrite``. A user's
+    ``module:callable`` runs in a child process per worker (``isolate``; same bytes), so
+    that its crash or exit fails only its episode."""
     from generators.encode import JPEG_QUALITY
     from schemas.slices import get_slice
 
@@ -290,8 +300,8 @@ def evaluate(
         raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
     build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY)
     ranges = shard_ranges(total, shard_size)
-    name, privileged = describe_policy(policy_ref, WATCHDOG_S if deadline_s is None else deadline_s)
-    settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s)
+    name, privileged = describe_policy(policy_ref, WATCHDOG_S if deadline_s is None else deadline_s, isolate)
+    settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate))
     run_dir = Path(out)
     job = Job(
         folder=run_dir,

@@ -21,6 +21,7 @@ from catalog.shard import ShardWriter
 from catalog.stats import STATS_NAME, compute_stats, load_stats, write_stats
 from catalog.stream import FrameStream
 from schemas.errors import ShardError, SpecError
+from schemas.motion import ArcToken, HarmonicToken, Motion, Track
 from schemas.scene import PHASES
 from schemas.tables import STATE_COLUMNS
 
@@ -206,7 +207,11 @@ def _mixed_slice(root: Path) -> None:
         with ShardWriter(root, first, first + 3, SETTINGS) as writer:
             for i in range(first, first + 3):
                 motion_type, setting = kinds[i]
-                spec = replace(make_spec(i, num_frames=50), motion_type=motion_type, intercept_setting=setting)
+                base = make_spec(i, num_frames=50)
+                # a faint arc and wobble on top, so that each label fits the motion
+                wobble = Track((HarmonicToken((0.0, 0.0), 0.0, 0.01, 1.0, 0.0, 2.0), ArcToken((0.0, 0.0), 0.01, 0.1, 0.0, 1, 2.0)))
+                motion = Motion(base.motion.base, (wobble,))
+                spec = replace(base, motion=motion, motion_type=motion_type, intercept_setting=setting)
                 rng = np.random.default_rng([3, i])
                 frames = make_frames(spec, rng)
                 writer.add_episode(spec, frames, make_images(frames.num_frames, rng))

@@ -105,3 +105,39 @@ class Slow:
         if self.calls <= 3:
             time.sleep(self.delay_s)
         return state_action(obs)
+
+
+class Dying:
+    """Takes its own process down in various ways, one per episode, counted across
+    processes in ``$DYANA_TEST_COUNTER`` (a file): episode 1 prints 5 MB and succeeds,
+    2 calls os._exit(3), 3 calls sys.exit(4), 4 raises KeyboardInterrupt, 5 succeeds."""
+
+    name = "dying"
+    action_horizon = 1
+    privileged = False
+
+    def reset(self, task: dict) -> None:
+        import os
+
+        path = os.environ["DYANA_TEST_COUNTER"]
+        with open(path, "a") as handle:
+            handle.write("x")
+        with open(path) as handle:
+            self.episode = len(handle.read())
+        self.calls = 0
+
+    def act(self, obs: dict):
+        import os
+        import sys
+
+        self.calls += 1
+        if self.calls == 2:
+            if self.episode == 1:
+                print("noise " * 900_000)
+            elif self.episode == 2:
+                os._exit(3)
+            elif self.episode == 3:
+                sys.exit(4)
+            elif self.episode == 4:
+                raise KeyboardInterrupt
+        return state_action(obs)

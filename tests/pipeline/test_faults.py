@@ -88,7 +88,7 @@ def test_a_faulty_run_records_every_episode_and_counts_the_errors(tmp_path):
     result = subprocess.run(
         [str(BIN / "pipeline"), "eval", "--policy", "tests.pipeline.faulty_policies:Mixed", "--episodes", "8",
          "--shard-size", "4", "--workers", "2", "--deadline", str(DEADLINE_S), "--resolution", str(RESOLUTION),
-         "--out", str(run), "--quiet"],
+         "--out", str(run), "--quiet", "--in-process"],
         capture_output=True, text=True, timeout=300, cwd=ROOT,
     )
     assert result.returncode == 0, result.stderr
@@ -192,3 +192,28 @@ def test_dropped_connections_and_bad_replies_fail_only_their_episode(flaky_serve
         assert "127.0.0.1" not in reason  # recorded reasons never name the host
     assert "4 error(s)" in printed.getvalue()
     assert "error in episode 1: frame" in printed.getvalue()
+
+
+def test_a_policy_that_kills_its_own_process_fails_only_its_episode(tmp_path):
+    """By default a module:callable runs in a child process: os._exit, sys.exit and
+    KeyboardInterrupt end that process only, each episode records how, the run completes,
+    and megabytes the policy prints never reach eval's output."""
+    import os
+
+    run = tmp_path / "run"
+    env = {**os.environ, "DYANA_TEST_COUNTER": str(tmp_path / "counter")}
+    result = subprocess.run(
+        [str(BIN / "pipeline"), "eval", "--policy", "tests.pipeline.faulty_policies:Dying", "--episodes", "5",
+         "--shard-size", "5", "--workers", "1", "--resolution", str(RESOLUTION), "--out", str(run), "--quiet"],
+        capture_output=True, text=True, timeout=300, cwd=ROOT, env=env,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "noise" not in result.stdout and "noise" not in result.stderr and len(result.stdout) < 5000
+    assert "evaluated dying on test-1k: 5 episodes" in result.stdout and "3 error(s)" in result.stdout
+    manifest = load_manifest(run)
+    rows = read_episodes(run / manifest.shards[0].files["episodes"].path, ["episode_index", "status", "error"]).to_pylist()
+    assert [r["status"] for r in rows] == ["ok", "error", "error", "error", "ok"]
+    assert "policy process exited with code 3" in rows[1]["error"]
+    assert "policy process exited with code 4" in rows[2]["error"]
+    assert "policy process exited with code" in rows[3]["error"]
+    assert [p for p in run.rglob("*") if p.name.startswith(".")] == []
