@@ -7,6 +7,8 @@ timelines (``frame`` and ``time``), read from the shards alone.
 
 from __future__ import annotations
 
+import contextlib
+import os
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +16,8 @@ import numpy as np
 from catalog.atomic import commit, discard, temp_path
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
-from schemas.errors import SpecError
+from schemas.errors import DyanaError, SpecError
+from schemas.names import shorten
 from schemas.scene import LOC_TOLERANCE, PHASES
 
 #: Phase colours (observe, approach, grasp, hold) for the palm trail and text log.
@@ -41,7 +44,11 @@ def _skeleton(joint_poses: np.ndarray, keypoints: np.ndarray) -> list[np.ndarray
 
 
 def write_recording(directory: str | Path, episode: int, out: str | Path) -> Path:
-    """Write episode ``episode`` of a slice or rollout folder to ``out`` (.rrd)."""
+    """Write episode ``episode`` of a slice or rollout folder to ``out`` (.rrd).
+
+    A write that fails (a full disk) leaves no file and is one DyanaError naming ``out``;
+    rerun's own log lines are kept off the terminal (``RUST_LOG``, unless the user set it)."""
+    os.environ.setdefault("RUST_LOG", "off")
     import rerun as rr
 
     directory, out = Path(directory), Path(out)
@@ -68,8 +75,14 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
         rec.flush()
         rec.disconnect()
         commit(temp, out)
+    except RuntimeError as exc:  # rerun's file writer failed (a full disk, an unwritable folder)
+        with contextlib.suppress(RuntimeError):
+            rec.disconnect()
+        discard(temp)
+        raise DyanaError(f"{out}: cannot write the recording ({shorten(str(exc), 200)})") from None
     except BaseException:
-        rec.disconnect()
+        with contextlib.suppress(RuntimeError):
+            rec.disconnect()
         discard(temp)
         raise
     return out

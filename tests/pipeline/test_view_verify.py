@@ -179,3 +179,30 @@ def test_edited_statistics_are_caught_by_verify_and_refused_by_the_loader(built,
     assert result.returncode == 2 and "stats.json" in result.stderr and "Traceback" not in result.stderr
     with pytest.raises(ShardError, match="stats.json: "):
         _ = catalog.open(copy).stats
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 40 KiB file system (tmpfs), where the machine lets the tests mount one."""
+    mount_point = tmp_path / "tiny"
+    mount_point.mkdir()
+    made = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=40k", "tmpfs", str(mount_point)], capture_output=True)
+    if made.returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    yield mount_point
+    subprocess.run(["umount", str(mount_point)], check=True)
+
+
+def test_view_on_a_full_disk_is_one_line_and_leaves_nothing(built, tiny_disk):
+    result = _run("pipeline", "view", str(built), "--episode", "0", "--out", str(tiny_disk / "ep.rrd"))
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "ep.rrd: cannot write the recording" in result.stderr and "Traceback" not in result.stderr
+    assert list(tiny_disk.iterdir()) == []
+
+
+def test_a_build_on_a_full_disk_is_one_line_and_leaves_no_temporary(tiny_disk):
+    result = _run("pipeline", "build", "--slice", SLICE, "--episodes", "4", "--shard-size", "2", "--resolution", "64",
+                  "--workers", "1", "--out", str(tiny_disk), "--quiet")
+    assert result.returncode == 2 and "No space left on device" in result.stderr, result.stderr
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+    assert [p for p in tiny_disk.rglob("*") if p.name.startswith(".")] == []
