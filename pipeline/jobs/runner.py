@@ -30,6 +30,7 @@ import logging
 import os
 import re
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -312,6 +313,38 @@ def _quiet_dask() -> Iterator[None]:
         logger.setLevel(level)
 
 
+#: Seconds a --scheduler has to answer as a Dask scheduler.
+CONNECT_TIMEOUT_S = 30.0
+
+
+def _connect(client_class: Any, scheduler: str) -> Any:
+    """A Client of ``scheduler``, or one DyanaError: unreachable, not an address, or
+    something that is not a Dask scheduler (which may never answer the handshake, hence
+    the connection runs on a thread we stop waiting for)."""
+    outcome: dict[str, Any] = {}
+
+    def attempt() -> None:
+        try:
+            outcome["client"] = client_class(scheduler, timeout=f"{CONNECT_TIMEOUT_S:g}s")
+        except BaseException as exc:  # reported below, in the caller's thread
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=attempt, name="dyana-dask-connect", daemon=True)
+    thread.start()
+    thread.join(CONNECT_TIMEOUT_S + 5.0)
+    where = f"--scheduler {shorten(scheduler)!r}: cannot connect to the Dask scheduler"
+    if "client" in outcome:
+        return outcome["client"]
+    error = outcome.get("error")
+    if error is None:
+        raise DyanaError(f"{where}: no Dask handshake within {CONNECT_TIMEOUT_S:g} s (is it a Dask scheduler?)")
+    if isinstance(error, MemoryError):
+        raise DyanaError(f"{where}: it did not answer as a Dask scheduler") from None
+    if isinstance(error, (OSError, ValueError, TypeError)):
+        raise DyanaError(f"{where}: {shorten(str(error), 200)}") from None
+    raise error
+
+
 def run_tasks(
     tasks: Sequence[ShardTask],
     task_fn: Callable[[ShardTask, Any, str], dict],
@@ -337,13 +370,7 @@ def run_tasks(
     with dask.config.set(LEAN_WORKERS), _quiet_dask():
         cluster = None
         if scheduler:
-            try:
-                client = Client(scheduler, timeout="30s")
-            except (OSError, ValueError, TypeError, MemoryError) as exc:  # unreachable, not an address, not a scheduler
-                detail = "it did not answer as a Dask scheduler" if isinstance(exc, MemoryError) else exc
-                raise DyanaError(
-                    f"--scheduler {shorten(scheduler)!r}: cannot connect to the Dask scheduler: {shorten(str(detail), 200)}"
-                ) from None
+            client = _connect(Client, scheduler)
         else:
             cluster = LocalCluster(
                 n_workers=min(workers, len(tasks)),

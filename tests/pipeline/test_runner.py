@@ -110,3 +110,21 @@ def test_workers_default_to_one_per_core_and_are_bounded(tmp_path):
     assert default_workers() == len(os.sched_getaffinity(0))
     with pytest.raises(SpecError, match="--workers"):
         run_job(job(tmp_path), workers=1000, progress=False)
+
+
+def test_a_scheduler_address_that_is_not_a_scheduler_is_one_error(monkeypatch):
+    """Something listening that never speaks Dask (here a silent socket on 127.0.0.1) is
+    refused after the connect timeout instead of hanging the build."""
+    import socket
+
+    from dask.distributed import Client
+
+    from schemas.errors import DyanaError
+
+    monkeypatch.setattr(runner, "CONNECT_TIMEOUT_S", 1.0)
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen()
+        address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
+        with pytest.raises(DyanaError, match=r"cannot connect to the Dask scheduler: no Dask handshake within 1 s"):
+            runner._connect(Client, address)
