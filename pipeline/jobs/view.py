@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +44,10 @@ def _skeleton(joint_poses: np.ndarray, keypoints: np.ndarray) -> list[np.ndarray
     return strips
 
 
+#: Seconds rerun may take to write a recording out (it is a few MB; a stall means a full disk).
+FLUSH_TIMEOUT_S = 60.0
+
+
 def write_recording(directory: str | Path, episode: int, out: str | Path) -> Path:
     """Write episode ``episode`` of a slice or rollout folder to ``out`` (.rrd).
 
@@ -67,24 +72,27 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.is_dir():
         raise SpecError(f"--out {str(out)!r} is a folder, give a file name ending in .rrd")
+    needed = 2 * sum(len(image) for image in images) + 4096 * len(images) + (64 << 10)
+    free = shutil.disk_usage(out.parent).free
+    if free < needed:  # rerun's writer can stall on a full disk, so refuse before writing
+        raise DyanaError(f"{out}: not enough free space for the recording (about {needed:,} bytes, {free:,} free)")
     temp = temp_path(out)
     rec = rr.RecordingStream("dyana", recording_id=meta["spec_hash"])
     try:
         rec.save(str(temp))
         _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz)
-        rec.flush()
-        rec.disconnect()
-        commit(temp, out)
-    except RuntimeError as exc:  # rerun's file writer failed (a full disk, an unwritable folder)
-        with contextlib.suppress(RuntimeError):
-            rec.disconnect()
-        discard(temp)
-        raise DyanaError(f"{out}: cannot write the recording ({shorten(str(exc), 200)})") from None
     except BaseException:
         with contextlib.suppress(RuntimeError):
             rec.disconnect()
         discard(temp)
         raise
+    try:
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        rec.disconnect()
+    except RuntimeError as exc:  # rerun's file writer failed or stalled (a full disk, an unwritable folder)
+        discard(temp)
+        raise DyanaError(f"{out}: cannot write the recording ({shorten(str(exc), 200)})") from None
+    commit(temp, out)
     return out
 
 

@@ -193,16 +193,17 @@ def tiny_disk(tmp_path):
     subprocess.run(["umount", str(mount_point)], check=True)
 
 
-def test_view_on_a_full_disk_is_one_line_and_leaves_nothing(built, tiny_disk):
-    result = _run("pipeline", "view", str(built), "--episode", "0", "--out", str(tiny_disk / "ep.rrd"))
-    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
-    assert "ep.rrd: cannot write the recording" in result.stderr and "Traceback" not in result.stderr
-    assert list(tiny_disk.iterdir()) == []
-
-
 def test_a_build_on_a_full_disk_is_one_line_and_leaves_no_temporary(tiny_disk):
     result = _run("pipeline", "build", "--slice", SLICE, "--episodes", "4", "--shard-size", "2", "--resolution", "64",
                   "--workers", "1", "--out", str(tiny_disk), "--quiet")
     assert result.returncode == 2 and "No space left on device" in result.stderr, result.stderr
     assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
     assert [p for p in tiny_disk.rglob("*") if p.name.startswith(".")] == []
+
+
+def test_view_on_a_full_disk_is_refused_before_writing(built, tiny_disk):
+    """rerun's writer can stall on a full disk, so view checks the free space first."""
+    result = _run("pipeline", "view", str(built), "--episode", "0", "--out", str(tiny_disk / "ep.rrd"))
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "ep.rrd: not enough free space" in result.stderr and "Traceback" not in result.stderr
+    assert list(tiny_disk.iterdir()) == []
