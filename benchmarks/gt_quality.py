@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         return "   n/a" if value is None else f"{value:6.2f}" if abs(value) >= 10 else f"{value:6.3f}"
 
     print(f"{'':10s}" + "".join(f"{name:>9s}" for name in METRIC_NAMES), file=sys.stderr)
-    print(f"{'paper GT':10s}" + "".join(f"{fmt(PAPER_GT[name]):>9s}" for name in METRIC_NAMES), file=sys.stderr)
+    print(f"{'paper GT':10s}" + "".join(f"{fmt(PAPER_GT.get(name)):>9s}" for name in METRIC_NAMES), file=sys.stderr)
     for label, metrics in [("all", result["metrics"])] + list(result["by_motion"].items()):
         print(f"{label:10s}" + "".join(f"{fmt(metrics[name]):>9s}" for name in METRIC_NAMES), file=sys.stderr)
     rounded = {

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas.scene import GRASP_RATIO, LOC_TOLERANCE, PHASES
+from schemas.scene import GRASP_CONTACT_TOLERANCE, GRASP_RATIO, LOC_TOLERANCE, PHASES
 from schemas.spec import acting_horizon
 
 OBSERVE = PHASES.index("observe")
@@ -46,6 +46,18 @@ def grasp_closed(joint_angles: np.ndarray, grasp_angles: np.ndarray) -> np.ndarr
     joints = np.asarray(joint_angles, dtype=np.float64)
     grasp = np.asarray(grasp_angles, dtype=np.float64)
     return np.all(joints >= GRASP_RATIO * grasp, axis=-1)
+
+
+def touching(fingertip_distance: np.ndarray) -> np.ndarray:
+    """Whether the closest fingertip is within the contact tolerance of the object's surface."""
+    return np.asarray(fingertip_distance, dtype=np.float64) <= GRASP_CONTACT_TOLERANCE
+
+
+def contact_grasp(localized_now: np.ndarray, closed_now: np.ndarray, fingertip_distance: np.ndarray) -> np.ndarray:
+    """The contact-grounded grasp of paper A.8, per frame: the joint criterion, the palm
+    localized and a fingertip touching the object, all at the same frame (so a fist closed
+    away from the object never counts, unlike the joint-only S_gra)."""
+    return np.asarray(localized_now) & np.asarray(closed_now) & touching(fingertip_distance)
 
 
 def acting(phase: np.ndarray) -> np.ndarray:

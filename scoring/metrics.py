@@ -21,7 +21,9 @@ STEP_MIN = 1e-4
 #: Segments (and chords) no longer than this have no direction.
 SEGMENT_MIN = 1e-8
 #: The seven metrics of the paper's Table 3, in its column order.
-METRIC_NAMES = ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
+METRIC_NAMES = ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time", "S_grasp_contact")
+#: The success rates among them (percent, with Wilson intervals).
+SUCCESS_RATE_NAMES = ("S_loc", "S_gra", "S_grasp_contact")
 #: Two-sided 95% normal quantile.
 Z95 = 1.959963984540054
 
@@ -110,6 +112,12 @@ class EpisodeMetrics:
     q_smooth: np.ndarray
     q_line: np.ndarray
     r_time: np.ndarray
+    t_contact: np.ndarray
+
+    @property
+    def contact_grasped(self) -> np.ndarray:
+        """The contact-grounded grasp (:func:`schemas.events.contact_grasp`) happened."""
+        return self.t_contact >= 0
 
     @property
     def localized(self) -> np.ndarray:
@@ -169,6 +177,9 @@ def episode_metrics(
     first_gra = _segment_min(np.where(closed, local, never), offsets, never)
     t_loc = np.where(first_loc == never, -1, first_loc)
     t_gra = np.where(first_gra == never, -1, first_gra)
+    held = events.contact_grasp(events.within_tolerance(d_xz), closed, tips)
+    first_contact = _segment_min(np.where(held, local, never), offsets, never)
+    t_contact = np.where(first_contact == never, -1, first_contact)
 
     localized = t_loc >= 0
     on_path = local <= t_loc[owner]
@@ -184,7 +195,7 @@ def episode_metrics(
     if budget.shape != (n,):
         raise ValueError(f"acting_budget must have shape ({n},), got {budget.shape}")
     r_time = np.where(both, 1.0 - done / np.maximum(budget, 1), 0.0)
-    return EpisodeMetrics(counts, t_loc, t_gra, e_loc, e_gra, q_smooth, q_line, r_time)
+    return EpisodeMetrics(counts, t_loc, t_gra, e_loc, e_gra, q_smooth, q_line, r_time, t_contact)
 
 
 def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -254,12 +265,14 @@ def aggregate(per: EpisodeMetrics, error: np.ndarray, select: np.ndarray | None 
     loc = per.localized & ~error & keep
     gra = per.grasped & ~error & keep
     n_loc, n_gra = int(loc.sum()), int(gra.sum())
+    n_contact = int((per.contact_grasped & ~error & keep).sum())
     measured = keep & (per.acting_frames > 0)
     r_time = np.where(error, 0.0, per.r_time)[keep]
     values = {
         "S_loc": 100.0 * n_loc / n if n else None,
         "E_loc": per.e_loc[measured],
         "S_gra": 100.0 * n_gra / n if n else None,
+        "S_grasp_contact": 100.0 * n_contact / n if n else None,
         "E_gra": per.e_gra[measured],
         "Q_smooth": per.q_smooth[loc],
         "Q_line": per.q_line[loc],
@@ -269,9 +282,9 @@ def aggregate(per: EpisodeMetrics, error: np.ndarray, select: np.ndarray | None 
     intervals: dict[str, tuple[float, float] | None] = {}
     for name in METRIC_NAMES:
         value = values[name]
-        if name in ("S_loc", "S_gra"):
+        if name in SUCCESS_RATE_NAMES:
             metrics[name] = value
-            k = n_loc if name == "S_loc" else n_gra
+            k = {"S_loc": n_loc, "S_gra": n_gra, "S_grasp_contact": n_contact}[name]
             low, high = wilson_interval(k, n, z)
             intervals[name] = (100.0 * low, 100.0 * high) if n else None
         else:

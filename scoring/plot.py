@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from catalog.atomic import atomic_open  # noqa: E402
-from scoring.metrics import METRIC_NAMES  # noqa: E402
+from scoring.metrics import METRIC_NAMES, SUCCESS_RATE_NAMES  # noqa: E402
 from scoring.report import RunReport  # noqa: E402
 
 #: Axis labels of the radar; errors are shown as 1 / (1 + E) so that outward is better.
@@ -27,6 +27,7 @@ RADAR_LABELS = {
     "Q_smooth": "Q_smooth",
     "Q_line": "max(Q_line, 0)",
     "R_time": "R_time",
+    "S_grasp_contact": "S_grasp_contact / 100",
 }
 
 
@@ -37,7 +38,7 @@ def radar_values(metrics: dict[str, float | None]) -> list[float]:
         value = metrics[name]
         if value is None:
             out.append(0.0)
-        elif name in ("S_loc", "S_gra"):
+        elif name in SUCCESS_RATE_NAMES:
             out.append(value / 100.0)
         elif name in ("E_loc", "E_gra"):
             out.append(1.0 / (1.0 + max(value, 0.0)))

@@ -348,3 +348,56 @@ def test_mean_interval():
 def test_wilson_interval_reaches_the_extremes_exactly(n):
     assert wilson_interval(n, n)[1] == 1.0
     assert wilson_interval(0, n)[0] == 0.0
+
+
+# --- the contact-grounded grasp (paper A.8) ------------------------------------------
+
+
+def _one_episode(palm_x, tips, closed_mask):
+    """Acting frames of one episode: palm XZ offset per frame, fingertip distance, joints closed or open."""
+    m = len(palm_x)
+    grasp = np.full((1, 15), 1.0)
+    joints = np.where(np.asarray(closed_mask)[:, None], 1.0, 0.0) * np.ones((m, 15))
+    palm = np.column_stack([palm_x, np.full(m, 0.5), np.zeros(m)])
+    return episode_metrics(np.array([0, m]), palm, np.zeros((m, 3)), joints, np.asarray(tips, float), grasp)
+
+
+def test_contact_grasp_needs_the_fist_over_the_object_and_touching_at_the_same_frame():
+    from schemas.scene import GRASP_CONTACT_TOLERANCE as EPS
+
+    blind_fist = _one_episode([2.0, 2.0, 2.0], [1.5, 1.5, 1.5], [False, True, True])
+    assert blind_fist.grasped[0] and not blind_fist.contact_grasped[0]
+    hovering_fist = _one_episode([0.1, 0.1], [EPS * 1.5, EPS * 1.5], [True, True])
+    assert hovering_fist.grasped[0] and not hovering_fist.contact_grasped[0]
+    apart_in_time = _one_episode([0.1, 2.0, 0.1], [0.05, 0.05, 0.05], [False, True, False])
+    assert apart_in_time.grasped[0] and apart_in_time.localized[0] and not apart_in_time.contact_grasped[0]
+    held = _one_episode([1.0, 0.1, 0.1], [0.5, EPS, 0.02], [False, True, True])
+    assert held.contact_grasped[0] and held.t_contact[0] == 1
+
+
+def test_the_ground_truth_grasps_with_contact_and_a_blind_fist_does_not():
+    """Ground truth 100 on S_grasp_contact; a policy that drops the palm and closes the fist
+    scores on the joint-only S_gra but 0 on the contact grasp."""
+    from generators.recipe import spec_for
+    from pipeline import episode
+    from pipeline.loop.env import DyanaEnv
+    from scoring.io import from_recordings
+    from scoring.report import score_run
+
+    specs = [spec_for("test-1k", i) for i in range(6)]
+    truth = score_run(from_recordings("gt", "test-1k", specs, [episode(s) for s in specs])).overall
+    assert truth.metrics["S_grasp_contact"] == 100.0 and truth.metrics["S_gra"] == 100.0
+
+    env = DyanaEnv(resolution=32)
+    recordings = []
+    for spec in specs:
+        obs, _ = env.reset(options={"spec": spec})
+        done = False
+        while not done:
+            fist = np.concatenate([[obs["palm_pose"][0], 0.3, obs["palm_pose"][2]], np.full(15, 1.6)]).astype(np.float32)
+            obs, _, terminated, truncated, _ = env.step(fist)
+            done = terminated or truncated
+        recordings.append(env.recording()[0])
+    blind = score_run(from_recordings("fist", "test-1k", specs, recordings, policy="fist")).overall
+    assert blind.metrics["S_gra"] > 0 and blind.metrics["S_loc"] == 0
+    assert blind.metrics["S_grasp_contact"] == 0.0
