@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from catalog.parquet_io import column_to_numpy
-from catalog.reader import check_file, frame_runs, open_folder
+from catalog.reader import check_file, open_folder
 from schemas.errors import SpecError
 from schemas.tables import ARRAY_WIDTHS, STATE_COLUMNS
 
@@ -111,11 +111,10 @@ def load_source(root: Path, source: int, verify: str, files: list[ShardFile]):
         if verify == "sha256":
             check_file(root, shard.record.files["episodes"], "sha256")
         table = shard.episodes(columns)
-        index = shard.frames([], table)
+        index, runs = shard.indexed_frames([], table)
         episode = column_to_numpy(index.column("episode_index"))
         frame = column_to_numpy(index.column("frame_index"))
         frames_path = shard.path("frames")
-        runs = frame_runs(frames_path, episode, frame, *shard.record.episodes)
         record = shard.record.files["frames"]
         key = len(files)
         files.append(

@@ -151,6 +151,12 @@ class ShardReader:
         """The frames table (``columns``, plus ``episode_index`` and ``frame_index``), checked
         against the manifest's row count and the frame numbering; with the shard's
         ``episodes`` table (``num_frames`` column), ground-truth frame counts too."""
+        return self.indexed_frames(columns, episodes)[0]
+
+    def indexed_frames(
+        self, columns: Sequence[str] | None = None, episodes: pa.Table | None = None
+    ) -> tuple[pa.Table, dict[int, tuple[int, int]]]:
+        """:meth:`frames` and its episodes' runs ``{episode_index: (first row, frames)}``."""
         path = check_file(self.root, self.record.files["frames"], self.verify)
         wanted = None if columns is None else list(dict.fromkeys(["episode_index", "frame_index", *columns]))
         table = read_frames(path, wanted)
@@ -169,7 +175,7 @@ class ShardReader:
                 count = runs.get(index, (0, 0))[1]
                 if count != declared:
                     raise ShardContentError(path, f"episode {index} has {count} frames, its episodes row says {declared}")
-        return table
+        return table, runs
 
 
 @dataclass(frozen=True)

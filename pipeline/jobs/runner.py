@@ -38,7 +38,6 @@ from pathlib import Path
 from typing import Any
 
 from catalog.atomic import atomic_write_text, remove_stray_temps
-from catalog.hashing import sha256_file
 from catalog.manifest import (
     CodeInfo,
     Manifest,
@@ -47,6 +46,7 @@ from catalog.manifest import (
     manifest_path,
     write_manifest,
 )
+from catalog.reader import check_file
 from catalog.records import FileRecord, ShardRecord
 from catalog.stats import compute_stats, write_stats
 from schemas.errors import DyanaError, ShardError, SpecError
@@ -194,8 +194,11 @@ def folder_lock(folder: Path) -> Iterator[None]:
 
 
 def _file_intact(folder: Path, record: FileRecord) -> bool:
-    path = folder / record.path
-    return path.is_file() and path.stat().st_size == record.size and sha256_file(path) == record.sha256
+    try:
+        check_file(folder, record, "sha256")
+    except ShardError:
+        return False
+    return True
 
 
 def _intact(folder: Path, record: ShardRecord) -> bool:
