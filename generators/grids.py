@@ -47,6 +47,7 @@ from functools import cache
 import numpy as np
 
 from generators.camera import in_view
+from generators.visibility import rest_shadow_z
 from schemas.errors import SpecError
 from schemas.objects import OBJECTS
 from schemas.scene import (
@@ -200,12 +201,15 @@ def feasible(
 ) -> np.ndarray:
     """Feasibility of each row: the centre stays in the workspace, the object's bounding
     box (centre bounds grown by its footprint ``radius``, from the table up to ``top``)
-    stays in the view frustum, and the speed stays at most :data:`MAX_SPEED`.
+    stays in the view frustum and wholly beyond the resting hand's silhouette (so the
+    hand never hides it: :func:`generators.visibility.rest_shadow_z`), and the speed
+    stays at most :data:`MAX_SPEED`.
 
     The frustum is convex, so checking the box's eight corners covers the whole path.
     """
     x0, x1, z0, z1 = centre_bounds(motion_type, cols, seconds)
     ok = (x0 >= WORKSPACE_X[0]) & (x1 <= WORKSPACE_X[1]) & (z0 >= WORKSPACE_Z[0]) & (z1 <= WORKSPACE_Z[1])
+    ok &= z0 - radius > rest_shadow_z()
     ok &= max_speed(motion_type, cols, seconds) <= MAX_SPEED
     zero = np.zeros_like(x0)
     for x in (x0 - radius, x1 + radius):

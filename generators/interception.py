@@ -29,7 +29,7 @@ import numpy as np
 
 from generators.camera import points_in_view
 from generators.grasp import grasp_angles, lowest_fingertip_offset
-from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, fingertip_positions
 from schemas.errors import InfeasibleError
 from schemas.objects import object_category
 from schemas.scene import GRASP_FRAMES, PALM_HOVER, PHASES, WORKSPACE_X, WORKSPACE_Z
@@ -135,6 +135,14 @@ def _check_in_view(name: str, points: np.ndarray) -> None:
         raise InfeasibleError(f"the {name} leaves the camera's view at frame {int(np.argmin(inside))}")
 
 
+def _check_hand_in_view(palm: np.ndarray, fingertips: np.ndarray) -> None:
+    """Some of the hand (its palm centre or a fingertip) is in view at every frame; at rest
+    the palm sits at the image's bottom edge with the fingers in view."""
+    seen = points_in_view(palm) | points_in_view(fingertips).any(axis=1)
+    if not seen.all():
+        raise InfeasibleError(f"the hand leaves the camera's view at frame {int(np.argmin(seen))}")
+
+
 def plan_episode(
     spec: EpisodeSpec,
     object_xz: np.ndarray,
@@ -184,7 +192,6 @@ def plan_episode(
     end_acc = np.array([acc[i, 0], 0.0, acc[i, 1]])
     palm[a : i + 1] = quintic(REST_PALM[:3], hover[i], end_vel, end_acc, duration, s)
     palm[i:] = hover[i:]
-    _check_in_view("palm", palm)
 
     steps = np.linalg.norm(np.diff(palm[a : i + 1], axis=0), axis=1)
     if steps.min() <= MIN_APPROACH_STEP:
@@ -204,6 +211,7 @@ def plan_episode(
     joints = REST_JOINTS + closure[:, None] * (grasp - REST_JOINTS)
 
     palm_pose = np.concatenate([palm, np.repeat(REST_PALM[None, 3:], n, axis=0)], axis=1)
+    _check_hand_in_view(palm, fingertip_positions(palm_pose, joints, spec.hand))
     lowest = hover_y + lowest_fingertip_offset(spec.object, spec.object_size, spec.hand)
     if lowest < MIN_FINGERTIP_HEIGHT:
         raise InfeasibleError(f"the fingers would go through the table (fingertip height {lowest:.3f})")

@@ -296,6 +296,32 @@ class Renderer:
         np.copyto(out[:, ::-1][win], rgb[win], where=front[:, :, None])
         return out
 
+    def object_pixels(self, object_pose, palm_pose, joint_angles) -> tuple[int, int]:
+        """The object's pixels in TinyRenderer's segmentation mask: ``(shown, alone)``,
+        with the hand posed as given, then with the hand moved out of view. Their ratio
+        is the visible fraction :mod:`generators.visibility` computes analytically."""
+        if self._object is None or self._hand is None:
+            raise SpecError("object_pixels needs a scene with an object and a hand (set_scene)")
+        self._pose(object_pose, palm_pose, joint_angles)
+        shown = self._object_mask()
+        away = np.array([0.0, -1000.0, 0.0, 0.0, 0.0, 0.0])
+        set_hand_pose(self._client, self._hand.body, self._hand.joints, away, self._poses[2])
+        alone = self._object_mask()
+        self._apply(self._client, self._hand, self._object)
+        return int(shown.sum()), int(alone.sum())
+
+    def _object_mask(self) -> np.ndarray:
+        _, _, _, _, seg = p.getCameraImage(
+            self.width,
+            self.height,
+            viewMatrix=self._view,
+            projectionMatrix=self._proj,
+            shadow=0,
+            renderer=p.ER_TINY_RENDERER,
+            physicsClientId=self._client,
+        )
+        return np.asarray(seg, dtype=np.int64).reshape(self.height, self.width) == self._object.body
+
     def render_episode(
         self,
         frames: EpisodeFrames,

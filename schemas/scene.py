@@ -24,8 +24,15 @@ WORKSPACE_Z = (1.5, 7.5)
 TABLE_X = (-6.0, 6.0)
 TABLE_Z = (-1.0, 10.0)
 
-#: The palm's rest pose (x, y, z, roll, pitch, yaw): near the camera edge, palm down.
-PALM_REST = (0.0, 3.0, 0.5, 0.0, 0.0, 0.0)
+#: The palm's rest pose (x, y, z, roll, pitch, yaw): palm down at the bottom edge of the
+#: view, fingers pointing into the image, as an egocentric hand waits. The whole resting
+#: hand projects below every point of the workspace an object can occupy, so it never
+#: hides the target while the model observes it (generators.visibility); its height is
+#: the highest hover point of any recipe object, so approaches only ever descend.
+PALM_REST = (0.0, 1.65, -1.8, 0.0, 0.0, 0.0)
+#: Share of the object's silhouette that must be in the image and unhidden in every
+#: observe frame (the observe-before-act protocol shows the model the motion).
+MIN_OBSERVE_VISIBLE = 0.5
 #: Palm centre height above the object's top while hovering and grasping.
 PALM_HOVER = 0.35
 

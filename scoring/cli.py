@@ -1,5 +1,5 @@
 """The ``scoring`` command: ``scoring eval RUN [RUN ...] [--json] [--plot FILE.png]
-[--markdown FILE.md] [--csv FILE.csv]``.
+[--markdown FILE.md] [--csv FILE.csv] [--episodes FILE.parquet|.csv]``.
 
 Reads recorded shards only (never the simulator). Bad input (not a run folder, a
 missing column, an empty run) prints one line on stderr and exits with code 2.
@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from catalog.atomic import atomic_open
 from schemas import cli
 from schemas.errors import DyanaError
+from scoring.episodes import check_episodes_path, write_episodes
 from scoring.io import load_run
 from scoring.report import (
     RunReport,
@@ -34,6 +35,10 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="FILE.png", help="write a radar chart and per-motion bars")
     p.add_argument("--markdown", metavar="FILE.md", help="write the tables as Markdown")
     p.add_argument("--csv", metavar="FILE.csv", help="write every summary row as CSV")
+    p.add_argument(
+        "--episodes", metavar="FILE.parquet|.csv",
+        help="write one row per episode (ids, motion, object, status, event frames, every metric)",
+    )
 
 
 def evaluate(runs: Sequence[str]) -> list[RunReport]:
@@ -52,6 +57,8 @@ def _write(path: str, text: str) -> None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    if args.episodes:
+        check_episodes_path(args.episodes)
     reports = evaluate(args.runs)
     if args.json:
         payload = [report_dict(r) for r in reports]
@@ -62,6 +69,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         _write(args.markdown, markdown(reports))
     if args.csv:
         _write(args.csv, csv_text(reports))
+    if args.episodes:
+        write_episodes(reports, args.episodes)
     if args.plot:
         from scoring.plot import plot_runs
 

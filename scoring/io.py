@@ -26,7 +26,8 @@ from schemas.spec import EpisodeSpec
 
 FRAME_COLUMNS = ("episode_index", "frame_index", "phase", "palm_pose", "object_pose", "joint_angles", "fingertip_distance")
 EPISODE_COLUMNS = (
-    "episode_index", "motion_type", "intercept_setting", "object", "grasp_angles", "num_frames", "observe_frames",
+    "episode_index", "episode_id", "motion_type", "intercept_setting", "object", "hand", "rollout_format",
+    "grasp_angles", "num_frames", "observe_frames",
 )
 ROLLOUT_COLUMNS = ("policy", "privileged", "status", "error")
 #: Phases in which the hand acts; every other frame is observation only.
@@ -60,6 +61,9 @@ class RunData:
     joint_angles: np.ndarray
     fingertip_distance: np.ndarray
     error_message: np.ndarray
+    episode_id: np.ndarray
+    hand: np.ndarray
+    rollout_format: np.ndarray
     privileged: bool = False
 
     @property
@@ -160,6 +164,9 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         joint_angles=frame_array("joint_angles"),
         fingertip_distance=frame_array("fingertip_distance"),
         error_message=error_message,
+        episode_id=_strings(episodes.column("episode_id")),
+        hand=_strings(episodes.column("hand")),
+        rollout_format=_strings(episodes.column("rollout_format")),
         privileged=privileged,
     )
 
@@ -214,4 +221,7 @@ def from_recordings(
         joint_angles=stacked("joint_angles"),
         fingertip_distance=stacked("fingertip_distance"),
         error_message=messages if rollout else np.full(len(specs), None, dtype=object),
+        episode_id=np.array([s.episode_id for s in specs], dtype=object),
+        hand=np.array([s.hand for s in specs], dtype=object),
+        rollout_format=np.array([s.rollout_format for s in specs], dtype=object),
     )

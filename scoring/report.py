@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -20,6 +20,7 @@ from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
 from scoring.io import RunData
 from scoring.metrics import (
     METRIC_NAMES,
+    SUCCESS_RATE_NAMES,
     EpisodeMetrics,
     Summary,
     aggregate,
@@ -34,7 +35,6 @@ BREAKDOWNS = (
 )
 #: Groups always present in the JSON, even when empty, so that keys are stable.
 ALWAYS_LISTED = {"by_motion", "by_speed"}
-SUCCESS_RATES = ("S_loc", "S_gra")
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,9 @@ class RunReport:
     privileged: bool
     overall: Summary
     breakdowns: dict[str, dict[str, Summary]]
+    #: What was scored and each episode's facts (``scoring.episodes`` tabulates them).
+    data: RunData = field(repr=False, compare=False)
+    per_episode: EpisodeMetrics = field(repr=False, compare=False)
 
     @property
     def ground_truth(self) -> bool:
@@ -81,6 +84,8 @@ def score_run(data: RunData, label: str | None = None) -> RunReport:
         privileged=data.privileged,
         overall=aggregate(per, data.error),
         breakdowns=breakdowns,
+        data=data,
+        per_episode=per,
     )
 
 
@@ -149,9 +154,12 @@ def report_dict(report: RunReport) -> dict[str, Any]:
 
 MAIN_HEADERS = (
     "Run", "Episodes", "Errors", "S_loc (%) ^", "S_loc 95% CI", "E_loc v", "S_gra (%) ^", "S_gra 95% CI",
-    "E_gra v", "Q_smooth ^", "Q_line ^", "R_time ^",
+    "E_gra v", "Q_smooth ^", "Q_line ^", "R_time ^", "S_grasp_contact (%) ^", "S_grasp_contact 95% CI",
 )
-GROUP_HEADERS = ("Run", "Group", "Episodes", "Errors", "S_loc (%)", "E_loc", "S_gra (%)", "E_gra", "Q_smooth", "Q_line", "R_time")
+#: One column per metric, in :data:`METRIC_NAMES` order.
+GROUP_HEADERS = ("Run", "Group", "Episodes", "Errors") + tuple(
+    f"{name} (%)" if name in SUCCESS_RATE_NAMES else name for name in METRIC_NAMES
+)
 LEGEND = (
     "^ higher is better, v lower is better; CI: 95% Wilson interval; - : nothing to average over; "
     "(privileged): the policy read the ground-truth spec (an upper bound, not a fair entry)."
@@ -174,6 +182,7 @@ def _main_row(report: RunReport) -> list[str]:
         _num(m["S_loc"]), _ci(s.intervals["S_loc"]), _num(m["E_loc"]),
         _num(m["S_gra"]), _ci(s.intervals["S_gra"]), _num(m["E_gra"]),
         _num(m["Q_smooth"]), _num(m["Q_line"]), _num(m["R_time"]),
+        _num(m["S_grasp_contact"]), _ci(s.intervals["S_grasp_contact"]),
     ]
 
 

@@ -80,7 +80,7 @@ from schemas.errors import DyanaError, PolicyError, SpecError
 from schemas.events import grasp_closed, localized, palm_xz_distance
 from schemas.frames import EpisodeFrames
 from schemas.objects import object_category
-from schemas.scene import DEFAULT_RESOLUTION, PHASES, TABLE_X, TABLE_Z
+from schemas.scene import DEFAULT_RESOLUTION, PALM_REST, PHASES, TABLE_X, TABLE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -92,8 +92,9 @@ except ImportError:  # pragma: no cover - exercised only without gymnasium
     spaces = None
 
 ENV_ID = "Dyana/Grasp-v0"
-#: Where the palm may go (x, y, z ranges): above the table, up to 6 units high.
-PALM_BOX = (TABLE_X, (0.0, 6.0), TABLE_Z)
+#: Where the palm may go (x, y, z ranges): above the table, up to 6 units high, from
+#: behind the rest pose (at the view's bottom edge) to the table's far edge.
+PALM_BOX = (TABLE_X, (0.0, 6.0), (min(TABLE_Z[0], PALM_REST[2] - 1.0), TABLE_Z[1]))
 ACTION_WIDTH = 18
 OBSERVATION_KEYS = (
     "image", "palm_pose", "joint_angles", "joint_poses", "keypoints", "text", "frame_index", "timestamp", "observe_images",

@@ -18,9 +18,12 @@ from generators import motion
 from generators.contact import fingertip_distance
 from generators.hand import forward_kinematics
 from generators.interception import HandPlan, plan_episode
+from generators.visibility import first_hidden_frame
+from schemas.errors import InfeasibleError
 from schemas.events import palm_xz_distance
 from schemas.frames import EpisodeFrames
 from schemas.objects import object_category
+from schemas.scene import MIN_OBSERVE_VISIBLE
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -67,9 +70,25 @@ def assemble_frames(
     )
 
 
+def check_observable(spec: EpisodeSpec, poses: np.ndarray) -> None:
+    """Refuse an episode whose object is not shown enough (in the image and unhidden by the
+    resting hand) in some observe frame: the protocol promises the model sees the motion."""
+    hidden = first_hidden_frame(spec.object, spec.object_size, spec.hand, poses[: spec.observe_frames])
+    if hidden is not None:
+        frame, fraction = hidden
+        raise InfeasibleError(
+            f"the object is only {fraction:.0%} visible at observe frame {frame} (the resting hand or the "
+            f"image edge hides the rest; at least {MIN_OBSERVE_VISIBLE:.0%} must show)"
+        )
+
+
 def plan(spec: EpisodeSpec) -> tuple[HandPlan, np.ndarray, np.ndarray]:
-    """The ground-truth hand plan of ``spec`` with the object's poses and velocities."""
+    """The ground-truth hand plan of ``spec`` with the object's poses and velocities.
+
+    Raises :class:`InfeasibleError` when the object would be hidden while observed or the
+    interception cannot be planned."""
     poses, velocity, sample = object_trajectory(spec)
+    check_observable(spec, poses)
     return plan_episode(spec, sample.position, sample.velocity, sample.acceleration), poses, velocity
 
 

@@ -135,9 +135,23 @@ def test_object_centre_shows_the_object_colour(full):
             assert not matches(img[row, col], TABLE_RGBA)
 
 
+def test_the_resting_hand_shows_its_fingers_at_the_bottom_edge(full):
+    """At rest the palm sits at the image's bottom edge and the fingers reach into it."""
+    from generators.hand import fingertip_positions
+    from generators.hand_urdf import NAIL, SKIN
+
+    full.set_scene("orange", OBJECTS["orange"].nominal_size, "right")
+    _, pose = resting("orange", 0.0, 7.0)
+    img = full.render(pose, REST_PALM, REST_JOINTS)
+    assert pixel_of(REST_PALM[:3], FULL)[0] >= FULL - 1
+    for tip in fingertip_positions(REST_PALM[None], REST_JOINTS[None], "right")[0, 1:4]:
+        row, col = pixel_of(tip, FULL)
+        assert matches(img[row, col], NAIL) or matches(img[row, col], SKIN), (tip, img[row, col])
+
+
 def test_palm_centre_shows_the_palm(full):
     full.set_scene("orange", OBJECTS["orange"].nominal_size, "right")
-    for palm in (REST_PALM, np.array([-2.0, 1.5, 3.0, 0.0, 0.0, 0.3]), np.array([2.5, 1.0, 6.5, 0.1, 0.0, -0.4])):
+    for palm in (np.array([0.0, 1.65, 0.5, 0.0, 0.0, 0.0]), np.array([-2.0, 1.5, 3.0, 0.0, 0.0, 0.3]), np.array([2.5, 1.0, 6.5, 0.1, 0.0, -0.4])):
         _, pose = resting("orange", 0.0, 7.0)
         img = full.render(pose, palm, REST_JOINTS)
         row, col = pixel_of(palm[:3], FULL)

@@ -300,6 +300,27 @@ def test_an_infeasible_spec_is_one_line_with_its_file_and_line_and_no_dask_noise
     assert "Traceback" not in result.stderr and "Compute Failed" not in result.stderr
 
 
+def test_a_spec_whose_object_the_resting_hand_hides_is_refused_with_the_frame(tmp_path):
+    """A tennis ball rolled toward the camera passes under the resting fingers while it
+    is observed: refused before any work, naming the file, line and observe frame."""
+    import math
+
+    path = tmp_path / "hidden.jsonl"
+    toward_camera = {
+        "object": "tennis_ball", "object_size": 0.67, "observe_frames": 20, "num_frames": 40,
+        "rollout_format": "observe-before-act", "intercept_setting": "fast",
+        "motion": {"base": [{"type": "L", "start": [0.0, 2.0], "direction": -math.pi / 2, "speed": 2.5,
+                             "acceleration": 0.0, "duration": 2.0}]},
+    }
+    path.write_text(_spec_lines({}, toward_camera))
+    result = _cli("build", "--specs", str(path), "--out", str(tmp_path / "out"))
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.count("\n") == 1, result.stderr
+    assert f"{path}:2: infeasible episode" in result.stderr
+    assert "% visible at observe frame 16 " in result.stderr
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*.parquet"))
+
+
 def test_a_dask_build_prints_only_dyana_lines_even_beside_another_dashboard(tmp_path):
     """No dashboard is bound to 8787 (so no 'Port 8787 is already in use' warning), and no
     Dask log line (heartbeats, comm closing) reaches the user."""

@@ -146,6 +146,45 @@ def test_plot_markdown_and_csv(tmp_path, capsys, run):
     assert medium["S_loc"] == "" and medium["episodes"] == "0"
 
 
+@pytest.mark.parametrize("suffix", [".parquet", ".csv"])
+def test_per_episode_rows_name_each_episode_and_agree_with_the_summary(tmp_path, capsys, run, suffix):
+    import pyarrow.csv as pa_csv
+    import pyarrow.parquet as pq
+
+    gt = write_run(tmp_path / "gt", [Ep(**GOOD)], policy=None)
+    path = tmp_path / f"episodes{suffix}"
+    code, out, err = run_main(capsys, "eval", str(run), str(gt), "--json", "--episodes", str(path))
+    assert code == 0, err
+    table = pq.read_table(path) if suffix == ".parquet" else pa_csv.read_csv(path)
+    rows = table.to_pylist()
+    assert [(r["label"], r["episode_index"]) for r in rows] == [("oracle", 0), ("oracle", 1), ("oracle", 2), ("GT (gt)", 0)]
+    good, miss, failed, truth = rows
+    assert (good["episode_id"], good["motion_type"], good["intercept_setting"]) == ("test:000000", "linear", "fast")
+    assert (good["hand"], good["rollout_format"], good["status"]) == ("right", "observe-before-act", "ok")
+    assert good["error"] in (None, "")  # CSV has no null string
+    assert (good["t_loc"], good["t_gra"], good["localized"], good["grasped"]) == (2, 3, True, True)
+    assert good["E_loc"] == pytest.approx(0.1, rel=1e-6) and good["R_time"] == pytest.approx(1 - 4 / 5)
+    assert (miss["t_loc"], miss["t_gra"], miss["localized"], miss["Q_smooth"]) == (None, None, False, None)
+    assert miss["object"] == "mug" and miss["E_loc"] == pytest.approx(1.0, rel=1e-6)
+    # an error episode keeps the frames it recorded but counts as a failure, as in the summary
+    assert failed["status"] == "error" and failed["error"]
+    assert (failed["t_loc"], failed["localized"], failed["R_time"]) == (2, False, 0.0)
+    assert truth["policy"] in (None, "") and truth["status"] == "ok"
+    summary = json.loads(out)[0]["metrics"]
+    oracle = rows[:3]
+    for column, metric in (("localized", "S_loc"), ("grasped", "S_gra"), ("grasp_contact", "S_grasp_contact")):
+        assert 100 * sum(r[column] for r in oracle) / 3 == pytest.approx(summary[metric])
+    assert sum(r["R_time"] for r in oracle) / 3 == pytest.approx(summary["R_time"])
+    assert sum(r["E_loc"] for r in oracle) / 3 == pytest.approx(summary["E_loc"])
+
+
+def test_an_episodes_file_of_another_kind_is_refused_before_scoring(tmp_path, capsys, run):
+    code, out, err = run_main(capsys, "eval", str(run), "--episodes", str(tmp_path / "rows.xlsx"))
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "rows.xlsx" in err and ".parquet or .csv" in err
+    assert not (tmp_path / "rows.xlsx").exists()
+
+
 def test_multi_shard_run_loads_in_episode_order(tmp_path):
     eps = [Ep(**GOOD), Ep(**MISS), Ep(**MISS), Ep(**GOOD), Ep(**MISS)]
     data = load_run(write_run(tmp_path / "many", eps, shard_size=2))

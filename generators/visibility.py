@@ -1,0 +1,222 @@
+"""How much of the object the camera sees: an analytic screen-space test against the hand.
+
+The observe-before-act protocol (paper 3.3) shows the model the target's motion before
+it acts, so an episode is fair only if the object is in the image and not hidden by
+the resting hand while it is observed. This module answers that without rendering:
+
+* Every shape involved is convex (the object's sphere, cylinder or box; the palm box;
+  the wrist cylinder; each finger segment, a capsule), so each one's silhouette is the
+  convex hull of its projected surface points. Silhouettes are filled at
+  :data:`SUPERSAMPLE` x the image resolution and counted.
+* A hand part hides the object where their silhouettes overlap if the part is nearer
+  the camera. A part that is neither wholly nearer nor wholly farther counts as
+  nearer, so the test errs toward calling the object hidden.
+* The *visible fraction* of a frame is the object's silhouette area inside the image
+  and not hidden, over its whole silhouette area.
+
+A cheap exact shortcut decides nearly every frame: the camera has no roll, so a table
+line of constant Z projects to one image row, and any point at height >= 0 that lies
+beyond that line projects above that row. An object whose footprint starts beyond
+the Z where the rest hand's silhouette ends (:func:`rest_shadow_z`) can never be
+hidden by the resting hand. The recipe's feasibility filter uses that bound
+(:func:`generators.grids.feasible`); the renderer's segmentation masks are the ground
+truth the tests and ``benchmarks/visibility.py`` check both against.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import cv2
+import numpy as np
+
+from generators.camera import points_in_view, project
+from generators.hand import (
+    FINGER_RADII,
+    PALM_HALF_EXTENTS,
+    REST_JOINTS,
+    REST_PALM,
+    SIDES,
+    WRIST_OFFSET,
+    chain_frames,
+)
+from schemas.objects import object_category
+from schemas.rotations import euler_to_matrix, quaternion_to_matrix
+from schemas.scene import CAMERA_EYE, DEFAULT_RESOLUTION, MIN_OBSERVE_VISIBLE
+
+#: Sub-pixels per pixel side when filling silhouettes.
+SUPERSAMPLE = 4
+#: Fixed-point bits of the vertex coordinates given to ``cv2.fillConvexPoly``.
+_SHIFT = 4
+#: Directions on the unit sphere (Fibonacci lattice) sampling round surfaces.
+_SPHERE_POINTS = 96
+#: Points on a circle sampling a cylinder's rims.
+_RIM_POINTS = 48
+#: The wrist cylinder drawn behind the palm (generators.hand_urdf): radius factor, length.
+_WRIST_RADIUS_FACTOR = 0.7
+_WRIST_LENGTH = 0.5
+
+
+def _fibonacci_sphere(n: int) -> np.ndarray:
+    k = np.arange(n, dtype=np.float64) + 0.5
+    polar = np.arccos(1.0 - 2.0 * k / n)
+    azimuth = np.pi * (1.0 + 5.0**0.5) * k
+    return np.stack([np.cos(azimuth) * np.sin(polar), np.cos(polar), np.sin(azimuth) * np.sin(polar)], axis=-1)
+
+
+_UNIT_SPHERE = _fibonacci_sphere(_SPHERE_POINTS)
+_ANGLES = np.linspace(0.0, 2.0 * np.pi, _RIM_POINTS, endpoint=False)
+_UNIT_CIRCLE = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=-1)
+#: A sampled sphere's hull lies inside the sphere; occluders are grown by this factor so
+#: that their hulls contain the true shape (the lattice's largest gap is under 0.3 rad).
+_OCCLUDER_GROWTH = 1.05
+
+
+def _rim(centre: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:
+    """Points on the circle of ``radius`` about ``centre`` perpendicular to unit ``axis``."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    return centre + radius * (_UNIT_CIRCLE[:, :1] * u + _UNIT_CIRCLE[:, 1:] * v)
+
+
+def _object_local_points(category: str, size: float) -> np.ndarray:
+    """(k, 3) points in the object's frame whose convex hull is the object."""
+    cat = object_category(category)
+    dims = cat.scaled_dims(size)
+    if cat.shape == "sphere":
+        return dims[0] * _UNIT_SPHERE
+    if cat.shape == "cylinder":
+        radius, length = dims
+        axis = np.eye(3)[0 if cat.lying else 1]
+        return np.concatenate([_rim(s * length / 2.0 * axis, axis, radius) for s in (-1.0, 1.0)])
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
+    return signs * np.asarray(dims)
+
+
+def object_surface_points(category: str, size: float, poses: np.ndarray) -> np.ndarray:
+    """(..., k, 3) world points whose convex hull is the object at each pose (..., 7)
+    (x, y, z, qx, qy, qz, qw)."""
+    poses = np.asarray(poses, dtype=np.float64)
+    rot = quaternion_to_matrix(poses[..., 3:7].reshape(-1, 4)).reshape(poses.shape[:-1] + (3, 3))
+    local = _object_local_points(category, size)
+    return poses[..., None, :3] + np.einsum("...ij,kj->...ki", rot, local)
+
+
+def hand_parts(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> list[np.ndarray]:
+    """The hand's convex parts at one pose, each as (k, 3) world points whose hull contains it:
+    the palm box, the wrist cylinder, and one capsule per finger segment."""
+    palm = np.asarray(palm_pose, dtype=np.float64)
+    rot = euler_to_matrix(palm[None, 3:])[0]
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
+    parts = [palm[:3] + (signs * np.asarray(PALM_HALF_EXTENTS)) @ rot.T]
+    axis = rot[:, 2]
+    wrist = palm[:3] + rot @ np.asarray(WRIST_OFFSET)
+    radius = _OCCLUDER_GROWTH * _WRIST_RADIUS_FACTOR * PALM_HALF_EXTENTS[0]
+    parts.append(np.concatenate([_rim(wrist, axis, radius), _rim(wrist - _WRIST_LENGTH * axis, axis, radius)]))
+    positions, _ = chain_frames(palm[None], np.asarray(joint_angles, dtype=np.float64)[None], side)
+    for finger in range(5):
+        ball = _OCCLUDER_GROWTH * FINGER_RADII[finger] * _UNIT_SPHERE
+        chain = positions[0, finger]
+        for k in range(3):
+            parts.append(np.concatenate([chain[k] + ball, chain[k + 1] + ball]))
+    return parts
+
+
+def _fill(mask: np.ndarray, pixels: np.ndarray, origin: np.ndarray) -> None:
+    """Fill the convex hull of ``pixels`` (k, 2) (image pixels) into the supersampled ``mask``."""
+    local = (pixels - origin) * SUPERSAMPLE * (1 << _SHIFT)
+    hull = cv2.convexHull(np.round(local).astype(np.int32))
+    cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=_SHIFT)
+
+
+def visible_fraction(
+    object_points: np.ndarray, occluders: list[np.ndarray], resolution: int = DEFAULT_RESOLUTION
+) -> float:
+    """Share of the object's silhouette (hull of ``object_points``) that lies inside the
+    square image and is not covered by a nearer occluder (hulls of ``occluders``)."""
+    obj_px, obj_depth = project(object_points, resolution, resolution)
+    if np.any(obj_depth <= 0.0):
+        return 0.0
+    low = np.floor(obj_px.min(axis=0)) - 1.0
+    high = np.ceil(obj_px.max(axis=0)) + 1.0
+    shape = tuple(int(v) for v in ((high - low)[::-1] * SUPERSAMPLE))
+    silhouette = np.zeros(shape, dtype=np.uint8)
+    _fill(silhouette, obj_px, low)
+    total = int(silhouette.sum())
+    if total == 0:
+        return 0.0
+    visible = silhouette.copy()
+    rows = (np.arange(shape[0]) + 0.5) / SUPERSAMPLE + low[1]
+    cols = (np.arange(shape[1]) + 0.5) / SUPERSAMPLE + low[0]
+    visible[(rows < 0) | (rows >= resolution), :] = 0
+    visible[:, (cols < 0) | (cols >= resolution)] = 0
+    farthest = float(obj_depth.max())
+    for part in occluders:
+        part_px, part_depth = project(part, resolution, resolution)
+        if float(part_depth.min()) > farthest:
+            continue
+        if np.any(part_px.max(axis=0) < low) or np.any(part_px.min(axis=0) > high):
+            continue
+        cover = np.zeros(shape, dtype=np.uint8)
+        _fill(cover, part_px, low)
+        visible[cover > 0] = 0
+    return int(visible.sum()) / total
+
+
+@cache
+def _rest_parts(side: str) -> tuple[np.ndarray, ...]:
+    return tuple(hand_parts(REST_PALM, REST_JOINTS, side))
+
+
+@cache
+def rest_shadow_z() -> float:
+    """The farthest table Z that any ray from the camera through the resting hand (either
+    side) reaches: objects whose footprint lies wholly beyond it are never hidden by it."""
+    eye = np.asarray(CAMERA_EYE, dtype=np.float64)
+    points = np.concatenate([part for side in SIDES for part in _rest_parts(side)])
+    reach = eye[1] / (eye[1] - points[:, 1])
+    return float((eye[2] + reach * (points[:, 2] - eye[2])).max())
+
+
+def _footprint_near_z(category: str, size: float, poses: np.ndarray) -> np.ndarray:
+    """(n,) the nearest table Z of each pose's object (its centre Z minus its reach)."""
+    cat = object_category(category)
+    dims = np.asarray(cat.scaled_dims(size))
+    if cat.shape == "sphere" or (cat.shape == "cylinder" and not cat.lying):
+        reach = float(dims[0])
+    elif cat.shape == "cylinder":
+        reach = float(np.hypot(dims[0], dims[1] / 2.0))
+    else:
+        reach = float(np.hypot(dims[0], dims[2]))
+    return np.asarray(poses, dtype=np.float64)[:, 2] - reach
+
+
+def observe_visibility(
+    category: str, size: float, side: str, poses: np.ndarray, resolution: int = DEFAULT_RESOLUTION
+) -> np.ndarray:
+    """(n,) visible fraction of the object at each pose (n, 7) with the hand at rest.
+
+    A pose whose object is wholly in view and wholly beyond :func:`rest_shadow_z` is 1.0
+    without filling anything; the rest are measured by :func:`visible_fraction`.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    out = np.ones(len(poses))
+    clear = _footprint_near_z(category, size, poses) > rest_shadow_z()
+    clear &= points_in_view(object_surface_points(category, size, poses)).all(axis=-1)
+    occluders = list(_rest_parts(side))
+    for k in np.flatnonzero(~clear):
+        out[k] = visible_fraction(object_surface_points(category, size, poses[k]), occluders, resolution)
+    return out
+
+
+def first_hidden_frame(category: str, size: float, side: str, poses: np.ndarray) -> tuple[int, float] | None:
+    """The first pose whose object is less than :data:`MIN_OBSERVE_VISIBLE` visible with the
+    hand at rest, with its visible fraction, or None when every pose shows enough of it."""
+    fractions = observe_visibility(category, size, side, poses)
+    hidden = np.flatnonzero(fractions < MIN_OBSERVE_VISIBLE)
+    if len(hidden) == 0:
+        return None
+    k = int(hidden[0])
+    return k, float(fractions[k])

@@ -1,0 +1,135 @@
+"""One row per scored episode: ``scoring eval RUN ... --episodes FILE.parquet|.csv``.
+
+The summaries say how a policy did; this table says where, so a failure can be found
+and opened (``pipeline view RUN --episode N``). Statuses are applied as in
+:func:`scoring.metrics.aggregate`: an episode that ended in error is neither localized
+nor grasped and has R_time 0 whatever its frames show.
+
+Columns (:data:`EPISODE_FIELDS`): the run (label, folder, slice, policy); the episode
+(index, id, motion type, interception setting, object, hand, rollout format); its
+``status`` (``ok``/``error``) and ``error`` message; ``acting_frames``; the event
+frames ``t_loc``, ``t_gra``, ``t_grasp_contact`` (counted from the first acting frame,
+null when the event never happened); the three successes as booleans; ``E_loc``,
+``E_gra`` (null without acting frames), ``Q_smooth``, ``Q_line`` (null unless
+localized) and ``R_time``.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
+
+from catalog.atomic import atomic_open
+from schemas.errors import DyanaError
+from schemas.names import shorten
+from scoring.report import RunReport
+
+EPISODE_FIELDS = [
+    pa.field("label", pa.string()),
+    pa.field("run", pa.string()),
+    pa.field("slice", pa.string()),
+    pa.field("policy", pa.string()),
+    pa.field("episode_index", pa.int64()),
+    pa.field("episode_id", pa.string()),
+    pa.field("motion_type", pa.string()),
+    pa.field("intercept_setting", pa.string()),
+    pa.field("object", pa.string()),
+    pa.field("hand", pa.string()),
+    pa.field("rollout_format", pa.string()),
+    pa.field("status", pa.string()),
+    pa.field("error", pa.string()),
+    pa.field("acting_frames", pa.int64()),
+    pa.field("t_loc", pa.int64()),
+    pa.field("t_gra", pa.int64()),
+    pa.field("t_grasp_contact", pa.int64()),
+    pa.field("localized", pa.bool_()),
+    pa.field("grasped", pa.bool_()),
+    pa.field("grasp_contact", pa.bool_()),
+    pa.field("E_loc", pa.float64()),
+    pa.field("E_gra", pa.float64()),
+    pa.field("Q_smooth", pa.float64()),
+    pa.field("Q_line", pa.float64()),
+    pa.field("R_time", pa.float64()),
+]
+EPISODE_SCHEMA = pa.schema(EPISODE_FIELDS)
+FORMATS = (".parquet", ".csv")
+
+
+def _event(frames: np.ndarray) -> pa.Array:
+    return pa.array(np.where(frames >= 0, frames, 0), pa.int64(), mask=frames < 0)
+
+
+def _measure(values: np.ndarray) -> pa.Array:
+    values = np.asarray(values, dtype=np.float64)
+    return pa.array(np.nan_to_num(values), pa.float64(), mask=np.isnan(values))
+
+
+def run_episodes(report: RunReport) -> pa.Table:
+    """The per-episode rows of one scored run."""
+    data, per = report.data, report.per_episode
+    n = data.episodes
+    ok = ~np.asarray(data.error, dtype=bool)
+    columns = {
+        "label": pa.array([report.label] * n, pa.string()),
+        "run": pa.array([report.name] * n, pa.string()),
+        "slice": pa.array([report.slice] * n, pa.string()),
+        "policy": pa.array([report.policy] * n, pa.string()),
+        "episode_index": pa.array(data.episode_index, pa.int64()),
+        "episode_id": pa.array(data.episode_id.tolist(), pa.string()),
+        "motion_type": pa.array(data.motion_type.tolist(), pa.string()),
+        "intercept_setting": pa.array(data.intercept_setting.tolist(), pa.string()),
+        "object": pa.array(data.object.tolist(), pa.string()),
+        "hand": pa.array(data.hand.tolist(), pa.string()),
+        "rollout_format": pa.array(data.rollout_format.tolist(), pa.string()),
+        "status": pa.array(np.where(ok, "ok", "error").tolist(), pa.string()),
+        "error": pa.array(data.error_message.tolist(), pa.string()),
+        "acting_frames": pa.array(per.acting_frames, pa.int64()),
+        "t_loc": _event(per.t_loc),
+        "t_gra": _event(per.t_gra),
+        "t_grasp_contact": _event(per.t_contact),
+        "localized": pa.array(per.localized & ok, pa.bool_()),
+        "grasped": pa.array(per.grasped & ok, pa.bool_()),
+        "grasp_contact": pa.array(per.contact_grasped & ok, pa.bool_()),
+        "E_loc": _measure(per.e_loc),
+        "E_gra": _measure(per.e_gra),
+        "Q_smooth": _measure(np.where(per.localized & ok, per.q_smooth, np.nan)),
+        "Q_line": _measure(np.where(per.localized & ok, per.q_line, np.nan)),
+        "R_time": pa.array(np.where(ok, per.r_time, 0.0), pa.float64()),
+    }
+    return pa.table(columns, schema=EPISODE_SCHEMA)
+
+
+def episodes_table(reports: Sequence[RunReport]) -> pa.Table:
+    """Every run's per-episode rows, runs in the order given, episodes by index."""
+    return pa.concat_tables([run_episodes(r) for r in reports])
+
+
+def check_episodes_path(path: str | os.PathLike[str]) -> str:
+    """The table format a path asks for (its suffix), or a one-line error before any work."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        raise DyanaError(f"--episodes {shorten(repr(os.fspath(path)))}: the file must end in .parquet or .csv")
+    return suffix
+
+
+def write_episodes(reports: Sequence[RunReport], path: str | os.PathLike[str]) -> None:
+    """Write the per-episode table as Parquet or CSV (chosen by the file's suffix), atomically."""
+    suffix = check_episodes_path(path)
+    table = episodes_table(reports)
+    try:
+        with atomic_open(path, "wb") as handle:
+            if suffix == ".parquet":
+                pq.write_table(table, handle, compression="zstd")
+            else:
+                buffer = io.BytesIO()
+                pa_csv.write_csv(table, buffer)
+                handle.write(buffer.getvalue())
+    except OSError as exc:
+        raise DyanaError(f"{shorten(os.fspath(path))}: cannot write: {exc.strerror or exc}") from None
