@@ -1,5 +1,5 @@
 """The ``scoring`` command: ``scoring eval RUN [RUN ...] [--json] [--plot FILE.png]
-[--markdown FILE.md] [--csv FILE.csv] [--episodes FILE.parquet|.csv]``.
+[--markdown FILE.md] [--csv FILE.csv] [--episodes FILE.parquet|.csv] [--paper]``.
 
 Reads recorded shards only (never the simulator). Bad input (not a run folder, a
 missing column, an empty run) prints one line on stderr and exits with code 2.
@@ -36,6 +36,10 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--markdown", metavar="FILE.md", help="write the tables as Markdown")
     p.add_argument("--csv", metavar="FILE.csv", help="write every summary row as CSV")
     p.add_argument(
+        "--paper", action="store_true",
+        help="add the paper's published rows (Tables 3 and 4) to the table, Markdown and plot",
+    )
+    p.add_argument(
         "--episodes", metavar="FILE.parquet|.csv",
         help="write one row per episode (ids, motion, object, status, event frames, every metric)",
     )
@@ -64,9 +68,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         payload = [report_dict(r) for r in reports]
         print(json.dumps(payload[0] if len(payload) == 1 else payload, indent=2, allow_nan=False))
     else:
-        sys.stdout.write(format_table(reports))
+        sys.stdout.write(format_table(reports, paper=args.paper))
     if args.markdown:
-        _write(args.markdown, markdown(reports))
+        _write(args.markdown, markdown(reports, paper=args.paper))
     if args.csv:
         _write(args.csv, csv_text(reports))
     if args.episodes:
@@ -75,7 +79,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         from scoring.plot import plot_runs
 
         try:
-            plot_runs(reports, args.plot)
+            plot_runs(reports, args.plot, paper=args.paper)
         except OSError as exc:
             raise DyanaError(f"{args.plot}: cannot write: {exc.strerror or exc}") from None
     return 0

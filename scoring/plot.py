@@ -1,11 +1,20 @@
-"""One PNG comparing runs: a radar over the seven metrics in the style of the
-paper's Figure 1 (every axis normalised to [0, 1], outward is better), and bars of
-the success rates per motion type with their Wilson intervals."""
+"""One PNG comparing runs, drawn for a paper's column (3.5 in wide, 7 pt text, 300 dpi):
+
+* a radar over the paper's seven Table 3 metrics in the style of its Figure 1 (every
+  axis normalised to [0, 1], outward is better), each run with its own colour
+  (Okabe-Ito, colour-blind safe), line style and marker so that runs lying on top of
+  each other stay distinguishable; with ``paper=True`` the published rows of the
+  paper's Tables 3 and 4 are drawn too, thin and grey-toned;
+* bars of the three success rates per motion type with their Wilson intervals and a
+  legend; a rate of 0 is drawn as a visible stub labelled 0, a group without
+  episodes is labelled n/a.
+"""
 
 from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import matplotlib
 
@@ -15,27 +24,45 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from catalog.atomic import atomic_open  # noqa: E402
-from scoring.metrics import METRIC_NAMES, SUCCESS_RATE_NAMES  # noqa: E402
+from scoring.metrics import SUCCESS_RATE_NAMES  # noqa: E402
+from scoring.paper import PAPER_ROWS, paper_label  # noqa: E402
 from scoring.report import RunReport  # noqa: E402
 
-#: Axis labels of the radar; errors are shown as 1 / (1 + E) so that outward is better.
+#: The radar's axes: the paper's Table 3 columns; errors are shown as 1 / (1 + E).
+RADAR_METRICS = ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
 RADAR_LABELS = {
-    "S_loc": "S_loc / 100",
-    "E_loc": "1 / (1 + E_loc)",
-    "S_gra": "S_gra / 100",
-    "E_gra": "1 / (1 + E_gra)",
+    "S_loc": "S_loc",
+    "E_loc": "1/(1+E_loc)",
+    "S_gra": "S_gra",
+    "E_gra": "1/(1+E_gra)",
     "Q_smooth": "Q_smooth",
-    "Q_line": "max(Q_line, 0)",
+    "Q_line": "Q_line",
     "R_time": "R_time",
-    "S_grasp_contact": "S_grasp_contact / 100",
 }
+#: Okabe-Ito colours, then line styles and markers cycled independently of them.
+COLOURS = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#F0E442", "#000000")
+STYLES = ("-", "--", ":", "-.")
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
+PAPER_COLOURS = ("#444444", "#777777", "#999999", "#BBBBBB")
+COLUMN_WIDTH_IN = 3.5
+FONT_PT = 7
+
+
+@dataclass(frozen=True)
+class _Series:
+    label: str
+    metrics: dict[str, float | None]
+    colour: str
+    style: str
+    marker: str
+    width: float
 
 
 def radar_values(metrics: dict[str, float | None]) -> list[float]:
-    """The seven metrics mapped to [0, 1], higher better; a missing metric plots as 0."""
+    """The radar's metrics mapped to [0, 1], higher better; a missing metric plots as 0."""
     out = []
-    for name in METRIC_NAMES:
-        value = metrics[name]
+    for name in RADAR_METRICS:
+        value = metrics.get(name)
         if value is None:
             out.append(0.0)
         elif name in SUCCESS_RATE_NAMES:
@@ -47,63 +74,106 @@ def radar_values(metrics: dict[str, float | None]) -> list[float]:
     return out
 
 
-def _radar(ax, reports: Sequence[RunReport], colours) -> None:
-    angles = np.linspace(0.0, 2.0 * np.pi, len(METRIC_NAMES), endpoint=False)
+def _series(reports: Sequence[RunReport], paper: bool) -> list[_Series]:
+    out = [
+        _Series(r.label, r.overall.metrics, COLOURS[i % len(COLOURS)], STYLES[i % len(STYLES)],
+                MARKERS[i % len(MARKERS)], 1.6 if i == 0 else 1.1)
+        for i, r in enumerate(reports)
+    ]
+    if paper:
+        out += [
+            _Series(paper_label(row), row.metrics, PAPER_COLOURS[i % len(PAPER_COLOURS)],
+                    STYLES[(i // len(PAPER_COLOURS) + 1) % len(STYLES)], MARKERS[i % len(MARKERS)], 0.7)
+            for i, row in enumerate(PAPER_ROWS)
+        ]
+    return out
+
+
+def _radar(ax, series: Sequence[_Series]) -> None:
+    angles = np.linspace(0.0, 2.0 * np.pi, len(RADAR_METRICS), endpoint=False)
     closed = np.concatenate([angles, angles[:1]])
-    for report, colour in zip(reports, colours):
-        values = radar_values(report.overall.metrics)
-        ax.plot(closed, values + values[:1], color=colour, linewidth=1.5, label=report.label)
-        ax.fill(closed, values + values[:1], color=colour, alpha=0.12)
+    for s in series:
+        values = radar_values(s.metrics)
+        ax.plot(closed, values + values[:1], color=s.colour, linestyle=s.style, linewidth=s.width,
+                marker=s.marker, markersize=3.0, label=s.label)
     ax.set_theta_offset(np.pi / 2.0)
     ax.set_theta_direction(-1)
     ax.set_xticks(angles)
-    ax.set_xticklabels([RADAR_LABELS[n] for n in METRIC_NAMES], fontsize=8)
-    ax.tick_params(axis="x", pad=6)
+    ax.set_xticklabels([])
+    for angle, name in zip(angles, RADAR_METRICS):
+        side = np.sin(angle)
+        ha = "left" if side > 0.2 else "right" if side < -0.2 else "center"
+        va = "bottom" if np.cos(angle) > 0.5 else "top" if np.cos(angle) < -0.5 else "center"
+        ax.text(angle, 1.1, RADAR_LABELS[name], ha=ha, va=va, fontsize=FONT_PT)
     ax.set_ylim(0.0, 1.0)
     ax.set_yticks([0.25, 0.5, 0.75, 1.0])
-    ax.set_yticklabels(["0.25", "0.5", "0.75", "1"], fontsize=6, color="grey")
-    ax.set_rlabel_position(180.0 / len(METRIC_NAMES))
-    ax.set_title("All metrics (outward is better)", fontsize=10, pad=22)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=8, ncol=min(len(reports), 3), frameon=False)
+    ax.set_yticklabels(["", "0.5", "", "1"], fontsize=FONT_PT - 1, color="grey")
+    ax.set_rlabel_position(180.0 / len(RADAR_METRICS))
+    ax.grid(linewidth=0.4)
 
 
-def _bars(ax, reports: Sequence[RunReport], colours, metric: str) -> None:
+def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool) -> None:
     groups = list(reports[0].breakdowns["by_motion"])
     for report in reports[1:]:
         groups += [g for g in report.breakdowns["by_motion"] if g not in groups]
     x = np.arange(len(groups))
     width = 0.8 / len(reports)
-    for i, (report, colour) in enumerate(zip(reports, colours)):
+    for i, report in enumerate(reports):
+        colour = COLOURS[i % len(COLOURS)]
+        centres = x - 0.4 + width * (i + 0.5)
         heights, low, high = [], [], []
-        for group in groups:
+        for centre, group in zip(centres, groups):
             summary = report.breakdowns["by_motion"].get(group)
-            value = None if summary is None else summary.metrics[metric]
-            interval = None if summary is None else summary.intervals[metric]
+            value = None if summary is None or summary.episodes == 0 else summary.metrics[metric]
+            interval = None if value is None or summary is None else summary.intervals[metric]
             heights.append(0.0 if value is None else value)
-            # Wilson bounds at 0% or 100% equal the rate up to rounding: clamp the bars at 0.
+            # Wilson bounds at 0% or 100% equal the rate up to rounding: clamp at 0.
             low.append(0.0 if interval is None or value is None else max(value - interval[0], 0.0))
             high.append(0.0 if interval is None or value is None else max(interval[1] - value, 0.0))
-        ax.bar(x - 0.4 + width * (i + 0.5), heights, width, yerr=[low, high], color=colour, capsize=2,
-               label=report.label, error_kw={"linewidth": 0.8})
+            if value is None:
+                ax.text(centre, 2.0, "n/a", ha="center", va="bottom", rotation=90, fontsize=FONT_PT - 2, color=colour)
+            elif value == 0.0:
+                ax.plot([centre - width * 0.45, centre + width * 0.45], [0.8, 0.8], color=colour, linewidth=2.0)
+                ax.text(centre, 3.0, "0", ha="center", va="bottom", fontsize=FONT_PT - 1, color=colour)
+        ax.bar(centres, heights, width, yerr=[low, high], color=colour, capsize=1.5, label=report.label,
+               error_kw={"linewidth": 0.6, "capthick": 0.6}, hatch=None, edgecolor="none")
     ax.set_xticks(x)
-    ax.set_xticklabels(groups)
-    ax.set_ylim(0.0, 105.0)
-    ax.set_ylabel(f"{metric} (%)")
-    ax.set_title(f"{metric} by motion type (95% Wilson)", fontsize=10)
+    ax.set_xticklabels(groups if show_groups else [], fontsize=FONT_PT)
+    ax.set_ylim(0.0, 112.0)
+    ax.set_yticks([0, 50, 100])
+    ax.tick_params(labelsize=FONT_PT, length=2)
+    ax.set_ylabel(f"{metric} (%)", fontsize=FONT_PT)
     ax.grid(axis="y", linewidth=0.3)
+    ax.set_axisbelow(True)
 
 
-def plot_runs(reports: Sequence[RunReport], path: str | os.PathLike[str]) -> None:
+def plot_runs(reports: Sequence[RunReport], path: str | os.PathLike[str], paper: bool = False) -> None:
     """Write the radar and the per-motion success bars of ``reports`` to a PNG (atomically)."""
     if not reports:
         raise ValueError("nothing to plot: no runs")
-    colours = [plt.get_cmap("tab10")(i % 10) for i in range(len(reports))]
-    figure = plt.figure(figsize=(13.0, 4.8), dpi=100)
+    series = _series(reports, paper)
+    legend_rows = (len(series) + 1) // 2
+    heights = [3.0, 0.16 * legend_rows + 0.15, 1.05, 1.05, 1.05]
+    figure = plt.figure(figsize=(COLUMN_WIDTH_IN, sum(heights) + 0.5), dpi=300)
     try:
-        grid = figure.add_gridspec(1, 3, width_ratios=[1.25, 1.0, 1.0], wspace=0.45)
-        _radar(figure.add_subplot(grid[0, 0], projection="polar"), reports, colours)
-        _bars(figure.add_subplot(grid[0, 1]), reports, colours, "S_loc")
-        _bars(figure.add_subplot(grid[0, 2]), reports, colours, "S_gra")
+        grid = figure.add_gridspec(len(heights), 1, height_ratios=heights, hspace=0.35)
+        radar = figure.add_subplot(grid[0, 0], projection="polar")
+        _radar(radar, series)
+        radar.set_title("All metrics, outward is better", fontsize=FONT_PT + 1, pad=22)
+        legend_ax = figure.add_subplot(grid[1, 0])
+        legend_ax.axis("off")
+        handles, labels = radar.get_legend_handles_labels()
+        legend_ax.legend(handles, labels, loc="center", ncol=2, fontsize=FONT_PT - 0.5, frameon=False,
+                         handlelength=2.6, columnspacing=1.0)
+        for k, metric in enumerate(SUCCESS_RATE_NAMES):
+            ax = figure.add_subplot(grid[2 + k, 0])
+            _bars(ax, reports, metric, show_groups=k == len(SUCCESS_RATE_NAMES) - 1)
+            if k == 0:
+                columns = min(len(reports), 3)
+                rows = -(-len(reports) // columns)
+                ax.set_title("Success by motion type (95% Wilson intervals)", fontsize=FONT_PT + 1, pad=4 + 9 * rows)
+                ax.legend(fontsize=FONT_PT - 1, ncol=columns, frameon=False, loc="lower center",
+                          bbox_to_anchor=(0.5, 0.98), handlelength=1.2, columnspacing=0.8, borderaxespad=0.2)
         with atomic_open(path, "wb") as handle:
             figure.savefig(handle, format="png", metadata={"Software": None}, bbox_inches="tight")
     finally:

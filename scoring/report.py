@@ -18,6 +18,7 @@ import numpy as np
 from schemas.objects import OBJECTS
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
 from scoring.io import RunData
+from scoring.paper import PAPER_ROWS, paper_label
 from scoring.metrics import (
     METRIC_NAMES,
     SUCCESS_RATE_NAMES,
@@ -166,6 +167,12 @@ LEGEND = (
 )
 
 
+PAPER_NOTE = (
+    " paper T3/T4: the paper's published rows (Tables 3 and 4, its Unity suite), for reference; "
+    "the paper has no S_grasp_contact."
+)
+
+
 def _num(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f}"
 
@@ -184,6 +191,18 @@ def _main_row(report: RunReport) -> list[str]:
         _num(m["Q_smooth"]), _num(m["Q_line"]), _num(m["R_time"]),
         _num(m["S_grasp_contact"]), _ci(s.intervals["S_grasp_contact"]),
     ]
+
+
+def _paper_rows() -> list[list[str]]:
+    """The paper's published rows (Tables 3 and 4) in the main table's columns."""
+    rows = []
+    for row in PAPER_ROWS:
+        m = row.metrics
+        rows.append([
+            paper_label(row), "-", "-", _num(m["S_loc"]), "-", _num(m["E_loc"]), _num(m["S_gra"]), "-",
+            _num(m["E_gra"]), _num(m["Q_smooth"]), _num(m["Q_line"]), _num(m["R_time"]), "-", "-",
+        ])
+    return rows
 
 
 def _group_rows(reports: Sequence[RunReport], key: str) -> list[list[str]]:
@@ -206,9 +225,11 @@ def _aligned(headers: Sequence[str], rows: Sequence[Sequence[str]], text_columns
     return "\n".join([line(headers), rule, *(line(r) for r in rows)])
 
 
-def format_table(reports: Sequence[RunReport]) -> str:
-    """The terminal report: one row per run (the paper's Table 3), then by motion and by interception."""
-    parts = [_aligned(MAIN_HEADERS, [_main_row(r) for r in reports]), LEGEND]
+def format_table(reports: Sequence[RunReport], paper: bool = False) -> str:
+    """The terminal report: one row per run (the paper's Table 3; with ``paper`` its
+    published rows follow), then by motion and by interception."""
+    main_rows = [_main_row(r) for r in reports] + (_paper_rows() if paper else [])
+    parts = [_aligned(MAIN_HEADERS, main_rows), LEGEND + (PAPER_NOTE if paper else "")]
     for key, _, _, title in BREAKDOWNS[:2]:
         parts += ["", f"By {title}:", _aligned(GROUP_HEADERS, _group_rows(reports, key), text_columns=2)]
     return "\n".join(parts) + "\n"
@@ -222,11 +243,13 @@ def _markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> st
     return "\n".join([line(headers), "|" + "|".join(align) + "|", *(line(r) for r in rows)])
 
 
-def markdown(reports: Sequence[RunReport]) -> str:
-    """Markdown export: the main table and every breakdown."""
+def markdown(reports: Sequence[RunReport], paper: bool = False) -> str:
+    """Markdown export: the main table (with ``paper``, the paper's rows after ours) and every breakdown."""
     headers = [h.replace(" ^", " ↑").replace(" v", " ↓") for h in MAIN_HEADERS]
-    parts = ["## Scores", "", _markdown_table(headers, [_main_row(r) for r in reports]), "",
-             "↑ higher is better, ↓ lower is better. CI: 95% Wilson interval. -: nothing to average over.", ""]
+    main_rows = [_main_row(r) for r in reports] + (_paper_rows() if paper else [])
+    parts = ["## Scores", "", _markdown_table(headers, main_rows), "",
+             "↑ higher is better, ↓ lower is better. CI: 95% Wilson interval. -: nothing to average over."
+             + (PAPER_NOTE if paper else ""), ""]
     for key, _, _, title in BREAKDOWNS:
         parts += [f"### By {title}", "", _markdown_table(GROUP_HEADERS, _group_rows(reports, key)), ""]
     return "\n".join(parts)

@@ -261,6 +261,36 @@ def test_plot_of_runs_at_100_and_0_percent(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _png_size(path) -> tuple[int, int]:
+    import struct
+
+    header = path.read_bytes()[:24]
+    assert header[:8] == b"\x89PNG\r\n\x1a\n"
+    return struct.unpack(">II", header[16:24])
+
+
+def test_the_plot_is_a_column_wide_figure_with_the_papers_rows_on_request(tmp_path, capsys, run):
+    plain, with_paper = tmp_path / "plain.png", tmp_path / "paper.png"
+    assert run_main(capsys, "eval", str(run), "--plot", str(plain))[0] == 0
+    code, out, err = run_main(capsys, "eval", str(run), "--plot", str(with_paper), "--paper")
+    assert code == 0, err
+    for path in (plain, with_paper):
+        width, height = _png_size(path)
+        assert 900 <= width <= 1200, "3.5 in at 300 dpi: a paper's column"
+        assert height > width
+    assert _png_size(with_paper)[1] > _png_size(plain)[1], "the paper's rows add legend entries"
+    assert "paper T3: GR00T-N1.5 (2.7B)" in out and "22.04" in out and "paper T4: GPT-4o" in out
+    assert "paper T3" not in run_main(capsys, "eval", str(run))[1]
+
+
+def test_radar_values_put_every_metric_on_zero_to_one_outward_better():
+    from scoring.plot import RADAR_METRICS, radar_values
+
+    metrics = {"S_loc": 50.0, "E_loc": 1.0, "S_gra": 100.0, "E_gra": 0.0, "Q_smooth": 0.8, "Q_line": -0.2, "R_time": None}
+    assert RADAR_METRICS == ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
+    assert radar_values(metrics) == [0.5, 0.5, 1.0, 1.0, 0.8, 0.0, 0.0]
+
+
 def test_null_values_in_a_column_are_refused_in_one_line(tmp_path, capsys):
     """A frames file written by another tool with a null palm_pose must not crash with a traceback."""
     import pyarrow as pa
