@@ -2,8 +2,9 @@
 
 Builds the ground truth of the first ``--episodes`` test-1k episodes (50 per motion x
 speed cell for 450), runs ``pipeline eval`` for oracle, predictive, chase and still on
-them, then ``scoring eval`` over the five folders (the GT row first), writing the terminal table, a Markdown table and
-the radar plot into ``--out`` (default ``benchmarks/results``, the files the README
+them, then ``scoring eval --paper`` over the five folders (the GT row first, the
+paper's published rows after ours), writing the terminal table, a Markdown table, the
+per-episode rows (``episodes.parquet``) and the radar plot into ``--out`` (default ``benchmarks/results``, the files the README
 shows). Runs go to a temporary folder unless ``--runs`` is given; a folder there that
 already holds a ``catalog.json`` is reused.
 
@@ -56,8 +57,8 @@ def main(argv: list[str] | None = None) -> int:
             folders.append(str(folder))
         table = io.StringIO()
         with contextlib.redirect_stdout(table):
-            code = scoring_main(["eval", *folders, "--plot", str(out / "radar.png"),
-                                 "--markdown", str(out / "table.md")])
+            code = scoring_main(["eval", *folders, "--plot", str(out / "radar.png"), "--paper",
+                                 "--markdown", str(out / "table.md"), "--episodes", str(out / "episodes.parquet")])
         (out / "table.txt").write_text(table.getvalue())
         print(table.getvalue())
     return code

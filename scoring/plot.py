@@ -153,7 +153,7 @@ def plot_runs(reports: Sequence[RunReport], path: str | os.PathLike[str], paper:
         raise ValueError("nothing to plot: no runs")
     series = _series(reports, paper)
     legend_rows = (len(series) + 1) // 2
-    heights = [3.0, 0.16 * legend_rows + 0.15, 1.05, 1.05, 1.05]
+    heights = [3.0, 0.2 * legend_rows + 0.25, 1.05, 1.05, 1.05]
     figure = plt.figure(figsize=(COLUMN_WIDTH_IN, sum(heights) + 0.5), dpi=300)
     try:
         grid = figure.add_gridspec(len(heights), 1, height_ratios=heights, hspace=0.35)
