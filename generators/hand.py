@@ -23,17 +23,13 @@ from __future__ import annotations
 import numpy as np
 
 from schemas.errors import SpecError
+from schemas.joints import FINGERS as FINGERS  # the names live in schemas (the data contract)
+from schemas.joints import JOINT_NAMES as JOINT_NAMES
+from schemas.joints import KEYPOINT_NAMES as KEYPOINT_NAMES
 from schemas.rotations import euler_to_matrix, matrix_to_euler
 from schemas.scene import HANDS, PALM_REST
 
 SIDES = HANDS
-FINGERS = ("thumb", "index", "middle", "ring", "little")
-_JOINT_SUFFIXES = {"thumb": ("cmc", "mcp", "ip")}
-JOINT_NAMES = tuple(
-    f"{finger}_{joint}" for finger in FINGERS for joint in _JOINT_SUFFIXES.get(finger, ("mcp", "pip", "dip"))
-)
-#: Keypoint names in keypoint order: five fingertips, then the wrist.
-KEYPOINT_NAMES = tuple(f"{finger}_tip" for finger in FINGERS) + ("wrist",)
 
 #: Palm box half extents (lateral, thickness, length) and the wrist point, palm frame.
 PALM_HALF_EXTENTS = (0.45, 0.12, 0.50)

@@ -1,6 +1,7 @@
 """The ``catalog`` command: the slice registry and the recipe seen from the shell.
 
 ``catalog list`` lists the slices with their episode and frame counts;
+``catalog export DIR --format lerobot|lerobot-v2.1 --out OUT`` writes a LeRobot dataset;
 ``catalog stats SLICE [--json]`` enumerates a slice's recipe (Figure 4's numbers for
 ``dyana-12m``); ``catalog specs SLICE [--episodes N]`` prints its specs as JSONL, to
 inspect, edit and build with ``pipeline build --specs``.
@@ -111,6 +112,40 @@ def _verify_arguments(p: argparse.ArgumentParser) -> None:
     cli.add_quiet(p)
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from catalog.export.lerobot import ExportSettings, export, print_progress
+
+    settings = ExportSettings(args.format, args.codec)
+    workers = args.workers or cli.default_worker_count()
+    report = export(args.dir, args.out, settings, workers=workers, overwrite=args.overwrite,
+                    progress=None if args.quiet else print_progress)
+    if report.up_to_date:
+        print(f"{report.out}: up to date ({settings.format}, {report.episodes} episodes, {report.frames} frames)")
+        return 0
+    resumed = f", {report.units_resumed} shards resumed" if report.units_resumed else ""
+    rate = report.frames / report.seconds if report.seconds > 0 else 0.0
+    print(
+        f"exported {args.dir} as {settings.format} ({settings.version}, {settings.codec}): {report.episodes} episodes, "
+        f"{report.frames} frames in {report.seconds:.1f} s ({rate:.0f} frames/s{resumed}) -> {report.out}"
+    )
+    return 0
+
+
+def _export_arguments(p: argparse.ArgumentParser) -> None:
+    from catalog.export.layout import FORMATS
+    from catalog.export.video import CODECS
+
+    p.add_argument("dir", metavar="DIR", help="a built slice or evaluated run folder (holding catalog.json)")
+    p.add_argument("--format", choices=sorted(FORMATS), default="lerobot",
+                   help="lerobot: LeRobot v3.0; lerobot-v2.1: LeRobot v2.1 with GR00T's meta/modality.json")
+    p.add_argument("--out", required=True, metavar="OUT", help="the export's folder (one export per folder)")
+    p.add_argument("--codec", choices=sorted(CODECS), default="h264", help="video codec (default: h264)")
+    p.add_argument("--workers", type=cli.positive_int, default=None, help="processes encoding shards in parallel "
+                   f"(default: one per core, {cli.default_worker_count()} here)")
+    cli.add_overwrite(p)
+    cli.add_quiet(p)
+
+
 COMMANDS = (
     cli.Command("list", "list the slices with their episode and frame counts", _list_arguments, cmd_list),
     cli.Command("stats", "enumerate a slice's recipe and print its statistics", _stats_arguments, cmd_stats),
@@ -118,6 +153,8 @@ COMMANDS = (
         "specs", "print a slice's episode specs as JSONL (edit, then `pipeline build --specs`)", _specs_arguments, cmd_specs
     ),
     cli.Command("verify", "check every file's sha256 and rebuild shards to compare bytes", _verify_arguments, cmd_verify),
+    cli.Command("export", "export a slice or run as a LeRobot dataset (v3.0, or v2.1 for GR00T)", _export_arguments,
+                cmd_export),
 )
 
 

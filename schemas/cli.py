@@ -95,9 +95,14 @@ def add_episodes(parser: argparse.ArgumentParser, what: str = "only the first N 
     parser.add_argument("--episodes", type=positive_int, metavar="N", help=what)
 
 
+def default_worker_count() -> int:
+    """One worker per core this process may use."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers`` and ``--scheduler``: where the shards run."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    cores = default_worker_count()
     parser.add_argument(
         "--workers", type=positive_int, default=None,
         help=f"local single-threaded worker processes (default: one per core, {cores} here)",

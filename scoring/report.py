@@ -18,7 +18,6 @@ import numpy as np
 from schemas.objects import OBJECTS
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
 from scoring.io import RunData
-from scoring.paper import PAPER_ROWS, paper_label
 from scoring.metrics import (
     METRIC_NAMES,
     SUCCESS_RATE_NAMES,
@@ -27,6 +26,7 @@ from scoring.metrics import (
     aggregate,
     episode_metrics,
 )
+from scoring.paper import PAPER_ROWS, paper_label
 
 #: Breakdowns: JSON key, the episode attribute grouped on, canonical group order, title.
 BREAKDOWNS = (

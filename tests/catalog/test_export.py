@@ -1,0 +1,214 @@
+"""`catalog export`: LeRobot v3.0 and v2.1 exports read back with the HF `datasets` Parquet
+loader and PyAV, compared frame by frame with the source; determinism, resume, refusals."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+import catalog
+from catalog.export import lerobot as export_module
+from catalog.export.layout import VIDEO_KEY
+from catalog.export.lerobot import ExportError, ExportSettings, export
+from catalog.export.video import decode_frames, psnr
+from catalog.stats import load_stats
+from pipeline.cli_catalog import main as catalog_main
+
+datasets = pytest.importorskip("datasets")
+
+EPISODES, SHARD_SIZE, RESOLUTION = 5, 2, 64
+#: Worst frame PSNR (dB) of an H.264 export against the decoded source JPEGs at 64 px.
+MIN_PSNR = 33.0
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> Path:
+    from pipeline.jobs.build import build
+
+    out = tmp_path_factory.mktemp("export-src")
+    build("linear-fast", out, episodes=EPISODES, shard_size=SHARD_SIZE, resolution=RESOLUTION, workers=1,
+          progress=False)
+    return out / "linear-fast"
+
+
+@pytest.fixture(scope="module")
+def exports(built, tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("exports")
+    out = {}
+    for fmt in ("lerobot", "lerobot-v2.1"):
+        export(built, root / fmt, ExportSettings(fmt))
+        out[fmt] = root / fmt
+    return out
+
+
+def _source(built: Path) -> list[dict]:
+    with catalog.open(built) as ds:
+        return [ds[i] for i in range(len(ds))]
+
+
+def _hf_rows(files: list[Path]) -> list[dict]:
+    cache = files[0].parents[3] / "hf-cache"  # beside the export, never inside it
+    loaded = datasets.load_dataset("parquet", data_files=[str(f) for f in files], split="train", cache_dir=str(cache))
+    return list(loaded)
+
+
+def _check_rows(rows: list[dict], source: list[dict]) -> None:
+    assert len(rows) == len(source)
+    tasks = {}
+    for k, (row, item) in enumerate(zip(rows, source)):
+        state = np.concatenate([item["palm_pose"], item["joint_angles"]])
+        np.testing.assert_array_equal(np.asarray(row["observation.state"], np.float32), state)
+        np.testing.assert_array_equal(np.asarray(row["observation.environment_state"], np.float32), item["object_pose"])
+        np.testing.assert_array_equal(np.asarray(row["action"], np.float32), item["action"])
+        assert row["frame_index"] == item["frame_index"] and row["episode_index"] == item["episode_index"]
+        assert row["index"] == k
+        assert row["timestamp"] == pytest.approx(item["frame_index"] / 20, abs=1e-6)
+        tasks.setdefault(item["text"], row["task_index"])
+        assert tasks[item["text"]] == row["task_index"]
+
+
+def _check_video(path: Path, images: list[np.ndarray]) -> float:
+    decoded = list(decode_frames(path))
+    assert len(decoded) == len(images)
+    worst = np.inf
+    for k, ((timestamp, frame), image) in enumerate(zip(decoded, images)):
+        assert timestamp == pytest.approx(k / 20, abs=1e-9)
+        worst = min(worst, psnr(frame, image))
+    assert worst >= MIN_PSNR, worst
+    return worst
+
+
+def test_v30_export_round_trips_every_state_action_and_frame(built, exports):
+    out, source = exports["lerobot"], _source(built)
+    info = json.loads((out / "meta/info.json").read_text())
+    assert info["codebase_version"] == "v3.0" and info["total_episodes"] == EPISODES
+    assert info["total_frames"] == len(source) and info["fps"] == 20
+    assert info["features"][VIDEO_KEY]["info"]["video.codec"] == "h264"
+    files = sorted((out / "data").rglob("*.parquet"))
+    assert [f.name for f in files] == ["file-000.parquet", "file-001.parquet", "file-002.parquet"]  # one per shard
+    _check_rows(_hf_rows(files), source)
+    episodes = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert [e["episode_index"] for e in episodes] == list(range(EPISODES))
+    for e in episodes:
+        frames = [s for s in source if s["episode_index"] == e["episode_index"]]
+        assert e["length"] == len(frames) == e["dataset_to_index"] - e["dataset_from_index"]
+        assert e["tasks"] == [frames[0]["text"]]
+        assert e["dyana/motion_type"] == "linear" and e["dyana/episode_id"] == f"linear-fast:{e['episode_index']:06d}"
+        video = out / f"videos/{VIDEO_KEY}/chunk-000/file-{e[f'videos/{VIDEO_KEY}/file_index']:03d}.mp4"
+        decoded = [f for t, f in decode_frames(video)
+                   if e[f"videos/{VIDEO_KEY}/from_timestamp"] - 1e-9 <= t < e[f"videos/{VIDEO_KEY}/to_timestamp"] - 1e-9]
+        assert len(decoded) == len(frames)
+        assert min(psnr(a, b["image"]) for a, b in zip(decoded, frames)) >= MIN_PSNR
+    tasks = pq.read_table(out / "meta/tasks.parquet")
+    assert tasks.schema.pandas_metadata["index_columns"] == ["task"]
+    assert sorted(tasks.column("task").to_pylist()) == sorted({s["text"] for s in source})
+
+
+def test_v21_export_round_trips_and_carries_grooT_modality(built, exports):
+    out, source = exports["lerobot-v2.1"], _source(built)
+    info = json.loads((out / "meta/info.json").read_text())
+    assert info["codebase_version"] == "v2.1" and info["total_videos"] == EPISODES
+    files = sorted((out / "data/chunk-000").glob("episode_*.parquet"))
+    assert len(files) == EPISODES
+    _check_rows(_hf_rows(files), source)
+    for e in range(EPISODES):
+        frames = [s["image"] for s in source if s["episode_index"] == e]
+        _check_video(out / f"videos/chunk-000/{VIDEO_KEY}/episode_{e:06d}.mp4", frames)
+    lines = [json.loads(line) for line in (out / "meta/episodes.jsonl").read_text().splitlines()]
+    assert [line["episode_index"] for line in lines] == list(range(EPISODES))
+    assert all(line["dyana/slice"] == "linear-fast" and "dyana/spec" in line for line in lines)
+    modality = json.loads((out / "meta/modality.json").read_text())
+    assert modality["state"]["finger_joints"] == {"start": 6, "end": 21}
+    assert modality["action"]["finger_joints"] == {"start": 3, "end": 18, "absolute": True}
+    assert modality["video"]["ego"]["original_key"] == VIDEO_KEY
+    stats_lines = (out / "meta/episodes_stats.jsonl").read_text().splitlines()
+    first = json.loads(stats_lines[0])["stats"]
+    assert np.array(first[VIDEO_KEY]["mean"]).shape == (3, 1, 1)
+
+
+@pytest.mark.parametrize("fmt", ["lerobot", "lerobot-v2.1"])
+def test_exported_stats_are_the_folders_own(built, exports, fmt):
+    stats = json.loads((exports[fmt] / "meta/stats.json").read_text())
+    own = load_stats(built)
+    for stat in ("mean", "std", "min", "max"):
+        state = np.concatenate([getattr(own["palm_pose"], stat), getattr(own["joint_angles"], stat)])
+        assert stats["observation.state"][stat] == state.tolist()
+        assert stats["action"][stat] == getattr(own["action"], stat).tolist()
+    assert stats["observation.state"]["count"] == [own.frames]
+    mean = np.array(stats[VIDEO_KEY]["mean"]).reshape(3)
+    images = np.stack([s["image"] for s in _source(built)]).reshape(-1, 3) / 255.0
+    np.testing.assert_allclose(mean, images.mean(axis=0), rtol=1e-9)
+    np.testing.assert_allclose(np.array(stats[VIDEO_KEY]["std"]).reshape(3), images.std(axis=0), rtol=1e-7)
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("fmt", ["lerobot", "lerobot-v2.1"])
+def test_an_export_is_the_same_bytes_again_and_its_manifest_hashes_every_file(built, exports, tmp_path, fmt):
+    again = tmp_path / "again"
+    export(built, again, ExportSettings(fmt), workers=2)
+    first, second = _tree(exports[fmt]), _tree(again)
+    assert first == second
+    meta = json.loads(second["meta/dyana.json"])
+    assert set(meta["files"]) == set(second) - {"meta/dyana.json"}
+    assert meta["source"]["slice_hash"] == json.loads((built / "catalog.json").read_text())["hash"]
+    assert meta["job"]["codec"]["encoder"] == "libx264" and meta["job"]["codec"]["pyav"]
+
+
+def test_an_interrupted_export_resumes_and_ends_byte_identical(built, exports, tmp_path, monkeypatch):
+    target = tmp_path / "resumed"
+    real = export_module.export_unit
+    calls = []
+
+    def failing(unit):
+        calls.append(unit.shard)
+        if unit.shard == 1:
+            raise KeyboardInterrupt
+        return real(unit)
+
+    monkeypatch.setattr(export_module, "export_unit", failing)
+    with pytest.raises(KeyboardInterrupt):
+        export(built, target, ExportSettings("lerobot"))
+    assert not (target / "meta/dyana.json").exists() and not (target / "meta/info.json").exists()
+    monkeypatch.setattr(export_module, "export_unit", real)
+    report = export(built, target, ExportSettings("lerobot"))
+    assert report.units_resumed == 1 and report.units_done == 2
+    assert _tree(target) == _tree(exports["lerobot"])
+
+
+def test_a_finished_export_is_up_to_date_and_another_is_refused_without_overwrite(built, tmp_path):
+    target = tmp_path / "one"
+    export(built, target, ExportSettings("lerobot"))
+    before = _tree(target)
+    assert export(built, target, ExportSettings("lerobot")).up_to_date
+    with pytest.raises(ExportError, match="another source or settings; use --overwrite"):
+        export(built, target, ExportSettings("lerobot-v2.1"))
+    assert _tree(target) == before
+    export(built, target, ExportSettings("lerobot-v2.1"), overwrite=True)
+    assert json.loads((target / "meta/info.json").read_text())["codebase_version"] == "v2.1"
+    assert not (target / "data/chunk-000/file-000.parquet").exists()
+
+
+def test_a_folder_that_is_not_an_export_is_never_touched(built, tmp_path, capsys):
+    target = tmp_path / "mine"
+    target.mkdir()
+    (target / "notes.txt").write_text("keep me")
+    code = catalog_main(["export", str(built), "--out", str(target), "--overwrite", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "not a Dyana export" in err
+    assert sorted(p.name for p in target.iterdir()) == ["notes.txt"]
+
+
+def test_the_cli_shows_progress_and_a_summary(built, tmp_path, capsys):
+    target = tmp_path / "cli"
+    assert catalog_main(["export", str(built), "--out", str(target), "--format", "lerobot-v2.1", "--workers", "1"]) == 0
+    out, err = capsys.readouterr()
+    assert "[3/3 shards]" in err and f"{EPISODES} episodes" in out and "lerobot-v2.1 (v2.1, h264)" in out
+    shutil.rmtree(target)
