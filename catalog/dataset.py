@@ -81,6 +81,7 @@ from catalog.index import (
     load_source,
     non_negative,
 )
+from catalog.lerobot_keys import IMAGE_DTYPES, KEYS, lerobot_item
 from catalog.manifest import Manifest
 from catalog.shard_cache import OpenShard, ShardCache
 from catalog.stream import FrameStream
@@ -143,7 +144,7 @@ class FrameDataset:
     files are opened lazily in each process.
     """
 
-    def __init__(self, roots, manifests, files, episodes, spans, options, reader=None, stats=None) -> None:
+    def __init__(self, roots, manifests, files, episodes, spans, options, reader=None, stats=None, tasks=None) -> None:
         self._roots: tuple[Path, ...] = tuple(roots)
         self._manifests: tuple[Manifest, ...] = tuple(manifests)
         self._files: tuple[ShardFile, ...] = tuple(files)
@@ -157,6 +158,9 @@ class FrameDataset:
         self._several = len(self._roots) > 1
         self._texts = [e.text for e in self._episodes]
         self._indices = [np.int64(e.episode_index) for e in self._episodes]
+        #: Instruction -> task_index, in order of first use over the opened folders (kept by views).
+        self._tasks: dict[str, int] = tasks if tasks is not None else {t: i for i, t in enumerate(dict.fromkeys(self._texts))}
+        self._task_of = [self._tasks[t] for t in self._texts]
 
     # --- sizes and metadata -----------------------------------------------------------
 
@@ -236,6 +240,7 @@ class FrameDataset:
             self._options,
             reader=self._reader,
             stats=self._stats,
+            tasks=self._tasks,
         )
 
     @property
@@ -325,7 +330,14 @@ class FrameDataset:
         item["text"] = self._texts[k]
         if self._several:
             item["source"] = self._episodes[k].source
+        if options.keys == "lerobot":
+            return lerobot_item(item, i, self._task_of[k], options.image_dtype)
         return item
+
+    @property
+    def tasks(self) -> dict[str, int]:
+        """The opened folders' instructions and their ``task_index`` (order of first use)."""
+        return dict(self._tasks)
 
     def _history(self, shard: OpenShard, first: int, f: int, n: int) -> dict[str, Any]:
         frames, is_pad = history_window(f, n, self._options.history)
@@ -419,6 +431,8 @@ def open_dataset(
     resize: int | tuple[int, int] | None = None,
     verify: str = "sha256",
     cache_mb: float = 512,
+    keys: str = "dyana",
+    image_dtype: str = "float32",
 ) -> FrameDataset:
     """Open built slices or evaluated rollouts (folders with ``catalog.json``) as one dataset.
 
@@ -427,7 +441,9 @@ def open_dataset(
     returns H actions. Filters select episodes (see :meth:`FrameDataset.select`).
     ``resize=(height, width)`` (or one size) resizes images on load (``cv2.INTER_AREA``).
     ``verify`` is ``"sha256"`` or ``"checksums"`` (module docstring); ``cache_mb``
-    bounds each process's cache of loaded shards.
+    bounds each process's cache of loaded shards. ``keys="lerobot"`` names items as
+    LeRobot does (:mod:`catalog.lerobot_keys`), with images as ``image_dtype``
+    (``"float32"`` in [0, 1], or ``"uint8"``), channels first.
     """
     if isinstance(paths, (str, os.PathLike)):
         roots = [Path(paths)]
@@ -439,7 +455,13 @@ def open_dataset(
         raise SpecError(f"verify must be one of {list(VERIFY_MODES)}, got {verify!r}")
     if isinstance(cache_mb, bool) or not isinstance(cache_mb, (int, float)) or not cache_mb > 0:
         raise SpecError(f"cache_mb must be a positive number, got {cache_mb!r}")
+    if keys not in KEYS:
+        raise SpecError(f"keys must be one of {list(KEYS)}, got {keys!r}")
+    if image_dtype not in IMAGE_DTYPES:
+        raise SpecError(f"image_dtype must be one of {list(IMAGE_DTYPES)}, got {image_dtype!r}")
     options = Options(
+        keys=keys,
+        image_dtype=image_dtype,
         history=non_negative("history", history, 0),
         action_horizon=None if action_horizon is None else non_negative("action_horizon", action_horizon, 1),
         resize=_resize(resize),

@@ -89,6 +89,8 @@ class Options:
     resize: tuple[int, int] | None
     verify: str
     cache_bytes: int
+    keys: str = "dyana"
+    image_dtype: str = "float32"
 
 
 def index_digest(episode: np.ndarray, frame: np.ndarray) -> str:

@@ -22,6 +22,8 @@ images = np.stack([np.asarray(item["observation.images.ego"]) for item in items]
 arrays["image"] = np.clip(np.round(images.transpose(0, 2, 3, 1) * 255.0), 0, 255).astype(np.uint8)
 arrays["task"] = np.array([item["task"] for item in items])
 arrays["num_episodes"] = np.array(dataset.num_episodes)
+arrays["keys"] = np.array(sorted(items[0]))
+arrays["image_shape"] = np.array(tuple(items[0]["observation.images.ego"].shape))
 arrays["state_mean"] = np.asarray(dataset.meta.stats["observation.state"]["mean"])
 np.savez(out, **arrays)
 import lerobot  # noqa: E402

@@ -212,3 +212,24 @@ def test_the_cli_shows_progress_and_a_summary(built, tmp_path, capsys):
     out, err = capsys.readouterr()
     assert "[3/3 shards]" in err and f"{EPISODES} episodes" in out and "lerobot-v2.1 (v2.1, h264)" in out
     shutil.rmtree(target)
+
+
+def test_an_evaluated_run_exports_with_its_policy_and_statuses(tmp_path):
+    import io
+
+    from pipeline.jobs.evaluate import evaluate
+
+    run = tmp_path / "run"
+    evaluate("chase", "test-1k", run, episodes=3, workers=1, resolution=RESOLUTION, shard_size=2, progress=False,
+             summary=False, stream=io.StringIO())
+    out = tmp_path / "export"
+    export(run, out, ExportSettings("lerobot"))
+    episodes = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert [(e["dyana/policy"], e["dyana/status"]) for e in episodes] == [("chase", "ok")] * 3
+    assert [e["dyana/motion_type"] for e in episodes] == ["linear", "linear", "linear"]
+    meta = json.loads((out / "meta/dyana.json").read_text())
+    assert meta["source"]["extra"]["policy"] == "chase"
+    rows = _hf_rows(sorted((out / "data").rglob("*.parquet")))
+    with catalog.open(run) as ds:
+        assert len(rows) == len(ds)
+        np.testing.assert_array_equal(np.asarray(rows[-1]["action"], np.float32), ds[len(ds) - 1]["action"])

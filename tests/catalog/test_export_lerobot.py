@@ -51,4 +51,9 @@ def test_lerobot_dataset_loads_the_v21_export_item_for_item(tmp_path):
         assert loaded["frame_index"][k] == item["frame_index"] and loaded["episode_index"][k] == item["episode_index"]
         assert loaded["index"][k] == k and str(loaded["task"][k]) == item["text"]
         assert psnr(loaded["image"][k], item["image"]) >= 33.0
+    with catalog.open(source, keys="lerobot") as keyed:
+        item = keyed[0]
+        assert sorted(item) == loaded["keys"].tolist(), "keys='lerobot' gives LeRobotDataset's keys"
+        assert item["observation.images.ego"].shape == tuple(loaded["image_shape"])
+        assert item["task_index"] == loaded["task_index"][0] and item["index"] == loaded["index"][0]
     sys.stdout.write(f"lerobot {result.stdout.strip()} loaded {len(items)} frames\n")

@@ -1,0 +1,65 @@
+"""Items keyed as LeRobot's ``LeRobotDataset`` keys them: ``catalog.open(..., keys="lerobot")``.
+
+A LeRobot policy's training step then takes Dyana batches as they come, with no export
+and at Dyana's reading speed. The mapping is the export's (:mod:`catalog.export.layout`):
+
+================================  ============================================================
+key                               value (``history=K`` adds a leading K+1 axis to observations)
+================================  ============================================================
+``observation.images.ego``        (3, H, W) float32 in [0, 1] (``image_dtype="uint8"``: uint8)
+``observation.state``             (21,) float32: palm pose (6) then joint angles (15)
+``observation.environment_state`` (7,) float32: the object's pose
+``action``                        (18,) float32, or (H, 18) with ``action_horizon=H``
+``<key>_is_pad``                  bool flags of padded history / horizon slots
+``timestamp``                     float32 seconds; ``frame_index``, ``episode_index``,
+                                  ``index`` (position in the dataset), ``task_index`` int64
+``task``                          the episode's instruction
+================================  ============================================================
+
+``task_index`` numbers the opened folders' instructions in order of first use, as
+``catalog export`` numbers them, whatever episodes a selection keeps.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+KEYS = ("dyana", "lerobot")
+IMAGE_DTYPES = ("float32", "uint8")
+IMAGE_KEY = "observation.images.ego"
+_MAX = np.float32(255.0)
+
+
+def _chw(image: np.ndarray, image_dtype: str) -> np.ndarray:
+    """(..., H, W, 3) uint8 -> (..., 3, H, W), float32 in [0, 1] or uint8."""
+    moved = np.moveaxis(image, -1, -3)
+    if image_dtype == "uint8":
+        return np.ascontiguousarray(moved)
+    out = np.empty(moved.shape, dtype=np.float32)
+    np.divide(moved, _MAX, out=out, dtype=np.float32)  # x / 255 in float32, as LeRobot's decoders do
+    return out
+
+
+def lerobot_item(item: dict[str, Any], index: int, task_index: int, image_dtype: str) -> dict[str, Any]:
+    """A Dyana item (see :mod:`catalog.dataset`) under LeRobot's keys."""
+    out: dict[str, Any] = {
+        IMAGE_KEY: _chw(item["image"], image_dtype),
+        "observation.state": np.concatenate([item["palm_pose"], item["joint_angles"]], axis=-1),
+        "observation.environment_state": item["object_pose"],
+        "action": item["action"],
+        "timestamp": np.float32(item["timestamp"]),
+        "frame_index": np.int64(item["frame_index"]),
+        "episode_index": np.int64(item["episode_index"]),
+        "index": np.int64(index),
+        "task_index": np.int64(task_index),
+        "task": item["text"],
+    }
+    if "image_is_pad" in item:
+        out[f"{IMAGE_KEY}_is_pad"] = item["image_is_pad"]
+        out["observation.state_is_pad"] = item["palm_pose_is_pad"]
+        out["observation.environment_state_is_pad"] = item["object_pose_is_pad"]
+    if "action_is_pad" in item:
+        out["action_is_pad"] = item["action_is_pad"]
+    return out
