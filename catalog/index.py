@@ -42,7 +42,7 @@ DISTANCE_COLUMN = LAYOUT["fingertip_distance"][0]
 SHARD_COLUMNS = ("episode_index", "frame_index", "timestamp", "phase", *FLOAT_COLUMNS)
 EPISODE_COLUMNS = (
     "episode_index", "episode_id", "slice", "motion_type", "object", "hand",
-    "rollout_format", "intercept_setting", "num_frames", "text",
+    "rollout_format", "intercept_setting", "num_frames", "text", "observe_frames",
 )
 
 
@@ -51,7 +51,8 @@ class Episode:
     """One episode of an opened dataset, from its folder's episodes table.
 
     ``num_frames`` is the number of frames stored (an evaluated rollout holds as many
-    as its policy ran, not its spec's ``num_frames``); ``policy`` and ``status`` are set
+    as its policy ran, not its spec's ``num_frames``); its first ``observe_frames`` are the
+    observe window (the hand acts from there on); ``policy`` and ``status`` are set
     for rollouts only; ``source`` is the folder's position in the opened list.
     """
 
@@ -66,6 +67,7 @@ class Episode:
     rollout_format: str
     num_frames: int
     text: str
+    observe_frames: int = 0
     policy: str | None = None
     status: str | None = None
 

@@ -42,11 +42,20 @@ def _chw(image: np.ndarray, image_dtype: str) -> np.ndarray:
     return out
 
 
+def observation_features(image: np.ndarray, palm_pose: np.ndarray, joint_angles: np.ndarray,
+                         image_dtype: str = "float32") -> dict[str, np.ndarray]:
+    """What a policy observes, under LeRobot's keys: the image (channels first) and the state.
+    The closed loop (:mod:`pipeline.policies.lerobot_adapter`) and :func:`lerobot_item` share it."""
+    return {
+        IMAGE_KEY: _chw(image, image_dtype),
+        "observation.state": np.concatenate([palm_pose, joint_angles], axis=-1).astype(np.float32, copy=False),
+    }
+
+
 def lerobot_item(item: dict[str, Any], index: int, task_index: int, image_dtype: str) -> dict[str, Any]:
     """A Dyana item (see :mod:`catalog.dataset`) under LeRobot's keys."""
     out: dict[str, Any] = {
-        IMAGE_KEY: _chw(item["image"], image_dtype),
-        "observation.state": np.concatenate([item["palm_pose"], item["joint_angles"]], axis=-1),
+        **observation_features(item["image"], item["palm_pose"], item["joint_angles"], image_dtype),
         "observation.environment_state": item["object_pose"],
         "action": item["action"],
         "timestamp": np.float32(item["timestamp"]),
