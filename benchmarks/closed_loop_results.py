@@ -2,11 +2,13 @@
 
 Builds the ground truth of the first ``--episodes`` test-1k episodes (50 per motion x
 speed cell for 450), runs ``pipeline eval`` for oracle, predictive, chase and still on
-them, then ``scoring eval --paper`` over the five folders (the GT row first, the
-paper's published rows after ours), writing the terminal table, a Markdown table, the
-per-episode rows (``episodes.parquet``) and the radar plot into ``--out`` (default ``benchmarks/results``, the files the README
-shows). Runs go to a temporary folder unless ``--runs`` is given; a folder there that
-already holds a ``catalog.json`` is reused.
+them (and the learned ``chunk_cnn`` when torch and its checkpoint are present), then
+``scoring eval --paper`` over the folders (the GT row first, the paper's published rows
+after ours), writing the terminal table, a Markdown table, the per-episode rows
+(``episodes.parquet``) and the radar plot into ``--out`` (default
+``benchmarks/results``, the files the README shows). Runs go to a temporary folder
+unless ``--runs`` is given; a folder there that already holds a ``catalog.json`` is
+reused.
 
     python benchmarks/closed_loop_results.py --episodes 450
 """
@@ -28,6 +30,15 @@ from pipeline.cli import main as pipeline_main  # noqa: E402
 from scoring.cli import main as scoring_main  # noqa: E402
 
 POLICIES = ("oracle", "predictive", "chase", "still")
+#: The learned baseline (benchmarks/train_chunk_cnn.py), when torch and its checkpoint are here.
+LEARNED = ("chunk_cnn", "pipeline.policies.chunk_cnn:pretrained")
+
+
+def _learned_available() -> bool:
+    import importlib.util
+
+    checkpoint = Path(bench_setup.HERE) / "results" / "chunk_cnn" / "model.pt"
+    return importlib.util.find_spec("torch") is not None and checkpoint.is_file()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,6 +56,9 @@ def main(argv: list[str] | None = None) -> int:
         commands = {"gt": ["build", "--slice", "test-1k", "--out", str(runs / "gt"), *common]}
         for policy in POLICIES:
             commands[policy] = ["eval", "--policy", policy, "--slice", "test-1k", "--out", str(runs / policy), *common]
+        if _learned_available():
+            name, ref = LEARNED
+            commands[name] = ["eval", "--policy", ref, "--slice", "test-1k", "--out", str(runs / name), *common]
         folders = []
         for name, command in commands.items():
             folder = runs / name / "test-1k" if name == "gt" else runs / name

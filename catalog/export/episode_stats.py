@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 
 
@@ -34,23 +35,30 @@ class Moments:
 
     @classmethod
     def of_images(cls, frames: np.ndarray) -> Moments:
-        """Per-channel moments of uint8 RGB frames (n, H, W, 3) scaled to [0, 1]; count = frames."""
-        n = len(frames)
-        pixels = frames.reshape(-1, 3)
-        total = pixels.astype(np.float64).sum(axis=0)
-        squares = np.einsum("ij,ij->j", pixels.astype(np.float64), pixels.astype(np.float64))
-        per_frame = pixels.shape[0] // max(n, 1)
-        mean = total / pixels.shape[0]
-        m2 = squares - total * mean
+        """Per-channel moments of uint8 RGB frames (n, H, W, 3) scaled to [0, 1]; count = frames.
+
+        Exact, from each channel's 256-bin histogram (``cv2.calcHist``, counted in batches
+        small enough for its float32 bins to stay exact, summed as integers).
+        """
+        n, height, width, _ = frames.shape
+        counts = np.zeros((3, 256), dtype=np.int64)
+        batch = max(1, (1 << 23) // (height * width))
+        for start in range(0, n, batch):
+            image = np.ascontiguousarray(frames[start : start + batch]).reshape(-1, width, 3)
+            for c in range(3):
+                counts[c] += cv2.calcHist([image], [c], None, [256], [0, 256]).reshape(-1).astype(np.int64)
+        values = np.arange(256, dtype=np.float64) / 255.0
+        pixels = counts.sum(axis=1).astype(np.float64)
+        mean = counts @ values / pixels
+        m2 = counts @ (values * values) - pixels * mean * mean
+        present = counts > 0
+        low = values[np.argmax(present, axis=1)]
+        high = values[255 - np.argmax(present[:, ::-1], axis=1)]
         shape = (3, 1, 1)
-        # m2 is over pixels; scale to frames so that merging by frame counts stays exact
-        return cls(
-            n,
-            (mean / 255.0).reshape(shape),
-            (np.maximum(m2, 0.0) / per_frame / 255.0**2).reshape(shape),
-            (pixels.min(axis=0) / 255.0).reshape(shape),
-            (pixels.max(axis=0) / 255.0).reshape(shape),
-        )
+        # m2 over pixels, scaled to frames: merging by frame counts then stays exact
+        per_frame = height * width
+        return cls(n, mean.reshape(shape), (np.maximum(m2, 0.0) / per_frame).reshape(shape),
+                   low.reshape(shape), high.reshape(shape))
 
     def merge(self, other: Moments) -> Moments:
         n = self.count + other.count
