@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from schemas import cli
-from schemas.errors import DyanaError
+from schemas.errors import DyanaError, SpecError
 
 
 def _build_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,7 +55,9 @@ def _importable_cwd(policy: str) -> None:
 
 
 def _eval_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--policy", required=True, help="oracle, still, chase, predictive, module:callable or ws://HOST:PORT")
+    p.add_argument("--policy", required=True,
+                   help="oracle, still, chase, predictive, module:callable, ws://HOST:PORT or vlm:URL "
+                   "(an OpenAI-compatible endpoint, e.g. vlm:http://127.0.0.1:8000/v1)")
     p.add_argument("--slice", default="test-1k", help="slice whose episodes to run (default: test-1k)")
     cli.add_episodes(p)
     p.add_argument("--out", required=True, help="run folder: RUN/catalog.json and RUN/shards/")
@@ -74,14 +76,62 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     cli.add_overwrite(p)
     cli.add_quiet(p)
+    vlm = p.add_argument_group("VLM policies (--policy vlm:URL)")
+    vlm.add_argument("--model", help="the model name the endpoint serves (required for vlm:URL)")
+    vlm.add_argument("--vlm-every", type=cli.positive_int, default=5, metavar="K",
+                     help="ask the model every K acting frames, moving toward its answer in between (default: 5)")
+    vlm.add_argument("--vlm-latency-frames", type=int, default=0, metavar="L",
+                     help="simulated thinking time: an answer takes effect L frames after its frame (default: 0)")
+    vlm.add_argument("--vlm-observe-images", type=int, default=2, metavar="N",
+                     help="observe-window frames sent with the first query (default: 2)")
+    vlm.add_argument("--vlm-on-fault", choices=("error", "hold"), default="error",
+                     help="an unreadable answer, HTTP error, timeout or refusal fails the episode (error) or "
+                     "keeps the hand's current plan (hold) (default: error)")
+    vlm.add_argument("--vlm-timeout", type=cli.positive_float, default=60.0, metavar="S",
+                     help="seconds to wait for one answer (default: 60)")
+    vlm.add_argument("--vlm-template", default="v1", help="prompt template: a built-in name or a .txt file (default: v1)")
+    vlm.add_argument("--vlm-api-key-env", default="OPENAI_API_KEY", metavar="VAR",
+                     help="environment variable holding the API key (default: OPENAI_API_KEY; never a flag)")
+    vlm.add_argument("--vlm-no-json-schema", action="store_true",
+                     help="do not ask for structured output (for servers that reject response_format)")
+    vlm.add_argument("--vlm-temperature", type=float, default=0.0, help="sampling temperature (default: 0)")
+    vlm.add_argument("--vlm-seed", type=int, default=0, help="sampling seed sent with every request (default: 0)")
+
+
+VLM_FLAGS = ("vlm_every", "vlm_latency_frames", "vlm_observe_images", "vlm_on_fault", "vlm_timeout", "vlm_template",
+             "vlm_api_key_env", "vlm_no_json_schema", "vlm_temperature", "vlm_seed")
+
+
+def _vlm_options(args: argparse.Namespace, parser_defaults: dict) -> dict | None:
+    """The VLM configuration from the flags, or None for other policies (which may not take them)."""
+    if not args.policy.startswith("vlm:"):
+        changed = [f"--{k.replace('_', '-')}" for k in VLM_FLAGS if getattr(args, k) != parser_defaults[k]]
+        if args.model is not None or changed:
+            raise SpecError(f"{(['--model'] if args.model else changed)[0]} is for --policy vlm:URL only")
+        return None
+    if not args.model:
+        raise SpecError("--policy vlm:URL needs --model NAME (the model the endpoint serves)")
+    return {
+        "model": args.model, "every": args.vlm_every, "latency_frames": args.vlm_latency_frames,
+        "observe_images": args.vlm_observe_images, "on_fault": args.vlm_on_fault, "timeout_s": args.vlm_timeout,
+        "template": args.vlm_template, "api_key_env": args.vlm_api_key_env, "json_schema": not args.vlm_no_json_schema,
+        "temperature": args.vlm_temperature, "seed": args.vlm_seed,
+    }
+
+
+_VLM_DEFAULTS = {"vlm_every": 5, "vlm_latency_frames": 0, "vlm_observe_images": 2, "vlm_on_fault": "error",
+                 "vlm_timeout": 60.0, "vlm_template": "v1", "vlm_api_key_env": "OPENAI_API_KEY",
+                 "vlm_no_json_schema": False, "vlm_temperature": 0.0, "vlm_seed": 0}
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from pipeline.jobs.evaluate import evaluate
 
-    _importable_cwd(args.policy)
+    vlm = _vlm_options(args, _VLM_DEFAULTS)
+    if vlm is None:
+        _importable_cwd(args.policy)
     evaluate(
-        args.policy, args.slice, Path(args.out), deadline_s=args.deadline, isolate=not args.in_process,
+        args.policy, args.slice, Path(args.out), deadline_s=args.deadline, isolate=not args.in_process, vlm=vlm,
         **cli.job_options(args),
     )
     return 0

@@ -17,6 +17,7 @@ never returns meets the generous watchdog and fails its episode as "hung".
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Sequence
@@ -30,12 +31,16 @@ from catalog.manifest import Manifest, load_manifest, manifest_path
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
 from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
-from schemas.errors import PolicyError, SpecError
+from schemas.errors import PolicyError, ShardError, SpecError
 
 DEFAULT_SHARD_SIZE = 32
 #: Extra seconds a remote policy's socket waits beyond the deadline or watchdog (the
 #: runner's fires first and names the fault).
 REMOTE_SLACK_S = 5.0
+
+
+#: Where a VLM run's audit trail lives, beside the shards.
+AUDIT_DIR = "vlm"
 
 
 @dataclass(frozen=True)
@@ -52,6 +57,8 @@ class EvalSettings:
     privileged: bool
     deadline_s: float | None
     isolate: bool = True
+    #: A VLM policy's configuration (``vlm:URL`` refs), recorded in the manifest.
+    vlm: dict[str, Any] | None = None
 
     @property
     def call_timeout_s(self) -> float:
@@ -60,7 +67,10 @@ class EvalSettings:
     def extra(self) -> dict[str, Any]:
         """The manifest's rollout keys (the policy's name, not its ref: a restarted server
         may move port, and the same run resumes)."""
-        return {"policy": self.policy_name, "privileged": self.privileged, "deadline_s": self.deadline_s}
+        extra: dict[str, Any] = {"policy": self.policy_name, "privileged": self.privileged, "deadline_s": self.deadline_s}
+        if self.vlm is not None:
+            extra["vlm"] = {k: v for k, v in self.vlm.items() if k != "url"} | {"url": _public_url(self.vlm["url"])}
+        return extra
 
 
 class _Unavailable:
@@ -79,12 +89,32 @@ class _Unavailable:
         raise PolicyError(self.reason)
 
 
-def open_policy(ref: str, timeout_s: float = WATCHDOG_S, isolate: bool = True) -> Any:
+def _public_url(url: str) -> str:
+    """A URL without user:password@ (credentials never reach a manifest)."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    parts = urlsplit(url)
+    host = parts.hostname or ""
+    netloc = host + (f":{parts.port}" if parts.port else "")
+    return urlunsplit((parts.scheme, netloc, parts.path, "", ""))
+
+
+def is_vlm(ref: str) -> bool:
+    return ref.startswith("vlm:")
+
+
+def open_policy(ref: str, timeout_s: float = WATCHDOG_S, isolate: bool = True, vlm: dict[str, Any] | None = None) -> Any:
     """A fresh policy for ``ref``: RemotePolicy for ``ws://`` (its socket waits a little
     longer than ``timeout_s``); a user's ``module:callable`` in a child process unless
     ``isolate`` is False (:mod:`pipeline.remote.isolated`); else ``make_policy(ref)``."""
     from pipeline.remote.client import RemotePolicy, is_remote
 
+    if is_vlm(ref):
+        from pipeline.policies.vlm import VLMConfig, VLMPolicy
+
+        if vlm is None:
+            raise SpecError(f"policy {ref!r} needs a VLM configuration (--model NAME and the --vlm-* flags)")
+        return VLMPolicy(VLMConfig(**vlm))
     if is_remote(ref):
         return RemotePolicy(ref, timeout_s=timeout_s + REMOTE_SLACK_S)
     if isolate and ":" in ref:
@@ -113,18 +143,22 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
     env = DyanaEnv(resolution=settings.build.resolution, jpeg_quality=settings.build.jpeg_quality)
     stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
     policy = None
+    audit: list[dict[str, Any]] = []
     start = time.perf_counter()
     try:
         with ShardWriter(Path(run_dir), task.first, task.end, settings.build.as_dict(), rollout=True) as writer:
             for spec in task.specs():
                 if policy is None:
                     try:
-                        policy = open_policy(settings.policy_ref, settings.call_timeout_s, settings.isolate)
+                        policy = open_policy(settings.policy_ref, settings.call_timeout_s, settings.isolate, settings.vlm)
                     except PolicyError as exc:
                         policy = _Unavailable(settings.policy_name, str(exc))
                     except Exception as exc:
                         policy = _Unavailable(settings.policy_name, f"cannot make the policy: {type(exc).__name__}: {exc}")
                 result = run_episode(env, policy, spec, settings.deadline_s)
+                take_audit = getattr(policy, "take_audit", None)
+                if callable(take_audit):
+                    audit.extend(take_audit())
                 writer.add_episode(
                     spec,
                     result.frames,
@@ -147,6 +181,8 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
         close_env = getattr(env, "close", None)
         if callable(close_env):
             close_env()
+    if settings.vlm is not None:
+        write_audit(Path(run_dir), task.first, task.end, audit)
     stats["seconds"] = time.perf_counter() - start
     return {"record": writer.result.to_dict(), "stats": stats}
 
@@ -173,13 +209,15 @@ def _merge_timing(total: dict | None, part: dict) -> dict:
     return merged
 
 
-def describe_policy(ref: str, timeout_s: float = WATCHDOG_S, isolate: bool = True) -> tuple[str, bool]:
+def describe_policy(
+    ref: str, timeout_s: float = WATCHDOG_S, isolate: bool = True, vlm: dict[str, Any] | None = None
+) -> tuple[str, bool]:
     """The policy's name and privileged flag, resolving ``ref`` once in the driver so that
     a bad name, an unimportable callable or an unreachable server fails before any work starts."""
     from pipeline.remote.client import is_remote
 
     try:
-        policy = open_policy(ref, timeout_s, isolate)
+        policy = open_policy(ref, timeout_s, isolate, vlm)
     except PolicyError as exc:
         where = f"{ref}: " if is_remote(ref) else ""
         raise PolicyError(f"{where}{exc}") from None
@@ -273,6 +311,7 @@ def evaluate(
     stream: TextIO | None = None,
     overwrite: bool = False,
     isolate: bool = True,
+    vlm: dict[str, Any] | None = None,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
@@ -300,8 +339,14 @@ def evaluate(
         raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
     build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY)
     ranges = shard_ranges(total, shard_size)
-    name, privileged = describe_policy(policy_ref, WATCHDOG_S if deadline_s is None else deadline_s, isolate)
-    settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate))
+    if is_vlm(policy_ref):
+        from pipeline.policies.vlm import VLMConfig
+
+        vlm = VLMConfig(**{"url": policy_ref[len("vlm:"):], **(vlm or {})}).to_dict()
+    elif vlm is not None:
+        raise SpecError(f"--model and the --vlm-* flags are for vlm:URL policies, not {policy_ref!r}")
+    name, privileged = describe_policy(policy_ref, WATCHDOG_S if deadline_s is None else deadline_s, isolate, vlm)
+    settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate), vlm)
     run_dir = Path(out)
     job = Job(
         folder=run_dir,
@@ -334,16 +379,84 @@ def evaluate(
         on_result=on_result,
     )
     elapsed = time.monotonic() - start
+    if vlm is not None:
+        write_audit_index(run_dir)
     if summary:
         out_stream = sys.stdout if stream is None else stream
         if up_to_date:
             print(f"{run_dir}: up to date (the same run is complete; --overwrite to run it again)", file=out_stream)
         for line in summarize(run_dir).lines():
             print(line, file=out_stream)
+        if vlm is not None:
+            print(f"  vlm: {audit_summary(run_dir)}", file=out_stream)
         for line in _timing_lines(timing, elapsed):
             print(line, file=out_stream)
         print(f"  -> {manifest_path(run_dir)} (hash {manifest.hash[:16]})", file=out_stream, flush=True)
     return manifest
+
+
+def audit_path(run_dir: Path, first: int, end: int) -> Path:
+    return run_dir / AUDIT_DIR / f"audit-{first:06d}-{end:06d}.jsonl"
+
+
+def write_audit(run_dir: Path, first: int, end: int, records: list[dict[str, Any]]) -> None:
+    """A shard's VLM exchanges, one JSON object per line, written whole or not at all."""
+    from catalog.atomic import atomic_write_text
+
+    text = "".join(json.dumps(r, sort_keys=True, allow_nan=False) + "\n" for r in records)
+    path = audit_path(run_dir, first, end)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, text)
+
+
+def read_audit(run_dir: Path) -> list[dict[str, Any]]:
+    """Every recorded VLM exchange of a run, in shard order."""
+    records: list[dict[str, Any]] = []
+    for path in sorted((run_dir / AUDIT_DIR).glob("audit-*.jsonl")):
+        records += [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line]
+    return records
+
+
+def write_audit_index(run_dir: Path) -> None:
+    """``vlm/index.json``: every audit file with its sha256 and size (what replay checks)."""
+    from catalog.atomic import atomic_write_text
+    from catalog.hashing import sha256_file
+
+    files = {p.name: {"sha256": sha256_file(p), "size": p.stat().st_size}
+             for p in sorted((run_dir / AUDIT_DIR).glob("audit-*.jsonl"))}
+    atomic_write_text(run_dir / AUDIT_DIR / "index.json", json.dumps({"files": files}, indent=2, sort_keys=True) + "\n")
+
+
+def check_audit_index(run_dir: Path) -> None:
+    """Refuse a trail whose files are missing, extra or changed since the run."""
+    from catalog.hashing import sha256_file
+
+    index = Path(run_dir) / AUDIT_DIR / "index.json"
+    if not index.is_file():
+        raise ShardError(f"{index}: missing (the VLM run's audit trail has no index)")
+    files = json.loads(index.read_text())["files"]
+    present = sorted(p.name for p in (Path(run_dir) / AUDIT_DIR).glob("audit-*.jsonl"))
+    if present != sorted(files):
+        raise ShardError(f"{index}: lists {sorted(files)} but the folder holds {present}")
+    for name, record in files.items():
+        path = Path(run_dir) / AUDIT_DIR / name
+        if path.stat().st_size != record["size"] or sha256_file(path) != record["sha256"]:
+            raise ShardError(f"{path}: changed since the run (sha256 differs from {index.name})")
+
+
+def audit_summary(run_dir: Path) -> str:
+    """Counts of each exchange outcome, tokens and latency, from the audit trail."""
+    from pipeline.policies.vlm import OUTCOMES
+
+    records = read_audit(run_dir)
+    counts = {k: sum(1 for r in records if r["outcome"] == k) for k in OUTCOMES}
+    prompt = sum(r["reply"]["usage"]["prompt_tokens"] or 0 for r in records)
+    completion = sum(r["reply"]["usage"]["completion_tokens"] or 0 for r in records)
+    latency = sorted(r["reply"]["latency_ms"] for r in records)
+    median = latency[len(latency) // 2] if latency else 0.0
+    faults = ", ".join(f"{k} {v}" for k, v in counts.items() if k != "ok")
+    return (f"{len(records)} queries, {counts['ok']} answered ({faults}); {prompt} prompt + {completion} completion "
+            f"tokens; median latency {median:.0f} ms; trail in {run_dir / AUDIT_DIR}")
 
 
 def _timing_lines(timing: dict[str, Any], elapsed: float) -> Sequence[str]:

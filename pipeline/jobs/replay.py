@@ -146,7 +146,18 @@ def _rollout_recording(env: Any, spec: EpisodeSpec, actions: np.ndarray, status:
     return frames, list(images)
 
 
-def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
+def _vlm_recording(env: Any, spec: EpisodeSpec, vlm: dict[str, Any], answers: list[dict[str, Any]]) -> Any:
+    """Run the VLM policy again on the re-rendered frames, its replies read from the trail."""
+    from pipeline.loop.rollout import run_episode
+    from pipeline.policies.vlm import VLMConfig, VLMPolicy
+    from pipeline.policies.vlm_transport import RecordedTransport
+
+    policy = VLMPolicy(VLMConfig(**vlm), transport=RecordedTransport(answers))
+    return run_episode(env, policy, spec, None)
+
+
+def _replay_shard(reader: ShardReader, settings: dict, env: Any, vlm: dict[str, Any] | None = None,
+                  answers: dict[str, list[dict[str, Any]]] | None = None) -> int:
     from catalog.shard import ShardWriter
 
     root, shard, rollout = reader.root, reader.record, reader.rollout
@@ -164,7 +175,12 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
         ids = {"shard": stem, "episode": index}
         prefix = f"{root}: shard {stem}, episode {index} ({spec.episode_id})"
         recorded = frames.filter(pa.array(frame_episode == index))
-        if rollout:
+        replayed_status: dict[str, Any] = {}
+        if rollout and vlm is not None:
+            result = _vlm_recording(env, spec, vlm, (answers or {}).get(spec.episode_id, []))
+            ep_frames, images = result.frames, list(result.images)
+            replayed_status = {"status": result.status, "error": result.error or ""}
+        elif rollout:
             actions = _column_values(recorded.column("action"))
             ep_frames, images = _rollout_recording(env, spec, actions, row["status"], {"prefix": prefix, "ids": ids})
         else:
@@ -182,6 +198,7 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
             frame, column, detail = found
             raise _mismatch(f"{prefix}, frame {frame}, column {column}{detail}", frame=frame, column=column, **ids)
         extra = {k: row[k] for k in ROLLOUT_COLUMNS} if rollout else {}
+        extra.update(replayed_status)
         expected_row = episodes_table([episode_row(spec, ep_frames.grasp_angles, **extra)], rollout)
         recorded_row = episodes.filter(pa.array(episodes.column("episode_index").to_numpy() == index))
         found = _first_difference(recorded_row, expected_row, expected_row.column_names)
@@ -206,6 +223,17 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any) -> int:
     return sum(f.num_frames for _, f, _, _ in replayed)
 
 
+def _vlm_answers(root: Any) -> dict[str, list[dict[str, Any]]]:
+    """A VLM run's recorded exchanges by episode id, after checking the trail's hashes."""
+    from pipeline.jobs.evaluate import check_audit_index, read_audit
+
+    check_audit_index(root)
+    out: dict[str, list[dict[str, Any]]] = {}
+    for record in read_audit(root):
+        out.setdefault(record["episode_id"], []).append(record)
+    return out
+
+
 def replay(
     path: str | os.PathLike[str],
     shards: Sequence[int] | None = None,
@@ -224,10 +252,14 @@ def replay(
         from pipeline.loop.env import DyanaEnv
 
         env = DyanaEnv(resolution=settings["resolution"], jpeg_quality=settings["jpeg_quality"])
+    vlm = manifest.extra.get("vlm") if rollout else None
+    answers = _vlm_answers(folder.root) if vlm is not None else None
+    if vlm is not None:
+        vlm = dict(vlm)
     episodes = frames = 0
     try:
         for shard in chosen:
-            frames += _replay_shard(shard, settings, env)
+            frames += _replay_shard(shard, settings, env, vlm, answers)
             episodes += shard.record.num_episodes
             if on_shard is not None:
                 on_shard(shard.record)

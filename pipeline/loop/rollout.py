@@ -65,9 +65,10 @@ class RolloutResult:
 
 def task_for(spec: EpisodeSpec, resolution: int, privileged: bool, horizon: int) -> dict[str, Any]:
     """The task a policy's ``reset`` receives: the public conditions of the episode
-    (instruction, timing, the interception setting's time, image size, hand); the spec
+    (its id, instruction, timing, the interception setting's time, image size, hand); the spec
     itself only for privileged policies."""
     task: dict[str, Any] = {
+        "episode_id": spec.episode_id,
         "text": spec.text,
         "fps": FPS,
         "observe_frames": spec.observe_frames,

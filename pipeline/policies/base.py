@@ -6,7 +6,7 @@ A policy has three attributes and two methods:
   (H, 18) chunks executed open loop); ``privileged`` (bool: True only for the
   oracle, whose task carries the spec);
 * ``reset(task)`` before each episode. ``task`` = ``{"text", "fps",
-  "observe_frames", "horizon", "resolution", "hand"}``, plus ``"intercept_time_s"``
+  "observe_frames", "horizon", "resolution", "hand"}``, plus ``"episode_id"`` and ``"intercept_time_s"``
   (the interception setting's time, part of the public task description) when the
   runner provides it, plus ``"spec"`` (the spec's JSON) for privileged policies;
 * ``act(obs) -> ndarray`` (18,) or (H, 18) float32, from the observation

@@ -1,0 +1,129 @@
+"""How a VLM request travels: to an OpenAI-compatible chat-completions endpoint through the
+``openai`` client, or back from a run's recorded answers (``pipeline replay``).
+
+Both return a :class:`Reply`; transport faults come back as replies with ``outcome``
+``http_error`` or ``timeout``, never as exceptions, so that the policy decides what a
+fault does to its episode. The client makes no retries of its own (one request, one
+answer: what the audit trail shows is what happened). The API key comes from the
+environment variable the run names, never from a flag or a file.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from schemas.errors import PolicyError
+
+
+@dataclass(frozen=True)
+class Reply:
+    """One exchange's result. ``outcome`` is ``answered``, ``http_error`` or ``timeout``."""
+
+    outcome: str
+    content: str | None = None
+    refusal: str | None = None
+    finish_reason: str | None = None
+    detail: str = ""
+    prompt_tokens: int | None = None
+    completion_tokens: int | None = None
+    latency_ms: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "outcome": self.outcome, "content": self.content, "refusal": self.refusal,
+            "finish_reason": self.finish_reason, "detail": self.detail,
+            "usage": {"prompt_tokens": self.prompt_tokens, "completion_tokens": self.completion_tokens},
+            "latency_ms": round(self.latency_ms, 2),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Reply:
+        usage = data.get("usage") or {}
+        return cls(data["outcome"], data.get("content"), data.get("refusal"), data.get("finish_reason"),
+                   data.get("detail", ""), usage.get("prompt_tokens"), usage.get("completion_tokens"),
+                   float(data.get("latency_ms", 0.0)))
+
+
+class HttpTransport:
+    """Chat completions over HTTP with the ``openai`` client (base URL, timeout, no retries)."""
+
+    def __init__(self, url: str, api_key_env: str, timeout_s: float) -> None:
+        try:
+            import openai
+        except ImportError:  # pragma: no cover - openai is a dependency
+            raise PolicyError("VLM policies need the openai package: pip install openai") from None
+        self._openai = openai
+        key = os.environ.get(api_key_env) or "not-needed"  # local servers accept any key
+        self.client = openai.OpenAI(base_url=url, api_key=key, timeout=timeout_s, max_retries=0)
+
+    def complete(self, request: dict[str, Any]) -> Reply:
+        openai = self._openai
+        start = time.perf_counter()
+        try:
+            response = self.client.chat.completions.create(**request)
+        except openai.APITimeoutError:
+            return Reply("timeout", detail="no answer within the timeout", latency_ms=_ms(start))
+        except openai.APIStatusError as exc:
+            return Reply("http_error", detail=f"HTTP {exc.status_code}: {str(exc.message)[:160]}", latency_ms=_ms(start))
+        except openai.APIConnectionError as exc:
+            return Reply("http_error", detail=f"connection failed: {str(exc)[:160]}", latency_ms=_ms(start))
+        except openai.OpenAIError as exc:
+            return Reply("http_error", detail=f"{type(exc).__name__}: {str(exc)[:160]}", latency_ms=_ms(start))
+        latency = _ms(start)
+        if not response.choices:
+            return Reply("http_error", detail="the response has no choices", latency_ms=latency)
+        choice = response.choices[0]
+        usage = response.usage
+        return Reply(
+            "answered",
+            content=choice.message.content,
+            refusal=getattr(choice.message, "refusal", None),
+            finish_reason=choice.finish_reason,
+            prompt_tokens=None if usage is None else usage.prompt_tokens,
+            completion_tokens=None if usage is None else usage.completion_tokens,
+            latency_ms=latency,
+        )
+
+    def close(self) -> None:
+        self.client.close()
+
+
+class RecordedTransport:
+    """The answers of a recorded run, in order; the prompt of each request must be the
+    recorded one (a replay that asks something else has diverged)."""
+
+    def __init__(self, records: Sequence[dict[str, Any]]) -> None:
+        self._records = list(records)
+        self._next = 0
+
+    def complete(self, request: dict[str, Any]) -> Reply:
+        if self._next >= len(self._records):
+            raise PolicyError(f"replay asked for answer {self._next + 1} but the trail holds {len(self._records)}")
+        record = self._records[self._next]
+        self._next += 1
+        if record["prompt"] != request_prompt(request):
+            raise PolicyError(f"replay diverged: request {self._next} differs from the recorded one")
+        return Reply.from_dict(record["reply"])
+
+    def close(self) -> None:
+        return None
+
+
+def request_prompt(request: dict[str, Any]) -> str:
+    """The request's text parts, joined: what a replay must ask again."""
+    parts = []
+    for message in request["messages"]:
+        content = message["content"]
+        if isinstance(content, str):
+            parts.append(content)
+        else:
+            parts.extend(part["text"] for part in content if part.get("type") == "text")
+    return "\n".join(parts)
+
+
+def _ms(start: float) -> float:
+    return (time.perf_counter() - start) * 1e3

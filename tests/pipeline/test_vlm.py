@@ -1,0 +1,155 @@
+"""VLM controllers against real HTTP servers on 127.0.0.1 (the loopback chat-completions
+server in its honest and misbehaving modes): answers, faults, audit trail, replay."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import catalog
+from pipeline.cli import main as pipeline_main
+from pipeline.jobs.evaluate import evaluate, read_audit
+from pipeline.jobs.replay import replay
+from pipeline.policies.vlm_answer import AnswerError, parse_answer
+from schemas.errors import ShardError
+from scoring.cli import main as scoring_main
+
+RESOLUTION = 64
+SECRET = "sk-dyana-test-secret-never-written"
+
+
+@pytest.fixture
+def serve():
+    """Start the loopback server in a separate process; returns its base URL."""
+    started: list[subprocess.Popen] = []
+
+    def start(mode: str = "ok", delay: float = 5.0) -> str:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "pipeline.remote.loopback_vlm", "--mode", mode, "--delay", str(delay)],
+            stdout=subprocess.PIPE, text=True,
+        )
+        started.append(process)
+        return process.stdout.readline().strip()
+
+    yield start
+    for process in started:
+        process.terminate()
+        process.wait(timeout=10)
+
+
+def _eval(url: str, out: Path, episodes: int = 2, **vlm) -> None:
+    options = {"model": "loopback-perception", "timeout_s": 10.0, **vlm}
+    evaluate(f"vlm:{url}", "test-1k", out, episodes=episodes, workers=1, resolution=RESOLUTION, shard_size=2,
+             progress=False, summary=False, stream=io.StringIO(), vlm=options)
+
+
+@pytest.mark.parametrize("content, expected", [
+    ('{"palm_target": [1, 2, 3], "closure": 0.5}', {"palm_target": [1.0, 2.0, 3.0], "closure": 0.5}),
+    ('Sure!\n```json\n{"palm_target": [0, 1.5, 4], "closure": 1.7}\n```', {"palm_target": [0.0, 1.5, 4.0], "closure": 1.0}),
+    ('{"palm_target": [0, 1, 2], "joint_angles": [0.1, 0.2, 0.3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]}',
+     {"palm_target": [0.0, 1.0, 2.0], "joint_angles": [0.1, 0.2, 0.3] + [0.0] * 12}),
+])
+def test_answers_are_read_leniently(content, expected):
+    assert parse_answer(content).to_dict() == expected
+
+
+@pytest.mark.parametrize("content, refusal, finish, kind", [
+    ("I'm sorry, I can't help with that.", None, "stop", "refusal"),
+    (None, "No.", "stop", "refusal"),
+    ('{"palm_target": [1, 2, 3], "closure": 0}', None, "content_filter", "refusal"),
+    ("move left a bit", None, "stop", "parse_error"),
+    ('{"palm_target": [1, 2], "closure": 0}', None, "stop", "parse_error"),
+    ('{"palm_target": [1, 2, "x"], "closure": 0}', None, "stop", "parse_error"),
+    ('{"palm_target": [1, 2, 3], "closure": NaN}', None, "stop", "parse_error"),
+    ('{"palm_target": [1, 2, 3]', None, "stop", "parse_error"),
+])
+def test_unusable_answers_name_their_kind(content, refusal, finish, kind):
+    with pytest.raises(AnswerError) as caught:
+        parse_answer(content, refusal, finish)
+    assert caught.value.kind == kind
+
+
+def test_a_vlm_run_keeps_its_trail_scores_and_replays_without_the_endpoint(serve, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("OPENAI_API_KEY", SECRET)
+    url = serve("ok")
+    run = tmp_path / "run"
+    _eval(url, run, episodes=4)
+    manifest = json.loads((run / "catalog.json").read_text())
+    assert manifest["policy"] == "vlm:loopback-perception"
+    assert manifest["vlm"]["template"] == "v1" and len(manifest["vlm"]["template_sha256"]) == 64
+    records = read_audit(run)
+    assert records and {r["outcome"] for r in records} == {"ok"}
+    assert {r["episode_id"] for r in records} == {f"test-1k:{i:06d}" for i in range(4)}
+    first = [r for r in records if r["query"] == 1]
+    assert all(r["images"][-1] == {"frame": r["frame_index"]} for r in records)
+    assert any(len(r["images"]) > 1 for r in first), "the first query carries observe-window frames"
+    assert all(r["reply"]["usage"]["prompt_tokens"] > 0 for r in records)
+    for path in [*run.rglob("*.json"), *run.rglob("*.jsonl")]:
+        text = path.read_text()
+        assert SECRET not in text and "base64" not in text, path
+    assert scoring_main(["eval", str(run), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["episodes"] == 4
+    monkeypatch.setenv("OPENAI_API_KEY", "")
+    report = replay(run)  # the server may be gone: replay reads the trail
+    assert report.episodes == 4
+
+
+def test_a_changed_trail_is_refused_by_replay(serve, tmp_path):
+    run = tmp_path / "run"
+    _eval(serve("ok"), run, episodes=2)
+    trail = next((run / "vlm").glob("audit-*.jsonl"))
+    trail.write_text(trail.read_text().replace('"closure": 0.0', '"closure": 1.0'))
+    with pytest.raises(ShardError, match="changed since the run"):
+        replay(run)
+
+
+@pytest.mark.parametrize("mode, kind", [("malformed", "parse_error"), ("error", "http_error"), ("refuse", "refusal"),
+                                        ("slow", "timeout")])
+def test_each_fault_fails_only_its_episode_with_the_reason(serve, tmp_path, mode, kind):
+    run = tmp_path / "run"
+    _eval(serve(mode, delay=3.0), run, episodes=2, timeout_s=1.0)
+    with catalog.open(run) as ds:
+        assert [e.status for e in ds.episodes] == ["error", "error"]
+    assert [r["outcome"] for r in read_audit(run)] == [kind, kind]
+    from catalog.reader import open_folder
+
+    errors = open_folder(run).episodes(["error"]).column("error").to_pylist()
+    assert all(f"vlm {kind} at frame" in e for e in errors), errors
+
+
+def test_hold_keeps_going_through_faults_and_counts_them(serve, tmp_path):
+    run = tmp_path / "run"
+    _eval(serve("flaky"), run, episodes=2, on_fault="hold")
+    with catalog.open(run) as ds:
+        assert [e.status for e in ds.episodes] == ["ok", "ok"]
+    outcomes = [r["outcome"] for r in read_audit(run)]
+    assert outcomes.count("http_error") == len(outcomes) // 3 and outcomes.count("ok") > 0
+    assert replay(run).episodes == 2
+
+
+def test_latency_is_simulated_deterministically(serve, tmp_path):
+    url = serve("prose")
+    for name in ("a", "b"):
+        _eval(url, tmp_path / name, episodes=2, latency_frames=3, every=4)
+    a, b = (json.loads((tmp_path / n / "catalog.json").read_text())["hash"] for n in ("a", "b"))
+    assert a == b
+    with catalog.open(tmp_path / "a") as ds:
+        actions = np.stack([ds[i]["action"] for i in ds.episode_frames(1)])
+        first_act = ds.episodes[1].observe_frames
+    # answers take effect 3 frames after they were asked: the first acting frames hold the rest pose
+    np.testing.assert_array_equal(actions[first_act], actions[first_act + 2])
+
+
+def test_the_cli_needs_a_model_and_keeps_vlm_flags_to_vlm_policies(tmp_path, capsys):
+    assert pipeline_main(["eval", "--policy", "vlm:http://127.0.0.1:9/v1", "--out", str(tmp_path / "r")]) == 2
+    assert "--model NAME" in capsys.readouterr().err
+    assert pipeline_main(["eval", "--policy", "still", "--model", "x", "--out", str(tmp_path / "r")]) == 2
+    assert "--model is for --policy vlm:URL only" in capsys.readouterr().err
+    assert pipeline_main(["eval", "--policy", "vlm:ftp://x", "--model", "m", "--out", str(tmp_path / "r")]) == 2
+    assert "http://" in capsys.readouterr().err
