@@ -10,6 +10,9 @@ printed beside. The last line printed is JSON.
 
     python benchmarks/gt_quality.py                 # 200 episodes per motion type
     python benchmarks/gt_quality.py --per-type 9    # a quick check
+
+The irregular-to-regular setting (paper A.11, ``irregular-{fast,medium,slow}``) is scored
+as a fourth type; ``--no-irregular`` leaves it out.
 """
 
 from __future__ import annotations
@@ -31,19 +34,21 @@ def split(total: int, parts: int) -> list[int]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--per-type", type=int, default=200, help="episodes per motion type (default 200)")
+    parser.add_argument("--no-irregular", action="store_true", help="only the three Dyana-12M motion types")
     args = parser.parse_args(argv)
     if args.per_type < 3:
         parser.error("--per-type must be >= 3")
 
     from generators.recipe import slice_specs
     from pipeline.stages.episode import episode
-    from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
+    from schemas.scene import COMPLEX_MOTION_TYPES, INTERCEPT_SECONDS, MOTION_TYPES
     from scoring.io import from_recordings
     from scoring.metrics import METRIC_NAMES
     from scoring.report import score_run
 
+    types = MOTION_TYPES if args.no_irregular else MOTION_TYPES + COMPLEX_MOTION_TYPES
     specs, recordings = [], []
-    for motion_type in MOTION_TYPES:
+    for motion_type in types:
         for setting, count in zip(INTERCEPT_SECONDS, split(args.per_type, len(INTERCEPT_SECONDS))):
             for spec in slice_specs(f"{motion_type}-{setting}", count):
                 specs.append(spec)
@@ -53,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     result = {
         "episodes": len(specs),
         "metrics": report.overall.metrics,
-        "by_motion": {m: report.breakdowns["by_motion"][m].metrics for m in MOTION_TYPES},
+        "by_motion": {m: report.breakdowns["by_motion"][m].metrics for m in types},
     }
 
     def fmt(value) -> str:

@@ -6,6 +6,9 @@ possible (earlier settings take the remainder). ``test-1k`` is 1,000 held-out ep
 cycling over the nine (type, setting) cells, with its own seed. ``dyana-12m`` is the
 union of the nine: its episodes are theirs, in registry order, each keeping its own
 slice name, index and seed (its own ``seed`` field is therefore 0 and unused).
+``irregular-{fast,medium,slow}`` and ``test-irregular`` (99 episodes cycling over the
+three regular families and three settings) are the paper's A.11 irregular-to-regular
+setting, made by :mod:`generators.irregular`; they are not part of Dyana-12M.
 Episode ``i`` of a slice draws from ``SeedSequence([seed, i])``, so seeds are distinct.
 """
 
@@ -15,12 +18,17 @@ from dataclasses import dataclass
 
 from schemas.errors import SliceError, SpecError
 from schemas.names import shorten
-from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
+from schemas.scene import COMPLEX_MOTION_TYPES, INTERCEPT_SECONDS, MOTION_TYPES
 
 #: Figure 4(a): episodes of each motion type in Dyana-12M.
 FIGURE4_EPISODES = {"linear": 44_546, "circular": 89_709, "harmonic": 50_463}
 SETTINGS = tuple(INTERCEPT_SECONDS)
 TEST_SEED = 1_000
+#: Paper A.11's irregular-to-regular setting: episodes per interception setting, and the
+#: seed of its held-out test set (the three slices take the next seeds).
+IRREGULAR_EPISODES = 600
+IRREGULAR_SEED = 2_000
+GENERATORS = ("recipe", "irregular")
 
 
 @dataclass(frozen=True)
@@ -34,12 +42,19 @@ class SliceDef:
     episodes: int
     seed: int
     parts: tuple[str, ...] = ()
+    #: Who makes the episodes: the Dyana-12M ``recipe``, or ``irregular`` (generators.irregular).
+    generator: str = "recipe"
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
             raise SpecError(f"slice.name must be a non-empty string, got {self.name!r}")
-        if self.motion_type is not None and self.motion_type not in MOTION_TYPES:
-            raise SpecError(f"slice.motion_type must be one of {list(MOTION_TYPES)} or None, got {self.motion_type!r}")
+        if self.motion_type is not None and self.motion_type not in MOTION_TYPES + COMPLEX_MOTION_TYPES:
+            raise SpecError(
+                f"slice.motion_type must be one of {list(MOTION_TYPES + COMPLEX_MOTION_TYPES)} or None, "
+                f"got {self.motion_type!r}"
+            )
+        if self.generator not in GENERATORS:
+            raise SpecError(f"slice.generator must be one of {list(GENERATORS)}, got {self.generator!r}")
         if self.intercept_setting is not None and self.intercept_setting not in SETTINGS:
             raise SpecError(
                 f"slice.intercept_setting must be one of {list(SETTINGS)} or None, got {self.intercept_setting!r}"
@@ -56,7 +71,7 @@ class SliceDef:
 
     @property
     def atomic(self) -> bool:
-        return self.motion_type is not None
+        return self.motion_type is not None and self.generator == "recipe"
 
     @property
     def union(self) -> bool:
@@ -80,6 +95,10 @@ def _registry() -> dict[str, SliceDef]:
     slices["test-1k"] = SliceDef("test-1k", None, None, 1_000, TEST_SEED)
     total = sum(slices[name].episodes for name in atomic)
     slices["dyana-12m"] = SliceDef("dyana-12m", None, None, total, 0, parts=atomic)
+    for k, setting in enumerate(SETTINGS):
+        name = f"irregular-{setting}"
+        slices[name] = SliceDef(name, "irregular", setting, IRREGULAR_EPISODES, IRREGULAR_SEED + 1 + k, generator="irregular")
+    slices["test-irregular"] = SliceDef("test-irregular", None, None, 99, IRREGULAR_SEED, generator="irregular")
     return slices
 
 

@@ -18,6 +18,7 @@ from schemas.motion import Motion, _load_json
 from schemas.names import shorten, validate_name
 from schemas.objects import object_category
 from schemas.scene import (
+    COMPLEX_MOTION_TYPES,
     GRASP_FRAMES,
     HANDS,
     HORIZON_FACTOR,
@@ -43,7 +44,7 @@ SPEC_FIELDS = (
     "text",
 )
 
-_MOTION_TYPES = MOTION_TYPES + ("custom",)
+_MOTION_TYPES = MOTION_TYPES + COMPLEX_MOTION_TYPES + ("custom",)
 
 
 #: Largest values the shard tables can store (``episode_index``/``seed`` are int64
@@ -218,15 +219,20 @@ MAX_TEXT = 10_000
 
 def implied_motion_types(motion: Motion) -> set[str]:
     """The motion types a motion may be labelled with: those of its tokens (base and
-    overlays), connectors aside. A one-token recipe motion has exactly one; a composed
+    overlays), connectors aside, and ``irregular`` for a clothoid chain joined into one
+    regular token. A one-token recipe motion has exactly one; a composed
     motion (a line joined to an arc) may be labelled by any of its parts, or ``custom``
     (which any motion may be)."""
-    return {
+    implied = {
         TOKEN_MOTION_TYPES[token.type]
         for track in (motion.base, *motion.overlays)
         for token in track.tokens
         if token.type in TOKEN_MOTION_TYPES
     }
+    kinds = [token.type for token in motion.base.tokens]
+    if not motion.overlays and len(kinds) >= 2 and set(kinds[:-1]) == {"C"} and kinds[-1] in TOKEN_MOTION_TYPES:
+        implied.add("irregular")  # a clothoid chain joined into one regular token
+    return implied
 
 
 def acting_horizon(num_frames, observe_frames):

@@ -113,7 +113,8 @@ def test_list_table():
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     assert len(lines) == 1 + len(SLICES)
-    assert lines[-1].split()[:4] == ["dyana-12m", "all", "all", "184,718"]
+    assert lines[1 + list(SLICES).index("dyana-12m")].split()[:4] == ["dyana-12m", "all", "all", "184,718"]
+    assert lines[-1].split()[:4] == ["test-irregular", "mixed", "mixed", "99"]
 
 
 @pytest.mark.slow

@@ -18,7 +18,9 @@ from schemas.slices import (
 def test_registry_lists_nine_atomic_slices_then_test_and_union():
     nine = [f"{m}-{s}" for m in MOTION_TYPES for s in INTERCEPT_SECONDS]
     assert list(ATOMIC_SLICES) == nine
-    assert list(slice_names()) == nine + ["test-1k", "dyana-12m"]
+    irregular = [f"irregular-{s}" for s in INTERCEPT_SECONDS] + ["test-irregular"]
+    assert list(slice_names()) == nine + ["test-1k", "dyana-12m"] + irregular
+    assert all(get_slice(name).generator == "irregular" and not get_slice(name).atomic for name in irregular)
     for name in nine:
         motion_type, setting = name.split("-")
         definition = get_slice(name)
