@@ -88,7 +88,7 @@ from catalog.stream import FrameStream
 from catalog.windows import episode_starts, history_window, horizon_window
 from schemas.errors import ShardError, SpecError
 from schemas.objects import OBJECTS
-from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES, PHASES
+from schemas.scene import COMPLEX_MOTION_TYPES, INTERCEPT_SECONDS, MOTION_TYPES, PHASES
 
 _IMREAD = getattr(cv2, "IMREAD_COLOR_RGB", None)
 _getpid = os.getpid
@@ -211,7 +211,7 @@ class FrameDataset:
     ) -> FrameDataset:
         """The episodes matching every given filter (values may be one or several; ``episodes``
         filters on ``episode_index``, e.g. ``range(0, 100)``; ``where`` is any predicate)."""
-        motions = _choices("motion_type", motion_type, (*MOTION_TYPES, "custom"))
+        motions = _choices("motion_type", motion_type, (*MOTION_TYPES, *COMPLEX_MOTION_TYPES, "custom"))
         settings = _choices("intercept_setting", intercept_setting, INTERCEPT_SECONDS)
         objects = _choices("object", object, OBJECTS)
         indices = _episode_set(episodes)

@@ -92,3 +92,14 @@ def test_an_irregular_slice_builds_byte_identically_with_one_and_two_workers(tmp
                          workers=workers, progress=False)
         hashes.append(manifest.hash)
     assert hashes[0] == hashes[1]
+
+
+def test_the_dataloader_selects_irregular_episodes(tmp_path):
+    import catalog
+    from pipeline.jobs.build import build
+
+    build("irregular-fast", tmp_path, episodes=2, shard_size=2, resolution=32, workers=1, progress=False)
+    with catalog.open(tmp_path / "irregular-fast", motion_type="irregular") as ds:
+        assert len(ds.episodes) == 2 and {e.motion_type for e in ds.episodes} == {"irregular"}
+    with catalog.open(tmp_path / "irregular-fast", motion_type="linear") as ds:
+        assert len(ds) == 0
