@@ -54,6 +54,12 @@ def _importable_cwd(policy: str) -> None:
         sys.path.insert(0, "")
 
 
+#: The --vlm-* flags' defaults (one place: the parser and the check that they are unused elsewhere).
+VLM_DEFAULTS = {"vlm_every": 5, "vlm_latency_frames": 0, "vlm_observe_images": 2, "vlm_on_fault": "error",
+                "vlm_timeout": 60.0, "vlm_template": "v1", "vlm_api_key_env": "OPENAI_API_KEY",
+                "vlm_no_json_schema": False, "vlm_temperature": 0.0, "vlm_seed": 0}
+
+
 def _eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", required=True,
                    help="oracle, still, chase, predictive, module:callable, ws://HOST:PORT or vlm:URL "
@@ -77,35 +83,32 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     cli.add_overwrite(p)
     cli.add_quiet(p)
     vlm = p.add_argument_group("VLM policies (--policy vlm:URL)")
+    p.set_defaults(**VLM_DEFAULTS)
     vlm.add_argument("--model", help="the model name the endpoint serves (required for vlm:URL)")
-    vlm.add_argument("--vlm-every", type=cli.positive_int, default=5, metavar="K",
+    vlm.add_argument("--vlm-every", type=cli.positive_int, metavar="K",
                      help="ask the model every K acting frames, moving toward its answer in between (default: 5)")
-    vlm.add_argument("--vlm-latency-frames", type=int, default=0, metavar="L",
+    vlm.add_argument("--vlm-latency-frames", type=int, metavar="L",
                      help="simulated thinking time: an answer takes effect L frames after its frame (default: 0)")
-    vlm.add_argument("--vlm-observe-images", type=int, default=2, metavar="N",
+    vlm.add_argument("--vlm-observe-images", type=int, metavar="N",
                      help="observe-window frames sent with the first query (default: 2)")
-    vlm.add_argument("--vlm-on-fault", choices=("error", "hold"), default="error",
+    vlm.add_argument("--vlm-on-fault", choices=("error", "hold"),
                      help="an unreadable answer, HTTP error, timeout or refusal fails the episode (error) or "
                      "keeps the hand's current plan (hold) (default: error)")
-    vlm.add_argument("--vlm-timeout", type=cli.positive_float, default=60.0, metavar="S",
+    vlm.add_argument("--vlm-timeout", type=cli.positive_float, metavar="S",
                      help="seconds to wait for one answer (default: 60)")
-    vlm.add_argument("--vlm-template", default="v1", help="prompt template: a built-in name or a .txt file (default: v1)")
-    vlm.add_argument("--vlm-api-key-env", default="OPENAI_API_KEY", metavar="VAR",
+    vlm.add_argument("--vlm-template", help="prompt template: a built-in name or a .txt file (default: v1)")
+    vlm.add_argument("--vlm-api-key-env", metavar="VAR",
                      help="environment variable holding the API key (default: OPENAI_API_KEY; never a flag)")
     vlm.add_argument("--vlm-no-json-schema", action="store_true",
                      help="do not ask for structured output (for servers that reject response_format)")
-    vlm.add_argument("--vlm-temperature", type=float, default=0.0, help="sampling temperature (default: 0)")
-    vlm.add_argument("--vlm-seed", type=int, default=0, help="sampling seed sent with every request (default: 0)")
+    vlm.add_argument("--vlm-temperature", type=float, help="sampling temperature (default: 0)")
+    vlm.add_argument("--vlm-seed", type=int, help="sampling seed sent with every request (default: 0)")
 
 
-VLM_FLAGS = ("vlm_every", "vlm_latency_frames", "vlm_observe_images", "vlm_on_fault", "vlm_timeout", "vlm_template",
-             "vlm_api_key_env", "vlm_no_json_schema", "vlm_temperature", "vlm_seed")
-
-
-def _vlm_options(args: argparse.Namespace, parser_defaults: dict) -> dict | None:
+def _vlm_options(args: argparse.Namespace) -> dict | None:
     """The VLM configuration from the flags, or None for other policies (which may not take them)."""
     if not args.policy.startswith("vlm:"):
-        changed = [f"--{k.replace('_', '-')}" for k in VLM_FLAGS if getattr(args, k) != parser_defaults[k]]
+        changed = [f"--{k.replace('_', '-')}" for k, default in VLM_DEFAULTS.items() if getattr(args, k) != default]
         if args.model is not None or changed:
             raise SpecError(f"{(['--model'] if args.model else changed)[0]} is for --policy vlm:URL only")
         return None
@@ -119,15 +122,10 @@ def _vlm_options(args: argparse.Namespace, parser_defaults: dict) -> dict | None
     }
 
 
-_VLM_DEFAULTS = {"vlm_every": 5, "vlm_latency_frames": 0, "vlm_observe_images": 2, "vlm_on_fault": "error",
-                 "vlm_timeout": 60.0, "vlm_template": "v1", "vlm_api_key_env": "OPENAI_API_KEY",
-                 "vlm_no_json_schema": False, "vlm_temperature": 0.0, "vlm_seed": 0}
-
-
 def cmd_eval(args: argparse.Namespace) -> int:
     from pipeline.jobs.evaluate import evaluate
 
-    vlm = _vlm_options(args, _VLM_DEFAULTS)
+    vlm = _vlm_options(args)
     if vlm is None:
         _importable_cwd(args.policy)
     evaluate(
