@@ -17,6 +17,7 @@ from schemas.errors import SpecError
 from schemas.motion import Motion, _load_json
 from schemas.names import shorten, validate_name
 from schemas.objects import object_category
+from schemas.obstacles import Obstacle, obstacles_from_list, obstacles_to_list
 from schemas.scene import (
     COMPLEX_MOTION_TYPES,
     GRASP_FRAMES,
@@ -43,6 +44,9 @@ SPEC_FIELDS = (
     "num_frames",
     "text",
 )
+#: Fields a spec may omit: ``obstacles`` (none by default; left out of the JSON when empty,
+#: so a spec without obstacles keeps the canonical JSON and hash it always had).
+OPTIONAL_FIELDS = ("obstacles",)
 
 _MOTION_TYPES = MOTION_TYPES + COMPLEX_MOTION_TYPES + ("custom",)
 
@@ -95,6 +99,7 @@ class EpisodeSpec:
     observe_frames: int
     num_frames: int
     text: str
+    obstacles: tuple[Obstacle, ...] = ()
 
     def __post_init__(self) -> None:
         validate_name("spec.slice", self.slice)
@@ -142,6 +147,7 @@ class EpisodeSpec:
                 f"spec.text is not valid Unicode text ({exc.reason} at character {exc.start}: "
                 f"{shorten(repr(self.text[exc.start]))}), got {shorten(self.text)!r}"
             ) from None
+        object.__setattr__(self, "obstacles", obstacles_from_list(self.obstacles))
         implied = implied_motion_types(self.motion)
         if self.motion_type != "custom" and self.motion_type not in implied:
             raise SpecError(
@@ -182,6 +188,8 @@ class EpisodeSpec:
     def to_dict(self) -> dict[str, Any]:
         out = {name: getattr(self, name) for name in SPEC_FIELDS}
         out["motion"] = self.motion.to_dict()
+        if self.obstacles:
+            out["obstacles"] = obstacles_to_list(self.obstacles)
         return out
 
     def to_json(self) -> str:
@@ -199,11 +207,13 @@ class EpisodeSpec:
         missing = [n for n in SPEC_FIELDS if n not in data]
         if missing:
             raise SpecError(f"spec is missing field(s) {missing}")
-        unknown = sorted(set(data) - set(SPEC_FIELDS))
+        unknown = sorted(set(data) - set(SPEC_FIELDS) - set(OPTIONAL_FIELDS))
         if unknown:
             raise SpecError(f"spec has unknown field(s) {unknown}")
         values = dict(data)
         values["motion"] = Motion.from_dict(data["motion"])
+        if "obstacles" in data:
+            values["obstacles"] = obstacles_from_list(data["obstacles"])
         return cls(**values)
 
     @classmethod
