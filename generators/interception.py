@@ -148,11 +148,15 @@ def plan_episode(
     object_xz: np.ndarray,
     object_velocity_xz: np.ndarray,
     object_acceleration_xz: np.ndarray,
+    elevation: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> HandPlan:
     """Solve the interception of ``spec`` and plan the hand over its ``n`` frames.
 
     The object's XZ position, velocity and acceleration are given at the frame times
-    (arrays (n, 2)). Raises :class:`InfeasibleError` naming the reason when the target
+    (arrays (n, 2)); ``elevation`` is its height above its resting height with the
+    height's rate and acceleration (arrays (n,), :mod:`generators.ballistics`), None for
+    an object on the table. The hover point rises with the object, and the palm arrives
+    with its 3D velocity and acceleration. Raises :class:`InfeasibleError` naming the reason when the target
     leaves the workspace or the view, the palm would have to move faster than
     :data:`MAX_PALM_SPEED` or would stall before arrival, or the fingers would hit the table.
     """
@@ -165,6 +169,9 @@ def plan_episode(
             raise InfeasibleError(f"object {name} must be finite with shape ({n}, 2), got {arr.shape}")
     a, i = spec.observe_frames, spec.intercept_frame
     frames = np.arange(n)
+    lift, lift_v, lift_a = (np.zeros(n),) * 3 if elevation is None else (np.asarray(e, dtype=np.float64) for e in elevation)
+    if any(e.shape != (n,) or not np.isfinite(e).all() for e in (lift, lift_v, lift_a)):
+        raise InfeasibleError(f"object elevations must be finite with shape ({n},)")
 
     eps = 1e-9
     outside = (
@@ -182,14 +189,14 @@ def plan_episode(
     cat = object_category(spec.object)
     centre_y = cat.half_height(spec.object_size)
     hover_y = 2.0 * centre_y + PALM_HOVER
-    hover = np.column_stack([obj[:, 0], np.full(n, hover_y), obj[:, 1]])
-    _check_in_view("object", np.column_stack([obj[:, 0], np.full(n, centre_y), obj[:, 1]]))
+    hover = np.column_stack([obj[:, 0], hover_y + lift, obj[:, 1]])
+    _check_in_view("object", np.column_stack([obj[:, 0], centre_y + lift, obj[:, 1]]))
 
     palm = np.repeat(REST_PALM[None, :3], n, axis=0)
     duration = (i - a) / FPS
     s = (frames[a : i + 1] - a) / (i - a)
-    end_vel = np.array([vel[i, 0], 0.0, vel[i, 1]])
-    end_acc = np.array([acc[i, 0], 0.0, acc[i, 1]])
+    end_vel = np.array([vel[i, 0], lift_v[i], vel[i, 1]])
+    end_acc = np.array([acc[i, 0], lift_a[i], acc[i, 1]])
     palm[a : i + 1] = quintic(REST_PALM[:3], hover[i], end_vel, end_acc, duration, s)
     palm[i:] = hover[i:]
 

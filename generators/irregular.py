@@ -155,14 +155,17 @@ class Choices:
     text: int
 
 
-def choices(seed: int, index: int, setting: str | None) -> tuple[Choices, np.random.Generator]:
+def choices(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[Choices, np.random.Generator]:
     """Episode ``index``'s choices and the generator its motion attempts then draw from.
 
-    ``setting`` None cycles the three interception settings (a test set). The choices come
-    first in the stream, so counts and lengths are known without trying any motion."""
+    The regular family cycles with ``cycle`` (default ``index``; a mixed test set passes
+    the episode's place among its irregular ones); ``setting`` None cycles the three
+    interception settings too (a test set). The choices come first in the stream, so
+    counts and lengths are known without trying any motion."""
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, index])))
-    family = REGULAR[index % len(REGULAR)]
-    chosen = setting or tuple(INTERCEPT_SECONDS)[(index // len(REGULAR)) % len(INTERCEPT_SECONDS)]
+    cycle = index if cycle is None else cycle
+    family = REGULAR[cycle % len(REGULAR)]
+    chosen = setting or tuple(INTERCEPT_SECONDS)[(cycle // len(REGULAR)) % len(INTERCEPT_SECONDS)]
     observe = round(_uniform(rng, *OBSERVE_SECONDS) * FPS)
     num_frames = observe + round(INTERCEPT_SECONDS[chosen] * FPS) + GRASP_FRAMES + HOLD_FRAMES
     obj = int(rng.random() * len(OBJECT_NAMES))
@@ -172,11 +175,11 @@ def choices(seed: int, index: int, setting: str | None) -> tuple[Choices, np.ran
     return Choices(family, chosen, observe, num_frames, obj, size_index, hand, text), rng
 
 
-def irregular_spec(slice_name: str, seed: int, setting: str | None, index: int) -> EpisodeSpec:
+def irregular_spec(slice_name: str, seed: int, setting: str | None, index: int, cycle: int | None = None) -> EpisodeSpec:
     """Episode ``index`` of an irregular slice (module docstring)."""
     from pipeline.stages.episode import plan  # the stage chain decides interceptability
 
-    c, rng = choices(seed, index, setting)
+    c, rng = choices(seed, index, setting, cycle)
     name = OBJECT_NAMES[c.object_index]
     radius, top = float(OBJECT_RADII[c.object_index, c.size_index]), float(OBJECT_TOPS[c.object_index, c.size_index])
     for _ in range(MAX_DRAWS):
@@ -198,29 +201,7 @@ def irregular_spec(slice_name: str, seed: int, setting: str | None, index: int) 
     raise InfeasibleError(f"episode {index} of {slice_name} found no feasible motion in {MAX_DRAWS} attempts")
 
 
-def irregular_summary(slice_name: str, seed: int, setting: str | None, episodes: int) -> dict:
-    """``catalog stats`` of an irregular slice from its choices alone (no motion is tried):
-    every episode's motion is its own parameter set."""
-    frames, objects = [], set()
-    for index in range(episodes):
-        c, _ = choices(seed, index, setting)
-        frames.append(c.num_frames)
-        objects.add(OBJECT_NAMES[c.object_index])
-    from schemas.objects import OBJECTS
-
-    total = int(sum(frames))
-    return {
-        "slice": slice_name,
-        "total_episodes": episodes,
-        "total_frames": total,
-        "total_seconds": round(total / FPS, 2),
-        "objects": {"categories": len(objects), "rolling": sum(1 for o in objects if OBJECTS[o].rolling)},
-        "rollout_formats": {"observe-before-act": episodes, "direct-act": 0},
-        "motion_types": {
-            "irregular": {
-                "episodes": episodes,
-                "parameter_sets": episodes,
-                "mean_frames": round(float(np.mean(frames)), 2) if episodes else None,
-            }
-        },
-    }
+def choice_frames(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[int, str]:
+    """(frames, object) of an episode from its choices alone (``catalog stats``)."""
+    c, _ = choices(seed, index, setting, cycle)
+    return c.num_frames, OBJECT_NAMES[c.object_index]

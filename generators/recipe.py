@@ -347,16 +347,16 @@ def _spec(table: EpisodeTable, k: int) -> EpisodeSpec:
 def spec_for(slice_name: str, index: int) -> EpisodeSpec:
     """Episode ``index`` of a slice. For ``dyana-12m`` the index runs over the nine
     atomic slices concatenated, and the spec keeps its own slice name and index.
-    Irregular slices come from :mod:`generators.irregular`."""
+    The harder settings' slices come from :mod:`generators.appendix`."""
     definition = get_slice(slice_name)
     if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < definition.episodes:
         raise SpecError(
             f"episode index must be an integer in [0, {definition.episodes}) for slice {slice_name}, got {index!r}"
         )
-    if definition.generator == "irregular":
-        from generators.irregular import irregular_spec
+    if definition.generator != "recipe":
+        from generators.appendix import appendix_spec
 
-        return irregular_spec(definition.name, definition.seed, definition.intercept_setting, int(index))
+        return appendix_spec(definition, int(index))
     return _spec(_table(definition, np.array([int(index)], dtype=np.int64)), 0)
 
 
@@ -369,7 +369,7 @@ def slice_specs(slice_name: str, episodes: int | None = None) -> Iterator[Episod
     count = _check_count(definition, episodes)
 
     def generate() -> Iterator[EpisodeSpec]:
-        if definition.generator == "irregular":
+        if definition.generator != "recipe":
             yield from (spec_for(slice_name, i) for i in range(count))
             return
         for start in range(0, count, CHUNK):
@@ -423,11 +423,10 @@ def summarize_table(slice_name: str, table: EpisodeTable) -> dict:
 def slice_summary(slice_name: str, episodes: int | None = None) -> dict:
     """``catalog stats``: a slice's counts, enumerated without building spec objects."""
     definition = get_slice(slice_name)
-    if definition.generator == "irregular":
-        from generators.irregular import irregular_summary
+    if definition.generator != "recipe":
+        from generators.appendix import appendix_summary
 
-        count = _check_count(definition, episodes)
-        return irregular_summary(slice_name, definition.seed, definition.intercept_setting, count)
+        return appendix_summary(definition, _check_count(definition, episodes))
     return summarize_table(slice_name, episode_table(slice_name, episodes))
 
 
@@ -466,7 +465,7 @@ def slice_overview() -> list[dict]:
     """``catalog list``: every slice with its episodes and frames (a union sums its parts)."""
     frames: dict[str, int] = {}
     for name, definition in SLICES.items():
-        if definition.generator == "irregular":
+        if definition.generator != "recipe":
             frames[name] = slice_summary(name)["total_frames"]
         elif not definition.union:
             frames[name] = int(episode_table(name)["num_frames"].sum())

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from generators.ballistics import elevation
 from generators.segments import _along, _gauss, _grid, _Segment, _walk, _weighted
 from generators.tracks import (
     _FIRST_HEADING,
@@ -235,8 +236,10 @@ def object_orientation(motion: Motion, category: ObjectCategory | str, size: flo
 
 def object_pose(motion: Motion, category: ObjectCategory | str, size: float, t) -> tuple[np.ndarray, np.ndarray]:
     """The target's poses ``(n, 7)`` = x, y, z, qx, qy, qz, qw and world velocities
-    ``(n, 3)`` (vy = 0); y is the category's resting half height. See
-    :func:`object_orientation` for the rotation conventions."""
+    ``(n, 3)``; y is the category's resting half height plus the flight's elevation
+    (:mod:`generators.ballistics`, 0 on the table). See :func:`object_orientation` for
+    the rotation conventions."""
+
     category = _category(category)
     size = _check_size(category, size)
     _check_motion(motion)
@@ -245,11 +248,13 @@ def object_pose(motion: Motion, category: ObjectCategory | str, size: float, t) 
     n = t.shape[0]
     pose = np.empty((n, 7))
     pose[:, 0] = sample.position[:, 0]
-    pose[:, 1] = category.half_height(size)
+    lift = elevation(motion, t)
+    pose[:, 1] = category.half_height(size) + lift.height
     pose[:, 2] = sample.position[:, 1]
     pose[:, 3:] = object_orientation(motion, category, size, t)
     vel = np.zeros((n, 3))
     vel[:, 0], vel[:, 2] = sample.velocity[:, 0], sample.velocity[:, 1]
+    vel[:, 1] = lift.velocity
     return pose, vel
 
 

@@ -18,6 +18,7 @@ from schemas.motion import (
     HarmonicToken,
     LineToken,
     Motion,
+    ProjectileToken,
     Token,
     Track,
 )
@@ -219,6 +220,14 @@ def _make_piece(token: Token, t0: float, prev: _Piece | None) -> _Piece:
         sx, sz = token.start if end is None else (float(end[0][0]), float(end[0][1]))
         p = (sx, sz, math.cos(token.direction), math.sin(token.direction), token.speed, token.acceleration)
         return _Piece("L", t0, token.duration, p)
+    if isinstance(token, ProjectileToken):
+        # In the table plane a flight is a line at constant velocity (generators.ballistics
+        # adds the height).
+        sx, sz = token.start if end is None else (float(end[0][0]), float(end[0][1]))
+        vx, vz = token.velocity[0], token.velocity[2]
+        speed = math.hypot(vx, vz)
+        ux, uz = (vx / speed, vz / speed) if speed > 0.0 else (1.0, 0.0)
+        return _Piece("L", t0, token.duration, (sx, sz, ux, uz, speed, 0.0))
     if isinstance(token, ArcToken):
         w = token.turn * token.angular_velocity
         cx, cz = token.centre

@@ -1,7 +1,10 @@
 """The paper's two events, defined once (paper A.5).
 
 *Localization*: the palm centre is within :data:`~schemas.scene.LOC_TOLERANCE` of the
-object's centre in the XZ (table) plane. *Grasp*: every finger joint has reached
+object's centre in the XZ (table) plane; for an object that flies (a projectile, paper
+A.11), within that distance in 3D of the hover point above its top (the object's centre
+raised by :func:`hover_offset`), so a palm under or far above a flying object is not
+over it. *Grasp*: every finger joint has reached
 :data:`~schemas.scene.GRASP_RATIO` of the episode's ground-truth grasp angles.
 
 The closed-loop environment (which labels phases and ends an episode on grasp), the
@@ -15,8 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas.scene import GRASP_CONTACT_TOLERANCE, GRASP_RATIO, LOC_TOLERANCE, PHASES
-from schemas.spec import acting_horizon
+from schemas.objects import object_category
+from schemas.scene import GRASP_CONTACT_TOLERANCE, GRASP_RATIO, LOC_TOLERANCE, PALM_HOVER, PHASES
+from schemas.spec import EpisodeSpec, acting_horizon
 
 OBSERVE = PHASES.index("observe")
 
@@ -28,14 +32,44 @@ def palm_xz_distance(palm_xyz: np.ndarray, object_xyz: np.ndarray) -> np.ndarray
     return np.hypot(palm[..., 0] - obj[..., 0], palm[..., 2] - obj[..., 2])
 
 
+#: Substring of a motion's canonical JSON (the ``tokens`` column) that marks a flight.
+PROJECTILE_MARK = '"type":"P"'
+
+
+def hover_offset(object_name: str, object_size: float, airborne: bool) -> float:
+    """Height of the hover point above the object's centre (its top plus the palm's hover
+    height) for a flying object; NaN for one on the table (localized in XZ)."""
+    if not airborne:
+        return float("nan")
+    return object_category(object_name).half_height(object_size) + PALM_HOVER
+
+
+def spec_hover_offset(spec: EpisodeSpec) -> float:
+    return hover_offset(spec.object, spec.object_size, spec.motion.airborne)
+
+
+def palm_distance(palm_xyz: np.ndarray, object_xyz: np.ndarray, offset=None) -> np.ndarray:
+    """The localization distance, (...,): the palm's XZ distance to the object's centre,
+    or where ``offset`` (scalar or (...,), :func:`hover_offset`) is not NaN the palm's 3D
+    distance to the hover point ``object + (0, offset, 0)``."""
+    d_xz = palm_xz_distance(palm_xyz, object_xyz)
+    if offset is None:
+        return d_xz
+    off = np.broadcast_to(np.asarray(offset, dtype=np.float64), d_xz.shape)
+    dy = np.asarray(palm_xyz, dtype=np.float64)[..., 1] - np.asarray(object_xyz, dtype=np.float64)[..., 1] - off
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isnan(off), d_xz, np.hypot(d_xz, dy))
+
+
 def within_tolerance(distance: np.ndarray) -> np.ndarray:
     """Whether a palm XZ distance counts as localized."""
     return np.asarray(distance) <= LOC_TOLERANCE
 
 
-def localized(palm_xyz: np.ndarray, object_xyz: np.ndarray) -> np.ndarray:
-    """Whether the palm is over the object (per frame, (...,) bool)."""
-    return within_tolerance(palm_xz_distance(palm_xyz, object_xyz))
+def localized(palm_xyz: np.ndarray, object_xyz: np.ndarray, offset=None) -> np.ndarray:
+    """Whether the palm is over the object (per frame, (...,) bool); ``offset`` as for
+    :func:`palm_distance`."""
+    return within_tolerance(palm_distance(palm_xyz, object_xyz, offset))
 
 
 def grasp_closed(joint_angles: np.ndarray, grasp_angles: np.ndarray) -> np.ndarray:

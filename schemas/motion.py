@@ -28,6 +28,9 @@ from schemas.errors import SpecError
 from schemas.names import shorten
 
 Vec2 = tuple[float, float]
+Vec3 = tuple[float, float, float]
+#: Standard gravity in scene units (9.81 m/s^2 = 98.1 units/s^2), the default of ``P``.
+STANDARD_GRAVITY = 98.1
 
 
 def _finite(owner: str, name: str, value: Any) -> float:
@@ -46,6 +49,12 @@ def _vec2(owner: str, name: str, value: Any) -> Vec2:
     if not isinstance(value, (tuple, list)) or len(value) != 2:
         raise SpecError(f"{owner}.{name} must be a pair [x, z], got {shorten(repr(value))}")
     return (_finite(owner, f"{name}[0]", value[0]), _finite(owner, f"{name}[1]", value[1]))
+
+
+def _vec3(owner: str, name: str, value: Any) -> Vec3:
+    if not isinstance(value, (tuple, list)) or len(value) != 3:
+        raise SpecError(f"{owner}.{name} must be a triple [x, y, z], got {shorten(repr(value))}")
+    return tuple(_finite(owner, f"{name}[{k}]", value[k]) for k in range(3))
 
 
 def _positive(owner: str, name: str, value: Any) -> float:
@@ -159,6 +168,40 @@ class ClothoidToken:
         object.__setattr__(self, "curvature", _finite("C", "curvature", self.curvature))
 
 
+@dataclass(frozen=True)
+class ProjectileToken:
+    """``P``: drag-free ballistic flight, the only token that leaves the table plane.
+
+    Horizontally the object moves like a line at the constant velocity
+    ``(velocity[0], velocity[2])``; vertically its centre rises ``height`` above its resting
+    height at the start (when the token opens the track; after another token it starts at
+    that token's end elevation, 0 for planar tokens) with upward speed ``velocity[1]``
+    under ``gravity`` (units/s^2, default 9.81 m/s^2). Landing on the table it bounces
+    with ``restitution`` (upward speed = restitution x impact speed) until a bounce is
+    slower than :data:`generators.ballistics.REST_SPEED`, then slides on. See
+    :mod:`generators.ballistics` for the closed forms and the orientation.
+    """
+
+    start: Vec2
+    velocity: Vec3
+    duration: float
+    height: float = 0.0
+    gravity: float = STANDARD_GRAVITY
+    restitution: float = 0.0
+    type: ClassVar[str] = "P"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start", _vec2("P", "start", self.start))
+        object.__setattr__(self, "velocity", _vec3("P", "velocity", self.velocity))
+        object.__setattr__(self, "duration", _positive("P", "duration", self.duration))
+        object.__setattr__(self, "height", _non_negative("P", "height", self.height))
+        object.__setattr__(self, "gravity", _positive("P", "gravity", self.gravity))
+        restitution = _non_negative("P", "restitution", self.restitution)
+        if restitution >= 1.0:
+            raise SpecError(f"P.restitution must be < 1 (a bounce loses energy), got {shorten(repr(restitution))}")
+        object.__setattr__(self, "restitution", restitution)
+
+
 def _load_json(what: str, text: Any) -> Any:
     """``json.loads`` whose every failure (bad syntax, wrong type, nesting too deep for
     the parser) is a :class:`SpecError` naming ``what``."""
@@ -174,12 +217,14 @@ def _load_json(what: str, text: Any) -> Any:
         raise SpecError(f"{what} JSON is nested too deeply") from None
 
 
-Token = LineToken | ArcToken | HarmonicToken | ClothoidToken
+Token = LineToken | ArcToken | HarmonicToken | ClothoidToken | ProjectileToken
 #: Bounds that keep a spec's cost small (the recipe uses one token and no overlay; the
 #: episode stage is linear in the token count, these only cap a hostile input).
 MAX_TRACK_TOKENS = 256
 MAX_OVERLAYS = 16
-TOKEN_TYPES: dict[str, type] = {cls.type: cls for cls in (LineToken, ArcToken, HarmonicToken, ClothoidToken)}
+TOKEN_TYPES: dict[str, type] = {
+    cls.type: cls for cls in (LineToken, ArcToken, HarmonicToken, ClothoidToken, ProjectileToken)
+}
 
 
 def token_to_dict(token: Token) -> dict[str, Any]:
@@ -260,6 +305,8 @@ class Motion:
         for overlay in overlays:
             if not isinstance(overlay, Track):
                 raise SpecError(f"motion overlay must be a Track, got {shorten(repr(overlay))}")
+            if any(isinstance(t, ProjectileToken) for t in overlay.tokens):
+                raise SpecError("a projectile token (P) may only be in the base track, not in an overlay")
         object.__setattr__(self, "overlays", overlays)
 
     @classmethod
@@ -271,6 +318,11 @@ class Motion:
     def duration(self) -> float:
         """The base track's duration: the motion is defined on [0, duration]."""
         return self.base.duration
+
+    @property
+    def airborne(self) -> bool:
+        """Whether the object may leave the table (a ``P`` token in the base track)."""
+        return any(t.type == "P" for t in self.base.tokens)
 
     @property
     def token_types(self) -> str:

@@ -58,6 +58,6 @@ HOLD_FRAMES = 4
 PHASES = ("observe", "approach", "grasp", "hold")
 MOTION_TYPES = ("linear", "circular", "harmonic")
 #: Harder settings of the paper's appendix A.11 (not part of Dyana-12M or test-1k).
-COMPLEX_MOTION_TYPES = ("irregular",)
+COMPLEX_MOTION_TYPES = ("projectile", "obstacle", "irregular")
 ROLLOUT_FORMATS = ("observe-before-act", "direct-act")
 HANDS = ("right", "left")

@@ -6,9 +6,13 @@ possible (earlier settings take the remainder). ``test-1k`` is 1,000 held-out ep
 cycling over the nine (type, setting) cells, with its own seed. ``dyana-12m`` is the
 union of the nine: its episodes are theirs, in registry order, each keeping its own
 slice name, index and seed (its own ``seed`` field is therefore 0 and unused).
-``irregular-{fast,medium,slow}`` and ``test-irregular`` (99 episodes cycling over the
-three regular families and three settings) are the paper's A.11 irregular-to-regular
-setting, made by :mod:`generators.irregular`; they are not part of Dyana-12M.
+The paper's A.11 harder settings are not part of Dyana-12M:
+``projectile-{fast,medium,slow}`` (:mod:`generators.projectile`),
+``obstacle-{fast,medium,slow}`` (:mod:`generators.obstacles`) and
+``irregular-{fast,medium,slow}`` (:mod:`generators.irregular`), 600 episodes each;
+``test-irregular`` (99 episodes cycling over the three regular families and three
+settings) and ``test-complex`` (300 held-out episodes interleaving the three settings,
+:mod:`generators.appendix`).
 Episode ``i`` of a slice draws from ``SeedSequence([seed, i])``, so seeds are distinct.
 """
 
@@ -28,7 +32,14 @@ TEST_SEED = 1_000
 #: seed of its held-out test set (the three slices take the next seeds).
 IRREGULAR_EPISODES = 600
 IRREGULAR_SEED = 2_000
-GENERATORS = ("recipe", "irregular")
+#: The projectile and obstacle settings: episodes per interception setting and base seeds
+#: (the slices take the next seeds), and the held-out mixed set's size and seed.
+APPENDIX_EPISODES = 600
+PROJECTILE_SEED = 3_000
+OBSTACLE_SEED = 4_000
+COMPLEX_EPISODES = 300
+COMPLEX_SEED = 5_000
+GENERATORS = ("recipe", "irregular", "projectile", "obstacle", "complex")
 
 
 @dataclass(frozen=True)
@@ -42,7 +53,8 @@ class SliceDef:
     episodes: int
     seed: int
     parts: tuple[str, ...] = ()
-    #: Who makes the episodes: the Dyana-12M ``recipe``, or ``irregular`` (generators.irregular).
+    #: Who makes the episodes: the Dyana-12M ``recipe``, or a harder setting of paper A.11
+    #: (``projectile``, ``obstacle``, ``irregular``, or ``complex`` mixing the three).
     generator: str = "recipe"
 
     def __post_init__(self) -> None:
@@ -95,10 +107,16 @@ def _registry() -> dict[str, SliceDef]:
     slices["test-1k"] = SliceDef("test-1k", None, None, 1_000, TEST_SEED)
     total = sum(slices[name].episodes for name in atomic)
     slices["dyana-12m"] = SliceDef("dyana-12m", None, None, total, 0, parts=atomic)
-    for k, setting in enumerate(SETTINGS):
-        name = f"irregular-{setting}"
-        slices[name] = SliceDef(name, "irregular", setting, IRREGULAR_EPISODES, IRREGULAR_SEED + 1 + k, generator="irregular")
+    for family, count, base in (
+        ("projectile", APPENDIX_EPISODES, PROJECTILE_SEED),
+        ("obstacle", APPENDIX_EPISODES, OBSTACLE_SEED),
+        ("irregular", IRREGULAR_EPISODES, IRREGULAR_SEED),
+    ):
+        for k, setting in enumerate(SETTINGS):
+            name = f"{family}-{setting}"
+            slices[name] = SliceDef(name, family, setting, count, base + 1 + k, generator=family)
     slices["test-irregular"] = SliceDef("test-irregular", None, None, 99, IRREGULAR_SEED, generator="irregular")
+    slices["test-complex"] = SliceDef("test-complex", None, None, COMPLEX_EPISODES, COMPLEX_SEED, generator="complex")
     return slices
 
 

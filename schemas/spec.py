@@ -149,6 +149,8 @@ class EpisodeSpec:
             ) from None
         object.__setattr__(self, "obstacles", obstacles_from_list(self.obstacles))
         implied = implied_motion_types(self.motion)
+        if self.obstacles:
+            implied.add("obstacle")
         if self.motion_type != "custom" and self.motion_type not in implied:
             raise SpecError(
                 f"spec.motion_type {shorten(repr(self.motion_type))} contradicts the motion's tokens, which make it "
@@ -222,7 +224,7 @@ class EpisodeSpec:
 
 
 #: Motion type of each token kind; ``C`` (clothoid) only connects the others.
-TOKEN_MOTION_TYPES = {"L": "linear", "A": "circular", "H": "harmonic"}
+TOKEN_MOTION_TYPES = {"L": "linear", "A": "circular", "H": "harmonic", "P": "projectile"}
 #: Longest instruction text a spec may carry.
 MAX_TEXT = 10_000
 

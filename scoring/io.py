@@ -19,7 +19,7 @@ import pyarrow.compute as pc
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
 from schemas.errors import ShardError
-from schemas.events import acting, acting_budget
+from schemas.events import PROJECTILE_MARK, acting, acting_budget, hover_offset, spec_hover_offset
 from schemas.frames import EpisodeFrames
 from schemas.scene import PHASES
 from schemas.spec import EpisodeSpec
@@ -27,7 +27,7 @@ from schemas.spec import EpisodeSpec
 FRAME_COLUMNS = ("episode_index", "frame_index", "phase", "palm_pose", "object_pose", "joint_angles", "fingertip_distance")
 EPISODE_COLUMNS = (
     "episode_index", "episode_id", "motion_type", "intercept_setting", "object", "hand", "rollout_format",
-    "grasp_angles", "num_frames", "observe_frames",
+    "grasp_angles", "num_frames", "observe_frames", "object_size", "tokens",
 )
 ROLLOUT_COLUMNS = ("policy", "privileged", "status", "error")
 #: Phases in which the hand acts; every other frame is observation only.
@@ -65,6 +65,9 @@ class RunData:
     hand: np.ndarray
     rollout_format: np.ndarray
     privileged: bool = False
+    #: (n,) the hover point's height above the object's centre for a flying object,
+    #: NaN for one on the table (:func:`schemas.events.hover_offset`).
+    hover_offset: np.ndarray | None = None
 
     @property
     def episodes(self) -> int:
@@ -168,6 +171,17 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         hand=_strings(episodes.column("hand")),
         rollout_format=_strings(episodes.column("rollout_format")),
         privileged=privileged,
+        hover_offset=np.array(
+            [
+                hover_offset(name, size, PROJECTILE_MARK in tokens)
+                for name, size, tokens in zip(
+                    episodes.column("object").to_pylist(),
+                    episodes.column("object_size").to_pylist(),
+                    episodes.column("tokens").to_pylist(),
+                )
+            ],
+            dtype=np.float64,
+        ),
     )
 
 
@@ -224,4 +238,5 @@ def from_recordings(
         episode_id=np.array([s.episode_id for s in specs], dtype=object),
         hand=np.array([s.hand for s in specs], dtype=object),
         rollout_format=np.array([s.rollout_format for s in specs], dtype=object),
+        hover_offset=np.array([spec_hover_offset(s) for s in specs], dtype=np.float64),
     )

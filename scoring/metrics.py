@@ -139,6 +139,7 @@ def episode_metrics(
     fingertip_distance: np.ndarray,
     grasp_angles: np.ndarray,
     acting_budget: np.ndarray | None = None,
+    hover_offset: np.ndarray | None = None,
 ) -> EpisodeMetrics:
     """Per-episode metrics from the acting frames of ``n`` episodes.
 
@@ -147,7 +148,8 @@ def episode_metrics(
     truth. Distances are computed in float64 from the recorded values.
     ``acting_budget`` (n,) is R_time's N, the acting frames the episode could last
     (rollouts stop at grasp completion, so their recorded count would always give 0);
-    by default the recorded acting frames.
+    by default the recorded acting frames. ``hover_offset`` (n,) makes localization 3D
+    for flying objects (:func:`schemas.events.palm_distance`; NaN: in XZ, the default).
     """
     palm = np.asarray(palm_xyz, dtype=np.float64)
     obj = np.asarray(object_xyz, dtype=np.float64)
@@ -169,7 +171,13 @@ def episode_metrics(
     local = np.arange(m, dtype=np.int64) - offsets[:-1][owner]
     never = np.iinfo(np.int64).max
 
-    d_xz = events.palm_xz_distance(palm, obj)
+    if hover_offset is None:
+        d_xz = events.palm_xz_distance(palm, obj)
+    else:
+        offset = np.asarray(hover_offset, dtype=np.float64)
+        if offset.shape != (n,):
+            raise ValueError(f"hover_offset must have shape ({n},), got {offset.shape}")
+        d_xz = events.palm_distance(palm, obj, offset[owner])
     e_loc = _segment_min(d_xz, offsets, np.nan)
     e_gra = _segment_min(tips, offsets, np.nan)
     first_loc = _segment_min(np.where(events.within_tolerance(d_xz), local, never), offsets, never)

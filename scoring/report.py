@@ -68,7 +68,7 @@ def score_run(data: RunData, label: str | None = None) -> RunReport:
     """Per-episode metrics of every episode, then the overall and grouped summaries."""
     per: EpisodeMetrics = episode_metrics(
         data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles,
-        data.acting_budget,
+        data.acting_budget, data.hover_offset,
     )
     breakdowns: dict[str, dict[str, Summary]] = {}
     for key, attribute, canonical, _ in BREAKDOWNS:

@@ -77,7 +77,7 @@ from generators.hand import (
 )
 from generators.motion import object_pose
 from schemas.errors import DyanaError, PolicyError, SpecError
-from schemas.events import grasp_closed, localized, palm_xz_distance
+from schemas.events import grasp_closed, localized, palm_distance, spec_hover_offset
 from schemas.frames import EpisodeFrames
 from schemas.objects import object_category
 from schemas.scene import DEFAULT_RESOLUTION, PALM_REST, PHASES, TABLE_X, TABLE_Z
@@ -365,7 +365,8 @@ class DyanaEnv(_Base):
         obj = self._object_pose[k]
         tips = keypoints.reshape(1, 6, 6)[:, :5, :3]
         tip_distance = np.float32(fingertip_distance(tips, spec.object, spec.object_size, obj[None].astype(np.float64))[0])
-        distance = float(palm_xz_distance(palm_pose, obj))
+        offset = spec_hover_offset(spec)
+        distance = float(palm_distance(palm_pose, obj, offset))
         f = self._frames
         f["palm_pose"].append(palm_pose)
         f["joint_angles"].append(joints.astype(np.float32))
@@ -377,7 +378,7 @@ class DyanaEnv(_Base):
         if k < self._first:
             phase = _PHASE["observe"]
         else:
-            if self._loc_frame is None and localized(palm_pose, obj):
+            if self._loc_frame is None and localized(palm_pose, obj, offset):
                 self._loc_frame = k
             if self._gra_frame is None and grasp_closed(joints, self._grasp):
                 self._gra_frame = k

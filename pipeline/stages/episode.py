@@ -15,12 +15,13 @@ from __future__ import annotations
 import numpy as np
 
 from generators import motion
+from generators.ballistics import elevation
 from generators.contact import fingertip_distance
 from generators.hand import forward_kinematics
 from generators.interception import HandPlan, plan_episode
 from generators.visibility import first_hidden_frame
 from schemas.errors import InfeasibleError
-from schemas.events import palm_xz_distance
+from schemas.events import palm_distance, spec_hover_offset
 from schemas.frames import EpisodeFrames
 from schemas.objects import object_category
 from schemas.scene import MIN_OBSERVE_VISIBLE
@@ -65,7 +66,7 @@ def assemble_frames(
         keypoints=keypoints.astype(f32),
         action=np.asarray(action, dtype=f32),
         fingertip_distance=fingertip_distance(tips, spec.object, spec.object_size, object_pose).astype(f32),
-        palm_distance=palm_xz_distance(palm_pose[:, :3], object_pose[:, :3]).astype(f32),
+        palm_distance=palm_distance(palm_pose[:, :3], object_pose[:, :3], spec_hover_offset(spec)).astype(f32),
         grasp_angles=np.asarray(grasp_angles, dtype=f32),
     )
 
@@ -89,7 +90,11 @@ def plan(spec: EpisodeSpec) -> tuple[HandPlan, np.ndarray, np.ndarray]:
     interception cannot be planned."""
     poses, velocity, sample = object_trajectory(spec)
     check_observable(spec, poses)
-    return plan_episode(spec, sample.position, sample.velocity, sample.acceleration), poses, velocity
+    lift = None
+    if spec.motion.airborne:
+        e = elevation(spec.motion, frame_times(spec.num_frames))
+        lift = (e.height, e.velocity, e.acceleration)
+    return plan_episode(spec, sample.position, sample.velocity, sample.acceleration, lift), poses, velocity
 
 
 def episode(spec: EpisodeSpec) -> EpisodeFrames:

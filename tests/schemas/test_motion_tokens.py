@@ -17,6 +17,7 @@ from schemas.motion import (
     HarmonicToken,
     LineToken,
     Motion,
+    ProjectileToken,
     Track,
     token_from_dict,
     token_to_dict,
@@ -29,6 +30,7 @@ TOKENS = [
     HarmonicToken((0.0, 4.0), 0.7, 1.0, 0.8, 0.2, 4.0, (0.3, -0.1)),
     ClothoidToken(0.5, 2.0),
     ClothoidToken(-0.5, 2.0, (1.0, 2.0), 0.4, 1.5, 0.25),
+    ProjectileToken((0.0, 3.0), (1.0, 6.0, 0.5), 2.0, height=1.5, restitution=0.7),
 ]
 
 GOOD = {
@@ -36,6 +38,7 @@ GOOD = {
     "A": {"type": "A", "centre": [0.0, 4.0], "radius": 1.5, "angular_velocity": 1.0, "start_angle": 0.0, "turn": 1, "duration": 2.0},
     "H": {"type": "H", "centre": [0.0, 4.0], "axis": 0.0, "amplitude": 1.0, "frequency": 0.5, "phase": 0.0, "duration": 2.0},
     "C": {"type": "C", "curvature_slope": 0.3, "duration": 2.0},
+    "P": {"type": "P", "start": [0.0, 3.0], "velocity": [1.0, 5.0, 0.0], "duration": 2.0},
 }
 
 
@@ -113,6 +116,10 @@ def test_unknown_token_type_is_named():
         (with_("L", start=[0.0]), "L.start", r"\[0.0\]"),
         (with_("L", start=[0.0, "x"]), r"L.start\[1\]", "'x'"),
         (with_("C", speed=True), "C.speed", "True"),
+        (with_("P", velocity=[1.0, 2.0]), "P.velocity", r"\[1.0, 2.0\]"),
+        (with_("P", gravity=0.0), "P.gravity", "0.0"),
+        (with_("P", height=-0.5), "P.height", "-0.5"),
+        (with_("P", restitution=1.0), "P.restitution", "1.0"),
     ],
 )
 def test_bad_values_name_the_field_and_the_value(data, field, value):
@@ -130,7 +137,9 @@ def test_non_finite_numbers_are_rejected_everywhere(kind, bad):
     pairs = [k for k, v in GOOD[kind].items() if isinstance(v, list)]
     for name in pairs:
         with pytest.raises(SpecError, match=rf"{kind}\.{name}\[1\] must be finite, got {bad!r}"):
-            token_from_dict(with_(kind, **{name: [0.0, bad]}))
+            value = [0.0] * len(GOOD[kind][name])
+            value[1] = bad
+            token_from_dict(with_(kind, **{name: value}))
 
 
 @pytest.mark.parametrize("literal, shown", [("NaN", "nan"), ("Infinity", "inf"), ("-Infinity", "-inf")])
@@ -190,3 +199,10 @@ def test_constructors_validate_too():
         Motion(Track((TOKENS[0],)), (TOKENS[1],))
     assert LineToken([1, 2], 0, 1, 0, 1).start == (1.0, 2.0)
     assert isinstance(ArcToken((0, 0), 1, 1, 0, -1.0, 1).turn, int)
+
+
+def test_projectile_tokens_belong_to_the_base_track():
+    flight = ProjectileToken((0.0, 3.0), (0.0, 4.0, 1.0), 1.0)
+    assert Motion.of(flight).airborne and not Motion.of(TOKENS[0]).airborne
+    with pytest.raises(SpecError, match=r"only be in the base track"):
+        Motion(Track((TOKENS[0],)), (Track((flight,)),))

@@ -18,9 +18,13 @@ from schemas.slices import (
 def test_registry_lists_nine_atomic_slices_then_test_and_union():
     nine = [f"{m}-{s}" for m in MOTION_TYPES for s in INTERCEPT_SECONDS]
     assert list(ATOMIC_SLICES) == nine
-    irregular = [f"irregular-{s}" for s in INTERCEPT_SECONDS] + ["test-irregular"]
-    assert list(slice_names()) == nine + ["test-1k", "dyana-12m"] + irregular
-    assert all(get_slice(name).generator == "irregular" and not get_slice(name).atomic for name in irregular)
+    harder = [f"{f}-{s}" for f in ("projectile", "obstacle", "irregular") for s in INTERCEPT_SECONDS]
+    assert list(slice_names()) == nine + ["test-1k", "dyana-12m"] + harder + ["test-irregular", "test-complex"]
+    for name in harder:
+        definition = get_slice(name)
+        assert definition.generator == name.split("-")[0] == definition.motion_type and not definition.atomic
+        assert definition.episodes == 600
+    assert get_slice("test-complex").generator == "complex" and get_slice("test-complex").episodes == 300
     for name in nine:
         motion_type, setting = name.split("-")
         definition = get_slice(name)
