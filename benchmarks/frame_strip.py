@@ -1,7 +1,8 @@
 """A frame strip of one episode, readable at a paper's column width: six frames of its
 ground truth (the start, the middle and end of the observe window, halfway to arrival,
 arrival, the last frame), each labelled with its frame index and phase, and the
-object's path so far drawn over it.
+object's path so far drawn over it; for a flying object also its ground track (the path
+dropped onto the table, dotted grey), so its height reads as the gap between the two.
 
     python benchmarks/frame_strip.py --slice irregular-medium --episode 4 --out benchmarks/results/irregular_strip.png
 """
@@ -39,12 +40,17 @@ def main(argv: list[str] | None = None) -> int:
     a, i, n = spec.observe_frames, spec.intercept_frame, spec.num_frames
     picks = sorted({0, a // 2, max(a - 1, 0), a + (i - a) // 2, i, n - 1})
     with Renderer(args.resolution) as renderer:
-        renderer.set_scene(spec.object, spec.object_size, spec.hand)
+        renderer.set_scene(spec.object, spec.object_size, spec.hand, **({"obstacles": spec.obstacles} if spec.obstacles else {}))
         images = [renderer.render(frames.object_pose[k], frames.palm_pose[k], frames.joint_angles[k]) for k in picks]
     path, _ = project(frames.object_pose[:, :3].astype(np.float64), args.resolution, args.resolution)
+    ground = frames.object_pose[:, :3].astype(np.float64)
+    ground[:, 1] = 0.0
+    track, _ = project(ground, args.resolution, args.resolution)
     figure, axes = plt.subplots(1, len(picks), figsize=(7.0, 7.0 / len(picks) + 0.55), dpi=200)
     for ax, k, image in zip(axes, picks, images):
         ax.imshow(image)
+        if spec.motion.airborne:
+            ax.plot(track[: k + 1, 0], track[: k + 1, 1], color="0.35", linewidth=0.6, linestyle=":")
         ax.plot(path[: k + 1, 0], path[: k + 1, 1], color="#D55E00", linewidth=0.8)
         ax.plot(path[a:, 0][: max(k + 1 - a, 0)], path[a:, 1][: max(k + 1 - a, 0)], color="#0072B2", linewidth=0.8)
         ax.set_title(f"frame {k}\n{PHASES[frames.phase[k]]}", fontsize=6.5, pad=2)

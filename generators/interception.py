@@ -9,6 +9,8 @@ Timeline (frames, ``a = spec.observe_frames``, ``i = spec.intercept_frame``):
   velocity and acceleration, to the hover point over the object's top at frame ``i``,
   arriving with the object's velocity and acceleration, so it never stops before
   arrival and joins the tracking motion with continuous velocity and acceleration;
+  with obstacles in the scene the path is lifted by the smallest :func:`lift_bump` that
+  keeps the hand :data:`~schemas.obstacles.OBSTACLE_MARGIN` from every one of them;
 * ``[i, n)`` the palm tracks the hover point ``(x, top + PALM_HOVER, z)`` of the
   moving object while the fingers close with a minimum-jerk profile from rest
   (frame ``i``) to :func:`generators.grasp.grasp_angles` (frame ``i + GRASP_FRAMES - 1``),
@@ -32,6 +34,7 @@ from generators.grasp import grasp_angles, lowest_fingertip_offset
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, fingertip_positions
 from schemas.errors import InfeasibleError
 from schemas.objects import object_category
+from schemas.obstacles import OBSTACLE_MARGIN
 from schemas.scene import GRASP_FRAMES, PALM_HOVER, PHASES, WORKSPACE_X, WORKSPACE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
@@ -129,6 +132,42 @@ def closure_profile(num_frames: int, intercept_frame: int) -> np.ndarray:
 
 
 
+#: Heights (units) tried, in order, for the approach's lift over obstacles.
+LIFT_RISES = tuple(0.25 * k for k in range(0, 25))
+
+
+def lift_bump(s: np.ndarray) -> np.ndarray:
+    """64 s^3 (1 - s)^3: 0 at both ends with zero velocity and acceleration, 1 at s = 1/2.
+    Added to the approach's height, it lifts the palm over obstacles without changing its
+    start, its arrival or their continuity."""
+    s = np.clip(np.asarray(s, dtype=np.float64), 0.0, 1.0)
+    return 64.0 * (s * (1.0 - s)) ** 3
+
+
+def _clearing_rise(spec: EpisodeSpec, palm: np.ndarray, joints: np.ndarray, a: int, i: int, approach) -> float:
+    """The smallest rise of :data:`LIFT_RISES` whose lifted approach keeps the hand
+    :data:`OBSTACLE_MARGIN` from every obstacle at every frame; InfeasibleError if none
+    does (or the margin is broken after arrival, where the palm tracks the object)."""
+    from generators.clearance import hand_clearance
+
+    rest = np.repeat(REST_PALM[None, 3:], len(palm), axis=0)
+    after = hand_clearance(np.concatenate([palm[i:], rest[i:]], axis=1), joints[i:], spec.hand, spec.obstacles)
+    if after.min() < OBSTACLE_MARGIN:
+        k = i + int(np.argmin(after))
+        raise InfeasibleError(f"the hand would come within {after.min():.3f} units of an obstacle at frame {k}")
+    before = hand_clearance(np.concatenate([palm[: a + 1], rest[: a + 1]], axis=1), joints[: a + 1], spec.hand,
+                            spec.obstacles)
+    if before.min() < OBSTACLE_MARGIN:
+        raise InfeasibleError(f"the resting hand is within {before.min():.3f} units of an obstacle")
+    for rise in LIFT_RISES:
+        path = approach(rise)
+        clear = hand_clearance(np.concatenate([path, rest[a : i + 1]], axis=1), joints[a : i + 1], spec.hand,
+                               spec.obstacles)
+        if clear.min() >= OBSTACLE_MARGIN:
+            return rise
+    raise InfeasibleError(f"no lift up to {LIFT_RISES[-1]} units takes the hand over the obstacles")
+
+
 def _check_in_view(name: str, points: np.ndarray) -> None:
     inside = points_in_view(points)
     if not inside.all():
@@ -192,13 +231,29 @@ def plan_episode(
     hover = np.column_stack([obj[:, 0], hover_y + lift, obj[:, 1]])
     _check_in_view("object", np.column_stack([obj[:, 0], centre_y + lift, obj[:, 1]]))
 
-    palm = np.repeat(REST_PALM[None, :3], n, axis=0)
+    grasp = grasp_angles(spec.object, spec.object_size, spec.hand)
+    if np.any(grasp < JOINT_LOWER) or np.any(grasp > JOINT_UPPER):
+        raise InfeasibleError(f"the grasp of {spec.object} (size {spec.object_size}) breaks a joint limit")
+    closure = closure_profile(n, i)
+    joints = REST_JOINTS + closure[:, None] * (grasp - REST_JOINTS)
+
     duration = (i - a) / FPS
     s = (frames[a : i + 1] - a) / (i - a)
     end_vel = np.array([vel[i, 0], lift_v[i], vel[i, 1]])
     end_acc = np.array([acc[i, 0], lift_a[i], acc[i, 1]])
-    palm[a : i + 1] = quintic(REST_PALM[:3], hover[i], end_vel, end_acc, duration, s)
+
+    def approach(at: np.ndarray, rise: float) -> np.ndarray:
+        path = quintic(REST_PALM[:3], hover[i], end_vel, end_acc, duration, at)
+        path[:, 1] += rise * lift_bump(at)
+        return path
+
+    rise = 0.0
+    palm = np.repeat(REST_PALM[None, :3], n, axis=0)
     palm[i:] = hover[i:]
+    palm[a : i + 1] = approach(s, 0.0)
+    if spec.obstacles:
+        rise = _clearing_rise(spec, palm, joints, a, i, lambda r: approach(s, r))
+        palm[a : i + 1] = approach(s, rise)
 
     steps = np.linalg.norm(np.diff(palm[a : i + 1], axis=0), axis=1)
     if steps.min() <= MIN_APPROACH_STEP:
@@ -206,16 +261,10 @@ def plan_episode(
         raise InfeasibleError(f"the palm would stall before arrival at frame {k} (step {steps.min():.2e})")
     # Peak speed of the analytic approach, sampled finely between frames.
     fine = np.linspace(0.0, 1.0, 8 * (i - a) + 1)
-    path = quintic(REST_PALM[:3], hover[i], end_vel, end_acc, duration, fine)
+    path = approach(fine, rise)
     speed = np.linalg.norm(np.diff(path, axis=0), axis=1).max() / (duration / (len(fine) - 1))
     if speed > MAX_PALM_SPEED:
         raise InfeasibleError(f"the interception needs a palm speed of {speed:.1f} units/s (> {MAX_PALM_SPEED})")
-
-    grasp = grasp_angles(spec.object, spec.object_size, spec.hand)
-    if np.any(grasp < JOINT_LOWER) or np.any(grasp > JOINT_UPPER):
-        raise InfeasibleError(f"the grasp of {spec.object} (size {spec.object_size}) breaks a joint limit")
-    closure = closure_profile(n, i)
-    joints = REST_JOINTS + closure[:, None] * (grasp - REST_JOINTS)
 
     palm_pose = np.concatenate([palm, np.repeat(REST_PALM[None, 3:], n, axis=0)], axis=1)
     _check_hand_in_view(palm, fingertip_positions(palm_pose, joints, spec.hand))

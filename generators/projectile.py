@@ -100,9 +100,9 @@ def flight(rng: np.random.Generator, seconds: float, margin: float) -> Motion | 
     for d, (low, high) in ((vx * seconds, (WORKSPACE_X[0] + margin, WORKSPACE_X[1] - margin)),
                            (vz * seconds, (low_z, WORKSPACE_Z[1] - margin))):
         ranges.append((low + max(0.0, -d), high - max(0.0, d)))
-    start = tuple(_uniform(rng, a, b) for a, b in ranges)
     if any(a >= b for a, b in ranges):
         return None
+    start = (_uniform(rng, *ranges[0]), _uniform(rng, *ranges[1]))
     token = ProjectileToken(start=start, velocity=(vx, up, vz), duration=seconds, height=height,
                             gravity=STANDARD_GRAVITY, restitution=restitution)
     return Motion.of(token)

@@ -54,7 +54,8 @@ def _vec2(owner: str, name: str, value: Any) -> Vec2:
 def _vec3(owner: str, name: str, value: Any) -> Vec3:
     if not isinstance(value, (tuple, list)) or len(value) != 3:
         raise SpecError(f"{owner}.{name} must be a triple [x, y, z], got {shorten(repr(value))}")
-    return tuple(_finite(owner, f"{name}[{k}]", value[k]) for k in range(3))
+    return (_finite(owner, f"{name}[0]", value[0]), _finite(owner, f"{name}[1]", value[1]),
+            _finite(owner, f"{name}[2]", value[2]))
 
 
 def _positive(owner: str, name: str, value: Any) -> float:
