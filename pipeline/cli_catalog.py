@@ -34,13 +34,13 @@ def cmd_list(args: argparse.Namespace) -> int:
     if args.json:
         _print_json(rows)
         return 0
-    print(f"{'slice':<16} {'motion':<9} {'setting':<8} {'episodes':>9} {'frames':>11} {'seed':>5}")
+    print(f"{'slice':<17} {'motion':<10} {'setting':<8} {'episodes':>9} {'frames':>11} {'seed':>5}")
     for row in rows:
         definition = get_slice(row["slice"])
         motion = row["motion_type"] or ("all" if definition.union else "mixed")
         setting = row["intercept_setting"] or ("all" if definition.union else "mixed")
         seed = "parts" if definition.union else str(row["seed"])
-        print(f"{row['slice']:<16} {motion:<9} {setting:<8} {row['episodes']:>9,} {row['frames']:>11,} {seed:>5}")
+        print(f"{row['slice']:<17} {motion:<10} {setting:<8} {row['episodes']:>9,} {row['frames']:>11,} {seed:>5}")
     return 0
 
 

@@ -114,7 +114,8 @@ def test_list_table():
     lines = result.stdout.splitlines()
     assert len(lines) == 1 + len(SLICES)
     assert lines[1 + list(SLICES).index("dyana-12m")].split()[:4] == ["dyana-12m", "all", "all", "184,718"]
-    assert lines[-1].split()[:4] == ["test-irregular", "mixed", "mixed", "99"]
+    assert lines[-2].split()[:4] == ["test-irregular", "mixed", "mixed", "99"]
+    assert lines[-1].split()[:4] == ["test-complex", "mixed", "mixed", "300"]
 
 
 @pytest.mark.slow
