@@ -35,7 +35,8 @@ def naive_render_fps(slice_name: str, episodes: int, resolution: int) -> tuple[f
     with Renderer(resolution) as renderer:
         start = time.perf_counter()
         for spec, frames in all_frames:
-            renderer.render_episode(frames, spec.object, spec.object_size, spec.hand, full=True)
+            renderer.render_episode(frames, spec.object, spec.object_size, spec.hand, full=True,
+                                    obstacles=spec.obstacles)
             count += frames.num_frames
         elapsed = time.perf_counter() - start
     return count / elapsed, count

@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     a, i, n = spec.observe_frames, spec.intercept_frame, spec.num_frames
     picks = sorted({0, a // 2, max(a - 1, 0), a + (i - a) // 2, i, n - 1})
     with Renderer(args.resolution) as renderer:
-        renderer.set_scene(spec.object, spec.object_size, spec.hand, **({"obstacles": spec.obstacles} if spec.obstacles else {}))
+        renderer.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
         images = [renderer.render(frames.object_pose[k], frames.palm_pose[k], frames.joint_angles[k]) for k in picks]
     path, _ = project(frames.object_pose[:, :3].astype(np.float64), args.resolution, args.resolution)
     ground = frames.object_pose[:, :3].astype(np.float64)

@@ -56,7 +56,7 @@ def measure(job: tuple[str, int, int]) -> dict:
     a, i = spec.observe_frames, spec.intercept_frame
     observe, acting_in_view, acting_unhidden = [], [], []
     with Renderer(resolution) as renderer:
-        renderer.set_scene(spec.object, spec.object_size, spec.hand)
+        renderer.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
         for k in range(i):
             shown, alone = renderer.object_pixels(frames.object_pose[k], frames.palm_pose[k], frames.joint_angles[k])
             fraction = shown / alone if alone else 0.0

@@ -391,7 +391,7 @@ class DyanaEnv(_Base):
         f["phase"].append(phase)
 
         renderer = renderer_for(self.resolution)
-        renderer.set_scene(spec.object, spec.object_size, spec.hand)
+        renderer.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
         data = encode_jpeg(renderer.render(obj, palm_pose, joints), self.jpeg_quality)
         f["images"].append(data)
         return decode_jpeg(data)

@@ -74,12 +74,12 @@ def assemble_frames(
 def check_observable(spec: EpisodeSpec, poses: np.ndarray) -> None:
     """Refuse an episode whose object is not shown enough (in the image and unhidden by the
     resting hand) in some observe frame: the protocol promises the model sees the motion."""
-    hidden = first_hidden_frame(spec.object, spec.object_size, spec.hand, poses[: spec.observe_frames])
+    hidden = first_hidden_frame(spec.object, spec.object_size, spec.hand, poses[: spec.observe_frames], spec.obstacles)
     if hidden is not None:
         frame, fraction = hidden
         raise InfeasibleError(
-            f"the object is only {fraction:.0%} visible at observe frame {frame} (the resting hand or the "
-            f"image edge hides the rest; at least {MIN_OBSERVE_VISIBLE:.0%} must show)"
+            f"the object is only {fraction:.0%} visible at observe frame {frame} (the resting hand, an "
+            f"obstacle or the image edge hides the rest; at least {MIN_OBSERVE_VISIBLE:.0%} must show)"
         )
 
 

@@ -39,7 +39,7 @@ def _close_renderers() -> None:
 def encoded_frames(spec: EpisodeSpec, frames: EpisodeFrames, resolution: int, jpeg_quality: int) -> list[bytes]:
     """Render every frame of an episode and encode it as JPEG."""
     renderer = renderer_for(resolution)
-    images = renderer.render_episode(frames, spec.object, spec.object_size, spec.hand)
+    images = renderer.render_episode(frames, spec.object, spec.object_size, spec.hand, obstacles=spec.obstacles)
     return [encode_jpeg(image, jpeg_quality) for image in images]
 
 

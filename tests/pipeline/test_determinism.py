@@ -33,7 +33,7 @@ def fingerprint(slice_name: str, index: int, renderer: Renderer) -> str:
     digest = hashlib.sha256(spec.to_json().encode())
     for name in FRAME_ARRAYS + ("fingertip_distance", "palm_distance", "grasp_angles", "phase"):
         digest.update(np.ascontiguousarray(getattr(frames, name)).tobytes())
-    for image in renderer.render_episode(frames, spec.object, spec.object_size, spec.hand):
+    for image in renderer.render_episode(frames, spec.object, spec.object_size, spec.hand, obstacles=spec.obstacles):
         digest.update(encode_jpeg(image))
     return digest.hexdigest()
 
