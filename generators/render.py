@@ -9,6 +9,12 @@ Two ways to draw the same frame:
   in a second pybullet client of their own), and keeps a moving body's pixel where its
   depth is at least as near as the plate's.
 
+Obstacles are static within an episode: a scene with obstacles draws its own plate
+(floor, table, then its obstacles) once when the scene is set, in the full-scene
+client, so compositing stays exact; a scene without obstacles uses the renderer's own
+plate, as before. (Drawing them with the moving bodies instead would redraw every
+obstacle on every frame and widen the composited window.)
+
 Why that equals the full render pixel for pixel: TinyRenderer keeps a fragment when
 its depth is at least as near as the depth buffer's, drawing bodies in creation
 order; the static bodies are created first, so in a full render a pixel shows the last
@@ -43,8 +49,10 @@ import numpy as np
 
 from generators.bullet import p
 from generators.camera import pybullet_matrices
+from generators.clearance import checked_obstacles
 from generators.scene import (
     build_object,
+    build_obstacles,
     build_static,
     load_hand,
     set_hand_pose,
@@ -123,22 +131,29 @@ class Renderer:
 
     def _setup(self) -> None:
         self._view, self._proj = pybullet_matrices(self.width, self.height)
-        self._scene: tuple = (None, None, None)
+        self._scene: tuple = (None, None, None, ())
         self._poses: tuple = (None, None, None)
         self._hand = self._object = None
         self._full_bodies: tuple | None = None
+        self._full_static = False  # the full-scene client holds exactly the static bodies and obstacles
         p.resetSimulation(physicsClientId=self._full_client)
         build_static(self._full_client)
-        self._plate_rgb, self._plate_depth = self._draw(self._full_client)
-        self._plate_mirrored = np.ascontiguousarray(self._plate_rgb[:, ::-1])
-        self._tie = TIE_ULPS * np.spacing(self._plate_depth)
+        self._bare_plate = self._plate_from(self._full_client)
+        self._use_plate(self._bare_plate)
         _, empty = self._draw(self._client)
         self._empty_depth = float(empty.min())
 
+    def _plate_from(self, client: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The static plate drawn in ``client``: depth, mirrored RGB and depth tie widths."""
+        rgb, depth = self._draw(client)
+        return depth, np.ascontiguousarray(rgb[:, ::-1]), TIE_ULPS * np.spacing(depth)
+
+    def _use_plate(self, plate: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        self._plate_depth, self._plate_mirrored, self._tie = plate
+
     def _add_moving(self, client: int) -> tuple[_Body | None, _Body | None]:
         """Create the episode's hand, then its object, in ``client``."""
-        _, size, hand = self._scene
-        name = self._scene[0]
+        name, size, hand, _ = self._scene
         hand_body = object_body = None
         if hand is not None:
             body, indices = load_hand(client, hand)
@@ -156,18 +171,34 @@ class Renderer:
         each episode starts from an empty client with bodies created in a fixed order,
         which makes every frame a function of its episode alone, whatever the process
         rendered before (1 or 2 workers, a replay). The full-scene client (static bodies,
-        then the same hand and object) is built the same way, only when a frame needs it.
+        the obstacles, then the same hand and object) is built the same way, only when a
+        frame needs it; with obstacles, its static part is built at once to draw the
+        scene's plate, and the hand and object are added when a frame needs them.
         """
         p.resetSimulation(physicsClientId=self._client)
         self._hand, self._object = self._add_moving(self._client)
         self._full_bodies = None
+        self._full_static = False
+        if not self._scene[3]:
+            self._use_plate(self._bare_plate)
+            return
+        self._build_full_static()
+        if self.backend == "tiny":
+            self._use_plate(self._plate_from(self._full_client))
+
+    def _build_full_static(self) -> None:
+        c = self._full_client
+        p.resetSimulation(physicsClientId=c)
+        build_static(c)
+        build_obstacles(c, self._scene[3])
+        self._full_static = True
 
     def _full_scene(self) -> tuple[_Body | None, _Body | None]:
         if self._full_bodies is None:
-            c = self._full_client
-            p.resetSimulation(physicsClientId=c)
-            build_static(c)
-            self._full_bodies = self._add_moving(c)
+            if not self._full_static:
+                self._build_full_static()
+            self._full_bodies = self._add_moving(self._full_client)
+            self._full_static = False
         return self._full_bodies
 
     # lifecycle ---------------------------------------------------------------
@@ -185,11 +216,14 @@ class Renderer:
         self.close()
 
     # scene -------------------------------------------------------------------
-    def set_scene(self, object_name: str | None, object_size: float | None, hand: str | None) -> None:
-        """Choose the object (category and size; None for none) and the hand (side; None
-        for none) that the following frames show. A different scene is rebuilt from empty
-        clients (see :meth:`_build`); the same scene again is kept as it is, which is
-        equivalent, since posing bodies never changes TinyRenderer's draw order."""
+    def set_scene(
+        self, object_name: str | None, object_size: float | None, hand: str | None, obstacles=()
+    ) -> None:
+        """Choose the object (category and size; None for none), the hand (side; None
+        for none) and the obstacles (:class:`schemas.obstacles.Obstacle`, drawn in order)
+        that the following frames show. A different scene is rebuilt from empty clients
+        (see :meth:`_build`); the same scene again is kept as it is, which is equivalent,
+        since posing bodies never changes TinyRenderer's draw order."""
         if object_name is not None:
             if not isinstance(object_name, str):
                 raise SpecError(f"object must be a category name or None, got {object_name!r}")
@@ -206,9 +240,10 @@ class Renderer:
             object_size = None
         if hand is not None and (not isinstance(hand, str) or hand not in HANDS):
             raise SpecError(f"hand must be one of {list(HANDS)} or None, got {hand!r}")
-        if (object_name, object_size, hand) == self._scene:
+        scene = (object_name, object_size, hand, checked_obstacles(obstacles))
+        if scene == self._scene:
             return
-        self._scene = (object_name, object_size, hand)
+        self._scene = scene
         self._build()
 
     def _pose(self, object_pose, palm_pose, joint_angles) -> None:
@@ -298,19 +333,25 @@ class Renderer:
 
     def object_pixels(self, object_pose, palm_pose, joint_angles) -> tuple[int, int]:
         """The object's pixels in TinyRenderer's segmentation mask: ``(shown, alone)``,
-        with the hand posed as given, then with the hand moved out of view. Their ratio
-        is the visible fraction :mod:`generators.visibility` computes analytically."""
+        with the hand posed as given (and the scene's obstacles in place), then alone:
+        with the hand moved out of view and no obstacles. Their ratio is the visible
+        fraction :mod:`generators.visibility` computes analytically."""
         if self._object is None or self._hand is None:
             raise SpecError("object_pixels needs a scene with an object and a hand (set_scene)")
         self._pose(object_pose, palm_pose, joint_angles)
-        shown = self._object_mask()
+        if self._scene[3]:
+            hand, obj = self._full_scene()
+            self._apply(self._full_client, hand, obj)
+            shown = self._object_mask(self._full_client, obj)
+        else:
+            shown = self._object_mask(self._client, self._object)
         away = np.array([0.0, -1000.0, 0.0, 0.0, 0.0, 0.0])
         set_hand_pose(self._client, self._hand.body, self._hand.joints, away, self._poses[2])
-        alone = self._object_mask()
+        alone = self._object_mask(self._client, self._object)
         self._apply(self._client, self._hand, self._object)
         return int(shown.sum()), int(alone.sum())
 
-    def _object_mask(self) -> np.ndarray:
+    def _object_mask(self, client: int, obj: _Body) -> np.ndarray:
         _, _, _, _, seg = p.getCameraImage(
             self.width,
             self.height,
@@ -318,9 +359,9 @@ class Renderer:
             projectionMatrix=self._proj,
             shadow=0,
             renderer=p.ER_TINY_RENDERER,
-            physicsClientId=self._client,
+            physicsClientId=client,
         )
-        return np.asarray(seg, dtype=np.int64).reshape(self.height, self.width) == self._object.body
+        return np.asarray(seg, dtype=np.int64).reshape(self.height, self.width) == obj.body
 
     def render_episode(
         self,
@@ -329,9 +370,11 @@ class Renderer:
         object_size: float,
         hand: str,
         full: bool = False,
+        obstacles=(),
     ) -> list[np.ndarray]:
-        """All frames of one episode (``full`` draws each with :meth:`render_full`)."""
-        self.set_scene(object_name, object_size, hand)
+        """All frames of one episode among ``obstacles`` (pass the spec's); ``full`` draws
+        each with :meth:`render_full`."""
+        self.set_scene(object_name, object_size, hand, obstacles)
         draw = self.render_full if full else self.render
         return [
             draw(frames.object_pose[i], frames.palm_pose[i], frames.joint_angles[i]) for i in range(frames.num_frames)

@@ -13,6 +13,11 @@ Object frames at identity orientation:
   the camera's view and rolls when it moves along Z;
 - box: half extents ``(hx, hy, hz)`` along local X, Y, Z (``hy`` is the half height).
 
+Obstacles (:class:`schemas.obstacles.Obstacle`) are plain boxes in their category's
+colour, centred at ``(x, hy, z)`` and turned by ``yaw`` about +Y (the quaternion
+``(0, sin(yaw/2), 0, cos(yaw/2))``, i.e. ``Ry(yaw)``, :mod:`generators.clearance`). They
+are static within an episode: the renderer draws them into the episode's static plate.
+
 Rolling objects carry markings (two crossing seams on spheres, two stripes along
 lying cylinders) so that a viewer sees them turn. Markings stand out of the surface
 by a few hundredths of the object's size; the resting geometry is unchanged.
@@ -32,8 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from generators.bullet import p
+from generators.clearance import obstacle_centre
 from generators.hand_urdf import joint_indices, set_hand_state, write_hand_urdf
 from schemas.objects import object_category
+from schemas.obstacles import Obstacle
+from schemas.rotations import euler_to_quaternion
 from schemas.scene import TABLE_X, TABLE_Z
 
 RGBA = tuple[float, float, float, float]
@@ -200,6 +208,20 @@ def object_parts(name: str, size: float) -> list[Part]:
 def build_object(client: int, name: str, size: float, position=(0.0, 0.0, 0.0)) -> int:
     """Create the object body of category ``name`` at ``size``; returns its body id."""
     return create_body(client, object_parts(name, size), position)
+
+
+def obstacle_parts(obstacle: Obstacle) -> list[Part]:
+    """The visual parts of an obstacle (one box), in a body frame at its centre."""
+    turn = tuple(float(v) for v in euler_to_quaternion(np.array([0.0, obstacle.yaw, 0.0])))
+    return [Part(p.GEOM_BOX, obstacle.half_extents, obstacle.rgba, orientation=turn)]
+
+
+def build_obstacles(client: int, obstacles: tuple[Obstacle, ...]) -> tuple[int, ...]:
+    """Create the obstacle bodies, in order; returns their body ids. Build them after the
+    floor and table and before any moving body (see :mod:`generators.render`)."""
+    return tuple(
+        create_body(client, obstacle_parts(o), tuple(float(v) for v in obstacle_centre(o))) for o in obstacles
+    )
 
 
 def load_hand(client: int, side: str) -> tuple[int, np.ndarray]:

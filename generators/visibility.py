@@ -11,6 +11,13 @@ the resting hand while it is observed. This module answers that without renderin
 * A hand part hides the object where their silhouettes overlap if the part is nearer
   the camera. A part that is neither wholly nearer nor wholly farther counts as
   nearer, so the test errs toward calling the object hidden.
+* Obstacles (:class:`schemas.obstacles.Obstacle`, boxes) hide the object where their
+  silhouettes (the hull of a box's 8 projected corners, exact) overlap and the obstacle
+  is in front. An obstacle and an object that do not touch are separated by a plane,
+  so one of them is in front wherever they overlap: the obstacle, unless the object
+  meets the cone from the camera to the box but not the box itself (an object touching
+  or inside an obstacle counts as hidden by it). Rays through the object's points
+  settle that in nearly every case; a linear program settles the rest.
 * The *visible fraction* of a frame is the object's silhouette area inside the image
   and not hidden, over its whole silhouette area.
 
@@ -31,6 +38,7 @@ import cv2
 import numpy as np
 
 from generators.camera import points_in_view, project
+from generators.clearance import checked_obstacles, obstacle_centre, obstacle_corners, obstacle_rotation
 from generators.hand import (
     FINGER_RADII,
     PALM_HALF_EXTENTS,
@@ -41,6 +49,7 @@ from generators.hand import (
     chain_frames,
 )
 from schemas.objects import object_category
+from schemas.obstacles import Obstacle
 from schemas.rotations import euler_to_matrix, quaternion_to_matrix
 from schemas.scene import CAMERA_EYE, DEFAULT_RESOLUTION, MIN_OBSERVE_VISIBLE
 
@@ -131,11 +140,63 @@ def _fill(mask: np.ndarray, pixels: np.ndarray, origin: np.ndarray) -> None:
     cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=_SHIFT)
 
 
+def _hulls_meet(points: np.ndarray, others: np.ndarray) -> bool:
+    """Whether the convex hulls of two point sets (k, 3) and (j, 3) share a point (a
+    feasibility linear program: one point as a convex combination of each set)."""
+    from scipy.optimize import linprog
+
+    k, j = len(points), len(others)
+    equalities = np.zeros((5, k + j))
+    equalities[0, :k] = 1.0
+    equalities[1, k:] = 1.0
+    equalities[2:, :k] = points.T
+    equalities[2:, k:] = -others.T
+    result = linprog(np.zeros(k + j), A_eq=equalities, b_eq=[1.0, 1.0, 0.0, 0.0, 0.0], bounds=(0.0, None), method="highs")
+    return result.status == 0
+
+
+def _box_apart(points: np.ndarray, obstacle: Obstacle) -> bool:
+    """Whether the hull of ``points`` (k, 3) and the obstacle box do not meet."""
+    local = (points - obstacle_centre(obstacle)) @ obstacle_rotation(obstacle)
+    half = np.asarray(obstacle.half_extents)
+    if np.any(np.all(local > half, axis=0) | np.all(local < -half, axis=0)):
+        return True
+    return not _hulls_meet(points, obstacle_corners(obstacle))
+
+
+def obstacle_hides(object_points: np.ndarray, obstacle: Obstacle) -> bool:
+    """Whether the obstacle is in front of the object (hull of ``object_points`` (k, 3))
+    wherever their silhouettes overlap (see the module's docstring)."""
+    eye = np.asarray(CAMERA_EYE, dtype=np.float64)
+    points = np.asarray(object_points, dtype=np.float64)
+    rot, half = obstacle_rotation(obstacle), np.asarray(obstacle.half_extents)
+    rays = np.concatenate([points, points.mean(axis=0, keepdims=True)])
+    start = (eye - obstacle_centre(obstacle)) @ rot
+    step = (rays - eye) @ rot  # ray(t) = eye + t (x - eye): the object's point at t = 1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        near, far = (-half - start) / step, (half - start) / step
+    flat = step == 0.0
+    inside = np.abs(start) <= half
+    enter = np.where(flat, np.where(inside, -np.inf, np.inf), np.fmin(near, far)).max(axis=1)
+    leave = np.where(flat, np.where(inside, np.inf, -np.inf), np.fmax(near, far)).min(axis=1)
+    hit = (enter <= leave) & (leave >= 0.0)
+    if np.any(hit & (enter <= 1.0)):
+        return True
+    if np.any(hit):
+        return not _box_apart(points, obstacle)
+    corners = obstacle_corners(obstacle)
+    return not (_hulls_meet(points, np.concatenate([corners, eye[None]])) and _box_apart(points, obstacle))
+
+
 def visible_fraction(
-    object_points: np.ndarray, occluders: list[np.ndarray], resolution: int = DEFAULT_RESOLUTION
+    object_points: np.ndarray,
+    occluders: list[np.ndarray],
+    resolution: int = DEFAULT_RESOLUTION,
+    obstacles: tuple[Obstacle, ...] = (),
 ) -> float:
     """Share of the object's silhouette (hull of ``object_points``) that lies inside the
-    square image and is not covered by a nearer occluder (hulls of ``occluders``)."""
+    square image and is not covered by a nearer occluder (hulls of ``occluders``) or by
+    an obstacle in front of it (:func:`obstacle_hides`)."""
     obj_px, obj_depth = project(object_points, resolution, resolution)
     if np.any(obj_depth <= 0.0):
         return 0.0
@@ -162,6 +223,22 @@ def visible_fraction(
         cover = np.zeros(shape, dtype=np.uint8)
         _fill(cover, part_px, low)
         visible[cover > 0] = 0
+    nearest = float(obj_depth.min())
+    for obstacle in checked_obstacles(obstacles):
+        box_px, box_depth = project(obstacle_corners(obstacle), resolution, resolution)
+        if float(box_depth.min()) > farthest:
+            continue
+        if float(box_depth.min()) <= 0.0:  # reaches behind the camera: its silhouette has no hull
+            cover = np.ones(shape, dtype=np.uint8)
+        elif np.any(box_px.max(axis=0) < low) or np.any(box_px.min(axis=0) > high):
+            continue
+        else:
+            cover = np.zeros(shape, dtype=np.uint8)
+            _fill(cover, box_px, low)
+        if not np.any(cover & visible):
+            continue
+        if float(box_depth.max()) < nearest or obstacle_hides(object_points, obstacle):
+            visible[cover > 0] = 0
     return int(visible.sum()) / total
 
 
@@ -193,28 +270,56 @@ def _footprint_near_z(category: str, size: float, poses: np.ndarray) -> np.ndarr
     return np.asarray(poses, dtype=np.float64)[:, 2] - reach
 
 
-def observe_visibility(
-    category: str, size: float, side: str, poses: np.ndarray, resolution: int = DEFAULT_RESOLUTION
-) -> np.ndarray:
-    """(n,) visible fraction of the object at each pose (n, 7) with the hand at rest.
+def _clear_of_obstacles(points: np.ndarray, obstacles: tuple[Obstacle, ...], resolution: int) -> np.ndarray:
+    """(n,) whether no obstacle's silhouette box meets the object's at each pose (points
+    (n, k, 3)): such a pose cannot be hidden by any of them."""
+    clear = np.ones(len(points), dtype=bool)
+    if not obstacles:
+        return clear
+    px, _ = project(points, resolution, resolution)
+    low, high = px.min(axis=1), px.max(axis=1)
+    for obstacle in obstacles:
+        box_px, box_depth = project(obstacle_corners(obstacle), resolution, resolution)
+        apart = np.any((high < box_px.min(axis=0)) | (low > box_px.max(axis=0)), axis=1)
+        clear &= apart & bool(box_depth.min() > 0.0)
+    return clear
 
-    A pose whose object is wholly in view and wholly beyond :func:`rest_shadow_z` is 1.0
-    without filling anything; the rest are measured by :func:`visible_fraction`.
+
+def observe_visibility(
+    category: str,
+    size: float,
+    side: str,
+    poses: np.ndarray,
+    resolution: int = DEFAULT_RESOLUTION,
+    obstacles: tuple[Obstacle, ...] = (),
+) -> np.ndarray:
+    """(n,) visible fraction of the object at each pose (n, 7) with the hand at rest
+    among ``obstacles``.
+
+    A pose whose object is wholly in view, wholly beyond :func:`rest_shadow_z` and clear
+    of every obstacle's silhouette is 1.0 without filling anything; the rest are
+    measured by :func:`visible_fraction`.
     """
     poses = np.asarray(poses, dtype=np.float64)
+    obstacles = checked_obstacles(obstacles)
     out = np.ones(len(poses))
+    points = object_surface_points(category, size, poses)
     clear = _footprint_near_z(category, size, poses) > rest_shadow_z()
-    clear &= points_in_view(object_surface_points(category, size, poses)).all(axis=-1)
+    clear &= points_in_view(points).all(axis=-1)
+    clear &= _clear_of_obstacles(points, obstacles, resolution)
     occluders = list(_rest_parts(side))
     for k in np.flatnonzero(~clear):
-        out[k] = visible_fraction(object_surface_points(category, size, poses[k]), occluders, resolution)
+        out[k] = visible_fraction(object_surface_points(category, size, poses[k]), occluders, resolution, obstacles)
     return out
 
 
-def first_hidden_frame(category: str, size: float, side: str, poses: np.ndarray) -> tuple[int, float] | None:
+def first_hidden_frame(
+    category: str, size: float, side: str, poses: np.ndarray, obstacles: tuple[Obstacle, ...] = ()
+) -> tuple[int, float] | None:
     """The first pose whose object is less than :data:`MIN_OBSERVE_VISIBLE` visible with the
-    hand at rest, with its visible fraction, or None when every pose shows enough of it."""
-    fractions = observe_visibility(category, size, side, poses)
+    hand at rest (and ``obstacles``), with its visible fraction, or None when every pose
+    shows enough of it."""
+    fractions = observe_visibility(category, size, side, poses, obstacles=obstacles)
     hidden = np.flatnonzero(fractions < MIN_OBSERVE_VISIBLE)
     if len(hidden) == 0:
         return None
