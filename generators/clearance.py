@@ -109,18 +109,24 @@ def _box_sd(p: np.ndarray, half: np.ndarray) -> np.ndarray:
     return np.sqrt((out * out).sum(axis=0)) + np.minimum(q.max(axis=0), 0.0)
 
 
-def _box_slope(p: np.ndarray, d: np.ndarray, half: np.ndarray, sign_only: bool = False) -> np.ndarray:
-    """Derivative of :func:`_box_sd` at points ``p`` (3, k) along ``d`` (along a subgradient
-    where it has no gradient, inside the box); with ``sign_only``, a value of the same sign."""
+def _box_rising(p: np.ndarray, d: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """A value of the sign of :func:`_box_sd`'s derivative at points ``p`` (3, k) along ``d``
+    (inside the box, where it has no gradient, its derivative along a subgradient)."""
     q = np.abs(p) - half
     rate = np.sign(p) * d
+    outside = (np.maximum(q, 0.0) * rate).sum(axis=0)
+    return np.where((q > 0.0).any(axis=0), outside, rate[q.argmax(axis=0), np.arange(p.shape[1])])
+
+
+def _box_sd_slope(p: np.ndarray, d: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_box_sd` at points ``p`` (3, k) and its derivative along ``d`` (as above)."""
+    q = np.abs(p) - half
     out = np.maximum(q, 0.0)
-    outside = (out * rate).sum(axis=0)
-    if not sign_only:
-        norm = np.sqrt((out * out).sum(axis=0))
-        outside = np.divide(outside, norm, out=np.zeros_like(norm), where=norm > 0.0)
-    inside = rate[q.argmax(axis=0), np.arange(p.shape[1])]
-    return np.where((q > 0.0).any(axis=0), outside, inside)
+    norm = np.sqrt((out * out).sum(axis=0))
+    rate = np.sign(p) * d
+    outside = np.divide((out * rate).sum(axis=0), norm, out=np.zeros_like(norm), where=norm > 0.0)
+    slope = np.where((q > 0.0).any(axis=0), outside, rate[q.argmax(axis=0), np.arange(p.shape[1])])
+    return norm + np.minimum(q.max(axis=0), 0.0), slope
 
 
 def _cylinder_sd(p: np.ndarray, dims: np.ndarray) -> np.ndarray:
@@ -130,33 +136,46 @@ def _cylinder_sd(p: np.ndarray, dims: np.ndarray) -> np.ndarray:
     return np.hypot(np.maximum(d1, 0.0), np.maximum(d2, 0.0)) + np.minimum(np.maximum(d1, d2), 0.0)
 
 
-def _cylinder_slope(p: np.ndarray, d: np.ndarray, dims: np.ndarray, sign_only: bool = False) -> np.ndarray:
-    """As :func:`_box_slope`, for :func:`_cylinder_sd`."""
+def _cylinder_parts(p: np.ndarray, d: np.ndarray, dims: np.ndarray):
     rho = np.hypot(p[0], p[1])
     d1 = rho - dims[0]
     d2 = np.abs(p[2]) - dims[1]
     radial = np.divide(p[0] * d[0] + p[1] * d[1], rho, out=np.zeros_like(rho), where=rho > 0.0)
     axial = np.sign(p[2]) * d[2]
-    e1, e2 = np.maximum(d1, 0.0), np.maximum(d2, 0.0)
-    outside = e1 * radial + e2 * axial
-    if not sign_only:
-        norm = np.hypot(e1, e2)
-        outside = np.divide(outside, norm, out=np.zeros_like(norm), where=norm > 0.0)
-    return np.where((d1 > 0.0) | (d2 > 0.0), outside, np.where(d1 >= d2, radial, axial))
+    return d1, d2, radial, axial, np.maximum(d1, 0.0), np.maximum(d2, 0.0)
 
 
-_SHAPES = {"box": (_box_sd, _box_slope), "cylinder": (_cylinder_sd, _cylinder_slope)}
+def _cylinder_rising(p: np.ndarray, d: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    """As :func:`_box_rising`, for :func:`_cylinder_sd`."""
+    d1, d2, radial, axial, e1, e2 = _cylinder_parts(p, d, dims)
+    return np.where((d1 > 0.0) | (d2 > 0.0), e1 * radial + e2 * axial, np.where(d1 >= d2, radial, axial))
+
+
+def _cylinder_sd_slope(p: np.ndarray, d: np.ndarray, dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`_box_sd_slope`, for :func:`_cylinder_sd`."""
+    d1, d2, radial, axial, e1, e2 = _cylinder_parts(p, d, dims)
+    norm = np.hypot(e1, e2)
+    outside = np.divide(e1 * radial + e2 * axial, norm, out=np.zeros_like(norm), where=norm > 0.0)
+    slope = np.where((d1 > 0.0) | (d2 > 0.0), outside, np.where(d1 >= d2, radial, axial))
+    return norm + np.minimum(np.maximum(d1, d2), 0.0), slope
+
+
+#: Per shape: signed distance, the sign of its slope, both it and its slope.
+_SHAPES = {
+    "box": (_box_sd, _box_rising, _box_sd_slope),
+    "cylinder": (_cylinder_sd, _cylinder_rising, _cylinder_sd_slope),
+}
 
 
 def _segment_minimum(kind: str, a: np.ndarray, d: np.ndarray, dims: np.ndarray) -> np.ndarray:
     """(k,) min over t in [0, 1] of the shape's signed distance at ``a + t d`` (a, d (3, k);
     dims (w, k)), by bisection on the sign of its slope: it is convex along the segment."""
-    sd, slope = _SHAPES[kind]
+    sd, rising, _ = _SHAPES[kind]
     t = np.zeros(a.shape[1])
     step = 1.0
     for _ in range(BISECTIONS):
         step *= 0.5
-        t += step * (slope(a + (t + step) * d, d, dims, sign_only=True) <= 0.0)
+        t += step * (rising(a + (t + step) * d, d, dims) <= 0.0)
     return sd(a + (t + 0.5 * step) * d, dims)
 
 
@@ -201,21 +220,20 @@ class _Rows:
 
     def __init__(self, shape: tuple[int, int]) -> None:
         self.shape = shape
-        self.segments: list[tuple[str, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.segments: dict[str, list[tuple[np.ndarray, ...]]] = {kind: [] for kind in _SHAPES}
         self.checks: list[tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]] = []
 
     def add(self, kind: str, a, d, dims, offset=0.0) -> None:
         """Segment starts ``a`` and vectors ``d`` (n, m, k, 3) in the shape's frame, its
         dimensions ``dims`` (..., w) and an offset to subtract (a radius), broadcast."""
-        k = np.shape(a)[-2]
-        full = self.shape + (k,)
+        full = self.shape + (np.shape(a)[-2],)
 
         def rows(v: np.ndarray) -> np.ndarray:
             v = np.broadcast_to(v, full + (np.shape(v)[-1],))
-            return np.ascontiguousarray(np.moveaxis(v, -1, 0)).reshape(v.shape[-1], -1)
+            return np.moveaxis(v, -1, 0).reshape(v.shape[-1], full[0] * full[1], full[2])
 
-        offset = np.broadcast_to(offset, full).reshape(-1)
-        self.segments.append((kind, rows(a), rows(d), rows(dims), offset))
+        offset = np.broadcast_to(offset, full).reshape(full[0] * full[1], full[2])
+        self.segments[kind].append((rows(a), rows(d), rows(dims), offset))
 
     def check(self, near: np.ndarray, value: Callable[[np.ndarray], np.ndarray]) -> None:
         """``value(mask)``: exact values for the groups of a (n, m) mask, wanted only where
@@ -232,11 +250,18 @@ class _Rows:
         chords of each half extended over the other, and the mean of each half's end
         values less a quarter of its length; only those that may beat the best value
         seen are searched."""
-        found = []
-        for kind, a, d, dims, offset in self.segments:
-            sd, slope = _SHAPES[kind]
-            f0, fm, f1 = (sd(a + s * d, dims) - offset for s in (0.0, 0.5, 1.0))
-            s0, s1 = slope(a, d, dims), slope(a + d, d, dims)
+        groups = self.shape[0] * self.shape[1]
+        best = np.full(groups, np.inf)
+        found = {}
+        for kind, sets in self.segments.items():
+            if not sets:
+                continue
+            a, d, dims = (np.ascontiguousarray(np.concatenate(v, axis=-1).reshape(len(v[0]), -1)) for v in list(zip(*sets))[:3])
+            offset = np.concatenate([s[3] for s in sets], axis=-1).reshape(-1)
+            sd, _, both = _SHAPES[kind]
+            (f0, s0), (f1, s1) = both(a, d, dims), both(a + d, d, dims)
+            fm = sd(a + 0.5 * d, dims) - offset
+            f0, f1 = f0 - offset, f1 - offset
             quarter = np.sqrt((d * d).sum(axis=0)) / 4.0
             first = np.maximum((f0 + fm) / 2.0 - quarter, np.minimum(fm, 2.0 * fm - f1))
             second = np.maximum((fm + f1) / 2.0 - quarter, np.minimum(fm, 2.0 * fm - f0))
@@ -246,18 +271,13 @@ class _Rows:
             settled = (s0 >= 0.0) | (s1 <= 0.0)
             upper = np.where(s0 >= 0.0, f0, np.where(s1 <= 0.0, f1, fm))
             lower = np.where(settled, np.inf, np.maximum(np.minimum(first, second), tangents))
-            found.append((upper, lower))
-        groups = self.shape[0] * self.shape[1]
-        best = np.min(np.stack([upper.reshape(groups, -1).min(axis=1) for upper, _ in found]), axis=0)
-        for kind in _SHAPES:
-            kept = []
-            for (shape, a, d, dims, offset), (_, lower) in zip(self.segments, found):
-                if shape == kind:
-                    keep = np.flatnonzero(lower < np.repeat(best, len(lower) // groups))
-                    kept.append((keep // (len(lower) // groups), a[:, keep], d[:, keep], dims[:, keep], offset[keep]))
-            if kept and sum(len(g) for g, *_ in kept):
-                group, a, d, dims, offset = (np.concatenate(v, axis=-1) for v in zip(*kept))
-                np.minimum.at(best, group, _segment_minimum(kind, a, d, dims) - offset)
+            best = np.minimum(best, upper.reshape(groups, -1).min(axis=1))
+            found[kind] = (a, d, dims, offset, lower)
+        for kind, (a, d, dims, offset, lower) in found.items():
+            per = len(lower) // groups
+            keep = np.flatnonzero(lower < np.repeat(best, per))
+            if len(keep):
+                np.minimum.at(best, keep // per, _segment_minimum(kind, a[:, keep], d[:, keep], dims[:, keep]) - offset[keep])
         best = best.reshape(self.shape)
         for near, value in self.checks:
             mask = near & (best > 0.0)
@@ -322,9 +342,9 @@ def _add_cylinder_box(rows: _Rows, cc, rc, radius: float, half_length: float, cb
     vecs = np.broadcast_to(2.0 * half_length * axis[..., None, :], starts.shape)
     rows.add("box", _local(starts, cb, rb), _local_vectors(vecs, rb), hb[..., None, :])
     starts, vecs = _box_edges(cb, rb, hb)
-    rows.add("cylinder", _local(starts, cc, rc), _local_vectors(vecs, rc), np.array([radius, half_length]))
-    _, a, d, _, _ = rows.segments[-1]
-    a, d = (v.reshape((3,) + rows.shape + (12,)) for v in (a, d))
+    a, d = _local(starts, cc, rc), _local_vectors(vecs, rc)
+    rows.add("cylinder", a, d, np.array([radius, half_length]))
+    a, d = (np.moveaxis(np.broadcast_to(v, rows.shape + (12, 3)), -1, 0) for v in (a, d))
     reach = np.hypot(radius, half_length) + np.linalg.norm(hb, axis=-1)
     near = np.linalg.norm(cc - cb, axis=-1) <= reach
     rows.check(near, lambda mask: _axis_to_slab_cut(a[:, mask], d[:, mask], half_length) - radius)

@@ -205,8 +205,8 @@ def test_hand_clearance_matches_a_dense_sample_of_the_hands_surface():
 def test_hand_clearance_near_contact_is_the_gap_to_a_facing_wall():
     """A brick whose face lies ``gap`` beyond the hand's lowest (or leftmost, rightmost,
     farthest) sampled point, centred on it: every part of the hand is at least that far
-    from it, and that point is exactly that far, so the clearance is the gap, less at
-    most the sampling error (the hand's true extreme lies a little beyond the sample's)."""
+    from it, and that point is exactly that far, so the clearance is the gap, less the
+    little by which the hand's true extreme lies beyond the sample's."""
     rng = np.random.default_rng(2)
     for palm, joints, side in random_hands(rng, 5):
         palm[1] += 1.0
@@ -221,8 +221,8 @@ def test_hand_clearance_near_contact_is_the_gap_to_a_facing_wall():
                 half = (0.3, top / 2, 1.0) if axis == 0 else (1.0, top / 2, 0.3)
                 walls.append(Obstacle("crate", tuple(centre), half, 0.0))
             got = hand_clearances(palm[None], joints[None], side, walls)[0]
-            if gap > 0:
-                assert np.all(got <= gap + 1e-9) and np.all(got >= gap - SAMPLING_ERROR), (gap, got)
+            if gap > 0:  # a sampled extreme lies within 1e-3 of the true one on these shapes
+                assert np.all(got <= gap + 1e-9) and np.all(got >= gap - 1e-3), (gap, got)
             else:
                 assert np.all(got <= 0.0), got
 

@@ -1,5 +1,5 @@
-"""The renderer: composited frames equal full renders pixel for pixel, frames show what
-the states say, determinism, JPEG encoding."""
+"""The renderer: composited frames equal full renders pixel for pixel (obstacles
+included), frames show what the states say, determinism, JPEG encoding."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from generators.scene import MARKING_RGBA, TABLE_RGBA, TABLE_TOP_GAP
 from schemas.errors import ShardError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.objects import OBJECTS
+from schemas.obstacles import OBSTACLE_CATEGORIES, Obstacle
 from schemas.scene import WORKSPACE_X, WORKSPACE_Z
 from tests.generators.colours import colour_mask, matches
 
@@ -202,6 +203,90 @@ def test_same_states_give_the_same_bytes_across_renderers(small):
     assert first == again[::-1]
 
 
+OBSTACLES = (
+    Obstacle("crate", (-1.5, 4.0), (0.6, 0.5, 0.6), 0.3),
+    Obstacle("book", (2.0, 5.5), (0.75, 0.15, 0.55), -0.5),
+    Obstacle("brick", (0.6, 3.0), (0.55, 0.28, 0.28), 1.0),
+)
+
+
+def obstacles_near(rng: np.random.Generator, x: float, z: float) -> tuple[Obstacle, ...]:
+    """One to three obstacles around (x, z): in front of, beside or behind the object,
+    some close enough for the hand to dip into them."""
+    out = []
+    for _ in range(rng.integers(1, 4)):
+        category = str(rng.choice(sorted(OBSTACLE_CATEGORIES)))
+        half = tuple(float(h) for h in np.asarray(OBSTACLE_CATEGORIES[category].half_extents) * rng.uniform(0.5, 1.5, 3))
+        centre = (float(np.clip(x + rng.normal(0, 1.2), -5.5, 5.5)), float(np.clip(z + rng.normal(0, 1.2), -0.5, 9.5)))
+        out.append(Obstacle(category, centre, half, float(rng.uniform(-np.pi, np.pi))))
+    return tuple(out)
+
+
+def test_composited_equals_full_render_with_obstacles(small, full):
+    rng = np.random.default_rng(17)
+    for i, (name, size, side, pose, palm, joints) in enumerate(random_states(rng, 60)):
+        renderer = full if i % 10 == 0 else small
+        renderer.set_scene(name, size, side, obstacles_near(rng, pose[0], pose[2]))
+        fast = renderer.render(pose, palm, joints)
+        reference = renderer.render_full(pose, palm, joints)
+        diff = np.argwhere((fast != reference).any(axis=2))
+        assert diff.size == 0, f"{name} {side} pose={pose} palm={palm}: {len(diff)} pixels differ, e.g. {diff[:3]}"
+
+
+def test_depth_ties_with_an_obstacle_fall_back_to_a_full_render(small):
+    """A box sunk into an obstacle with its top face in the obstacle's top plane ties in
+    depth with the obstacle's plate there."""
+    cat = OBJECTS["toy_cube"]
+    hy = cat.scaled_dims(cat.nominal_size)[1]
+    brick = Obstacle("brick", (0.2, 4.0), (0.55, 0.28, 0.28), 0.0)
+    pose = np.array([0.0, brick.height - hy, 4.0, *IDENTITY])
+    small.set_scene("toy_cube", cat.nominal_size, None, (brick,))
+    before = small.fallbacks
+    fast = small.render(pose)
+    assert small.fallbacks == before + 1
+    assert np.array_equal(fast, small.render_full(pose))
+
+
+def test_obstacles_show_their_category_colour_and_turn_as_ry(full):
+    full.set_scene(None, None, None)
+    plate = full.render()
+    for category, kind in sorted(OBSTACLE_CATEGORIES.items()):
+        box = Obstacle(category, (0.5, 4.0), kind.half_extents, 0.4)
+        full.set_scene(None, None, None, (box,))
+        img = full.render()
+        row, col = pixel_of((0.5, box.height, 4.0), FULL)
+        assert matches(img[row, col], kind.rgba), (category, img[row, col])
+        assert fraction(img[row - 2 : row + 3, col - 2 : col + 3], kind.rgba) >= 0.8, category
+        assert (img != plate).any(axis=2).sum() >= 100
+    book = OBSTACLE_CATEGORIES["book"]
+    long = Obstacle("book", (0.0, 4.5), (1.2, 0.15, 0.2), np.pi / 2)  # +X turned onto -Z
+    full.set_scene(None, None, None, (long,))
+    img = full.render()
+    for dz in (-1.0, 1.0):
+        assert matches(img[pixel_of((0.0, 0.3, 4.5 + dz), FULL)], book.rgba)
+    for dx in (-0.6, 0.6):
+        assert not matches(img[pixel_of((dx, 0.3, 4.5), FULL)], book.rgba)
+    full.set_scene(None, None, None)
+    assert np.array_equal(full.render(), plate), "a scene without obstacles draws the renderer's own plate"
+
+
+def test_scenes_without_obstacles_are_unchanged_by_earlier_obstacle_scenes(small):
+    rng = np.random.default_rng(5)
+    states = list(random_states(rng, 4))
+    with Renderer(SMALL) as fresh:
+        expected = []
+        for name, size, side, pose, palm, joints in states:
+            fresh.set_scene(name, size, side)
+            expected.append(fresh.render(pose, palm, joints))
+    for (name, size, side, pose, palm, joints), image in zip(states, expected):
+        small.set_scene(name, size, side, OBSTACLES)
+        small.render(pose, palm, joints)
+        small.render_full(pose, palm, joints)
+        small.set_scene(name, size, side)
+        assert np.array_equal(small.render(pose, palm, joints), image)
+        assert np.array_equal(small.render_full(pose, palm, joints), image)
+
+
 def test_render_episode_draws_each_frame(small):
     n = 4
     size, pose = resting("sugar_box", -1.0, 3.0)
@@ -229,6 +314,9 @@ def test_render_episode_draws_each_frame(small):
     for i, img in enumerate(images):
         assert np.array_equal(img, small.render_full(poses[i], palms[i], np.zeros(15)))
     assert [np.array_equal(a, b) for a, b in zip(images, small.render_episode(frames, "sugar_box", size, "right", full=True))] == [True] * n
+    among = small.render_episode(frames, "sugar_box", size, "right", obstacles=OBSTACLES)
+    assert all(not np.array_equal(a, b) for a, b in zip(images, among))
+    assert [np.array_equal(a, b) for a, b in zip(among, small.render_episode(frames, "sugar_box", size, "right", True, OBSTACLES))] == [True] * n
 
 
 def test_bad_arguments_are_rejected(small):
@@ -245,6 +333,10 @@ def test_bad_arguments_are_rejected(small):
         small.render(np.array([0, 0.4, 3, 0, 0, 0, 1.0]), REST_PALM, np.zeros(14))
     with pytest.raises(SpecError, match="resolution"):
         Renderer(4)
+    with pytest.raises(SpecError, match=r"obstacles\[0\]"):
+        small.set_scene("orange", 0.8, "right", [{"category": "crate"}])
+    with pytest.raises(SpecError, match="obstacles"):
+        small.set_scene("orange", 0.8, "right", OBSTACLES[0])
 
 
 def test_wrongly_typed_arguments_are_spec_errors(small):

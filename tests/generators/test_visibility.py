@@ -1,5 +1,6 @@
 """The analytic visibility test against the renderer's segmentation masks, and the
-guarantee that the resting hand never hides a recipe object while it is observed."""
+guarantee that the resting hand never hides a recipe object while it is observed;
+obstacles hiding the object."""
 
 from __future__ import annotations
 
@@ -12,14 +13,18 @@ from generators.hand import REST_JOINTS, REST_PALM
 from generators.recipe import slice_specs
 from generators.render import Renderer
 from generators.visibility import (
+    first_hidden_frame,
     hand_parts,
     object_surface_points,
     observe_visibility,
+    obstacle_hides,
     rest_shadow_z,
     visible_fraction,
 )
 from pipeline.stages.episode import object_trajectory
+from schemas.errors import SpecError
 from schemas.objects import OBJECTS
+from schemas.obstacles import Obstacle
 from schemas.slices import ATOMIC_SLICES
 
 RESOLUTION = 224
@@ -105,3 +110,59 @@ def test_recipe_episodes_show_their_object_in_every_observe_frame(slice_name):
         poses, _, _ = object_trajectory(spec)
         fractions = observe_visibility(spec.object, spec.object_size, spec.hand, poses[: spec.observe_frames])
         assert np.all(fractions == 1.0), spec.episode_id
+
+
+OBSTACLE_CASES = [
+    # in front of the object: a wall hiding about half a ball, a slab across a box, a turned brick
+    ("orange", 0.8, (0.0, 5.0), Obstacle("crate", (0.0, 3.6), (0.6, 0.9, 0.4), 0.0)),
+    ("soda_can", 0.66, (-1.0, 4.0), Obstacle("brick", (-1.3, 3.0), (0.55, 0.8, 0.28), 0.3)),
+    ("cracker_box", 1.6, (0.0, 5.5), Obstacle("book", (0.35, 4.0), (0.05, 1.5, 0.4), 0.0)),
+    ("sugar_box", 0.9, (1.5, 5.0), Obstacle("crate", (1.0, 3.8), (0.6, 0.8, 0.6), 0.8)),
+    ("mug", 0.84, (1.0, 4.5), Obstacle("book", (0.6, 3.6), (0.75, 0.5, 0.3), -0.4)),
+    # behind it, their silhouettes overlapping: nothing hidden
+    ("orange", 0.8, (0.0, 5.0), Obstacle("crate", (0.0, 5.9), (0.6, 2.0, 0.4), 0.0)),
+    ("cracker_box", 1.6, (0.0, 5.5), Obstacle("book", (0.35, 6.2), (0.05, 3.0, 0.3), 0.0)),
+]
+
+
+@pytest.mark.parametrize("name, size, xz, obstacle", OBSTACLE_CASES)
+def test_obstacles_hide_the_object_as_segmentation_masks_do(renderer, name, size, xz, obstacle):
+    pose = _pose(name, size, *xz)
+    renderer.set_scene(name, size, "right", (obstacle,))
+    shown, alone = renderer.object_pixels(pose, REST_PALM, REST_JOINTS)
+    assert alone > 50
+    seg = shown / alone
+    points = object_surface_points(name, size, pose)
+    hand = hand_parts(REST_PALM, REST_JOINTS, "right")
+    analytic = visible_fraction(points, hand, RESOLUTION, (obstacle,))
+    assert abs(analytic - seg) <= 0.08, (analytic, seg)
+    assert analytic <= seg + 0.02, "the analytic test errs toward calling the object hidden"
+    in_front = obstacle.centre[1] < xz[1]
+    assert obstacle_hides(points, obstacle) == in_front
+    if in_front:
+        assert analytic < 0.95 and seg < 0.95
+        assert visible_fraction(points, hand, RESOLUTION) == 1.0, "the obstacle, not the hand, hides it"
+    else:
+        assert analytic == 1.0 and shown == alone
+
+
+def test_an_object_touching_an_obstacle_counts_as_hidden_by_it():
+    pose = _pose("toy_cube", 0.6, 0.0, 5.0)
+    points = object_surface_points("toy_cube", 0.6, pose)
+    assert not obstacle_hides(points, Obstacle("crate", (0.0, 6.0), (0.6, 2.0, 0.6), 0.0)), "a gap behind it"
+    assert obstacle_hides(points, Obstacle("crate", (0.0, 5.9), (0.6, 2.0, 0.6), 0.0)), "faces touch"
+    assert obstacle_hides(points, Obstacle("crate", (0.0, 5.85), (0.6, 2.0, 0.6), 0.0)), "they overlap"
+
+
+def test_observe_frames_behind_an_obstacle_are_refused():
+    name, size = "tennis_ball", 0.67
+    poses = np.array([_pose(name, size, x, 5.0) for x in np.linspace(-3.0, 3.0, 13)])
+    wall = Obstacle("crate", (0.0, 3.6), (0.8, 1.0, 0.4), 0.0)
+    assert first_hidden_frame(name, size, "right", poses) is None
+    assert np.all(observe_visibility(name, size, "right", poses, obstacles=(Obstacle("book", (3.0, 8.0), (0.3, 0.15, 0.3)),)) == 1.0)
+    fractions = observe_visibility(name, size, "right", poses, obstacles=(wall,))
+    assert fractions[0] == 1.0 and fractions[6] < 0.5
+    frame, fraction = first_hidden_frame(name, size, "right", poses, obstacles=[wall])
+    assert 0 < frame <= 6 and fraction == fractions[frame] < 0.5
+    with pytest.raises(SpecError, match="obstacles"):
+        observe_visibility(name, size, "right", poses, obstacles=wall)
