@@ -66,7 +66,8 @@ def measure(job: tuple[str, int, int]) -> dict:
                 points = object_surface_points(spec.object, spec.object_size, frames.object_pose[k].astype(np.float64))
                 acting_in_view.append(bool(points_in_view(points).all()))
                 acting_unhidden.append(fraction >= MIN_OBSERVE_VISIBLE)
-    analytic = observe_visibility(spec.object, spec.object_size, spec.hand, frames.object_pose[:a].astype(np.float64))
+    analytic = observe_visibility(spec.object, spec.object_size, spec.hand, frames.object_pose[:a].astype(np.float64),
+                                  obstacles=spec.obstacles)
     return {
         "source": name,
         "episode": index,

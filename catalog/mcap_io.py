@@ -13,7 +13,13 @@ topic                  schema                        content (one message per fr
 ``/hand/palm``         ``foxglove.PoseInFrame``      the palm's pose in ``world``
 ``/hand/keypoints``    ``foxglove.PosesInFrame``     5 fingertips + wrist in ``world``
 ``/hand/joints``       ``foxglove.PosesInFrame``     the 15 finger joints in ``world``
+``/scene/obstacles``   ``foxglove.SceneUpdate``      the obstacles as cubes in ``world``
 =====================  ============================  ====================================
+
+``/scene/obstacles`` exists only in shards of builds whose scenes may hold obstacles
+(``settings.obstacle_clearance``); each of its messages first deletes every entity, then
+adds one cube per obstacle of the episode (none in an episode without obstacles), in the
+obstacle's category colour.
 
 Axes: Dyana's world is X right, Y up, Z forward (left-handed); Foxglove's frames are
 right-handed with Z up. The MCAP ``world`` frame therefore has ``x = Dyana x``
@@ -54,12 +60,18 @@ from typing import Any, BinaryIO
 
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+from foxglove_schemas_protobuf.SceneEntityDeletion_pb2 import SceneEntityDeletion
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.well_known import MessageEncoding
@@ -71,6 +83,7 @@ from mcap_protobuf.schema import register_schema
 from catalog.hashing import canonical_json
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
+from schemas.obstacles import Obstacle
 from schemas.rotations import euler_to_quaternion, matrix_to_quaternion
 from schemas.scene import CAMERA_EYE, CAMERA_FOV_DEG, CAMERA_TARGET
 from schemas.versions import CODE_VERSION, FPS, SCHEMA_VERSION
@@ -94,6 +107,7 @@ CHANNELS: dict[str, type] = {
     "/hand/keypoints": PosesInFrame,
     "/hand/joints": PosesInFrame,
 }
+OBSTACLE_TOPIC = "/scene/obstacles"
 _IMAGE_MAGIC = {"jpeg": b"\xff\xd8\xff", "png": b"\x89PNG\r\n\x1a\n"}
 
 
@@ -179,6 +193,23 @@ def _transform(stamp: Timestamp, child: str, position: np.ndarray, quaternion: n
     return out
 
 
+def _obstacle_update(stamp: Timestamp, obstacles: Sequence[Obstacle]) -> SceneUpdate:
+    """Delete every entity, then one cube per obstacle (Foxglove axes, its colour)."""
+    entities = []
+    for k, o in enumerate(obstacles):
+        hx, hy, hz = o.half_extents
+        centre = to_foxglove_position(np.array([o.centre[0], hy, o.centre[1]]))
+        half = 0.5 * o.yaw
+        rotation = to_foxglove_quaternion(np.array([0.0, math.sin(half), 0.0, math.cos(half)]))
+        r, g, b, a = o.rgba
+        cube = CubePrimitive(pose=_pose(centre, rotation), size=Vector3(x=2 * hx, y=2 * hz, z=2 * hy),
+                             color=Color(r=r, g=g, b=b, a=a))
+        entities.append(SceneEntity(timestamp=stamp, frame_id=WORLD_FRAME, id=f"obstacle-{k}", metadata=[],
+                                    cubes=[cube]))
+    return SceneUpdate(deletions=[SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletion.ALL)],
+                       entities=entities)
+
+
 def _six_dof(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(..., 6) Dyana x y z roll pitch yaw -> Foxglove positions and quaternions."""
     values = np.asarray(values, dtype=np.float64)
@@ -237,7 +268,9 @@ class McapShardWriter:
         )
         schema_ids: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        for topic, cls in CHANNELS.items():
+        self._obstacles = bool(settings.get("obstacle_clearance", False))
+        channels = dict(CHANNELS, **({OBSTACLE_TOPIC: SceneUpdate} if self._obstacles else {}))
+        for topic, cls in channels.items():
             name = cls.DESCRIPTOR.full_name
             if name not in schema_ids:
                 schema_ids[name] = register_schema(self._writer, cls)
@@ -273,9 +306,12 @@ class McapShardWriter:
         frames: EpisodeFrames,
         images: Sequence[bytes],
         metadata: Mapping[str, str],
+        obstacles: Sequence[Obstacle] = (),
     ) -> None:
         """All messages of one episode plus its ``dyana.episode`` metadata record."""
         self.check_episode(episode_index, frames, images)
+        if obstacles and not self._obstacles:
+            raise ShardError(f"episode {episode_index}: has obstacles but the shard's settings record none")
         n = frames.num_frames
         start = log_time_ns(episode_index, 0, self._fps)
         record = {"episode_index": str(episode_index), "start_time_ns": str(start), **metadata}
@@ -341,6 +377,8 @@ class McapShardWriter:
                 t,
                 f,
             )
+            if self._obstacles:
+                self._write(OBSTACLE_TOPIC, _obstacle_update(stamp, obstacles), t, f)
         self.frames += n
 
     def close(self) -> None:

@@ -37,6 +37,8 @@ from schemas.tables import (
     ARRAY_WIDTHS,
     EPISODES_SCHEMA,
     FRAMES_SCHEMA,
+    OBSTACLE_CLEARANCE,
+    OBSTACLE_FRAMES_SCHEMA,
     ROLLOUT_EPISODES_SCHEMA,
     STATE_COLUMNS,
 )
@@ -45,6 +47,7 @@ from schemas.versions import FPS, SCHEMA_VERSION
 #: Table kinds and their contract schemas.
 SCHEMAS: dict[str, pa.Schema] = {
     "frames": FRAMES_SCHEMA,
+    "obstacle_frames": OBSTACLE_FRAMES_SCHEMA,
     "episodes": EPISODES_SCHEMA,
     "rollout_episodes": ROLLOUT_EPISODES_SCHEMA,
 }
@@ -62,6 +65,7 @@ _DICTIONARY = {
 _NO_STATISTICS = {"image", "tokens", "text", "spec", "error"}
 _SORTED_BY = {"frames": ("episode_index", "frame_index"), "episodes": ("episode_index",)}
 _SORTED_BY["rollout_episodes"] = _SORTED_BY["episodes"]
+_SORTED_BY["obstacle_frames"] = _SORTED_BY["frames"]
 
 
 def _leaf(field: pa.Field) -> str:
@@ -122,8 +126,11 @@ def _fixed_list(values: np.ndarray, width: int) -> pa.FixedSizeListArray:
     return pa.FixedSizeListArray.from_arrays(pa.array(flat, type=pa.float32()), width)
 
 
-def frames_table(episode_index: int, frames: EpisodeFrames, images: Sequence[bytes], fps: int = FPS) -> pa.Table:
-    """One row per frame of one episode, in the frames contract's schema.
+def frames_table(
+    episode_index: int, frames: EpisodeFrames, images: Sequence[bytes], fps: int = FPS, obstacles: bool = False
+) -> pa.Table:
+    """One row per frame of one episode, in the frames contract's schema (``obstacles``:
+    with the ``obstacle_clearance`` column, +inf where the episode has no obstacle).
 
     ``timestamp`` is ``frame_index / fps`` computed per row (float64), never summed.
     Float arrays are stored as float32 (cast if given wider).
@@ -145,7 +152,15 @@ def frames_table(episode_index: int, frames: EpisodeFrames, images: Sequence[byt
     for name in (*STATE_COLUMNS, "action"):
         columns[name] = _fixed_list(getattr(frames, name), ARRAY_WIDTHS[name])
     columns["fingertip_distance"] = pa.array(np.asarray(frames.fingertip_distance, dtype=np.float32))
-    return pa.Table.from_arrays([columns[f.name] for f in FRAMES_SCHEMA], schema=FRAMES_SCHEMA)
+    schema = FRAMES_SCHEMA
+    if obstacles:
+        clearance = frames.obstacle_clearance
+        values = np.full(n, np.inf, dtype=np.float32) if clearance is None else np.asarray(clearance, dtype=np.float32)
+        columns[OBSTACLE_CLEARANCE] = pa.array(values)
+        schema = OBSTACLE_FRAMES_SCHEMA
+    elif frames.obstacle_clearance is not None:
+        raise ShardError(f"episode {episode_index}: has obstacles but the build's frames table has no clearance column")
+    return pa.Table.from_arrays([columns[f.name] for f in schema], schema=schema)
 
 
 def episode_row(
@@ -305,11 +320,18 @@ def table_kind(parquet: pq.ParquetFile) -> str:
     return "rollout_episodes" if "policy" in names else "episodes"
 
 
+def _contract(kind: str, parquet: pq.ParquetFile) -> pa.Schema:
+    """A file's contract schema: a frames file with the clearance column is an obstacle build's."""
+    if kind == "frames" and OBSTACLE_CLEARANCE in parquet.schema_arrow.names:
+        return OBSTACLE_FRAMES_SCHEMA
+    return _schema(kind)
+
+
 def check_columns(
     path: str | os.PathLike[str], parquet: pq.ParquetFile, kind: str, columns: Sequence[str] | None
 ) -> list[str]:
     """The requested columns (all of the contract's by default), each present with its contract type."""
-    contract = _schema(kind)
+    contract = _contract(kind, parquet)
     wanted = list(contract.names) if columns is None else list(columns)
     have = parquet.schema_arrow
     for name in wanted:
@@ -332,6 +354,7 @@ def _read(path: str | os.PathLike[str], kinds: tuple[str, ...], columns: Sequenc
             expected = " or ".join(repr(k) for k in kinds)
             raise ShardError(f"{os.fspath(path)}: table kind is {kind!r}, expected {expected}")
         wanted = check_columns(path, parquet, kind, columns)
+        contract = _contract(kind, parquet)
         try:
             table = parquet.read(columns=wanted)
         except (pa.ArrowException, OSError, ValueError) as exc:
@@ -340,7 +363,6 @@ def _read(path: str | os.PathLike[str], kinds: tuple[str, ...], columns: Sequenc
         nulls = table.column(name).null_count
         if nulls:
             raise ShardError(f"{os.fspath(path)}: column {name!r} holds {nulls} null value(s) (the contract has none)")
-    contract = _schema(kind)
     return table.select(wanted).cast(pa.schema([contract.field(name) for name in wanted]))
 
 

@@ -74,6 +74,8 @@ class ShardWriter:
         self.settings = dict(settings)
         self.fps = self.settings.get("fps", FPS)
         self.rollout = rollout
+        #: Frames carry the hand's obstacle clearance (a build whose scenes may hold obstacles).
+        self.obstacles = bool(self.settings.get("obstacle_clearance", False))
         self._finals = {kind: self.root / rel for kind, rel in self.paths.items()}
         self._temps = {kind: atomic.temp_path(path) for kind, path in self._finals.items()}
         self._frames_writer: TableWriter | None = None
@@ -94,7 +96,7 @@ class ShardWriter:
         self._state = "open"
         try:
             self._finals["frames"].parent.mkdir(parents=True, exist_ok=True)
-            self._frames_writer = TableWriter(self._temps["frames"], "frames")
+            self._frames_writer = TableWriter(self._temps["frames"], "obstacle_frames" if self.obstacles else "frames")
             self._mcap_stream = open(self._temps["mcap"], "wb")
             self._mcap = McapShardWriter(
                 self._mcap_stream,
@@ -163,7 +165,7 @@ class ShardWriter:
                 raise ShardError(f"episode {spec.episode_id}: policy/status/error belong to rollout shards only")
         angles = frames.grasp_angles if grasp_angles is None else grasp_angles
         row = episode_row(spec, angles, policy=policy, status=status, error=error, privileged=privileged)
-        table = frames_table(index, frames, images, fps=self.fps)
+        table = frames_table(index, frames, images, fps=self.fps, obstacles=self.obstacles)
         self._mcap.check_episode(index, frames, images)
         metadata = {"episode_id": spec.episode_id, "spec": spec.to_json()}
         if self.rollout:
@@ -171,7 +173,7 @@ class ShardWriter:
             if privileged:
                 metadata["privileged"] = "true"
         try:
-            self._mcap.add_episode(index, frames, images, metadata)
+            self._mcap.add_episode(index, frames, images, metadata, spec.obstacles)
             self._frames_writer.write(table)
         except BaseException:
             self._state = "failed"

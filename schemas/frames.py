@@ -34,6 +34,9 @@ class EpisodeFrames:
     fingertip_distance: np.ndarray  # (n,)
     palm_distance: np.ndarray  # (n,)
     grasp_angles: np.ndarray  # (15,)
+    #: (n,) the hand's clearance from the scene's obstacles (generators.clearance), None
+    #: for a scene without obstacles.
+    obstacle_clearance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("phase", *FRAME_ARRAYS, "fingertip_distance", "palm_distance", "grasp_angles"):
@@ -52,6 +55,9 @@ class EpisodeFrames:
         for name in ("fingertip_distance", "palm_distance"):
             if getattr(self, name).shape != (n,):
                 raise SpecError(f"{name} must have shape {(n,)}, got {getattr(self, name).shape}")
+        clearance = self.obstacle_clearance
+        if clearance is not None and (not isinstance(clearance, np.ndarray) or clearance.shape != (n,)):
+            raise SpecError(f"obstacle_clearance must be None or an array of shape {(n,)}, got {clearance!r:.80}")
         if self.grasp_angles.shape != (15,):
             raise SpecError(f"grasp_angles must have shape (15,), got {self.grasp_angles.shape}")
         if self.phase.min() < 0 or self.phase.max() >= len(PHASES):

@@ -86,6 +86,11 @@ class SliceDef:
         return self.motion_type is not None and self.generator == "recipe"
 
     @property
+    def may_hold_obstacles(self) -> bool:
+        """Whether its scenes may hold obstacles (its frames then record the clearance)."""
+        return self.generator in ("obstacle", "complex")
+
+    @property
     def union(self) -> bool:
         return bool(self.parts)
 

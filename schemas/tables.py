@@ -35,6 +35,12 @@ FRAMES_SCHEMA = pa.schema(
     ]
 )
 
+#: The frames table of a build whose scenes may hold obstacles (``settings.obstacle_clearance``):
+#: one more column, the hand's clearance from the nearest obstacle (units; <= 0 is contact;
+#: +inf in an episode without obstacles).
+OBSTACLE_CLEARANCE = "obstacle_clearance"
+OBSTACLE_FRAMES_SCHEMA = pa.schema(list(FRAMES_SCHEMA) + [pa.field(OBSTACLE_CLEARANCE, pa.float32(), nullable=False)])
+
 EPISODES_SCHEMA = pa.schema(
     [
         pa.field("episode_index", pa.int64(), nullable=False),

@@ -18,6 +18,7 @@ from schemas.errors import DyanaError
 from scoring.episodes import check_episodes_path, write_episodes
 from scoring.io import load_run
 from scoring.report import (
+    CONTACT_MODES,
     RunReport,
     csv_text,
     default_label,
@@ -40,16 +41,21 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
         help="add the paper's published rows (Tables 3 and 4) to the table, Markdown and plot",
     )
     p.add_argument(
+        "--obstacle-contact", choices=CONTACT_MODES, default="report",
+        help="an episode whose hand touched an obstacle: 'report' it in the collision rate (default) "
+        "or also score it as a 'fail'ure",
+    )
+    p.add_argument(
         "--episodes", metavar="FILE.parquet|.csv",
         help="write one row per episode (ids, motion, object, status, event frames, every metric)",
     )
 
 
-def evaluate(runs: Sequence[str]) -> list[RunReport]:
+def evaluate(runs: Sequence[str], obstacle_contact: str = "report") -> list[RunReport]:
     """Load and score each run; labels are made unique across the runs."""
     data = [load_run(run) for run in runs]
     labels = unique_labels([default_label(d) for d in data], [d.name for d in data])
-    return [score_run(d, label) for d, label in zip(data, labels)]
+    return [score_run(d, label, obstacle_contact) for d, label in zip(data, labels)]
 
 
 def _write(path: str, text: str) -> None:
@@ -63,7 +69,7 @@ def _write(path: str, text: str) -> None:
 def cmd_eval(args: argparse.Namespace) -> int:
     if args.episodes:
         check_episodes_path(args.episodes)
-    reports = evaluate(args.runs)
+    reports = evaluate(args.runs, args.obstacle_contact)
     if args.json:
         payload = [report_dict(r) for r in reports]
         print(json.dumps(payload[0] if len(payload) == 1 else payload, indent=2, allow_nan=False))

@@ -29,6 +29,7 @@ import pyarrow.parquet as pq
 from catalog.atomic import atomic_open
 from schemas.errors import DyanaError
 from schemas.names import shorten
+from schemas.obstacles import CONTACT_CLEARANCE
 from scoring.report import RunReport
 
 EPISODE_FIELDS = [
@@ -57,6 +58,8 @@ EPISODE_FIELDS = [
     pa.field("Q_smooth", pa.float64()),
     pa.field("Q_line", pa.float64()),
     pa.field("R_time", pa.float64()),
+    pa.field("min_obstacle_clearance", pa.float64()),
+    pa.field("obstacle_contact", pa.bool_()),
 ]
 EPISODE_SCHEMA = pa.schema(EPISODE_FIELDS)
 FORMATS = (".parquet", ".csv")
@@ -102,8 +105,20 @@ def run_episodes(report: RunReport) -> pa.Table:
         "Q_smooth": _measure(np.where(per.localized & ok, per.q_smooth, np.nan)),
         "Q_line": _measure(np.where(per.localized & ok, per.q_line, np.nan)),
         "R_time": pa.array(np.where(ok, per.r_time, 0.0), pa.float64()),
+        **_obstacle_columns(data.min_clearance, n),
     }
     return pa.table(columns, schema=EPISODE_SCHEMA)
+
+
+def _obstacle_columns(min_clearance: np.ndarray | None, n: int) -> dict[str, pa.Array]:
+    """Smallest hand-obstacle clearance over the acting frames and whether the hand touched
+    an obstacle; null for an episode without obstacles."""
+    clearance = np.full(n, np.inf) if min_clearance is None else np.asarray(min_clearance, dtype=np.float64)
+    none = ~np.isfinite(clearance)
+    return {
+        "min_obstacle_clearance": pa.array(np.where(none, 0.0, clearance), pa.float64(), mask=none),
+        "obstacle_contact": pa.array(clearance <= CONTACT_CLEARANCE, pa.bool_(), mask=none),
+    }
 
 
 def episodes_table(reports: Sequence[RunReport]) -> pa.Table:

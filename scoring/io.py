@@ -23,6 +23,7 @@ from schemas.events import PROJECTILE_MARK, acting, acting_budget, hover_offset,
 from schemas.frames import EpisodeFrames
 from schemas.scene import PHASES
 from schemas.spec import EpisodeSpec
+from schemas.tables import OBSTACLE_CLEARANCE
 
 FRAME_COLUMNS = ("episode_index", "frame_index", "phase", "palm_pose", "object_pose", "joint_angles", "fingertip_distance")
 EPISODE_COLUMNS = (
@@ -68,6 +69,9 @@ class RunData:
     #: (n,) the hover point's height above the object's centre for a flying object,
     #: NaN for one on the table (:func:`schemas.events.hover_offset`).
     hover_offset: np.ndarray | None = None
+    #: (n,) the hand's smallest obstacle clearance over each episode's acting frames (+inf
+    #: where the episode has no obstacle); None when the run records no clearance.
+    min_clearance: np.ndarray | None = None
 
     @property
     def episodes(self) -> int:
@@ -89,11 +93,12 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
     if not reader.shards or reader.manifest.episodes == 0:
         raise ShardError(f"{os.fspath(folder)}: the run is empty (no episodes)")
     columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if reader.rollout else ())
+    frame_columns = FRAME_COLUMNS + ((OBSTACLE_CLEARANCE,) if reader.manifest.settings.get(OBSTACLE_CLEARANCE) else ())
     episode_tables, frame_tables = [], []
     for shard in reader:
         episodes = shard.episodes(columns)
         episode_tables.append(episodes)
-        frame_tables.append(shard.frames(FRAME_COLUMNS, episodes))
+        frame_tables.append(shard.frames(frame_columns, episodes))
     return _assemble(
         reader.root, reader.manifest.slice, pa.concat_tables(episode_tables), pa.concat_tables(frame_tables), reader.rollout
     )
@@ -138,6 +143,15 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
             raise ShardError(f"{where}: non-finite {name} in an acting frame of episode {episode}")
         return values
 
+    min_clearance = None
+    if OBSTACLE_CLEARANCE in frames.column_names:
+        values = column_to_numpy(frames.column(OBSTACLE_CLEARANCE))[pick].astype(np.float64)
+        if np.isnan(values).any():
+            at = int(np.flatnonzero(np.isnan(values))[0])
+            episode = index[np.searchsorted(offsets, at, side="right") - 1]
+            raise ShardError(f"{where}: NaN obstacle_clearance in an acting frame of episode {episode}")
+        min_clearance = episode_minimum(values, offsets)
+
     grasp_angles = column_to_numpy(episodes.column("grasp_angles"))
     if not np.isfinite(grasp_angles).all():
         episode = index[np.flatnonzero(~np.isfinite(grasp_angles).all(axis=1))[0]]
@@ -171,6 +185,7 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         hand=_strings(episodes.column("hand")),
         rollout_format=_strings(episodes.column("rollout_format")),
         privileged=privileged,
+        min_clearance=min_clearance,
         hover_offset=np.array(
             [
                 hover_offset(name, size, PROJECTILE_MARK in tokens)
@@ -239,4 +254,23 @@ def from_recordings(
         hand=np.array([s.hand for s in specs], dtype=object),
         rollout_format=np.array([s.rollout_format for s in specs], dtype=object),
         hover_offset=np.array([spec_hover_offset(s) for s in specs], dtype=np.float64),
+        min_clearance=_recorded_clearance(recordings, picks, counts) if any(s.obstacles for s in specs) else None,
     )
+
+
+def episode_minimum(values: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(n,) minimum of each episode's run of ``values`` (delimited by ``offsets``); +inf
+    for an episode without rows."""
+    out = np.full(len(offsets) - 1, np.inf)
+    owner = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    np.minimum.at(out, owner, values)
+    return out
+
+
+def _recorded_clearance(recordings: Sequence[EpisodeFrames], picks: list[np.ndarray], counts: np.ndarray) -> np.ndarray:
+    parts = [
+        np.full(int(p.sum()), np.inf) if f.obstacle_clearance is None else f.obstacle_clearance[p].astype(np.float64)
+        for f, p in zip(recordings, picks)
+    ]
+    values = np.concatenate(parts) if parts else np.zeros(0)
+    return episode_minimum(values, np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))

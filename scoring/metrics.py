@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from schemas import events
+from schemas.obstacles import CONTACT_CLEARANCE
 
 #: Steps no longer than this are dropped before measuring smoothness.
 STEP_MIN = 1e-4
@@ -250,14 +251,34 @@ class Summary:
     grasped: int
     metrics: dict[str, float | None]
     intervals: dict[str, tuple[float, float] | None]
+    #: Episodes with obstacles, and those in which the hand touched one (obstacle contact).
+    obstacle_episodes: int = 0
+    collisions: int = 0
+
+    @property
+    def collision_rate(self) -> float | None:
+        """Percent of the episodes with obstacles in which the hand touched one."""
+        return 100.0 * self.collisions / self.obstacle_episodes if self.obstacle_episodes else None
 
 
 def _mean(values: np.ndarray) -> float | None:
     return float(values.mean()) if len(values) else None
 
 
-def aggregate(per: EpisodeMetrics, error: np.ndarray, select: np.ndarray | None = None, z: float = Z95) -> Summary:
+def aggregate(
+    per: EpisodeMetrics,
+    error: np.ndarray,
+    select: np.ndarray | None = None,
+    z: float = Z95,
+    min_clearance: np.ndarray | None = None,
+    contact_fails: bool = False,
+) -> Summary:
     """Summarise episodes (all, or those where ``select`` is true).
+
+    ``min_clearance`` (n,) is each episode's smallest hand-obstacle clearance over its acting
+    frames (+inf without obstacles): at or below :data:`schemas.obstacles.CONTACT_CLEARANCE`
+    the hand touched an obstacle, counted in ``collisions``; with ``contact_fails`` such an
+    episode also counts as a failure, like an error.
 
     An episode whose status is ``error`` counts as a failure in both success rates
     (and so scores ``R_time`` 0 and is left out of ``Q_smooth``/``Q_line``) whatever
@@ -269,6 +290,15 @@ def aggregate(per: EpisodeMetrics, error: np.ndarray, select: np.ndarray | None 
     if error.shape != (len(per),):
         raise ValueError(f"error must have shape ({len(per)},), got {error.shape}")
     keep = np.ones(len(per), dtype=bool) if select is None else np.asarray(select, dtype=bool)
+    errors = int((error & keep).sum())
+    obstacle_episodes = collisions = 0
+    if min_clearance is not None:
+        clearance = np.asarray(min_clearance, dtype=np.float64)
+        with_obstacles = np.isfinite(clearance) & keep
+        collided = with_obstacles & (clearance <= CONTACT_CLEARANCE)
+        obstacle_episodes, collisions = int(with_obstacles.sum()), int(collided.sum())
+        if contact_fails:
+            error = error | collided
     n = int(keep.sum())
     loc = per.localized & ~error & keep
     gra = per.grasped & ~error & keep
@@ -298,4 +328,4 @@ def aggregate(per: EpisodeMetrics, error: np.ndarray, select: np.ndarray | None 
         else:
             metrics[name] = _mean(value)
             intervals[name] = mean_interval(value, z)
-    return Summary(n, int((error & keep).sum()), n_loc, n_gra, metrics, intervals)
+    return Summary(n, errors, n_loc, n_gra, metrics, intervals, obstacle_episodes, collisions)

@@ -25,6 +25,7 @@ from scoring.metrics import (
     Summary,
     aggregate,
     episode_metrics,
+    wilson_interval,
 )
 from scoring.paper import PAPER_ROWS, paper_label
 
@@ -52,6 +53,8 @@ class RunReport:
     #: What was scored and each episode's facts (``scoring.episodes`` tabulates them).
     data: RunData = field(repr=False, compare=False)
     per_episode: EpisodeMetrics = field(repr=False, compare=False)
+    #: ``report`` or ``fail`` (:data:`CONTACT_MODES`): how obstacle contacts were scored.
+    obstacle_contact: str = "report"
 
     @property
     def ground_truth(self) -> bool:
@@ -64,8 +67,18 @@ def _groups(values: np.ndarray, canonical: Sequence[str], always: bool) -> list[
     return ordered + sorted(present - set(canonical))
 
 
-def score_run(data: RunData, label: str | None = None) -> RunReport:
-    """Per-episode metrics of every episode, then the overall and grouped summaries."""
+#: What an obstacle contact means for an episode's score (``scoring eval --obstacle-contact``).
+CONTACT_MODES = ("report", "fail")
+
+
+def score_run(data: RunData, label: str | None = None, obstacle_contact: str = "report") -> RunReport:
+    """Per-episode metrics of every episode, then the overall and grouped summaries.
+
+    ``obstacle_contact``: ``report`` counts episodes whose hand touched an obstacle (the
+    collision rate) and scores them as usual; ``fail`` also counts them as failures."""
+    if obstacle_contact not in CONTACT_MODES:
+        raise ValueError(f"obstacle_contact must be one of {CONTACT_MODES}, got {obstacle_contact!r}")
+    fails = obstacle_contact == "fail"
     per: EpisodeMetrics = episode_metrics(
         data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles,
         data.acting_budget, data.hover_offset,
@@ -74,7 +87,7 @@ def score_run(data: RunData, label: str | None = None) -> RunReport:
     for key, attribute, canonical, _ in BREAKDOWNS:
         values = getattr(data, attribute)
         breakdowns[key] = {
-            group: aggregate(per, data.error, values == group)
+            group: aggregate(per, data.error, values == group, min_clearance=data.min_clearance, contact_fails=fails)
             for group in _groups(values, canonical, key in ALWAYS_LISTED)
         }
     return RunReport(
@@ -83,7 +96,8 @@ def score_run(data: RunData, label: str | None = None) -> RunReport:
         slice=data.slice,
         policy=data.policy,
         privileged=data.privileged,
-        overall=aggregate(per, data.error),
+        overall=aggregate(per, data.error, min_clearance=data.min_clearance, contact_fails=fails),
+        obstacle_contact=obstacle_contact,
         breakdowns=breakdowns,
         data=data,
         per_episode=per,
@@ -126,7 +140,18 @@ def summary_dict(summary: Summary) -> dict[str, Any]:
     }
     out.update(summary.metrics)
     out["intervals"] = {name: _interval(summary.intervals[name]) for name in METRIC_NAMES}
+    if summary.obstacle_episodes:
+        out["obstacles"] = obstacle_dict(summary)
     return out
+
+
+def obstacle_dict(summary: Summary) -> dict[str, Any]:
+    """Obstacle contact among a group's episodes with obstacles (the collision rate, percent)."""
+    return {
+        "episodes": summary.obstacle_episodes,
+        "collisions": summary.collisions,
+        "collision_rate": summary.collision_rate,
+    }
 
 
 def report_dict(report: RunReport) -> dict[str, Any]:
@@ -146,6 +171,8 @@ def report_dict(report: RunReport) -> dict[str, Any]:
         "metrics": dict(overall.metrics),
         "intervals": {name: _interval(overall.intervals[name]) for name in METRIC_NAMES},
     }
+    if overall.obstacle_episodes:
+        out["obstacles"] = dict(obstacle_dict(overall), contact=report.obstacle_contact)
     for key, *_ in BREAKDOWNS:
         out[key] = {group: summary_dict(s) for group, s in report.breakdowns[key].items()}
     return out
@@ -225,13 +252,35 @@ def _aligned(headers: Sequence[str], rows: Sequence[Sequence[str]], text_columns
     return "\n".join([line(headers), rule, *(line(r) for r in rows)])
 
 
+OBSTACLE_HEADERS = ("Run", "Episodes with obstacles", "Obstacle contacts", "Collision rate (%) v", "95% CI", "Contact")
+OBSTACLE_NOTE = (
+    "Obstacle contact: the hand's surface came within 0 units of an obstacle in an acting frame. "
+    "Contact 'report': scored as usual; 'fail': the episode counts as a failure (--obstacle-contact fail)."
+)
+
+
+def _obstacle_rows(reports: Sequence[RunReport]) -> list[list[str]]:
+    rows = []
+    for r in reports:
+        s = r.overall
+        if s.obstacle_episodes:
+            low, high = wilson_interval(s.collisions, s.obstacle_episodes)
+            rows.append([r.label, str(s.obstacle_episodes), str(s.collisions), _num(s.collision_rate),
+                         _ci((100.0 * low, 100.0 * high)), r.obstacle_contact])
+    return rows
+
+
 def format_table(reports: Sequence[RunReport], paper: bool = False) -> str:
     """The terminal report: one row per run (the paper's Table 3; with ``paper`` its
-    published rows follow), then by motion and by interception."""
+    published rows follow), then by motion and by interception, and obstacle contacts
+    for runs with obstacles."""
     main_rows = [_main_row(r) for r in reports] + (_paper_rows() if paper else [])
     parts = [_aligned(MAIN_HEADERS, main_rows), LEGEND + (PAPER_NOTE if paper else "")]
     for key, _, _, title in BREAKDOWNS[:2]:
         parts += ["", f"By {title}:", _aligned(GROUP_HEADERS, _group_rows(reports, key), text_columns=2)]
+    obstacle_rows = _obstacle_rows(reports)
+    if obstacle_rows:
+        parts += ["", "Obstacles:", _aligned(OBSTACLE_HEADERS, obstacle_rows), OBSTACLE_NOTE]
     return "\n".join(parts) + "\n"
 
 
@@ -252,6 +301,10 @@ def markdown(reports: Sequence[RunReport], paper: bool = False) -> str:
              + (PAPER_NOTE if paper else ""), ""]
     for key, _, _, title in BREAKDOWNS:
         parts += [f"### By {title}", "", _markdown_table(GROUP_HEADERS, _group_rows(reports, key)), ""]
+    obstacle_rows = _obstacle_rows(reports)
+    if obstacle_rows:
+        headers = [h.replace(" v", " ↓") for h in OBSTACLE_HEADERS]
+        parts += ["### Obstacles", "", _markdown_table(headers, obstacle_rows), "", OBSTACLE_NOTE, ""]
     return "\n".join(parts)
 
 

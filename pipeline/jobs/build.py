@@ -31,6 +31,8 @@ class BuildSettings:
     fps: int = FPS
     image_format: str = "jpeg"
     dataset_version: str = DATASET_VERSION
+    #: The frames table carries the hand's obstacle clearance (scenes may hold obstacles).
+    obstacle_clearance: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.resolution, int) or not 16 <= self.resolution <= 1024:
@@ -39,7 +41,12 @@ class BuildSettings:
             raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {self.jpeg_quality!r}")
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """The manifest's settings; ``obstacle_clearance`` only when set, so builds without
+        obstacles keep the settings (and hashes) they always had."""
+        out = asdict(self)
+        if not self.obstacle_clearance:
+            del out["obstacle_clearance"]
+        return out
 
 
 def build_shard(task: ShardTask, settings: BuildSettings, slice_dir: str) -> dict:
@@ -76,8 +83,8 @@ def build_job(
     another build is refused unless ``overwrite``."""
     from generators.encode import JPEG_QUALITY
 
-    settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY)
     extra: dict[str, str] = {}
+    obstacles = False
     if specs_path is not None:
         specs = _load_user_specs(specs_path, slice_name)
         slice_name = specs[0].slice
@@ -87,6 +94,7 @@ def build_job(
                 raise SpecError(f"--episodes must be >= 1, got {episodes!r}")
             specs = specs[:episodes]
         lines = [s.to_json() for s in specs]
+        obstacles = any(s.obstacles for s in specs)
         specs_json: list[str] | None = lines
         extra["specs_sha256"] = hashlib.sha256("\n".join(lines).encode()).hexdigest()
         total = len(specs)
@@ -99,11 +107,13 @@ def build_job(
         if definition.union:
             raise SpecError(f"{slice_name} is the union of {', '.join(definition.parts)}: build each part")
         seed = definition.seed
+        obstacles = definition.may_hold_obstacles
         specs_json = None
         total = definition.episodes if episodes is None else episodes
         if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
             raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
 
+    settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY, obstacle_clearance=obstacles)
     tasks = tuple(
         ShardTask(slice_name, first, end, None if specs_json is None else tuple(specs_json[first:end]))
         for first, end in shard_ranges(total, shard_size)

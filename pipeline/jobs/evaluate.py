@@ -337,7 +337,8 @@ def evaluate(
     total = definition.episodes if episodes is None else episodes
     if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
         raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
-    build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY)
+    build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY,
+                                   obstacle_clearance=definition.may_hold_obstacles)
     ranges = shard_ranges(total, shard_size)
     if is_vlm(policy_ref):
         from pipeline.policies.vlm import VLMConfig

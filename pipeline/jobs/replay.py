@@ -189,7 +189,7 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any, vlm: dict[str, 
 
             ep_frames = episode(spec)
             images = encoded_frames(spec, ep_frames, resolution, quality)
-        expected = frames_table(index, ep_frames, images, fps=fps)
+        expected = frames_table(index, ep_frames, images, fps=fps, obstacles=bool(settings.get("obstacle_clearance")))
         found = _first_difference(recorded, expected, expected.column_names)
         if found is None and recorded.num_rows != expected.num_rows:
             n = min(recorded.num_rows, expected.num_rows)

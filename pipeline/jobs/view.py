@@ -8,6 +8,7 @@ timelines (``frame`` and ``time``), read from the shards alone.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import shutil
 from pathlib import Path
@@ -20,6 +21,8 @@ from catalog.reader import open_folder
 from schemas.errors import DyanaError, SpecError
 from schemas.names import shorten
 from schemas.scene import LOC_TOLERANCE, PHASES
+from schemas.spec import EpisodeSpec
+from schemas.tables import OBSTACLE_CLEARANCE
 
 #: Phase colours (observe, approach, grasp, hold) for the palm trail and text log.
 PHASE_COLOURS = {"observe": (150, 150, 150), "approach": (40, 120, 255), "grasp": (255, 140, 0), "hold": (40, 200, 80)}
@@ -107,6 +110,16 @@ def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state
             static=True)
     rec.log("world/palm/path", rr.LineStrips3D([state["palm_pose"][:, :3]], colors=[(40, 120, 255)], radii=0.02),
             static=True)
+    obstacles = EpisodeSpec.from_json(meta["spec"]).obstacles if "spec" in meta else ()
+    if obstacles:
+        rec.log("world/obstacles", rr.Boxes3D(
+            centers=[(o.centre[0], o.half_extents[1], o.centre[1]) for o in obstacles],
+            half_sizes=[o.half_extents for o in obstacles],
+            quaternions=[rr.Quaternion(xyzw=[0.0, math.sin(0.5 * o.yaw), 0.0, math.cos(0.5 * o.yaw)]) for o in obstacles],
+            colors=[tuple(int(round(255 * c)) for c in o.rgba) for o in obstacles],
+            labels=[o.category for o in obstacles],
+        ), static=True)
+    clearance = rows.column(OBSTACLE_CLEARANCE).to_numpy() if OBSTACLE_CLEARANCE in rows.column_names else None
     previous_phase = None
     for k, image in enumerate(images):
         rec.set_time("frame", sequence=int(frame_index[k]))
@@ -124,6 +137,8 @@ def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state
         rec.log("distance/palm_xz", rr.Scalars(float(palm_xz[k])))
         rec.log("distance/tolerance", rr.Scalars(LOC_TOLERANCE))
         rec.log("distance/fingertip", rr.Scalars(float(fingertip[k])))
+        if obstacles and clearance is not None:
+            rec.log("distance/obstacle_clearance", rr.Scalars(float(clearance[k])))
         rec.log("phase/index", rr.Scalars(float(PHASES.index(phase)) if phase in PHASES else -1.0))
         rec.log("hand/joint_angle_mean", rr.Scalars(float(state["joint_angles"][k].mean())))
         if phase != previous_phase:

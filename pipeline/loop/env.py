@@ -76,6 +76,7 @@ from generators.hand import (
     forward_kinematics,
 )
 from generators.motion import object_pose
+from pipeline.stages.episode import obstacle_clearance
 from schemas.errors import DyanaError, PolicyError, SpecError
 from schemas.events import grasp_closed, localized, palm_distance, spec_hover_offset
 from schemas.frames import EpisodeFrames
@@ -342,6 +343,7 @@ class DyanaEnv(_Base):
             fingertip_distance=np.asarray(f["fingertip_distance"], dtype=np.float32),
             palm_distance=np.asarray(f["palm_distance"], dtype=np.float32),
             grasp_angles=self._grasp.copy(),
+            obstacle_clearance=obstacle_clearance(self.episode_spec, np.stack(f["palm_pose"]), np.stack(f["joint_angles"])),
         )
         return frames, list(f["images"])
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from generators import motion
 from generators.ballistics import elevation
+from generators.clearance import hand_clearance
 from generators.contact import fingertip_distance
 from generators.hand import forward_kinematics
 from generators.interception import HandPlan, plan_episode
@@ -51,7 +52,8 @@ def assemble_frames(
     action: np.ndarray,
     grasp_angles: np.ndarray,
 ) -> EpisodeFrames:
-    """Complete per-frame states with FK (joint poses, keypoints) and the two distances."""
+    """Complete per-frame states with FK (joint poses, keypoints), the two distances and,
+    with obstacles, the hand's clearance from them."""
     joint_poses, keypoints = forward_kinematics(palm_pose, joint_angles, spec.hand)
     n = len(phase)
     tips = keypoints.reshape(n, 6, 6)[:, :5, :3]
@@ -68,7 +70,19 @@ def assemble_frames(
         fingertip_distance=fingertip_distance(tips, spec.object, spec.object_size, object_pose).astype(f32),
         palm_distance=palm_distance(palm_pose[:, :3], object_pose[:, :3], spec_hover_offset(spec)).astype(f32),
         grasp_angles=np.asarray(grasp_angles, dtype=f32),
+        obstacle_clearance=obstacle_clearance(spec, palm_pose, joint_angles),
     )
+
+
+def obstacle_clearance(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: np.ndarray) -> np.ndarray | None:
+    """(n,) float32 clearance of the hand from the spec's obstacles, computed from the states
+    as recorded (float32), so a reader recomputing it from the shard gets the same values;
+    None without obstacles."""
+    if not spec.obstacles:
+        return None
+    palm = np.asarray(palm_pose, dtype=np.float32).astype(np.float64)
+    joints = np.asarray(joint_angles, dtype=np.float32).astype(np.float64)
+    return hand_clearance(palm, joints, spec.hand, spec.obstacles).astype(np.float32)
 
 
 def check_observable(spec: EpisodeSpec, poses: np.ndarray) -> None:

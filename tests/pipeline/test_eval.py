@@ -138,7 +138,8 @@ def test_rollout_shards_take_up_to_observe_plus_horizon_frames(tmp_path):
     assert all(rollout_frame_limit(spec_for("test-1k", i)) == spec_for("test-1k", i).observe_frames + horizon(spec_for("test-1k", i)) for i in range(50))
     f = result.frames
     longer = EpisodeFrames(
-        **{k: np.concatenate([v, v[-1:]]) for k, v in f.__dict__.items() if k != "grasp_angles"}, grasp_angles=f.grasp_angles
+        **{k: np.concatenate([v, v[-1:]]) for k, v in f.__dict__.items() if k != "grasp_angles" and v is not None},
+        grasp_angles=f.grasp_angles,
     )
     with ShardWriter(tmp_path / "other", 2, 3, {"resolution": RESOLUTION}, rollout=True) as other:
         with pytest.raises(ShardError, match=f"{limit + 1} frames, more than a rollout's {limit}"):
