@@ -52,9 +52,10 @@ def appendix_summary(definition: SliceDef, episodes: int) -> dict:
     objects: set[str] = set()
     for index in range(episodes):
         setting, cycle = _place(definition, index)
-        count, name = _module(setting).choice_frames(definition.seed, index, definition.intercept_setting, cycle)
-        frames[setting].append(count)
-        objects.add(name)
+        chosen, _ = _module(setting).choices(definition.seed, index, definition.intercept_setting, cycle)
+        common = getattr(chosen, "common", chosen)
+        frames[setting].append(common.num_frames)
+        objects.add(common.object_name)
     total = int(sum(sum(f) for f in frames.values()))
     return {
         "slice": definition.name,

@@ -30,14 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generators.bounds import motion_bounds
-from generators.camera import in_view
-from generators.grids import MAX_SPEED, OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES, OBJECT_TOPS, SIZE_FACTORS
+from generators.draws import SETTINGS, CommonChoices, common_choices, episode_rng, first_feasible, path_fits, uniform
+from generators.grids import MAX_SPEED, OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES, OBJECT_TOPS
 from generators.tracks import _compile, _end_state, evaluate
-from generators.visibility import rest_shadow_z
-from schemas.errors import InfeasibleError, SpecError
+from schemas.errors import SpecError
 from schemas.motion import ArcToken, ClothoidToken, HarmonicToken, LineToken, Motion, Track
-from schemas.scene import GRASP_FRAMES, HANDS, HOLD_FRAMES, INTERCEPT_SECONDS, WORKSPACE_X, WORKSPACE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -62,23 +59,19 @@ TEXTS = (
 )
 
 
-def _uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return low + (high - low) * float(rng.random())
-
-
 def _chain(rng: np.random.Generator, family: str, observe_s: float) -> tuple[ClothoidToken, ...]:
     """The irregular clothoid chain lasting ``observe_s`` seconds (its last piece shapes the join)."""
     count = CLOTHOIDS[0] + int(rng.random() * (CLOTHOIDS[1] - CLOTHOIDS[0] + 1))
     weights = np.array([0.5 + rng.random() for _ in range(count)])
     durations = observe_s * weights / weights.sum()
-    start = (_uniform(rng, -2.0, 2.0), _uniform(rng, 3.0, 6.0))
-    heading = _uniform(rng, -math.pi, math.pi)
-    speed = _uniform(rng, *SPEED)
-    curvature = _uniform(rng, -START_CURVATURE, START_CURVATURE)
-    tokens = [ClothoidToken(curvature_slope=_uniform(rng, -SLOPE, SLOPE), duration=float(durations[0]), start=start,
+    start = (uniform(rng, -2.0, 2.0), uniform(rng, 3.0, 6.0))
+    heading = uniform(rng, -math.pi, math.pi)
+    speed = uniform(rng, *SPEED)
+    curvature = uniform(rng, -START_CURVATURE, START_CURVATURE)
+    tokens = [ClothoidToken(curvature_slope=uniform(rng, -SLOPE, SLOPE), duration=float(durations[0]), start=start,
                             heading=heading, speed=speed, curvature=curvature)]
     for k in range(1, count - 1):
-        tokens.append(ClothoidToken(curvature_slope=_uniform(rng, -SLOPE, SLOPE), duration=float(durations[k])))
+        tokens.append(ClothoidToken(curvature_slope=uniform(rng, -SLOPE, SLOPE), duration=float(durations[k])))
     tokens.append(ClothoidToken(curvature_slope=0.0, duration=float(durations[-1])))  # slope set by the join
     return tuple(tokens)
 
@@ -100,7 +93,7 @@ def irregular_motion(rng: np.random.Generator, family: str, observe_s: float, to
     radius = turn = 0.0
     target = 0.0
     if family == "A":
-        radius = _uniform(rng, *ARC_RADIUS)
+        radius = uniform(rng, *ARC_RADIUS)
         turn = 1.0 if kappa >= 0 else -1.0
         target = turn / radius
     length = speed * last.duration
@@ -117,7 +110,7 @@ def irregular_motion(rng: np.random.Generator, family: str, observe_s: float, to
         regular = ArcToken(centre=(0.0, 0.0), radius=radius, angular_velocity=speed / radius,
                            start_angle=start_angle, turn=int(turn), duration=rest)
     else:
-        frequency = _uniform(rng, *HARMONIC_FREQUENCY)
+        frequency = uniform(rng, *HARMONIC_FREQUENCY)
         amplitude = speed / (2.0 * math.pi * frequency)
         regular = HarmonicToken(centre=(0.0, 0.0), axis=heading, amplitude=amplitude, frequency=frequency,
                                 phase=0.0, duration=rest)
@@ -126,16 +119,8 @@ def irregular_motion(rng: np.random.Generator, family: str, observe_s: float, to
 
 def _fits(motion: Motion, seconds: float, radius: float, top: float) -> bool:
     """Workspace, view (the object's bounding box over the whole path), speed, rest-hand shadow."""
-    x0, x1, z0, z1 = motion_bounds(motion, seconds)
-    if x0 < WORKSPACE_X[0] or x1 > WORKSPACE_X[1] or z0 < WORKSPACE_Z[0] or z1 > WORKSPACE_Z[1]:
+    if not path_fits(motion, seconds, radius, top):
         return False
-    if z0 - radius <= rest_shadow_z():
-        return False
-    for x in (x0 - radius, x1 + radius):
-        for z in (z0 - radius, z1 + radius):
-            for y in (0.0, top):
-                if not bool(in_view(np.array(x), np.array(y), np.array(z))):
-                    return False
     times = np.linspace(0.0, seconds, int(seconds * 200) + 2)
     velocity = evaluate(motion, times).velocity
     return float(np.hypot(velocity[:, 0], velocity[:, 1]).max()) <= MAX_SPEED
@@ -143,16 +128,10 @@ def _fits(motion: Motion, seconds: float, radius: float, top: float) -> bool:
 
 @dataclass(frozen=True)
 class Choices:
-    """An episode's draws other than its motion (fixed before any motion is tried)."""
+    """The regular family the chain joins into, and the common choices."""
 
     family: str
-    setting: str
-    observe_frames: int
-    num_frames: int
-    object_index: int
-    size_index: int
-    hand: str
-    text: int
+    common: CommonChoices
 
 
 def choices(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[Choices, np.random.Generator]:
@@ -162,46 +141,30 @@ def choices(seed: int, index: int, setting: str | None, cycle: int | None = None
     the episode's place among its irregular ones); ``setting`` None cycles the three
     interception settings too (a test set). The choices come first in the stream, so
     counts and lengths are known without trying any motion."""
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, index])))
+    rng = episode_rng(seed, index)
     cycle = index if cycle is None else cycle
     family = REGULAR[cycle % len(REGULAR)]
-    chosen = setting or tuple(INTERCEPT_SECONDS)[(cycle // len(REGULAR)) % len(INTERCEPT_SECONDS)]
-    observe = round(_uniform(rng, *OBSERVE_SECONDS) * FPS)
-    num_frames = observe + round(INTERCEPT_SECONDS[chosen] * FPS) + GRASP_FRAMES + HOLD_FRAMES
-    obj = int(rng.random() * len(OBJECT_NAMES))
-    size_index = int(rng.random() * len(SIZE_FACTORS))
-    hand = HANDS[int(rng.random() * len(HANDS))]
-    text = int(rng.random() * len(TEXTS))
-    return Choices(family, chosen, observe, num_frames, obj, size_index, hand, text), rng
+    chosen = setting or SETTINGS[(cycle // len(REGULAR)) % len(SETTINGS)]
+    return Choices(family, common_choices(rng, chosen, OBSERVE_SECONDS, range(len(OBJECT_NAMES)), len(TEXTS))), rng
 
 
 def irregular_spec(slice_name: str, seed: int, setting: str | None, index: int, cycle: int | None = None) -> EpisodeSpec:
     """Episode ``index`` of an irregular slice (module docstring)."""
-    from pipeline.stages.episode import plan  # the stage chain decides interceptability
-
-    c, rng = choices(seed, index, setting, cycle)
-    name = OBJECT_NAMES[c.object_index]
+    choice, rng = choices(seed, index, setting, cycle)
+    c = choice.common
+    name = c.object_name
     radius, top = float(OBJECT_RADII[c.object_index, c.size_index]), float(OBJECT_TOPS[c.object_index, c.size_index])
-    for _ in range(MAX_DRAWS):
-        motion = irregular_motion(rng, c.family, c.observe_frames / FPS, c.num_frames / FPS)
+
+    def attempt() -> EpisodeSpec | None:
+        motion = irregular_motion(rng, choice.family, c.observe_frames / FPS, c.num_frames / FPS)
         if not _fits(motion, c.num_frames / FPS, radius, top):
-            continue
-        spec = EpisodeSpec(
+            return None
+        return EpisodeSpec(
             slice=slice_name, episode_index=index, seed=seed, motion_type="irregular", motion=motion,
             object=name, object_size=float(OBJECT_SIZES[c.object_index, c.size_index]), hand=c.hand,
             rollout_format="observe-before-act", intercept_setting=c.setting, observe_frames=c.observe_frames,
             num_frames=c.num_frames,
-            text=TEXTS[c.text].format(object=name.replace("_", " "), phrase=REGULAR_PHRASES[c.family]),
+            text=TEXTS[c.text].format(object=name.replace("_", " "), phrase=REGULAR_PHRASES[choice.family]),
         )
-        try:
-            plan(spec)
-        except InfeasibleError:
-            continue
-        return spec
-    raise InfeasibleError(f"episode {index} of {slice_name} found no feasible motion in {MAX_DRAWS} attempts")
 
-
-def choice_frames(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[int, str]:
-    """(frames, object) of an episode from its choices alone (``catalog stats``)."""
-    c, _ = choices(seed, index, setting, cycle)
-    return c.num_frames, OBJECT_NAMES[c.object_index]
+    return first_feasible(attempt, MAX_DRAWS, slice_name, index)

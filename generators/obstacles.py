@@ -28,15 +28,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generators.bounds import motion_bounds
 from generators.camera import in_view
 from generators.clearance import object_clearance, obstacle_corners
-from generators.grids import OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES, OBJECT_TOPS, SIZE_FACTORS
-from generators.visibility import rest_shadow_z
-from schemas.errors import InfeasibleError
+from generators.draws import SETTINGS, CommonChoices, common_choices, episode_rng, first_feasible, path_fits, uniform
+from generators.grids import OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES, OBJECT_TOPS
 from schemas.motion import ArcToken, LineToken, Motion
-from schemas.obstacles import OBSTACLE_CATEGORIES, Obstacle
-from schemas.scene import GRASP_FRAMES, HANDS, HOLD_FRAMES, INTERCEPT_SECONDS, PALM_REST, WORKSPACE_X, WORKSPACE_Z
+from schemas.obstacles import OBSTACLE_CATEGORIES, OBSTACLE_MARGIN, Obstacle
+from schemas.scene import PALM_REST
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -62,19 +60,11 @@ TEXTS = (
 )
 
 
-def _uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return low + (high - low) * float(rng.random())
-
-
 @dataclass(frozen=True)
 class Choices:
-    setting: str
-    observe_frames: int
-    num_frames: int
-    object_index: int
-    size_index: int
-    hand: str
-    text: int
+    """The common choices plus the obstacles' categories (the second may be absent)."""
+
+    common: CommonChoices
     around: str
     second: str | None
 
@@ -82,25 +72,19 @@ class Choices:
 def choices(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[Choices, np.random.Generator]:
     """Episode ``index``'s choices and the generator its scenes then draw from; ``setting``
     None cycles the interception settings with ``cycle`` (default ``index``)."""
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, index])))
-    cycle = index if cycle is None else cycle
-    chosen = setting or tuple(INTERCEPT_SECONDS)[cycle % len(INTERCEPT_SECONDS)]
-    observe = round(_uniform(rng, *OBSERVE_SECONDS) * FPS)
-    num_frames = observe + round(INTERCEPT_SECONDS[chosen] * FPS) + GRASP_FRAMES + HOLD_FRAMES
-    obj = int(rng.random() * len(OBJECT_NAMES))
-    size_index = int(rng.random() * len(SIZE_FACTORS))
-    hand = HANDS[int(rng.random() * len(HANDS))]
-    text = int(rng.random() * len(TEXTS))
+    rng = episode_rng(seed, index)
+    chosen = setting or SETTINGS[(index if cycle is None else cycle) % len(SETTINGS)]
+    common = common_choices(rng, chosen, OBSERVE_SECONDS, range(len(OBJECT_NAMES)), len(TEXTS))
     around = AROUND[int(rng.random() * len(AROUND))]
     second = ON_THE_WAY[int(rng.random() * len(ON_THE_WAY))] if rng.random() < SECOND_CHANCE else None
-    return Choices(chosen, observe, num_frames, obj, size_index, hand, text, around, second), rng
+    return Choices(common, around, second), rng
 
 
 def _box(rng: np.random.Generator, category: str, centre: tuple[float, float]) -> Obstacle:
     nominal = OBSTACLE_CATEGORIES[category].half_extents
-    k = _uniform(rng, *SCALE)
+    k = uniform(rng, *SCALE)
     half = (round(nominal[0] * k, 4), round(nominal[1] * k, 4), round(nominal[2] * k, 4))
-    return Obstacle(category, centre, half, yaw=_uniform(rng, 0.0, math.pi))
+    return Obstacle(category, centre, half, yaw=uniform(rng, 0.0, math.pi))
 
 
 def _footprint_radius(obstacle: Obstacle) -> float:
@@ -109,15 +93,15 @@ def _footprint_radius(obstacle: Obstacle) -> float:
 
 def scene(rng: np.random.Generator, c: Choices, radius: float) -> tuple[Motion, tuple[Obstacle, ...]]:
     """A seeded obstacle layout and the object's path around the first obstacle."""
-    seconds = c.num_frames / FPS
-    observe_s = c.observe_frames / FPS
-    first = _box(rng, c.around, (_uniform(rng, -2.0, 2.0), _uniform(rng, 3.0, 6.0)))
-    arc_radius = _footprint_radius(first) + radius + _uniform(rng, *GAP)
-    speed = _uniform(rng, *SPEED)
+    seconds = c.common.num_frames / FPS
+    observe_s = c.common.observe_frames / FPS
+    first = _box(rng, c.around, (uniform(rng, -2.0, 2.0), uniform(rng, 3.0, 6.0)))
+    arc_radius = _footprint_radius(first) + radius + uniform(rng, *GAP)
+    speed = uniform(rng, *SPEED)
     turn = 1 if rng.random() < 0.5 else -1
-    theta = _uniform(rng, -math.pi, math.pi)
-    angle = _uniform(rng, *TURN)
-    arc_start = _uniform(rng, *ARC_START) * observe_s
+    theta = uniform(rng, -math.pi, math.pi)
+    angle = uniform(rng, *TURN)
+    arc_start = uniform(rng, *ARC_START) * observe_s
     arc_s = min(arc_radius * angle / speed, seconds - arc_start)
     heading = theta + turn * math.pi / 2.0
     cx, cz = first.centre
@@ -136,8 +120,8 @@ def scene(rng: np.random.Generator, c: Choices, radius: float) -> tuple[Motion, 
     obstacles: tuple[Obstacle, ...] = (first,)
     if c.second is not None:
         target = motion_target(motion, seconds)
-        f = _uniform(rng, 0.35, 0.65)
-        centre = (PALM_REST[0] + f * (target[0] - PALM_REST[0]) + _uniform(rng, -0.4, 0.4),
+        f = uniform(rng, 0.35, 0.65)
+        centre = (PALM_REST[0] + f * (target[0] - PALM_REST[0]) + uniform(rng, -0.4, 0.4),
                   PALM_REST[2] + f * (target[1] - PALM_REST[2]))
         obstacles += (_box(rng, c.second, centre),)
     return motion, obstacles
@@ -152,16 +136,8 @@ def motion_target(motion: Motion, seconds: float) -> tuple[float, float]:
 
 
 def _fits(motion: Motion, obstacles: tuple[Obstacle, ...], seconds: float, radius: float, top: float) -> bool:
-    x0, x1, z0, z1 = motion_bounds(motion, seconds)
-    if x0 < WORKSPACE_X[0] or x1 > WORKSPACE_X[1] or z0 < WORKSPACE_Z[0] or z1 > WORKSPACE_Z[1]:
+    if not path_fits(motion, seconds, radius, top):
         return False
-    if z0 - radius <= rest_shadow_z():
-        return False
-    for x in (x0 - radius, x1 + radius):
-        for z in (z0 - radius, z1 + radius):
-            for y in (0.0, top):
-                if not bool(in_view(np.array(x), np.array(y), np.array(z))):
-                    return False
     for o in obstacles:
         corners = obstacle_corners(o)
         if not in_view(corners[:, 0], corners[:, 1], corners[:, 2]).all():
@@ -177,36 +153,27 @@ def _fits(motion: Motion, obstacles: tuple[Obstacle, ...], seconds: float, radiu
 def obstacle_spec(slice_name: str, seed: int, setting: str | None, index: int, cycle: int | None = None) -> EpisodeSpec:
     """Episode ``index`` of an obstacle slice (module docstring)."""
     from generators.motion import object_pose
-    from pipeline.stages.episode import frame_times, plan
-    from schemas.obstacles import OBSTACLE_MARGIN
+    from pipeline.stages.episode import frame_times
 
-    c, rng = choices(seed, index, setting, cycle)
-    name = OBJECT_NAMES[c.object_index]
+    choice, rng = choices(seed, index, setting, cycle)
+    c = choice.common
+    name = c.object_name
     radius, top = float(OBJECT_RADII[c.object_index, c.size_index]), float(OBJECT_TOPS[c.object_index, c.size_index])
     size = float(OBJECT_SIZES[c.object_index, c.size_index])
     seconds = c.num_frames / FPS
-    for _ in range(MAX_DRAWS):
-        motion, obstacles = scene(rng, c, radius)
+
+    def attempt() -> EpisodeSpec | None:
+        motion, obstacles = scene(rng, choice, radius)
         if not _fits(motion, obstacles, seconds, radius, top):
-            continue
+            return None
         poses, _ = object_pose(motion, name, size, frame_times(c.num_frames))
         if object_clearance(name, size, poses, obstacles).min() < OBSTACLE_MARGIN:
-            continue
-        spec = EpisodeSpec(
+            return None
+        return EpisodeSpec(
             slice=slice_name, episode_index=index, seed=seed, motion_type="obstacle", motion=motion,
             object=name, object_size=size, hand=c.hand, rollout_format="observe-before-act",
             intercept_setting=c.setting, observe_frames=c.observe_frames, num_frames=c.num_frames,
-            text=TEXTS[c.text].format(object=name.replace("_", " "), obstacle=c.around), obstacles=obstacles,
+            text=TEXTS[c.text].format(object=name.replace("_", " "), obstacle=choice.around), obstacles=obstacles,
         )
-        try:
-            plan(spec)
-        except InfeasibleError:
-            continue
-        return spec
-    raise InfeasibleError(f"episode {index} of {slice_name} found no feasible scene in {MAX_DRAWS} attempts")
 
-
-def choice_frames(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[int, str]:
-    """(frames, object) of an episode from its choices alone (``catalog stats``)."""
-    c, _ = choices(seed, index, setting, cycle)
-    return c.num_frames, OBJECT_NAMES[c.object_index]
+    return first_feasible(attempt, MAX_DRAWS, slice_name, index)

@@ -21,18 +21,16 @@ interception plans (:func:`pipeline.stages.episode.plan`), up to :data:`MAX_DRAW
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from generators.ballistics import elevation
-from generators.bounds import motion_bounds
-from generators.grids import OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES, SIZE_FACTORS
+from generators.draws import SETTINGS, CommonChoices, common_choices, episode_rng, first_feasible, path_fits, uniform
+from generators.grids import OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES
 from generators.visibility import rest_shadow_z
-from schemas.errors import InfeasibleError
 from schemas.motion import STANDARD_GRAVITY, Motion, ProjectileToken
 from schemas.objects import OBJECTS
-from schemas.scene import GRASP_FRAMES, HANDS, HOLD_FRAMES, INTERCEPT_SECONDS, WORKSPACE_X, WORKSPACE_Z
+from schemas.scene import INTERCEPT_SECONDS, WORKSPACE_X, WORKSPACE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -56,45 +54,21 @@ TEXTS = (
 )
 
 
-def _uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return low + (high - low) * float(rng.random())
-
-
-@dataclass(frozen=True)
-class Choices:
-    """An episode's draws other than its flight (fixed before any flight is tried)."""
-
-    setting: str
-    observe_frames: int
-    num_frames: int
-    object_index: int
-    size_index: int
-    hand: str
-    text: int
-
-
-def choices(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[Choices, np.random.Generator]:
+def choices(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[CommonChoices, np.random.Generator]:
     """Episode ``index``'s choices and the generator its flights then draw from; ``setting``
     None cycles the interception settings with ``cycle`` (default ``index``)."""
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, index])))
-    cycle = index if cycle is None else cycle
-    chosen = setting or tuple(INTERCEPT_SECONDS)[cycle % len(INTERCEPT_SECONDS)]
-    observe = round(_uniform(rng, *OBSERVE_SECONDS) * FPS)
-    num_frames = observe + round(INTERCEPT_SECONDS[chosen] * FPS) + GRASP_FRAMES + HOLD_FRAMES
-    obj = BALLS[int(rng.random() * len(BALLS))]
-    size_index = int(rng.random() * len(SIZE_FACTORS))
-    hand = HANDS[int(rng.random() * len(HANDS))]
-    text = int(rng.random() * len(TEXTS))
-    return Choices(chosen, observe, num_frames, obj, size_index, hand, text), rng
+    rng = episode_rng(seed, index)
+    chosen = setting or SETTINGS[(index if cycle is None else cycle) % len(SETTINGS)]
+    return common_choices(rng, chosen, OBSERVE_SECONDS, BALLS, len(TEXTS)), rng
 
 
 def flight(rng: np.random.Generator, seconds: float, margin: float) -> Motion | None:
     """A seeded throw lasting ``seconds`` whose horizontal path keeps ``margin`` inside the
     workspace, or None when its displacement cannot fit (the caller redraws)."""
-    heading = _uniform(rng, -math.pi, math.pi)
-    speed = _uniform(rng, *HORIZONTAL_SPEED)
+    heading = uniform(rng, -math.pi, math.pi)
+    speed = uniform(rng, *HORIZONTAL_SPEED)
     vx, vz = speed * math.cos(heading), speed * math.sin(heading)
-    up, height, restitution = (_uniform(rng, *r) for r in (LAUNCH_UP_SPEED, LAUNCH_HEIGHT, RESTITUTION))
+    up, height, restitution = (uniform(rng, *r) for r in (LAUNCH_UP_SPEED, LAUNCH_HEIGHT, RESTITUTION))
     low_z = max(WORKSPACE_Z[0], rest_shadow_z()) + margin
     ranges = []
     for d, (low, high) in ((vx * seconds, (WORKSPACE_X[0] + margin, WORKSPACE_X[1] - margin)),
@@ -102,49 +76,35 @@ def flight(rng: np.random.Generator, seconds: float, margin: float) -> Motion | 
         ranges.append((low + max(0.0, -d), high - max(0.0, d)))
     if any(a >= b for a, b in ranges):
         return None
-    start = (_uniform(rng, *ranges[0]), _uniform(rng, *ranges[1]))
+    start = (uniform(rng, *ranges[0]), uniform(rng, *ranges[1]))
     token = ProjectileToken(start=start, velocity=(vx, up, vz), duration=seconds, height=height,
                             gravity=STANDARD_GRAVITY, restitution=restitution)
     return Motion.of(token)
 
 
 def _fits(motion: Motion, seconds: float, radius: float, intercept_s: float) -> bool:
-    x0, x1, z0, z1 = motion_bounds(motion, seconds)
-    if x0 < WORKSPACE_X[0] or x1 > WORKSPACE_X[1] or z0 < WORKSPACE_Z[0] or z1 > WORKSPACE_Z[1]:
-        return False
-    if z0 - radius <= rest_shadow_z():
+    if not path_fits(motion, seconds, radius):
         return False
     return float(elevation(motion, [intercept_s]).height[0]) >= MIN_AIR
 
 
 def projectile_spec(slice_name: str, seed: int, setting: str | None, index: int, cycle: int | None = None) -> EpisodeSpec:
     """Episode ``index`` of a projectile slice (module docstring)."""
-    from pipeline.stages.episode import plan  # the stage chain decides interceptability
-
     c, rng = choices(seed, index, setting, cycle)
-    name = OBJECT_NAMES[c.object_index]
+    name = c.object_name
     radius = float(OBJECT_RADII[c.object_index, c.size_index])
     seconds = c.num_frames / FPS
     intercept_s = (c.observe_frames + round(INTERCEPT_SECONDS[c.setting] * FPS)) / FPS
-    for _ in range(MAX_DRAWS):
+
+    def attempt() -> EpisodeSpec | None:
         motion = flight(rng, seconds, radius)
         if motion is None or not _fits(motion, seconds, radius, intercept_s):
-            continue
-        spec = EpisodeSpec(
+            return None
+        return EpisodeSpec(
             slice=slice_name, episode_index=index, seed=seed, motion_type="projectile", motion=motion,
             object=name, object_size=float(OBJECT_SIZES[c.object_index, c.size_index]), hand=c.hand,
             rollout_format="observe-before-act", intercept_setting=c.setting, observe_frames=c.observe_frames,
             num_frames=c.num_frames, text=TEXTS[c.text].format(object=name.replace("_", " ")),
         )
-        try:
-            plan(spec)
-        except InfeasibleError:
-            continue
-        return spec
-    raise InfeasibleError(f"episode {index} of {slice_name} found no feasible flight in {MAX_DRAWS} attempts")
 
-
-def choice_frames(seed: int, index: int, setting: str | None, cycle: int | None = None) -> tuple[int, str]:
-    """(frames, object) of an episode from its choices alone (``catalog stats``)."""
-    c, _ = choices(seed, index, setting, cycle)
-    return c.num_frames, OBJECT_NAMES[c.object_index]
+    return first_feasible(attempt, MAX_DRAWS, slice_name, index)

@@ -12,12 +12,11 @@ obstacle collision event, reported by ``scoring eval``).
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import SpecError
+from schemas.motion import _finite
 from schemas.names import shorten
 from schemas.scene import TABLE_X, TABLE_Z
 
@@ -52,15 +51,8 @@ OBSTACLE_CATEGORIES: dict[str, ObstacleCategory] = {
 
 
 def _number(name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise SpecError(f"{name} must be a number, got {shorten(repr(value))}")
-    try:
-        value = float(value)
-    except OverflowError:
-        raise SpecError(f"{name} must be finite, got {shorten(repr(value))}") from None
-    if not math.isfinite(value):
-        raise SpecError(f"{name} must be finite, got {shorten(repr(value))}")
-    return value
+    owner, _, field = name.partition(".")
+    return _finite(owner, field, value)
 
 
 def _pair(name: str, value: Any, width: int) -> tuple[float, ...]:

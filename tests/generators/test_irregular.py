@@ -67,7 +67,7 @@ def test_stats_come_from_the_choices_and_agree_with_the_specs():
     assert fast["objects"]["categories"] == len({s.object for s in specs})
     assert fast["motion_types"]["irregular"]["episodes"] == 12
     assert fast["motion_types"]["irregular"]["mean_frames"] == pytest.approx(
-        np.mean([choices(2001, i, "fast")[0].num_frames for i in range(12)])
+        np.mean([choices(2001, i, "fast")[0].common.num_frames for i in range(12)])
     )
 
 
@@ -80,18 +80,6 @@ def test_a_spec_is_irregular_only_when_its_tokens_make_it_so():
     with pytest.raises(SpecError, match="contradicts the motion's tokens"):
         EpisodeSpec.from_dict(spec)
     assert line.base.tokens[0].type == "L"
-
-
-@pytest.mark.slow
-def test_an_irregular_slice_builds_byte_identically_with_one_and_two_workers(tmp_path):
-    from pipeline.jobs.build import build
-
-    hashes = []
-    for workers in (1, 2):
-        manifest = build("irregular-slow", tmp_path / str(workers), episodes=4, shard_size=2, resolution=32,
-                         workers=workers, progress=False)
-        hashes.append(manifest.hash)
-    assert hashes[0] == hashes[1]
 
 
 def test_the_dataloader_selects_irregular_episodes(tmp_path):

@@ -86,15 +86,3 @@ def test_test_complex_interleaves_the_three_settings():
     assert {k: v["episodes"] for k, v in summary["motion_types"].items()} == {
         "projectile": 100, "obstacle": 100, "irregular": 100
     }
-
-
-@pytest.mark.slow
-def test_an_obstacle_slice_builds_byte_identically_with_one_and_two_workers(tmp_path):
-    from pipeline.jobs.build import build
-
-    hashes = []
-    for workers in (1, 2):
-        manifest = build("obstacle-medium", tmp_path / str(workers), episodes=4, shard_size=2, resolution=32,
-                         workers=workers, progress=False)
-        hashes.append(manifest.hash)
-    assert hashes[0] == hashes[1]

@@ -113,15 +113,3 @@ def test_projectile_slices_and_stats():
     assert summary["total_frames"] == sum(s.num_frames for s in specs)
     assert {s.object for s in specs} <= {"tennis_ball", "baseball", "orange"}
     assert all(s.motion.airborne and s.motion_type == "projectile" for s in specs)
-
-
-@pytest.mark.slow
-def test_a_projectile_slice_builds_byte_identically_with_one_and_two_workers(tmp_path):
-    from pipeline.jobs.build import build
-
-    hashes = []
-    for workers in (1, 2):
-        manifest = build("projectile-medium", tmp_path / str(workers), episodes=4, shard_size=2, resolution=32,
-                         workers=workers, progress=False)
-        hashes.append(manifest.hash)
-    assert hashes[0] == hashes[1]

@@ -1,0 +1,18 @@
+"""Each harder setting of paper A.11 builds byte-identically with one and two workers."""
+
+from __future__ import annotations
+
+import pytest
+
+from pipeline.jobs.build import build
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("slice_name", ["projectile-medium", "obstacle-medium", "irregular-slow"])
+def test_a_harder_slice_builds_byte_identically_with_one_and_two_workers(tmp_path, slice_name):
+    hashes = []
+    for workers in (1, 2):
+        manifest = build(slice_name, tmp_path / str(workers), episodes=4, shard_size=2, resolution=32,
+                         workers=workers, progress=False)
+        hashes.append(manifest.hash)
+    assert hashes[0] == hashes[1]
