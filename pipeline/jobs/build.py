@@ -155,6 +155,8 @@ def _load_user_specs(path: str, slice_name: str | None) -> list[EpisodeSpec]:
             plan(spec)
         except InfeasibleError as exc:
             raise SpecError(f"{path}:{lineno}: infeasible episode {spec.episode_id}: {exc}") from None
+        except SpecError as exc:  # a motion whose tokens cannot be joined (a planar token after a flight)
+            raise SpecError(f"{path}:{lineno}: episode {spec.episode_id}: {exc}") from None
     specs = [spec for _, spec in lines]
     names = sorted({s.slice for s in specs})
     if len(names) != 1:

@@ -300,6 +300,18 @@ def test_an_infeasible_spec_is_one_line_with_its_file_and_line_and_no_dask_noise
     assert "Traceback" not in result.stderr and "Compute Failed" not in result.stderr
 
 
+def test_a_line_after_a_flight_still_in_the_air_is_one_line_with_its_file_and_line(tmp_path):
+    path = tmp_path / "flight.jsonl"
+    flight = {"motion_type": "custom", "motion": {"base": [
+        {"type": "P", "start": [0.0, 3.0], "velocity": [0.5, 3.0, 0.5], "height": 1.0, "duration": 0.1},
+        {"type": "L", "start": [0.0, 0.0], "direction": 0.0, "speed": 1.0, "acceleration": 0.0, "duration": 4.0}]}}
+    path.write_text(_spec_lines({}, flight))
+    result = _cli("build", "--specs", str(path), "--out", str(tmp_path / "out"))
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.count("\n") == 1 and f"{path}:2: episode " in result.stderr
+    assert "in the air: a planar token after a projectile needs it back on the table" in result.stderr
+
+
 def test_a_spec_whose_object_the_resting_hand_hides_is_refused_with_the_frame(tmp_path):
     """A tennis ball rolled toward the camera passes under the resting fingers while it
     is observed: refused before any work, naming the file, line and observe frame."""

@@ -138,3 +138,16 @@ def test_stats_dyana_12m_reproduces_figure_4_from_the_shell():
     for name, mean in (("linear", 36), ("circular", 78), ("harmonic", 64)):
         assert abs(stats["motion_types"][name]["mean_frames"] - mean) <= 0.05 * mean
     assert 11_500_000 <= stats["total_frames"] <= 12_500_000
+
+
+def test_stats_and_specs_cover_the_harder_settings():
+    stats = json.loads(run("stats", "test-complex", "--json").stdout)
+    assert {k: v["episodes"] for k, v in stats["motion_types"].items()} == {
+        "projectile": 100, "obstacle": 100, "irregular": 100
+    }
+    result = run("specs", "obstacle-fast", "--episodes", "2")
+    assert result.returncode == 0, result.stderr
+    specs = [EpisodeSpec.from_json(line) for line in result.stdout.splitlines()]
+    assert [s.motion_type for s in specs] == ["obstacle", "obstacle"] and all(s.obstacles for s in specs)
+    flight = EpisodeSpec.from_json(run("specs", "projectile-slow", "--episodes", "1").stdout.splitlines()[0])
+    assert flight.motion.token_types == "P"

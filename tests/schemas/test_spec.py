@@ -199,3 +199,39 @@ def test_token_and_overlay_counts_are_bounded():
     token = {"type": "L", "start": [0.0, 3.0], "direction": 0.5, "speed": 0.01, "acceleration": 0.0, "duration": 0.01}
     with pytest.raises(SpecError, match="at most 256 tokens, got 20,000"):
         EpisodeSpec.from_dict(spec_dict(motion={"base": [token] * 20_000}))
+
+
+BOX = {"category": "crate", "centre": [1.0, 3.0], "half_extents": [0.5, 0.4, 0.5], "yaw": 0.3}
+
+
+def test_obstacles_round_trip_and_are_left_out_when_there_are_none():
+    plain = EpisodeSpec.from_dict(spec_dict())
+    assert "obstacles" not in json.loads(plain.to_json())
+    boxed = EpisodeSpec.from_dict(spec_dict(motion_type="obstacle", obstacles=[BOX]))
+    assert json.loads(boxed.to_json())["obstacles"] == [BOX]
+    assert EpisodeSpec.from_json(boxed.to_json()) == boxed and boxed.spec_hash != plain.spec_hash
+    assert EpisodeSpec.from_dict(spec_dict(obstacles=[BOX])).motion_type == "linear"
+
+
+@pytest.mark.parametrize(
+    "obstacles, message",
+    [
+        ("crate", r"spec.obstacles must be a list"),
+        ([dict(BOX, category="tank")], r"spec.obstacles\[0\]: obstacle.category must be one of .*'tank'"),
+        ([dict(BOX, centre=[40.0, 3.0])], r"obstacle.centre must lie on the table"),
+        ([dict(BOX, half_extents=[0.5, 0.0, 0.5])], r"obstacle.half_extents must each be in"),
+        ([dict(BOX, half_extents=[0.5, 0.5])], r"obstacle.half_extents must be a list of 3 numbers"),
+        ([dict(BOX, yaw="north")], r"obstacle.yaw must be a number, got 'north'"),
+        ([dict(BOX, colour="red")], r"obstacle has unknown field\(s\) \['colour'\]"),
+        ([{"category": "crate"}], r"obstacle is missing field\(s\) \['centre', 'half_extents'\]"),
+        ([BOX] * 9, r"at most 8 obstacles, got 9"),
+    ],
+)
+def test_bad_obstacles_name_the_entry_and_the_value(obstacles, message):
+    with pytest.raises(SpecError, match=message):
+        EpisodeSpec.from_dict(spec_dict(obstacles=obstacles))
+
+
+def test_an_obstacle_motion_type_needs_obstacles():
+    with pytest.raises(SpecError, match=r"spec.motion_type 'obstacle' contradicts"):
+        EpisodeSpec.from_dict(spec_dict(motion_type="obstacle"))
