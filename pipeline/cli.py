@@ -82,6 +82,22 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     cli.add_overwrite(p)
     cli.add_quiet(p)
+    protocol = p.add_argument_group("protocols (recorded in the run's manifest, settings.protocol)")
+    protocol.add_argument("--latency-frames", type=int, default=0, metavar="N",
+                          help="an action computed from frame t's observation takes effect at frame t + N; "
+                          "the hand holds meanwhile (default: 0; deterministic)")
+    protocol.add_argument("--realtime", action="store_true",
+                          help="also delay each call's actions by its measured inference time in whole frames "
+                          "(NOT deterministic: flagged in the manifest and every table; cannot be replayed)")
+    protocol.add_argument("--perturb", metavar="NAME[:STRENGTH]",
+                          help="perturb what the policy sees: noise[:2], jpeg[:75], jitter[:0.5] or light[:2] "
+                          "(seeded by the episode, the repeat and the frame)")
+    protocol.add_argument("--disturb", action="store_true",
+                          help="change each episode's motion once after the observe window (seeded by the episode: "
+                          "a speed or heading change); the run records the disturbed specs")
+    protocol.add_argument("--repeats", type=int, default=1, metavar="K",
+                          help="run every episode K times (repeat r seeds its own perturbation): RUN/repeat-NN "
+                          "plus RUN/repeats.json, scored together by scoring eval RUN (default: 1)")
     vlm = p.add_argument_group("VLM policies (--policy vlm:URL)")
     p.set_defaults(**VLM_DEFAULTS)
     vlm.add_argument("--model", help="the model name the endpoint serves (required for vlm:URL)")
@@ -122,16 +138,28 @@ def _vlm_options(args: argparse.Namespace) -> dict | None:
     }
 
 
+def _protocol(args: argparse.Namespace):
+    from pipeline.loop.conditions import EvalProtocol
+    from pipeline.loop.perturb import Perturbation
+
+    perturb = None if args.perturb is None else Perturbation.parse(args.perturb)
+    return EvalProtocol(latency_frames=args.latency_frames, realtime=args.realtime, perturb=perturb,
+                        disturb=args.disturb)
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from pipeline.jobs.evaluate import evaluate
+    from pipeline.jobs.repeats import evaluate_repeats
 
     vlm = _vlm_options(args)
+    protocol = _protocol(args)
     if vlm is None:
         _importable_cwd(args.policy)
-    evaluate(
-        args.policy, args.slice, Path(args.out), deadline_s=args.deadline, isolate=not args.in_process, vlm=vlm,
-        **cli.job_options(args),
-    )
+    options = dict(deadline_s=args.deadline, isolate=not args.in_process, vlm=vlm, **cli.job_options(args))
+    if args.repeats != 1:
+        evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
+    else:
+        evaluate(args.policy, args.slice, Path(args.out), protocol=protocol, **options)
     return 0
 
 

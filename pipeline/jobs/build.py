@@ -33,6 +33,9 @@ class BuildSettings:
     dataset_version: str = DATASET_VERSION
     #: The frames table carries the hand's obstacle clearance (scenes may hold obstacles).
     obstacle_clearance: bool = False
+    #: A rollout's evaluation protocol (pipeline.loop.conditions.EvalProtocol.to_dict), None
+    #: for the plain closed loop and for builds.
+    protocol: dict | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.resolution, int) or not 16 <= self.resolution <= 1024:
@@ -41,11 +44,13 @@ class BuildSettings:
             raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {self.jpeg_quality!r}")
 
     def as_dict(self) -> dict:
-        """The manifest's settings; ``obstacle_clearance`` only when set, so builds without
-        obstacles keep the settings (and hashes) they always had."""
+        """The manifest's settings; ``obstacle_clearance`` and ``protocol`` only when set, so
+        builds without obstacles and plain runs keep the settings (and hashes) they always had."""
         out = asdict(self)
         if not self.obstacle_clearance:
             del out["obstacle_clearance"]
+        if self.protocol is None:
+            del out["protocol"]
         return out
 
 

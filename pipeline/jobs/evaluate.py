@@ -30,6 +30,8 @@ import numpy as np
 from catalog.manifest import Manifest, load_manifest, manifest_path
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
+from pipeline.loop.conditions import EvalProtocol
+from pipeline.loop.disturb import disturbed_spec
 from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
 from schemas.errors import PolicyError, ShardError, SpecError
 
@@ -59,6 +61,8 @@ class EvalSettings:
     isolate: bool = True
     #: A VLM policy's configuration (``vlm:URL`` refs), recorded in the manifest.
     vlm: dict[str, Any] | None = None
+    #: The evaluation protocol (latency, perturbation, repeat), in ``settings.protocol``.
+    protocol: EvalProtocol = EvalProtocol()
 
     @property
     def call_timeout_s(self) -> float:
@@ -140,7 +144,8 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
     from catalog.shard import ShardWriter
     from pipeline.loop.env import DyanaEnv
 
-    env = DyanaEnv(resolution=settings.build.resolution, jpeg_quality=settings.build.jpeg_quality)
+    env = DyanaEnv(resolution=settings.build.resolution, jpeg_quality=settings.build.jpeg_quality,
+                   protocol=settings.protocol)
     stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
     policy = None
     audit: list[dict[str, Any]] = []
@@ -155,6 +160,8 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
                         policy = _Unavailable(settings.policy_name, str(exc))
                     except Exception as exc:
                         policy = _Unavailable(settings.policy_name, f"cannot make the policy: {type(exc).__name__}: {exc}")
+                if settings.protocol.disturb:
+                    spec, _ = disturbed_spec(spec)
                 result = run_episode(env, policy, spec, settings.deadline_s)
                 take_audit = getattr(policy, "take_audit", None)
                 if callable(take_audit):
@@ -312,6 +319,7 @@ def evaluate(
     overwrite: bool = False,
     isolate: bool = True,
     vlm: dict[str, Any] | None = None,
+    protocol: EvalProtocol | None = None,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
@@ -320,7 +328,8 @@ def evaluate(
     shards one after another in this process, without Dask: same bytes, for debugging
     and tests. A folder holding another run is refused unless ``overwrite``. A user's
     ``module:callable`` runs in a child process per worker (``isolate``; same bytes), so
-    that its crash or exit fails only its episode."""
+    that its crash or exit fails only its episode. ``protocol`` (latency, perturbation,
+    repeat; :mod:`pipeline.loop.conditions`) is recorded in ``settings.protocol``."""
     from generators.encode import JPEG_QUALITY
     from schemas.slices import get_slice
 
@@ -337,8 +346,10 @@ def evaluate(
     total = definition.episodes if episodes is None else episodes
     if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
         raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
+    protocol = protocol or EvalProtocol()
     build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY,
-                                   obstacle_clearance=definition.may_hold_obstacles)
+                                   obstacle_clearance=definition.may_hold_obstacles,
+                                   protocol=None if protocol.plain else protocol.to_dict())
     ranges = shard_ranges(total, shard_size)
     if is_vlm(policy_ref):
         from pipeline.policies.vlm import VLMConfig
@@ -347,7 +358,8 @@ def evaluate(
     elif vlm is not None:
         raise SpecError(f"--model and the --vlm-* flags are for vlm:URL policies, not {policy_ref!r}")
     name, privileged = describe_policy(policy_ref, WATCHDOG_S if deadline_s is None else deadline_s, isolate, vlm)
-    settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate), vlm)
+    settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate), vlm,
+                            protocol)
     run_dir = Path(out)
     job = Job(
         folder=run_dir,

@@ -28,7 +28,7 @@ import pyarrow as pa
 from catalog.parquet_io import episode_row, episodes_table, frames_table
 from catalog.reader import ShardReader, open_folder
 from catalog.records import ShardRecord, shard_stem
-from schemas.errors import PolicyError, ReplayMismatch
+from schemas.errors import PolicyError, ReplayMismatch, ShardError
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
@@ -249,9 +249,16 @@ def replay(
         chosen = [s for s in chosen if s.record.first in wanted]
     env = None
     if rollout:
+        from pipeline.loop.conditions import EvalProtocol
         from pipeline.loop.env import DyanaEnv
 
-        env = DyanaEnv(resolution=settings["resolution"], jpeg_quality=settings["jpeg_quality"])
+        protocol = EvalProtocol.from_dict(settings.get("protocol"))
+        if protocol.realtime:
+            raise ShardError(
+                f"{folder.root}: a real-time run (settings.protocol.realtime) depends on the machine's timing "
+                "and cannot be replayed byte for byte"
+            )
+        env = DyanaEnv(resolution=settings["resolution"], jpeg_quality=settings["jpeg_quality"], protocol=protocol)
     vlm = manifest.extra.get("vlm") if rollout else None
     answers = _vlm_answers(folder.root) if vlm is not None else None
     if vlm is not None:

@@ -76,6 +76,8 @@ from generators.hand import (
     forward_kinematics,
 )
 from generators.motion import object_pose
+from pipeline.loop.conditions import EvalProtocol
+from pipeline.loop.perturb import perturbation_rng
 from pipeline.stages.episode import obstacle_clearance
 from schemas.errors import DyanaError, PolicyError, SpecError
 from schemas.events import grasp_closed, localized, palm_distance, spec_hover_offset
@@ -207,7 +209,13 @@ class DyanaEnv(_Base):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
 
-    def __init__(self, resolution: int = DEFAULT_RESOLUTION, jpeg_quality: int = JPEG_QUALITY, render_mode: str | None = None):
+    def __init__(
+        self,
+        resolution: int = DEFAULT_RESOLUTION,
+        jpeg_quality: int = JPEG_QUALITY,
+        render_mode: str | None = None,
+        protocol: EvalProtocol | None = None,
+    ):
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
             raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
         if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, (int, np.integer)) or not 1 <= jpeg_quality <= 100:
@@ -217,6 +225,12 @@ class DyanaEnv(_Base):
         self.resolution = int(resolution)
         self.jpeg_quality = int(jpeg_quality)
         self.render_mode = render_mode
+        if protocol is not None and not isinstance(protocol, EvalProtocol):
+            raise SpecError(f"protocol must be an EvalProtocol, got {protocol!r:.80}")
+        self.protocol = protocol or EvalProtocol()
+        #: Frames of latency of the actions issued next (the protocol's, plus in real-time
+        #: mode the last call's measured inference time, set by the rollout).
+        self.delay_frames = self.protocol.latency_frames
         self.observation_space, self.action_space = _spaces(self.resolution)
         self.episode_spec: EpisodeSpec | None = None
         self._next_index = 0
@@ -266,11 +280,14 @@ class DyanaEnv(_Base):
         self._gra_frame: int | None = None
         self._done = False
         rest = _REST_STATE
+        self._applied = rest.copy()
+        self._scheduled: list[tuple[int, np.ndarray]] = []
+        self.delay_frames = self.protocol.latency_frames
         observe_images = []
         for k in range(self._first):
             image = self._add_frame(k, rest[:3], rest[3:])
             self._frames["action"].append(rest.copy())
-            observe_images.append(image)
+            observe_images.append(self._seen(k, image))
         image = self._add_frame(self._first, rest[:3], rest[3:])
         self._done = self._limit <= self._first + 1
         observe = (
@@ -302,8 +319,9 @@ class DyanaEnv(_Base):
         act = as_action(action)
         frame = self.current_frame
         self._frames["action"].append(act)
-        palm = np.clip(act[:3].astype(np.float64), _PALM_LOW, _PALM_HIGH).astype(np.float32)
-        joints = np.clip(act[3:].astype(np.float64), JOINT_LOWER, JOINT_UPPER).astype(np.float32)
+        applied = self._take_effect(frame, act)
+        palm = np.clip(applied[:3].astype(np.float64), _PALM_LOW, _PALM_HIGH).astype(np.float32)
+        joints = np.clip(applied[3:].astype(np.float64), JOINT_LOWER, JOINT_UPPER).astype(np.float32)
         completed_before = self._gra_frame is not None
         image = self._add_frame(frame + 1, palm, joints)
         terminated = self._gra_frame is not None and not completed_before
@@ -312,6 +330,27 @@ class DyanaEnv(_Base):
         reward = 1.0 if terminated else 0.0
         empty = np.zeros((0, self.resolution, self.resolution, 3), dtype=np.uint8)
         return self._observation(image, empty), reward, terminated, truncated, self._info()
+
+    def _take_effect(self, frame: int, action: np.ndarray) -> np.ndarray:
+        """The targets reached at frame ``frame + 1``: the action issued now without latency;
+        with a delay of N frames the latest action issued N frames ago or earlier, else
+        the targets applied last (the hand holds)."""
+        if self.delay_frames == 0 and not self._scheduled:
+            self._applied = action
+            return action
+        self._scheduled.append((frame + self.delay_frames, action))
+        due = [a for at, a in self._scheduled if at <= frame]
+        if due:
+            self._applied = due[-1]
+            self._scheduled = [(at, a) for at, a in self._scheduled if at > frame]
+        return self._applied
+
+    def _seen(self, frame: int, image: np.ndarray) -> np.ndarray:
+        """Frame ``frame`` as the policy sees it: perturbed under a perturbation protocol."""
+        perturb = self.protocol.perturb
+        if perturb is None or self.episode_spec is None:
+            return image
+        return perturb.apply(image, perturbation_rng(self.episode_spec.spec_hash, self.protocol.repeat, frame))
 
     @property
     def current_frame(self) -> int:
@@ -402,7 +441,7 @@ class DyanaEnv(_Base):
         f = self._frames
         k = self.current_frame
         return {
-            "image": image,
+            "image": self._seen(k, image),
             "palm_pose": f["palm_pose"][-1].copy(),
             "joint_angles": f["joint_angles"][-1].copy(),
             "joint_poses": f["joint_poses"][-1].copy(),

@@ -134,7 +134,11 @@ def run_episode(
             try:
                 raw = _call(worker, policy.act, obs, deadline_s, watchdog_s, "act")
             finally:
-                waited += time.perf_counter() - start
+                took = time.perf_counter() - start
+                waited += took
+            protocol = getattr(env, "protocol", None)
+            if protocol is not None and protocol.realtime:  # opt-in, recorded as not deterministic
+                env.delay_frames = protocol.latency_frames + math.ceil(took * FPS)
             ran = run_chunk(env, raw)
             obs, info, steps = ran.observation, ran.info, steps + ran.steps
             frame = int(obs["frame_index"])
