@@ -45,7 +45,10 @@ def _jpeg(image: np.ndarray, strength: float, rng: np.random.Generator) -> np.nd
     ok, data = cv2.imencode(".jpg", image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(round(strength))])
     if not ok:
         raise SpecError("JPEG re-encoding failed")
-    return np.ascontiguousarray(cv2.imdecode(data, cv2.IMREAD_COLOR)[:, :, ::-1])
+    decoded = cv2.imdecode(data, cv2.IMREAD_COLOR)
+    if decoded is None:
+        raise SpecError("JPEG re-decoding failed")
+    return np.ascontiguousarray(decoded[:, :, ::-1])
 
 
 def _jitter(image: np.ndarray, strength: float, rng: np.random.Generator) -> np.ndarray:
