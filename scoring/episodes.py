@@ -11,7 +11,13 @@ Columns (:data:`EPISODE_FIELDS`): the run (label, folder, slice, policy); the ep
 frames ``t_loc``, ``t_gra``, ``t_grasp_contact`` (counted from the first acting frame,
 null when the event never happened); the three successes as booleans; ``E_loc``,
 ``E_gra`` (null without acting frames), ``Q_smooth``, ``Q_line`` (null unless
-localized) and ``R_time``.
+localized) and ``R_time``; ``min_obstacle_clearance`` and ``obstacle_contact`` (null without
+obstacles); the episode's ``failure`` class (:mod:`scoring.taxonomy`) and its evidence:
+``palm_displacement`` (the palm's largest distance from its first acting position),
+``path_miss`` (its closest approach to where the object was up to 10 frames before or
+after) and ``crossing_offset`` (the smallest shift in frames that puts the palm within the
+localization tolerance of the object: negative, the palm was late; positive, early; 0,
+localized; null if none within 10 frames does).
 """
 
 from __future__ import annotations
@@ -60,6 +66,10 @@ EPISODE_FIELDS = [
     pa.field("R_time", pa.float64()),
     pa.field("min_obstacle_clearance", pa.float64()),
     pa.field("obstacle_contact", pa.bool_()),
+    pa.field("failure", pa.string()),
+    pa.field("palm_displacement", pa.float64()),
+    pa.field("path_miss", pa.float64()),
+    pa.field("crossing_offset", pa.int64()),
 ]
 EPISODE_SCHEMA = pa.schema(EPISODE_FIELDS)
 FORMATS = (".parquet", ".csv")
@@ -76,7 +86,7 @@ def _measure(values: np.ndarray) -> pa.Array:
 
 def run_episodes(report: RunReport) -> pa.Table:
     """The per-episode rows of one scored run."""
-    data, per = report.data, report.per_episode
+    data, per, failures = report.data, report.per_episode, report.failures
     n = data.episodes
     ok = ~np.asarray(data.error, dtype=bool)
     columns = {
@@ -106,6 +116,10 @@ def run_episodes(report: RunReport) -> pa.Table:
         "Q_line": _measure(np.where(per.localized & ok, per.q_line, np.nan)),
         "R_time": pa.array(np.where(ok, per.r_time, 0.0), pa.float64()),
         **_obstacle_columns(data.min_clearance, n),
+        "failure": pa.array(failures.failure.tolist(), pa.string()),
+        "palm_displacement": _measure(failures.displacement),
+        "path_miss": _measure(failures.path_miss),
+        "crossing_offset": pa.array(failures.crossing_offset, pa.int64(), mask=~failures.crossed),
     }
     return pa.table(columns, schema=EPISODE_SCHEMA)
 

@@ -28,6 +28,7 @@ from scoring.metrics import (
     wilson_interval,
 )
 from scoring.paper import PAPER_ROWS, paper_label
+from scoring.taxonomy import FAILURE_CLASSES, Failures, episode_failures
 
 #: Breakdowns: JSON key, the episode attribute grouped on, canonical group order, title.
 BREAKDOWNS = (
@@ -53,6 +54,8 @@ class RunReport:
     #: What was scored and each episode's facts (``scoring.episodes`` tabulates them).
     data: RunData = field(repr=False, compare=False)
     per_episode: EpisodeMetrics = field(repr=False, compare=False)
+    #: Each episode's failure class and evidence (:mod:`scoring.taxonomy`).
+    failures: Failures = field(repr=False, compare=False)
     #: ``report`` or ``fail`` (:data:`CONTACT_MODES`): how obstacle contacts were scored.
     obstacle_contact: str = "report"
 
@@ -90,6 +93,9 @@ def score_run(data: RunData, label: str | None = None, obstacle_contact: str = "
             group: aggregate(per, data.error, values == group, min_clearance=data.min_clearance, contact_fails=fails)
             for group in _groups(values, canonical, key in ALWAYS_LISTED)
         }
+    failures = episode_failures(
+        per, data.offsets, data.palm_xyz, data.object_xyz, data.error, data.hover_offset, data.min_clearance, fails,
+    )
     return RunReport(
         label=label or default_label(data),
         name=data.name,
@@ -101,7 +107,15 @@ def score_run(data: RunData, label: str | None = None, obstacle_contact: str = "
         breakdowns=breakdowns,
         data=data,
         per_episode=per,
+        failures=failures,
     )
+
+
+def group_failures(report: RunReport, key: str) -> dict[str, dict[str, int]]:
+    """Failure class counts of each group of a breakdown (``by_motion``, ...), groups as in the summaries."""
+    attribute = next(a for k, a, *_ in BREAKDOWNS if k == key)
+    values = getattr(report.data, attribute)
+    return {group: report.failures.counts(values == group) for group in report.breakdowns[key]}
 
 
 def default_label(data: RunData) -> str:
@@ -130,8 +144,9 @@ def _interval(value: tuple[float, float] | None) -> list[float] | None:
     return None if value is None else [float(value[0]), float(value[1])]
 
 
-def summary_dict(summary: Summary) -> dict[str, Any]:
-    """A group's entry: counts, the seven metrics (flat) and their intervals."""
+def summary_dict(summary: Summary, failures: dict[str, int] | None = None) -> dict[str, Any]:
+    """A group's entry: counts, the seven metrics (flat) and their intervals (and with
+    ``failures``, the episodes per failure class)."""
     out: dict[str, Any] = {
         "episodes": summary.episodes,
         "errors": summary.errors,
@@ -142,6 +157,8 @@ def summary_dict(summary: Summary) -> dict[str, Any]:
     out["intervals"] = {name: _interval(summary.intervals[name]) for name in METRIC_NAMES}
     if summary.obstacle_episodes:
         out["obstacles"] = obstacle_dict(summary)
+    if failures is not None:
+        out["failures"] = dict(failures)
     return out
 
 
@@ -173,8 +190,10 @@ def report_dict(report: RunReport) -> dict[str, Any]:
     }
     if overall.obstacle_episodes:
         out["obstacles"] = dict(obstacle_dict(overall), contact=report.obstacle_contact)
+    out["failures"] = report.failures.counts()
     for key, *_ in BREAKDOWNS:
-        out[key] = {group: summary_dict(s) for group, s in report.breakdowns[key].items()}
+        counts = group_failures(report, key)
+        out[key] = {group: summary_dict(s, counts[group]) for group, s in report.breakdowns[key].items()}
     return out
 
 
@@ -270,6 +289,27 @@ def _obstacle_rows(reports: Sequence[RunReport]) -> list[list[str]]:
     return rows
 
 
+FAILURE_HEADERS = ("Run", "Group", "Episodes") + FAILURE_CLASSES
+FAILURE_NOTE = (
+    "Failures: one class per episode, the first that holds: success (contact grasp), policy_error, "
+    "obstacle_contact (--obstacle-contact fail only), no_motion (palm moved <= 0.1), grasp_only (localized), "
+    "timing (within 0.3 of the object's path 1-10 frames early or late), near_miss (within 0.6), "
+    "perception_prediction (elsewhere). README: \"Why did it fail?\"."
+)
+
+
+def _failure_rows(reports: Sequence[RunReport]) -> list[list[str]]:
+    """Per run: all episodes, then each motion type with episodes."""
+    rows = []
+    for r in reports:
+        groups = [("all", r.failures.counts())] + [
+            (group, counts) for group, counts in group_failures(r, "by_motion").items() if sum(counts.values())
+        ]
+        for group, counts in groups:
+            rows.append([r.label, group, str(sum(counts.values()))] + [str(counts[c]) for c in FAILURE_CLASSES])
+    return rows
+
+
 def format_table(reports: Sequence[RunReport], paper: bool = False) -> str:
     """The terminal report: one row per run (the paper's Table 3; with ``paper`` its
     published rows follow), then by motion and by interception, and obstacle contacts
@@ -281,6 +321,7 @@ def format_table(reports: Sequence[RunReport], paper: bool = False) -> str:
     obstacle_rows = _obstacle_rows(reports)
     if obstacle_rows:
         parts += ["", "Obstacles:", _aligned(OBSTACLE_HEADERS, obstacle_rows), OBSTACLE_NOTE]
+    parts += ["", "Failures:", _aligned(FAILURE_HEADERS, _failure_rows(reports), text_columns=2), FAILURE_NOTE]
     return "\n".join(parts) + "\n"
 
 
@@ -305,6 +346,7 @@ def markdown(reports: Sequence[RunReport], paper: bool = False) -> str:
     if obstacle_rows:
         headers = [h.replace(" v", " ↓") for h in OBSTACLE_HEADERS]
         parts += ["### Obstacles", "", _markdown_table(headers, obstacle_rows), "", OBSTACLE_NOTE, ""]
+    parts += ["### Failures", "", _markdown_table(FAILURE_HEADERS, _failure_rows(reports)), "", FAILURE_NOTE, ""]
     return "\n".join(parts)
 
 

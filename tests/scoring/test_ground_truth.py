@@ -44,6 +44,7 @@ def test_ground_truth_slice_and_its_replay_as_rollouts_score_the_gt_row(tmp_path
     assert gt_row["episodes"] == len(specs) and gt_row["errors"] == 0
     assert gt_row["metrics"]["S_loc"] == 100.0 and gt_row["metrics"]["S_gra"] == 100.0
     assert gt_row["metrics"]["E_loc"] < 0.3 and gt_row["metrics"]["R_time"] > 0.0
+    assert gt_row["failures"]["success"] == len(specs) == oracle_row["failures"]["success"]
     same = {k: v for k, v in gt_row["metrics"].items() if k != "R_time"}
     assert {k: oracle_row["metrics"][k] for k in same} == same
     # Rollouts measure R_time against their acting horizon, 1.2x the ground truth's
