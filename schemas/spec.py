@@ -44,9 +44,41 @@ SPEC_FIELDS = (
     "num_frames",
     "text",
 )
-#: Fields a spec may omit: ``obstacles`` (none by default; left out of the JSON when empty,
-#: so a spec without obstacles keeps the canonical JSON and hash it always had).
-OPTIONAL_FIELDS = ("obstacles",)
+#: Fields a spec may omit: ``obstacles`` (none by default) and ``disturbance`` (None); each
+#: is left out of the JSON when absent, so other specs keep the canonical JSON and hash they
+#: always had.
+OPTIONAL_FIELDS = ("obstacles", "disturbance")
+#: What a disturbance changed (pipeline.loop.disturb).
+DISTURBANCE_KINDS = ("speed", "heading")
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """A mid-episode change of the motion (``pipeline eval --disturb``): from ``frame`` on,
+    the object's speed was scaled by ``amount`` (``speed``) or its heading turned by
+    ``amount`` degrees (``heading``). The motion itself already holds the change; this
+    records when and what, for scoring."""
+
+    frame: int
+    kind: str
+    amount: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "frame", _int("disturbance.frame", self.frame, 0, _INT32_MAX))
+        _choice("disturbance.kind", self.kind, DISTURBANCE_KINDS)
+        amount = self.amount
+        if isinstance(amount, bool) or not isinstance(amount, numbers.Real) or not math.isfinite(amount):
+            raise SpecError(f"spec.disturbance.amount must be a finite number, got {shorten(repr(amount))}")
+        object.__setattr__(self, "amount", float(amount))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"frame": self.frame, "kind": self.kind, "amount": self.amount}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Disturbance:
+        if not isinstance(data, dict) or set(data) != {"frame", "kind", "amount"}:
+            raise SpecError(f"spec.disturbance must be an object with frame, kind and amount, got {shorten(repr(data))}")
+        return cls(**data)
 
 _MOTION_TYPES = MOTION_TYPES + COMPLEX_MOTION_TYPES + ("custom",)
 
@@ -100,6 +132,7 @@ class EpisodeSpec:
     num_frames: int
     text: str
     obstacles: tuple[Obstacle, ...] = ()
+    disturbance: Disturbance | None = None
 
     def __post_init__(self) -> None:
         validate_name("spec.slice", self.slice)
@@ -148,6 +181,8 @@ class EpisodeSpec:
                 f"{shorten(repr(self.text[exc.start]))}), got {shorten(self.text)!r}"
             ) from None
         object.__setattr__(self, "obstacles", obstacles_from_list(self.obstacles))
+        if self.disturbance is not None and not isinstance(self.disturbance, Disturbance):
+            object.__setattr__(self, "disturbance", Disturbance.from_dict(self.disturbance))
         implied = implied_motion_types(self.motion)
         if self.obstacles:
             implied.add("obstacle")
@@ -192,6 +227,8 @@ class EpisodeSpec:
         out["motion"] = self.motion.to_dict()
         if self.obstacles:
             out["obstacles"] = obstacles_to_list(self.obstacles)
+        if self.disturbance is not None:
+            out["disturbance"] = self.disturbance.to_dict()
         return out
 
     def to_json(self) -> str:
@@ -216,6 +253,8 @@ class EpisodeSpec:
         values["motion"] = Motion.from_dict(data["motion"])
         if "obstacles" in data:
             values["obstacles"] = obstacles_from_list(data["obstacles"])
+        if "disturbance" in data:
+            values["disturbance"] = Disturbance.from_dict(data["disturbance"])
         return cls(**values)
 
     @classmethod

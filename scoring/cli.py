@@ -16,7 +16,7 @@ from catalog.atomic import atomic_open
 from schemas import cli
 from schemas.errors import DyanaError
 from scoring.episodes import check_episodes_path, write_episodes
-from scoring.io import load_run
+from scoring.io import RunData, load_run
 from scoring.report import (
     CONTACT_MODES,
     RunReport,
@@ -28,11 +28,14 @@ from scoring.report import (
     score_run,
     unique_labels,
 )
+from scoring.robustness import is_repeats_folder, load_repeats, robustness, robustness_lines
 
 
 def _eval_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("runs", nargs="+", metavar="RUN", help="a folder with catalog.json and its shards")
-    cli.add_json(p, "print JSON (an object for one run, a list for several)")
+    p.add_argument("runs", nargs="+", metavar="RUN",
+                   help="a folder with catalog.json and its shards, or a folder of repeats (repeats.json)")
+    cli.add_json(p, "print JSON (an object for one run, a list for several; with repeats, "
+                 "{\"runs\": [...], \"robustness\": [...]})")
     p.add_argument("--plot", metavar="FILE.png", help="write a radar chart and per-motion bars")
     p.add_argument("--markdown", metavar="FILE.md", help="write the tables as Markdown")
     p.add_argument("--csv", metavar="FILE.csv", help="write every summary row as CSV")
@@ -45,6 +48,8 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
         help="an episode whose hand touched an obstacle: 'report' it in the collision rate (default) "
         "or also score it as a 'fail'ure",
     )
+    p.add_argument("--latency-plot", metavar="FILE.png",
+                   help="write S_loc and E_loc against the runs' --latency-frames, one line per policy")
     p.add_argument(
         "--episodes", metavar="FILE.parquet|.csv",
         help="write one row per episode (ids, motion, object, status, event frames, every metric)",
@@ -52,8 +57,14 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def evaluate(runs: Sequence[str], obstacle_contact: str = "report") -> list[RunReport]:
-    """Load and score each run; labels are made unique across the runs."""
-    data = [load_run(run) for run in runs]
+    """Load and score each run (a folder of repeats gives one run per repeat); labels are
+    made unique across the runs."""
+    data: list[RunData] = []
+    for run in runs:
+        if is_repeats_folder(run):
+            data.extend(load_repeats(run).runs)
+        else:
+            data.append(load_run(run))
     labels = unique_labels([default_label(d) for d in data], [d.name for d in data])
     return [score_run(d, label, obstacle_contact) for d, label in zip(data, labels)]
 
@@ -70,17 +81,30 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.episodes:
         check_episodes_path(args.episodes)
     reports = evaluate(args.runs, args.obstacle_contact)
+    robust = [robustness(load_repeats(run)) for run in args.runs if is_repeats_folder(run)]
     if args.json:
         payload = [report_dict(r) for r in reports]
-        print(json.dumps(payload[0] if len(payload) == 1 else payload, indent=2, allow_nan=False))
+        if robust:
+            print(json.dumps({"runs": payload, "robustness": robust}, indent=2, allow_nan=False))
+        else:
+            print(json.dumps(payload[0] if len(payload) == 1 else payload, indent=2, allow_nan=False))
     else:
         sys.stdout.write(format_table(reports, paper=args.paper))
+        for report in robust:
+            sys.stdout.write("\n" + "\n".join(robustness_lines(report)) + "\n")
     if args.markdown:
         _write(args.markdown, markdown(reports, paper=args.paper))
     if args.csv:
         _write(args.csv, csv_text(reports))
     if args.episodes:
         write_episodes(reports, args.episodes)
+    if args.latency_plot:
+        from scoring.latency import plot_latency
+
+        try:
+            plot_latency(reports, args.latency_plot)
+        except OSError as exc:
+            raise DyanaError(f"{args.latency_plot}: cannot write: {exc.strerror or exc}") from None
     if args.plot:
         from scoring.plot import plot_runs
 

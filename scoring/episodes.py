@@ -17,7 +17,8 @@ obstacles); the episode's ``failure`` class (:mod:`scoring.taxonomy`) and its ev
 ``path_miss`` (its closest approach to where the object was up to 10 frames before or
 after) and ``crossing_offset`` (the smallest shift in frames that puts the palm within the
 localization tolerance of the object: negative, the palm was late; positive, early; 0,
-localized; null if none within 10 frames does).
+localized; null if none within 10 frames does); ``disturbance_time_s`` (when the motion
+changed, in a ``--disturb`` run; null otherwise).
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ EPISODE_FIELDS = [
     pa.field("palm_displacement", pa.float64()),
     pa.field("path_miss", pa.float64()),
     pa.field("crossing_offset", pa.int64()),
+    pa.field("disturbance_time_s", pa.float64()),
 ]
 EPISODE_SCHEMA = pa.schema(EPISODE_FIELDS)
 FORMATS = (".parquet", ".csv")
@@ -120,6 +122,7 @@ def run_episodes(report: RunReport) -> pa.Table:
         "palm_displacement": _measure(failures.displacement),
         "path_miss": _measure(failures.path_miss),
         "crossing_offset": pa.array(failures.crossing_offset, pa.int64(), mask=~failures.crossed),
+        "disturbance_time_s": _measure(np.full(n, np.nan) if data.disturbance_time_s is None else data.disturbance_time_s),
     }
     return pa.table(columns, schema=EPISODE_SCHEMA)
 

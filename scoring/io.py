@@ -7,6 +7,8 @@ of shards raises :class:`ShardError` naming the folder or file.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -24,6 +26,7 @@ from schemas.frames import EpisodeFrames
 from schemas.scene import PHASES
 from schemas.spec import EpisodeSpec
 from schemas.tables import OBSTACLE_CLEARANCE
+from schemas.versions import FPS
 
 FRAME_COLUMNS = ("episode_index", "frame_index", "phase", "palm_pose", "object_pose", "joint_angles", "fingertip_distance")
 EPISODE_COLUMNS = (
@@ -72,6 +75,12 @@ class RunData:
     #: (n,) the hand's smallest obstacle clearance over each episode's acting frames (+inf
     #: where the episode has no obstacle); None when the run records no clearance.
     min_clearance: np.ndarray | None = None
+    #: The run's evaluation protocol (``settings.protocol``: latency, perturbation, repeat,
+    #: disturbances, real time), None for a plain run or a built slice.
+    protocol: dict | None = None
+    #: (n,) when each episode's motion was disturbed (s; the start of its last base token)
+    #: under ``pipeline eval --disturb``; None otherwise.
+    disturbance_time_s: np.ndarray | None = None
 
     @property
     def episodes(self) -> int:
@@ -99,9 +108,25 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
         episodes = shard.episodes(columns)
         episode_tables.append(episodes)
         frame_tables.append(shard.frames(frame_columns, episodes))
-    return _assemble(
+    data = _assemble(
         reader.root, reader.manifest.slice, pa.concat_tables(episode_tables), pa.concat_tables(frame_tables), reader.rollout
     )
+    protocol = reader.manifest.settings.get("protocol")
+    if protocol is None:
+        return data
+    disturbed = None
+    if protocol.get("disturb"):
+        specs = [shard.episodes(["spec"]).column("spec").to_pylist() for shard in reader]
+        fps = int(reader.manifest.settings.get("fps", FPS))
+        disturbed = np.array([disturbance_time(text, fps) for part in specs for text in part], dtype=np.float64)
+    return dataclasses.replace(data, protocol=dict(protocol), disturbance_time_s=disturbed)
+
+
+def disturbance_time(spec_json: str, fps: int) -> float:
+    """When a disturbed episode's motion changed (s; its spec's ``disturbance.frame`` /
+    fps), NaN for an episode left undisturbed."""
+    disturbance = json.loads(spec_json).get("disturbance")
+    return float("nan") if disturbance is None else disturbance["frame"] / fps
 
 
 def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table, rollout: bool) -> RunData:

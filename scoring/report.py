@@ -120,10 +120,30 @@ def group_failures(report: RunReport, key: str) -> dict[str, dict[str, int]]:
 
 def default_label(data: RunData) -> str:
     """The policy's name for rollouts (``(privileged)`` added when it read the ground-truth
-    spec); ``GT (<folder>)`` for a built ground-truth slice."""
+    spec, the protocol in brackets when it was not the plain closed loop); ``GT (<folder>)``
+    for a built ground-truth slice."""
     if not data.policy:
         return f"GT ({data.name})"
-    return f"{data.policy} (privileged)" if data.privileged else data.policy
+    label = f"{data.policy} (privileged)" if data.privileged else data.policy
+    tags = protocol_tags(data.protocol)
+    return f"{label} [{', '.join(tags)}]" if tags else label
+
+
+def protocol_tags(protocol: dict | None) -> list[str]:
+    """Short words for a run's protocol: latency, real time (flagged as not deterministic),
+    perturbation and repeat, disturbances."""
+    if not protocol:
+        return []
+    tags = []
+    if protocol.get("latency_frames"):
+        tags.append(f"latency {protocol['latency_frames']}")
+    if protocol.get("realtime"):
+        tags.append("REAL-TIME, not deterministic")
+    if protocol.get("perturb"):
+        tags.append(f"{protocol['perturb']}:{protocol.get('perturb_strength'):g} r{protocol.get('repeat', 0)}")
+    if protocol.get("disturb"):
+        tags.append("disturbed")
+    return tags
 
 
 def unique_labels(labels: Sequence[str], names: Sequence[str]) -> list[str]:
@@ -181,6 +201,7 @@ def report_dict(report: RunReport) -> dict[str, Any]:
         "policy": report.policy,
         "ground_truth": report.ground_truth,
         "privileged": report.privileged,
+        "protocol": report.data.protocol,
         "episodes": overall.episodes,
         "errors": overall.errors,
         "localized": overall.localized,

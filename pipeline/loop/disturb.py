@@ -13,9 +13,9 @@ workspace or the view, or make the episode impossible to intercept, is redrawn (
 :data:`ATTEMPTS` times; then the episode runs undisturbed). Motions with overlays or a
 flight (``P``) are not disturbed.
 
-The disturbed spec is what the run records (its ``spec`` column), so the disturbance time
-is the start of its last base token (:func:`disturbance_time`), and replays and scoring
-see exactly the motion the policy faced.
+The disturbed spec is what the run records (its ``spec`` column), with its ``disturbance``
+(frame, kind, amount), so replays and scoring see exactly the motion the policy faced and
+when it changed (the start of its last base token, :func:`disturbance_time`).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import numpy as np
 from generators.tracks import evaluate
 from schemas.errors import InfeasibleError
 from schemas.motion import LineToken, Motion, Track
-from schemas.spec import EpisodeSpec, implied_motion_types
+from schemas.spec import Disturbance, EpisodeSpec, implied_motion_types
 from schemas.versions import FPS
 
 DISTURB_SEED = 52_000
@@ -58,8 +58,9 @@ def _cut(motion: Motion, at: float) -> tuple:
     return tuple(kept)
 
 
-def disturbed_spec(spec: EpisodeSpec) -> tuple[EpisodeSpec, dict | None]:
-    """``spec`` with its seeded disturbance, and what it was (None: left undisturbed)."""
+def disturbed_spec(spec: EpisodeSpec) -> tuple[EpisodeSpec, Disturbance | None]:
+    """``spec`` with its seeded disturbance (recorded in its ``disturbance`` field), and
+    that disturbance (None: left undisturbed)."""
     from pipeline.stages.episode import plan
 
     if spec.motion.overlays or spec.motion.airborne or spec.intercept_frame - spec.observe_frames <= EARLIEST + LATEST:
@@ -74,12 +75,12 @@ def disturbed_spec(spec: EpisodeSpec) -> tuple[EpisodeSpec, dict | None]:
         if rng.random() < 0.5:
             low, high = SPEED_FACTORS[int(rng.random() * 2)]
             factor = low + (high - low) * float(rng.random())
-            what = {"kind": "speed", "factor": round(factor, 4)}
+            what = Disturbance(frame, "speed", round(factor, 4))
             speed *= factor
         else:
             turn = math.radians(TURN_DEGREES[0] + (TURN_DEGREES[1] - TURN_DEGREES[0]) * float(rng.random()))
             turn *= 1.0 if rng.random() < 0.5 else -1.0
-            what = {"kind": "heading", "degrees": round(math.degrees(turn), 2)}
+            what = Disturbance(frame, "heading", round(math.degrees(turn), 2))
             heading += turn
         if speed <= 1e-6:
             continue
@@ -87,12 +88,12 @@ def disturbed_spec(spec: EpisodeSpec) -> tuple[EpisodeSpec, dict | None]:
         line = LineToken(start=(0.0, 0.0), direction=heading, speed=speed, acceleration=0.0, duration=max(rest, 1.0 / FPS))
         motion = Motion(Track(_cut(spec.motion, at) + (line,)))
         motion_type = spec.motion_type if spec.motion_type in implied_motion_types(motion) else "custom"
-        candidate = dataclasses.replace(spec, motion=motion, motion_type=motion_type)
+        candidate = dataclasses.replace(spec, motion=motion, motion_type=motion_type, disturbance=what)
         try:
             plan(candidate)
         except InfeasibleError:
             continue
-        return candidate, {"frame": frame, "time_s": at, **what}
+        return candidate, what
     return spec, None
 
 

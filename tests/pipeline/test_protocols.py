@@ -24,6 +24,8 @@ from pipeline.loop.perturb import PERTURBATIONS, Perturbation, perturbation_rng,
 from pipeline.loop.rollout import run_episode
 from pipeline.stages.episode import episode
 from schemas.errors import ShardError, SpecError
+from schemas.spec import EpisodeSpec
+from schemas.versions import FPS
 
 RES = 48
 BIN = Path(sys.executable).parent
@@ -130,8 +132,9 @@ def test_disturbances_are_seeded_after_the_observe_window_and_path_continuous():
             continue
         changed += 1
         at = disturbance_time(disturbed)
-        assert at == pytest.approx(what["time_s"])
-        assert spec.observe_frames + EARLIEST <= what["frame"] <= spec.intercept_frame - LATEST
+        assert at == pytest.approx(what.frame / FPS) and disturbed.disturbance == what
+        assert spec.observe_frames + EARLIEST <= what.frame <= spec.intercept_frame - LATEST
+        assert EpisodeSpec.from_json(disturbed.to_json()) == disturbed
         before = motion_at(spec.motion, [at - 1e-9]).position
         after = motion_at(disturbed.motion, [at + 1e-9]).position
         np.testing.assert_allclose(before, after, atol=1e-6)
