@@ -55,8 +55,10 @@ def plot_latency(reports: Sequence[RunReport], path: str | os.PathLike[str]) -> 
             right.plot(xs, [e if e is not None else float("nan") for e in errors], **style)
         left.set(xlabel="latency (frames of 50 ms)", ylabel="S_loc (%)", ylim=(0, 102))
         right.set(xlabel="latency (frames of 50 ms)", ylabel="E_loc (units)")
+        ticks = sorted({n for points in series.values() for n, _ in points})
         for ax in (left, right):
             ax.grid(alpha=0.3, linewidth=0.4)
+            ax.set_xticks(ticks)
         left.legend(frameon=False, loc="lower left")
         figure.tight_layout(pad=0.3)
         with atomic_open(path, "wb") as handle:
