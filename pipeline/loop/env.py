@@ -24,10 +24,47 @@ Observation (every step, same keys): ``image`` (H, W, 3) uint8 RGB, the JPEG-dec
 frame, so that the pixels a policy sees in process, over the wire and in the
 recorded shard are the same; ``palm_pose`` (6,), ``joint_angles`` (15,),
 ``joint_poses`` (90,), ``keypoints`` (36,) float32; ``text``; ``frame_index`` int;
-``timestamp`` float (``frame_index / 20``); ``observe_images`` (K, H, W, 3) uint8:
-the K = ``observe_frames`` frames of the observe window in the first observation,
-empty (0, H, W, 3) afterwards (a fixed set of keys keeps the observation inside its
-Gymnasium space).
+``timestamp`` a 0-d float64 array (``frame_index / 20``; ``float(obs["timestamp"])``
+gives the number); ``observe_images`` (K, H, W, 3) uint8: the K = ``observe_frames``
+frames of the observe window in the first observation, empty (0, H, W, 3)
+afterwards.
+
+Spaces (every observation lies in ``observation_space`` exactly, dtypes and shapes
+included, so Gymnasium's passive checker runs under ``gymnasium.make`` and stays
+silent):
+
+* Observations are bounded by what the environment itself enforces: the palm
+  position by :data:`PALM_BOX` (actions are clipped to it), the joint angles by the
+  hand's limits (``generators.hand.JOINT_LOWER`` / ``JOINT_UPPER``), the joint and
+  keypoint positions by the palm box grown by :data:`HAND_REACH` on every side (the
+  longest chain from the palm centre, finger root plus segments, is 1.42 units), the
+  Euler angles (roll, pitch, yaw) by [-pi, pi] x [-pi/2, pi/2] x [-pi, pi] (the range
+  of ``schemas.rotations.matrix_to_euler``), ``frame_index`` by
+  ``Discrete(MAX_FRAMES)`` and the timestamp by ``(MAX_FRAMES - 1) / 20``; ``text``
+  is ``Text`` of printable ASCII up to ``schemas.spec.MAX_TEXT`` characters (all the
+  built-in slices' instructions are; a custom spec with other characters is outside
+  it, and Gymnasium's checker says so).
+* The action space is the Box [palm box, joint limits], deliberately NOT normalised
+  to [-1, 1]: an action is the dataset's ``action`` column (absolute palm xyz in
+  scene units, joint angles in radians), so the actions a policy issues, the
+  recorded ones, the ground truth's and a replay's are the same numbers. Values
+  outside the Box are accepted and clipped, never rescaled. A learner that wants
+  [-1, 1] wraps the env in ``gymnasium.wrappers.RescaleAction(env, np.float32(-1),
+  np.float32(1))``, a linear map onto this finite Box. Gymnasium's ``check_env``
+  recommends a normalised action space: that one warning is this choice.
+* ``observe_images`` is an :class:`ObserveWindow`, a stacked ``Sequence`` of images:
+  its length is the episode's ``observe_frames`` at reset (0 for direct-act, up to
+  100 in the built-in slices) and 0 afterwards. It stays in the observation because
+  policies read it there (``predictive`` fits the object's motion to every frame of
+  the window; the wire protocol sends it once, with the first observation). A
+  fixed-shape Box would have to be padded to the longest window on every step (15 MB
+  per step at 224 px) with padding every policy would have to know to skip.
+  Instead, an ``ObserveWindow`` flattens to zero entries, so the observation is
+  flattenable: ``gymnasium.wrappers.FlattenObservation`` gives the current frame's
+  state (image, poses, text, frame index, timestamp) on every step, reset included,
+  without the window; an agent that needs the window reads the unflattened
+  observation. Flattened, ``frame_index`` is one-hot (``MAX_FRAMES`` entries) and
+  ``text`` ``MAX_TEXT`` character indices.
 
 Events are checked on every acting frame from the recorded float32 values with the
 functions ``scoring`` uses (:mod:`schemas.events`: localization when the palm's XZ
@@ -59,6 +96,7 @@ Deterministic: the same spec and the same actions give identical arrays and byte
 
 from __future__ import annotations
 
+import math
 import string
 from dataclasses import dataclass
 from typing import Any
@@ -73,7 +111,10 @@ from generators.hand import (
     JOINT_UPPER,
     REST_JOINTS,
     REST_PALM,
+    SEGMENT_LENGTHS,
+    WRIST_OFFSET,
     forward_kinematics,
+    root_positions,
 )
 from generators.motion import object_pose
 from pipeline.loop.conditions import EvalProtocol
@@ -84,15 +125,17 @@ from schemas.events import grasp_closed, localized, palm_distance, spec_hover_of
 from schemas.frames import EpisodeFrames
 from schemas.objects import object_category
 from schemas.scene import DEFAULT_RESOLUTION, PALM_REST, PHASES, TABLE_X, TABLE_Z
-from schemas.spec import EpisodeSpec
+from schemas.spec import MAX_TEXT, EpisodeSpec
 from schemas.versions import FPS
 
 try:  # Gymnasium is optional: without it the environment is a plain class
     import gymnasium
     from gymnasium import spaces
+    from gymnasium.spaces import utils as space_utils
 except ImportError:  # pragma: no cover - exercised only without gymnasium
     gymnasium = None
     spaces = None
+    space_utils = None
 
 ENV_ID = "Dyana/Grasp-v0"
 #: Where the palm may go (x, y, z ranges): above the table, up to 6 units high, from
@@ -109,7 +152,17 @@ _PHASE = {name: i for i, name in enumerate(PHASES)}
 _PALM_LOW = np.array([r[0] for r in PALM_BOX])
 _PALM_HIGH = np.array([r[1] for r in PALM_BOX])
 _REST_STATE = np.concatenate([REST_PALM[:3], REST_JOINTS]).astype(np.float32)
-_MAX_FRAMES = 100_000
+#: Frame indices the observation space allows (``frame_index`` < MAX_FRAMES).
+MAX_FRAMES = 100_000
+#: How far any joint or keypoint lies from the palm centre, at most (the longest chain,
+#: finger root plus its three segments, rounded up to 0.1 unit; the wrist is 0.5 away).
+HAND_REACH = math.ceil(10 * max(
+    float(np.max(np.linalg.norm(root_positions("right"), axis=1) + SEGMENT_LENGTHS.sum(axis=1))),
+    float(np.linalg.norm(WRIST_OFFSET)),
+)) / 10
+#: Euler angle ranges (roll, pitch, yaw) of ``schemas.rotations.matrix_to_euler``.
+_EULER_LOW = np.array([-np.pi, -np.pi / 2, -np.pi])
+_EULER_HIGH = np.array([np.pi, np.pi / 2, np.pi])
 
 
 def horizon(spec: EpisodeSpec) -> int:
@@ -170,33 +223,80 @@ def as_chunk(action: Any) -> np.ndarray:
     return arr
 
 
+def _pose_bounds(count: int, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """float32 (low, high) of ``count`` poses (x, y, z, roll, pitch, yaw): positions in
+    the palm box grown by ``reach``, angles in the Euler ranges."""
+    low = np.tile(np.concatenate([_PALM_LOW - reach, _EULER_LOW]), count)
+    high = np.tile(np.concatenate([_PALM_HIGH + reach, _EULER_HIGH]), count)
+    return low.astype(np.float32), high.astype(np.float32)
+
+
+if spaces is not None:
+
+    class ObserveWindow(spaces.Sequence):
+        """The observe window: a stacked sequence of (H, W, 3) uint8 images, (K, H, W, 3)
+        with K = ``observe_frames`` in the first observation, (0, H, W, 3) afterwards.
+
+        Unlike a plain ``Sequence`` it is flattenable, to zero entries (module
+        docstring, "Spaces"): ``flatten`` drops the window, ``unflatten`` gives an empty
+        one, so a flattened observation is the current frame's state. Sampling,
+        ``contains`` and batching are ``Sequence``'s."""
+
+        def __init__(self, image: spaces.Box, seed: Any = None):
+            super().__init__(image, stack=True, seed=seed)
+            self.dtype = np.dtype(np.uint8)  # what it flattens to (an empty uint8 Box)
+
+        @property
+        def is_np_flattenable(self) -> bool:  # type: ignore[override]  # Sequence says Literal[False]
+            return True
+
+        def __repr__(self) -> str:
+            return f"ObserveWindow({self.feature_space})"
+
+    # Gymnasium's flattening functions dispatch on the space's type; these apply to
+    # ObserveWindow only (a plain Sequence stays unflattenable)
+    @space_utils.flatdim.register(ObserveWindow)
+    def _flatdim_window(space: ObserveWindow) -> int:
+        return 0
+
+    @space_utils.flatten_space.register(ObserveWindow)
+    def _flatten_space_window(space: ObserveWindow) -> spaces.Box:
+        return spaces.Box(0, 255, (0,), np.uint8)
+
+    @space_utils.flatten.register(ObserveWindow)
+    def _flatten_window(space: ObserveWindow, x: Any) -> np.ndarray:
+        return np.zeros(0, dtype=np.uint8)
+
+    @space_utils.unflatten.register(ObserveWindow)
+    def _unflatten_window(space: ObserveWindow, x: Any) -> np.ndarray:
+        return np.zeros((0, *space.feature_space.shape), dtype=np.uint8)
+
+
 def _spaces(resolution: int):
     if spaces is None:
         return None, None
     image = spaces.Box(0, 255, (resolution, resolution, 3), np.uint8)
+    palm_low, palm_high = _pose_bounds(1, 0.0)
+    joint_poses_low, joint_poses_high = _pose_bounds(15, HAND_REACH)
+    keypoints_low, keypoints_high = _pose_bounds(6, HAND_REACH)
 
-    def vec(n: int) -> spaces.Box:
-        return spaces.Box(-np.inf, np.inf, (n,), np.float32)
+    def box(low: np.ndarray, high: np.ndarray) -> spaces.Box:
+        return spaces.Box(low.astype(np.float32), high.astype(np.float32), low.shape, np.float32)
 
     observation = spaces.Dict(
         {
             "image": image,
-            "palm_pose": vec(6),
-            "joint_angles": vec(15),
-            "joint_poses": vec(90),
-            "keypoints": vec(36),
-            "text": spaces.Text(max_length=4096, min_length=0, charset=string.printable),
-            "frame_index": spaces.Discrete(_MAX_FRAMES),
-            "timestamp": spaces.Box(0.0, np.inf, (), np.float64),
-            "observe_images": spaces.Sequence(image, stack=True),
+            "palm_pose": box(palm_low, palm_high),
+            "joint_angles": box(JOINT_LOWER, JOINT_UPPER),
+            "joint_poses": box(joint_poses_low, joint_poses_high),
+            "keypoints": box(keypoints_low, keypoints_high),
+            "text": spaces.Text(max_length=MAX_TEXT, min_length=0, charset=string.printable),
+            "frame_index": spaces.Discrete(MAX_FRAMES),
+            "timestamp": spaces.Box(0.0, (MAX_FRAMES - 1) / FPS, (), np.float64),
+            "observe_images": ObserveWindow(image),
         }
     )
-    action = spaces.Box(
-        np.concatenate([_PALM_LOW, JOINT_LOWER]).astype(np.float32),
-        np.concatenate([_PALM_HIGH, JOINT_UPPER]).astype(np.float32),
-        (ACTION_WIDTH,),
-        np.float32,
-    )
+    action = box(np.concatenate([_PALM_LOW, JOINT_LOWER]), np.concatenate([_PALM_HIGH, JOINT_UPPER]))
     return observation, action
 
 
@@ -448,7 +548,7 @@ class DyanaEnv(_Base):
             "keypoints": f["keypoints"][-1].copy(),
             "text": self.episode_spec.text,
             "frame_index": k,
-            "timestamp": k / FPS,
+            "timestamp": np.array(k / FPS, dtype=np.float64),
             "observe_images": observe_images,
         }
 
@@ -495,16 +595,22 @@ def run_chunk(env: DyanaEnv, action: Any) -> ChunkResult:
 def register() -> bool:
     """Register :data:`ENV_ID` with Gymnasium (idempotent); False without Gymnasium.
 
-    Done on import: ``gymnasium.make("pipeline.loop.env:Dyana/Grasp-v0")`` imports this
-    module first, ``gymnasium.make("Dyana/Grasp-v0")`` works once it is imported.
+    Runs on import, so ``gymnasium.make("pipeline.loop.env:Dyana/Grasp-v0")`` works in
+    a fresh interpreter (Gymnasium imports the module named before the colon), and
+    ``gymnasium.make("Dyana/Grasp-v0")`` once this module is imported. It is also the
+    ``gymnasium.envs`` entry point in pyproject.toml (named ``Dyana``, the namespace),
+    which Gymnasium 0.26-0.29 call on ``import gymnasium``; Gymnasium 1.x no longer
+    loads such plugins. The passive env checker stays on: observations match their
+    spaces exactly.
     """
     if gymnasium is None:
         return False
-    if ENV_ID not in gymnasium.registry:
-        # Gymnasium's passive checker would warn on every make() that the float
-        # timestamp is cast to an array; pipeline.loop.env_checker.check_env (and Gymnasium's
-        # own check_env, in the tests) check the contract instead
-        gymnasium.register(id=ENV_ID, entry_point="pipeline.loop.env:DyanaEnv", disable_env_checker=True)
+    # from the submodule: a plugin runs while ``gymnasium`` itself is still importing
+    from gymnasium.envs.registration import register as register_env
+    from gymnasium.envs.registration import registry
+
+    if ENV_ID not in registry:
+        register_env(id=ENV_ID, entry_point="pipeline.loop.env:DyanaEnv")
     return True
 
 

@@ -1,11 +1,12 @@
 """``check_env(env)``: does an environment honour the closed loop's contract?
 
 Like Gymnasium's env checker, but for what Dyana promises (:mod:`pipeline.loop.env`):
-observation keys, dtypes and shapes; the observe window (K images, the hand held
-still); invalid actions refused with :class:`~schemas.errors.PolicyError` without
-advancing; recordings that match what the policy saw, byte for byte; determinism
-(the same actions twice give identical arrays and JPEG bytes); truncation exactly at
-the horizon. Raises AssertionError naming the first broken promise.
+observation keys, dtypes and shapes, each value inside its Gymnasium space as it is
+(no cast); the observe window (K images, the hand held still); invalid actions
+refused with :class:`~schemas.errors.PolicyError` without advancing; recordings that
+match what the policy saw, byte for byte; determinism (the same actions twice give
+identical arrays and JPEG bytes); truncation exactly at the horizon. Raises
+AssertionError naming the first broken promise.
 """
 
 from __future__ import annotations
@@ -52,16 +53,20 @@ def _check_observation(env: Any, obs: dict, frame: int, window: int) -> None:
         assert np.isfinite(value).all(), f"{key} is not finite"
     assert isinstance(obs["text"], str), "text must be a string"
     assert obs["frame_index"] == frame, f"frame_index {obs['frame_index']} != {frame}"
-    assert obs["timestamp"] == frame / FPS, f"timestamp {obs['timestamp']} != {frame} / {FPS}"
+    stamp = obs["timestamp"]
+    assert isinstance(stamp, np.ndarray) and stamp.dtype == np.float64 and stamp.shape == (), (
+        f"timestamp must be a 0-d float64 array, got {getattr(stamp, 'dtype', type(stamp))} {getattr(stamp, 'shape', '')}"
+    )
+    assert stamp == frame / FPS, f"timestamp {stamp} != {frame} / {FPS}"
     seen = obs["observe_images"]
     assert isinstance(seen, np.ndarray) and seen.dtype == np.uint8 and seen.shape == (window, res, res, 3), (
         f"observe_images must be ({window}, {res}, {res}, 3) uint8, got {getattr(seen, 'shape', type(seen))}"
     )
     space = getattr(env, "observation_space", None)
-    if space is not None:
+    if space is not None:  # exactly: no casting (Gymnasium's passive checker warns on a cast)
+        assert set(space.spaces) == set(OBSERVATION_KEYS), f"observation space keys {sorted(space.spaces)}"
         for key, sub in space.spaces.items():
-            value = np.asarray(obs[key]) if key == "timestamp" else obs[key]
-            assert sub.contains(value), f"observation {key!r} is outside its space {sub}"
+            assert sub.contains(obs[key]), f"observation {key!r} is outside its space {sub}"
 
 
 def _check_info(info: dict) -> None:

@@ -3,6 +3,11 @@ determinism, invalid actions, the observe window, the horizon and termination.""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+import textwrap
+
 import numpy as np
 import pytest
 
@@ -137,6 +142,7 @@ def test_observe_window_holds_the_hand_still(env):
     obs, info = env.reset(options={"spec": spec})
     assert obs["observe_images"].shape == (a, RES, RES, 3) and obs["frame_index"] == a
     assert obs["timestamp"] == a / 20 and obs["text"] == spec.text
+    assert obs["timestamp"].dtype == np.float64 and obs["timestamp"].shape == () and float(obs["timestamp"]) == a / 20
     assert not info["localized"] and info["t_loc"] == -1
     frames, images = env.recording()
     assert np.all(frames.phase[:a] == OBSERVE) and frames.phase[a] == APPROACH
@@ -236,18 +242,145 @@ def test_bad_constructor_arguments():
             DyanaEnv(**kwargs)
 
 
-@pytest.mark.filterwarnings("ignore::UserWarning")  # Gymnasium's advice on unbounded spaces, float casts
-def test_gymnasium_registration_and_checker():
-    gymnasium = pytest.importorskip("gymnasium")
-    from gymnasium.utils.env_checker import check_env as gymnasium_check_env
+#: Run in a fresh interpreter that imports only gymnasium (not Dyana): make, reset and step
+#: through the passive checker, FlattenObservation, then Gymnasium's check_env (render
+#: check included) on the unwrapped and the wrapped environment, recording its warnings.
+FRESH_GYMNASIUM = """
+import json, sys, warnings
+import gymnasium
+from gymnasium.utils.env_checker import check_env
+from gymnasium.wrappers import FlattenObservation
 
-    assert ENV_ID in gymnasium.registry
-    made = gymnasium.make(ENV_ID, resolution=RES)
-    obs, info = made.reset(seed=2)
-    assert obs["frame_index"] == spec_for("test-1k", 2).observe_frames
-    obs, reward, terminated, truncated, info = made.step(made.action_space.sample())
-    assert obs["frame_index"] == spec_for("test-1k", 2).observe_frames + 1 and obs["observe_images"].shape[0] == 0
-    gymnasium_check_env(made.unwrapped, skip_render_check=True)
+assert not any(name.split(".")[0] in ("pipeline", "generators", "schemas") for name in sys.modules)
+out = {}
+with warnings.catch_warnings():
+    warnings.simplefilter("error")  # any warning from make/reset/step/flatten fails
+    env = gymnasium.make("pipeline.loop.env:Dyana/Grasp-v0", resolution=64)
+    out["wrappers"] = str(env)
+    obs, info = env.reset(seed=2)
+    out["reset"] = [obs["frame_index"], len(obs["observe_images"]), float(obs["timestamp"])]
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    out["step"] = [obs["frame_index"], len(obs["observe_images"]), float(obs["timestamp"])]
+    flat = FlattenObservation(gymnasium.make("Dyana/Grasp-v0", resolution=64))
+    first, _ = flat.reset(seed=2)
+    then = flat.step(flat.action_space.sample())[0]
+    out["flat"] = [flat.observation_space.shape, first.shape, then.shape, first in flat.observation_space,
+                   then in flat.observation_space, float(first[-1]), float(then[-1])]
+for name, target in (("unwrapped", env.unwrapped), ("wrapped", env)):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(target)
+    out[name] = sorted({str(w.message) for w in caught})
+print(json.dumps(out))
+"""
+#: The one warning Gymnasium's check_env gives that Dyana keeps by design (module
+#: docstring: the action is the dataset's, in scene units and radians).
+NORMALIZED_ACTIONS = "For Box action spaces, we recommend using a symmetric and normalized space"
+
+
+def fresh(script: str) -> dict:
+    done = subprocess.run([sys.executable, "-c", textwrap.dedent(script)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_gymnasium_make_check_env_and_flatten_in_a_fresh_interpreter():
+    pytest.importorskip("gymnasium")
+    out = fresh(FRESH_GYMNASIUM)
+    a = spec_for("test-1k", 2).observe_frames
+    assert "PassiveEnvChecker" in out["wrappers"]  # the passive checker runs (and said nothing)
+    assert out["reset"] == [a, a, a / 20] and out["step"] == [a + 1, 0, (a + 1) / 20]
+    (size,), first, then, first_in, then_in, first_stamp, then_stamp = out["flat"]
+    assert first == then == [size] and first_in and then_in
+    assert (first_stamp, then_stamp) == (a / 20, (a + 1) / 20)  # the last entry: the timestamp, sorted last
+    # the only warning left is the normalised-action advice; on the wrapped env Gymnasium
+    # also says it is not the raw one (it always does)
+    assert len(out["unwrapped"]) == 1 and NORMALIZED_ACTIONS in out["unwrapped"][0], out["unwrapped"]
+    wrapped = [w for w in out["wrapped"] if "is different from the unwrapped version" not in w]
+    assert len(out["wrapped"]) == 2 and wrapped == out["unwrapped"], out["wrapped"]
+
+
+def test_the_gymnasium_entry_point_registers_the_environment():
+    """pyproject's ``gymnasium.envs`` entry point, called the way Gymnasium 0.26-0.29 call
+    plugins on ``import gymnasium`` (inside the entry point's namespace); Gymnasium 1.x no
+    longer loads plugins, hence the explicit call here."""
+    pytest.importorskip("gymnasium")
+    out = fresh("""
+    import json, sys, warnings
+    from importlib.metadata import entry_points
+    import gymnasium
+    from gymnasium.envs.registration import namespace
+
+    warnings.simplefilter("error")
+    assert "Dyana/Grasp-v0" not in gymnasium.registry and "pipeline.loop.env" not in sys.modules
+    plugins = [[e.name, e.value] for e in entry_points(group="gymnasium.envs") if e.value.startswith("pipeline.")]
+    (plugin,) = [e for e in entry_points(group="gymnasium.envs") if e.value.startswith("pipeline.")]
+    with namespace(plugin.name):
+        registered = plugin.load()()
+    again = plugin.load()()  # idempotent
+    env = gymnasium.make("Dyana/Grasp-v0", resolution=64)
+    obs, _ = env.reset(seed=0)
+    print(json.dumps({"plugins": plugins, "ids": [k for k in gymnasium.registry if k.startswith("Dyana")],
+                      "registered": [registered, again], "frame": obs["frame_index"]}))
+    """)
+    assert out["plugins"] == [["Dyana", "pipeline.loop.env:register"]]
+    assert out["ids"] == [ENV_ID] and out["registered"] == [True, True] and out["frame"] == 0
+
+
+def test_every_observation_lies_in_its_space_even_at_the_limits(env):
+    """The bounds are what the environment enforces: actions pinned at the palm box's
+    corners and the joint limits, and beyond them, give observations inside the space."""
+    gymnasium = pytest.importorskip("gymnasium")
+    spec = spec_for("test-1k", 4)
+    obs, _ = env.reset(options={"spec": spec})
+    assert obs in env.observation_space
+    low, high = env.action_space.low, env.action_space.high
+    corners = [np.where(np.arange(18) % 2 == j, low, high) for j in (0, 1)] + [low - 5.0, high + 5.0, low, high]
+    for action in corners:
+        obs, _, terminated, truncated, _ = env.step(action)
+        for key, space in env.observation_space.spaces.items():
+            assert space.contains(obs[key]), key
+        if terminated or truncated:  # the joints at their upper limits complete the grasp
+            env.reset(options={"spec": spec})
+    for key in ("palm_pose", "joint_angles", "joint_poses", "keypoints"):
+        space = env.observation_space[key]
+        assert np.isfinite(space.low).all() and np.isfinite(space.high).all(), key
+    assert np.isfinite(env.observation_space["timestamp"].high)
+    # a learner that wants [-1, 1] actions rescales the finite Box
+    rescaled = gymnasium.wrappers.RescaleAction(DyanaEnv(RES), np.float32(-1), np.float32(1))
+    rescaled.reset(options={"spec": spec})
+    obs, *_ = rescaled.step(np.ones(18, dtype=np.float32))
+    np.testing.assert_allclose(obs["palm_pose"][:3], high[:3], rtol=1e-6)
+    np.testing.assert_allclose(obs["joint_angles"], high[3:], rtol=1e-6)
+
+
+def test_flattened_observations_are_the_current_frame(env):
+    """FlattenObservation keeps every key but the observe window, which flattens to
+    nothing (it is only in the first observation, and a fixed shape would pad every step)."""
+    gymnasium = pytest.importorskip("gymnasium")
+    from gymnasium.spaces.utils import flatdim, flatten, unflatten
+
+    spec = spec_for("test-1k", 4)
+    flat = gymnasium.wrappers.FlattenObservation(DyanaEnv(RES))
+    space = flat.unwrapped.observation_space
+    window = space["observe_images"]
+    assert window.is_np_flattenable and flatdim(window) == 0
+    assert unflatten(window, flatten(window, np.zeros((3, RES, RES, 3), np.uint8))).shape == (0, RES, RES, 3)
+    first, _ = flat.reset(options={"spec": spec})
+    then = flat.step(np.zeros(18))[0]
+    obs, _ = env.reset(options={"spec": spec})  # the same episode, unflattened
+    assert obs["observe_images"].shape[0] == spec.observe_frames > 0
+    assert first.shape == then.shape == flat.observation_space.shape == (flatdim(space),)
+    assert first in flat.observation_space and then in flat.observation_space
+    assert np.array_equal(first, flatten(space, obs))
+    no_window = dict(obs, observe_images=np.zeros((0, RES, RES, 3), np.uint8))
+    assert np.array_equal(first, flatten(space, no_window))  # the window leaves no trace
+    obs = env.step(np.zeros(18))[0]
+    assert np.array_equal(then, flatten(space, obs))
+    assert then[-1] == (spec.observe_frames + 1) / 20  # the timestamp, the last key in sorted order
+    # the space is still a Sequence for the rest: contains, sample
+    assert window.contains(np.zeros((3, RES, RES, 3), np.uint8)) and not window.contains(np.zeros((3, RES, RES), np.uint8))
+    assert window.sample().shape[1:] == (RES, RES, 3)
 
 
 def test_the_recording_keeps_actions_a_policy_later_reuses(env):
