@@ -10,7 +10,9 @@ frames stay the clean renders; the run's manifest records the protocol.
 name       strength (default)  what changes
 =========  ==================  ===============================================================
 noise      2 (intensity)       independent integer noise uniform in [-s, s] on every channel
-jpeg       75 (quality)        one more JPEG encode/decode at quality s (OpenCV, 4:2:0)
+jpeg       75 (quality)        one more JPEG encode/decode (OpenCV, 4:2:0) at a quality drawn
+                               per frame in [s - 5, s + 5] (a fixed quality would make every
+                               repeat the same)
 jitter     0.5 (pixels)        a sub-pixel shift of the whole image, each axis uniform in
                                [-s, s], bilinear, edges replicated (a camera tremor)
 light      2 (percent)         every intensity scaled by 1 + u s/100, u uniform in [-1, 1]
@@ -33,6 +35,8 @@ from schemas.names import shorten
 
 #: Root of every perturbation seed (with the spec hash, the repeat and the frame).
 PERTURB_SEED = 51_000
+#: Half-width of the JPEG quality's per-frame range.
+JPEG_SPREAD = 5.0
 
 
 def _noise(image: np.ndarray, strength: float, rng: np.random.Generator) -> np.ndarray:
@@ -42,7 +46,8 @@ def _noise(image: np.ndarray, strength: float, rng: np.random.Generator) -> np.n
 
 
 def _jpeg(image: np.ndarray, strength: float, rng: np.random.Generator) -> np.ndarray:
-    ok, data = cv2.imencode(".jpg", image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(round(strength))])
+    quality = int(np.clip(round(strength + JPEG_SPREAD * (2.0 * rng.random() - 1.0)), 1, 100))
+    ok, data = cv2.imencode(".jpg", image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:
         raise SpecError("JPEG re-encoding failed")
     decoded = cv2.imdecode(data, cv2.IMREAD_COLOR)

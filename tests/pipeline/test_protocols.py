@@ -88,11 +88,9 @@ def test_each_perturbation_is_seeded_small_and_differs_between_repeats(name):
     p = Perturbation(name)
     once = p.apply(clean, perturbation_rng(spec.spec_hash, 0, 12))
     np.testing.assert_array_equal(once, p.apply(clean, perturbation_rng(spec.spec_hash, 0, 12)))
-    other = p.apply(clean, perturbation_rng(spec.spec_hash, 1, 12))
     assert once.shape == clean.shape and once.dtype == np.uint8
     assert psnr(clean, once) > 30.0
-    if name != "jpeg":  # a re-encode at fixed quality is the same for every repeat
-        assert not np.array_equal(once, other)
+    assert not any(np.array_equal(once, p.apply(clean, perturbation_rng(spec.spec_hash, r, 12))) for r in (1, 2, 3))
 
 
 @pytest.mark.parametrize("text, message", [
