@@ -219,7 +219,12 @@ def reset_message(task: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def act_message(observation: Mapping[str, Any]) -> dict[str, Any]:
-    return {"type": "act", "observation": dict(observation)}
+    """The observation as sent; ``timestamp`` (a 0-d array in the environment, to match its
+    Gymnasium space) travels as a plain float, as the protocol documents."""
+    out = dict(observation)
+    if "timestamp" in out:
+        out["timestamp"] = float(out["timestamp"])
+    return {"type": "act", "observation": out}
 
 
 def action_message(action: Any, server_time_ms: float) -> dict[str, Any]:
