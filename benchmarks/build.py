@@ -7,8 +7,9 @@
 - ``ratio`` = build_fps / naive_render_fps; ``workers_2_speedup`` = the 2-worker build's
   frames/s over the 1-worker build's.
 
-Usage: python benchmarks/build.py [--slice circular-medium] [--episodes 96] [--json]
-The last line printed is the JSON result.
+Usage: python benchmarks/build.py [--slice circular-medium] [--episodes 96] [--json] [--quiet]
+The last line printed is the JSON result; progress lines (per episode, at most one per
+2 s) go to stderr unless --quiet.
 """
 
 from __future__ import annotations
@@ -25,29 +26,48 @@ from generators.recipe import slice_specs
 from generators.render import Renderer
 from pipeline.jobs.build import build
 from pipeline.stages.episode import episode
+from schemas.cli import ProgressMeter
 from schemas.slices import get_slice
 
 
-def naive_render_fps(slice_name: str, episodes: int, resolution: int) -> tuple[float, int]:
+def _phase(title: str, quiet: bool) -> None:
+    if not quiet:
+        print(title, file=sys.stderr, flush=True)
+
+
+def naive_render_fps(slice_name: str, episodes: int, resolution: int, quiet: bool = True) -> tuple[float, int]:
     specs = list(slice_specs(slice_name, episodes))
-    all_frames = [(spec, episode(spec)) for spec in specs]
+    _phase(f"episode stage, {len(specs)} episodes:", quiet)
+    meter = None if quiet else ProgressMeter(len(specs))
+    all_frames, planned = [], 0
+    for spec in specs:
+        all_frames.append((spec, episode(spec)))
+        planned += all_frames[-1][1].num_frames
+        if meter is not None:
+            meter.update(len(all_frames), planned)
+    _phase("naive TinyRenderer (timed):", quiet)
+    meter = None if quiet else ProgressMeter(len(specs))
     count = 0
     with Renderer(resolution) as renderer:
         start = time.perf_counter()
-        for spec, frames in all_frames:
+        for k, (spec, frames) in enumerate(all_frames):
             renderer.render_episode(frames, spec.object, spec.object_size, spec.hand, full=True,
                                     obstacles=spec.obstacles)
             count += frames.num_frames
+            if meter is not None:
+                meter.update(k + 1, count)
         elapsed = time.perf_counter() - start
     return count / elapsed, count
 
 
-def build_fps(slice_name: str, episodes: int, resolution: int, workers: int, shard_size: int) -> tuple[float, str]:
+def build_fps(slice_name: str, episodes: int, resolution: int, workers: int, shard_size: int,
+              quiet: bool = True) -> tuple[float, str]:
     out = Path(tempfile.mkdtemp(prefix="dyana-bench-build-"))
+    _phase(f"pipeline build, {workers} worker{'s' if workers > 1 else ''} (timed):", quiet)
     try:
         start = time.perf_counter()
         manifest = build(slice_name, out, episodes=episodes, workers=workers, resolution=resolution,
-                         shard_size=shard_size, progress=False)
+                         shard_size=shard_size, progress=not quiet)
         elapsed = time.perf_counter() - start
         return manifest.frames / elapsed, manifest.hash
     finally:
@@ -61,12 +81,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--resolution", type=int, default=224)
     parser.add_argument("--shard-size", type=int, default=12)
     parser.add_argument("--json", action="store_true", help="print only the JSON line")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     args = parser.parse_args(argv)
     get_slice(args.slice)
 
-    naive, frames = naive_render_fps(args.slice, args.episodes, args.resolution)
-    one, hash_one = build_fps(args.slice, args.episodes, args.resolution, 1, args.shard_size)
-    two, hash_two = build_fps(args.slice, args.episodes, args.resolution, 2, args.shard_size)
+    naive, frames = naive_render_fps(args.slice, args.episodes, args.resolution, args.quiet)
+    one, hash_one = build_fps(args.slice, args.episodes, args.resolution, 1, args.shard_size, args.quiet)
+    two, hash_two = build_fps(args.slice, args.episodes, args.resolution, 2, args.shard_size, args.quiet)
     if hash_one != hash_two:
         print(f"catalog hashes differ between 1 and 2 workers: {hash_one} vs {hash_two}", file=sys.stderr)
         return 1

@@ -11,6 +11,9 @@ unless ``--runs`` is given; a folder there that already holds a ``catalog.json``
 reused.
 
     python benchmarks/closed_loop_results.py --episodes 450
+
+Each build and evaluation shows its progress lines (per episode, at most one per 2 s) on
+stderr unless ``--quiet``.
 """
 
 from __future__ import annotations
@@ -47,12 +50,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=os.path.join(bench_setup.HERE, "results"))
     parser.add_argument("--runs", help="keep the runs in this folder")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
         runs = Path(args.runs) if args.runs else Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        common = ["--episodes", str(args.episodes), "--workers", str(args.workers), "--quiet"]
+        common = ["--episodes", str(args.episodes), "--workers", str(args.workers), *(["--quiet"] if args.quiet else [])]
         commands = {"gt": ["build", "--slice", "test-1k", "--out", str(runs / "gt"), *common]}
         for policy in POLICIES:
             commands[policy] = ["eval", "--policy", policy, "--slice", "test-1k", "--out", str(runs / policy), *common]
@@ -64,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
             folder = runs / name / "test-1k" if name == "gt" else runs / name
             if not (folder / "catalog.json").is_file():
                 start = time.perf_counter()
+                if not args.quiet:
+                    print(f"{name} ({len(folders) + 1}/{len(commands)}): pipeline {' '.join(command)}", file=sys.stderr)
                 code = pipeline_main(command)
                 if code != 0:
                     return code

@@ -12,7 +12,9 @@ layer guarantees what users and scripts rely on:
   away (``catalog specs ... | head``), 0 otherwise;
 - a full or closed stdout is reported once, cleanly, even when only the final flush
   finds it;
-- ``--version`` on the program and on every command.
+- ``--version`` on the program and on every command;
+- progress lines (:class:`ProgressMeter`) go to stderr, at most one per
+  :data:`PROGRESS_INTERVAL_S` plus the last, and ``--quiet`` turns them off.
 
 It lives in ``schemas`` (which imports nothing of ours but itself) so that ``scoring``,
 which must not import ``pipeline``, shares it.
@@ -24,6 +26,8 @@ import argparse
 import errno
 import os
 import sys
+import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -129,6 +133,101 @@ def add_overwrite(parser: argparse.ArgumentParser) -> None:
 
 def add_quiet(parser: argparse.ArgumentParser, what: str = "no progress lines") -> None:
     parser.add_argument("--quiet", action="store_true", help=what)
+
+
+#: The shortest time between two progress lines (the last one is always printed).
+PROGRESS_INTERVAL_S = 2.0
+
+
+def format_seconds(seconds: float) -> str:
+    """``45s``, ``4m05s``, ``2h07m``."""
+    s = max(0, int(round(seconds)))
+    if s < 60:
+        return f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s // 3600}h{s % 3600 // 60:02d}m"
+
+
+class ProgressMeter:
+    """Progress lines on stderr: ``PREFIX done/total UNIT, F frames, R frames/s, eta T``.
+
+    :meth:`update` takes the absolute count done (and frames) and prints a line when the
+    first unit is done, then at most once per ``interval`` seconds, and always when all
+    are done (or on :meth:`finish`). frames/s is over the time since the meter started;
+    the ETA extrapolates the pace since the first unit was done (``eta ?`` before). Work found already done (a resumed job) is given
+    with :meth:`resume`: it counts as done but not towards the rates. Lines go to
+    ``say`` if given, else to ``stream`` (default: stderr). Thread-safe, so a callback on
+    another thread may update it. Progress is for the terminal only: nothing
+    of it reaches a file."""
+
+    def __init__(self, total: int, unit: str = "episodes", *, total_frames: int | None = None,
+                 interval: float = PROGRESS_INTERVAL_S, stream: Any = None,
+                 say: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        self.total, self.unit, self.total_frames = total, unit, total_frames
+        self.interval, self.clock = interval, clock
+        self._stream, self._say = stream, say
+        self._lock = threading.Lock()
+        self.start = clock()
+        self.done = self.frames = 0
+        self._resumed = self._resumed_frames = 0
+        self._last_print: float | None = None
+        self._first: tuple[float, int] | None = None  # (when, done) at the first unit done in this run
+        self._last_line = ""
+        self.lines = 0
+
+    def resume(self, done: int, frames: int = 0) -> None:
+        """``done`` units (``frames`` frames) were finished before this run."""
+        with self._lock:
+            self._resumed, self._resumed_frames = done, frames
+            self.done, self.frames = max(self.done, done), max(self.frames, frames)
+
+    def update(self, done: int, frames: int = 0, prefix: str = "", force: bool = False,
+               last: bool | None = None) -> None:
+        """Now ``done`` units and ``frames`` frames are done in all; print if due, or if this
+        is the ``last`` update (by default: when ``done`` reaches the total)."""
+        with self._lock:
+            self.done, self.frames = done, frames
+            now = self.clock()
+            if self._first is None and done > self._resumed:
+                self._first = (now, done)
+            last = done >= self.total if last is None else last
+            due = self._last_print is None or now - self._last_print >= self.interval
+            if force or last or due:
+                self._print(self.line(prefix, now), now)
+
+    def finish(self, prefix: str = "") -> None:
+        """Print the final line unless it was the last printed."""
+        with self._lock:
+            now = self.clock()
+            line = self.line(prefix, now)
+            if line != self._last_line:
+                self._print(line, now)
+
+    def line(self, prefix: str = "", now: float | None = None) -> str:
+        now = self.clock() if now is None else now
+        elapsed = max(now - self.start, 1e-9)
+        fresh_frames = self.frames - self._resumed_frames
+        frames = f"{self.frames}/{self.total_frames}" if self.total_frames is not None else f"{self.frames}"
+        if self.done >= self.total:
+            eta = "eta 0s"
+        elif self._first is not None and self.done > self._first[1] and now > self._first[0]:
+            # the pace since the first unit was done: start-up (a cluster, imports) is not work
+            pace = (now - self._first[0]) / (self.done - self._first[1])
+            eta = f"eta {format_seconds((self.total - self.done) * pace)}"
+        else:
+            eta = "eta ?"
+        head = f"{prefix} " if prefix else ""
+        return (f"{head}{self.done}/{self.total} {self.unit}, {frames} frames, "
+                f"{max(fresh_frames, 0) / elapsed:.1f} frames/s, {eta}")
+
+    def _print(self, line: str, now: float) -> None:
+        if self._say is not None:
+            self._say(line)
+        else:
+            print(line, file=sys.stderr if self._stream is None else self._stream, flush=True)
+        self._last_print, self._last_line = now, line
+        self.lines += 1
 
 
 def job_options(args: argparse.Namespace) -> dict[str, Any]:

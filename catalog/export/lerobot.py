@@ -26,10 +26,11 @@ import shutil
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass
 from multiprocessing import get_context
 from pathlib import Path
+from queue import Empty
 from typing import Any
 
 import cv2
@@ -62,6 +63,7 @@ from catalog.hashing import sha256_file
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import FolderReader, ShardReader, open_folder
 from catalog.stats import load_stats
+from schemas.cli import ProgressMeter
 from schemas.errors import DyanaError
 from schemas.names import shorten
 from schemas.versions import CODE_VERSION, FPS
@@ -193,6 +195,29 @@ def _facts(row: dict[str, Any]) -> dict[str, Any]:
     return {f"dyana/{name}": row[name] for name in EPISODE_FACTS + ROLLOUT_FACTS if name in row}
 
 
+#: Where :func:`export_unit` reports each exported episode as ``(shard, episodes, frames)``
+#: done in its unit (progress lines only; set by :func:`export` in this process or by the
+#: pool's initializer in a worker process).
+_episode_sink: Callable[[int, int, int], None] | None = None
+
+
+def _report_to(queue: Any) -> None:
+    """Pool initializer: episode reports go to ``queue`` (none without one)."""
+    global _episode_sink
+    _episode_sink = None if queue is None else lambda shard, done, frames: queue.put((shard, done, frames))
+
+
+@contextlib.contextmanager
+def _episodes_to(sink: Callable[[int, int, int], None] | None) -> Iterator[None]:
+    """Within the block, :func:`export_unit` in this process reports episodes to ``sink``."""
+    global _episode_sink
+    previous, _episode_sink = _episode_sink, sink
+    try:
+        yield
+    finally:
+        _episode_sink = previous
+
+
 def export_unit(unit: Unit) -> dict[str, Any]:
     """Export one shard; returns its part record (episodes, statistics, files)."""
     reader = open_folder(unit.source, verify="sha256")
@@ -250,6 +275,9 @@ def export_unit(unit: Unit) -> dict[str, Any]:
                 files += [data_path, video_path]
             records.append(record)
             next_index += count
+            if _episode_sink is not None:
+                with contextlib.suppress(Exception):  # progress never fails an export
+                    _episode_sink(unit.shard, len(records), next_index - unit.first_index)
         if v30:
             assert video is not None
             video.finish()
@@ -564,24 +592,50 @@ def export(
         say = progress or (lambda line: None)
         if resumed:
             say(f"[resuming: {resumed}/{len(units)} shards already exported]")
+        meter = None
+        if progress is not None:
+            meter = ProgressMeter(reader.manifest.episodes, total_frames=total_frames, say=progress)
+            meter.resume(sum(len(p["episodes"]) for p in parts.values()), done_frames)
+        running: dict[int, tuple[int, int]] = {}  # shard -> (episodes, frames) exported so far
+
+        def show() -> None:
+            if meter is not None:
+                episodes = sum(len(p["episodes"]) for p in parts.values()) + sum(r[0] for r in running.values())
+                frames = done_frames + sum(r[1] for r in running.values())
+                meter.update(episodes, frames, prefix=f"[{len(parts)}/{len(units)} shards]",
+                             last=len(parts) == len(units))
+
+        def episode_done(shard: int, done: int, frames: int) -> None:
+            if shard not in parts and done > running.get(shard, (0, 0))[0]:
+                running[shard] = (done, frames)
+                show()
 
         def report(part: dict[str, Any]) -> None:
             nonlocal done_frames
             parts[part["shard"]] = part
+            running.pop(part["shard"], None)
             done_frames += sum(e["length"] for e in part["episodes"])
-            elapsed = time.perf_counter() - start
-            rate = (done_frames - start_frames) / elapsed if elapsed > 0 else 0.0
-            eta = (total_frames - done_frames) / rate if rate > 0 else 0.0
-            say(f"[{len(parts)}/{len(units)} shards] {done_frames}/{total_frames} frames, {rate:.1f} frames/s, eta {eta:.0f}s")
+            show()
 
-        start_frames = done_frames
         if workers > 1 and len(todo) > 1:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-                for part in pool.map(export_unit, todo):
-                    report(part)
+            context = get_context("spawn")
+            queue = context.Queue() if meter is not None else None
+            with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_report_to,
+                                     initargs=(queue,)) as pool:
+                pending = {pool.submit(export_unit, unit) for unit in todo}
+                while pending:
+                    finished, pending = wait(pending, timeout=0.25, return_when=FIRST_COMPLETED)
+                    while queue is not None:
+                        try:
+                            episode_done(*queue.get_nowait())
+                        except Empty:
+                            break
+                    for future in finished:
+                        report(future.result())
         else:
-            for unit in todo:
-                report(export_unit(unit))
+            with _episodes_to(episode_done if meter is not None else None):
+                for unit in todo:
+                    report(export_unit(unit))
         ordered = [parts[k] for k in range(len(units))]
         _assemble(target, reader, settings, ordered, tasks, identity, height, width)
         for part_file in (target / WORK_DIR).glob("part-*.json"):

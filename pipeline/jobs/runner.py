@@ -12,7 +12,13 @@ shard. :func:`run_job` owns everything around the shards:
   so a killed run resumes, and a complete identical folder is reported up to date;
 - the shards run as Dask tasks (a local cluster of single-threaded worker processes,
   one per core by default, or an existing ``--scheduler``), or in this process with
-  ``workers=0``; progress lines go to stderr;
+  ``workers=0``;
+- progress lines go to stderr per finished episode, at most one per 2 s plus the last
+  (:class:`schemas.cli.ProgressMeter`): a shard task iterates :meth:`ShardTask.specs`,
+  which reports an episode finished when the task asks for the next one (and the shard's
+  record completes the count); a Dask worker sends the report as a Dask event
+  (``Worker.log_event``) on a topic of this run that the driver's client subscribes to.
+  Reports carry only counts, go to the terminal alone and never reach a file;
 - ``stats.json`` (normalisation statistics of states and actions) is computed from the
   finished shards, then ``catalog.json`` is written last (one way,
   :meth:`catalog.manifest.Manifest.create`), then files of a replaced job are removed.
@@ -31,7 +37,7 @@ import os
 import re
 import sys
 import threading
-import time
+import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,6 +55,7 @@ from catalog.manifest import (
 from catalog.reader import check_file
 from catalog.records import FileRecord, ShardRecord
 from catalog.stats import compute_stats, write_stats
+from schemas.cli import ProgressMeter
 from schemas.errors import DyanaError, ShardError, SpecError
 from schemas.names import shorten
 from schemas.spec import EpisodeSpec
@@ -76,6 +83,50 @@ def default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+#: ``(first, end, done, frames)``: ``done`` episodes (``frames`` frames) of the shard
+#: [first, end) are finished.
+EpisodeReport = Callable[[int, int, int, int], None]
+
+#: Where a running shard task reports its finished episodes (set around the task).
+_reporter: EpisodeReport | None = None
+
+
+@contextlib.contextmanager
+def reporting_episodes(report: EpisodeReport | None) -> Iterator[None]:
+    """Within the block, iterating :class:`ReportingSpecs` calls ``report``."""
+    global _reporter
+    previous, _reporter = _reporter, report
+    try:
+        yield
+    finally:
+        _reporter = previous
+
+
+class ReportingSpecs(list[EpisodeSpec]):
+    """A shard's specs (a plain list of EpisodeSpec); iterating it inside
+    :func:`reporting_episodes` reports each episode finished when the next is asked for
+    (its frames counted as the spec's ``num_frames``). Outside, it is just the list."""
+
+    def __init__(self, specs: Sequence[EpisodeSpec], first: int, end: int) -> None:
+        super().__init__(specs)
+        self.first, self.end = first, end
+
+    def __iter__(self) -> Iterator[EpisodeSpec]:
+        report = _reporter
+        if report is None:
+            return super().__iter__()
+        return self._reporting(report)
+
+    def _reporting(self, report: EpisodeReport) -> Iterator[EpisodeSpec]:
+        done = frames = 0
+        for spec in super().__iter__():
+            yield spec
+            done += 1
+            frames += int(spec.num_frames)
+            with contextlib.suppress(Exception):  # progress never fails a shard
+                report(self.first, self.end, done, frames)
+
+
 @dataclass(frozen=True)
 class ShardTask:
     """One shard: episodes [first, end) of ``slice_name``, from the recipe or from given specs."""
@@ -86,11 +137,12 @@ class ShardTask:
     specs_json: tuple[str, ...] | None = None
 
     def specs(self) -> list[EpisodeSpec]:
+        """The shard's specs, as a :class:`ReportingSpecs` (episode progress)."""
         if self.specs_json is not None:
-            return [EpisodeSpec.from_json(text) for text in self.specs_json]
+            return ReportingSpecs([EpisodeSpec.from_json(text) for text in self.specs_json], self.first, self.end)
         from generators.recipe import spec_for
 
-        return [spec_for(self.slice_name, i) for i in range(self.first, self.end)]
+        return ReportingSpecs([spec_for(self.slice_name, i) for i in range(self.first, self.end)], self.first, self.end)
 
 
 def shard_ranges(episodes: int, shard_size: int) -> list[tuple[int, int]]:
@@ -266,34 +318,51 @@ def _save_state(job: Job, commit: str | None, done: Mapping[tuple[int, int], Sha
 
 
 class Progress:
-    """One line per finished shard on stderr: shards, frames, frames/s, ETA."""
+    """The driver's progress lines: episodes done (per episode, as workers report them, and
+    per finished shard), frames, frames/s and ETA, with the shards finished in front; the
+    last line when every shard is finished. Frames of unfinished shards are counted from
+    their specs' lengths (a rollout that ends early has fewer: its shard's record corrects
+    the count)."""
 
-    def __init__(self, total_shards: int, total_episodes: int, stream=sys.stderr) -> None:
+    def __init__(self, total_shards: int, total_episodes: int, stream=None) -> None:
         self.total_shards = total_shards
-        self.total_episodes = total_episodes
-        self.stream = stream
-        self.start = time.monotonic()
-        self.shards = 0
-        self.episodes = 0
-        self.frames = 0
+        self.meter = ProgressMeter(total_episodes, "episodes", stream=stream)
+        self._lock = threading.Lock()
+        self._running: dict[tuple[int, int], tuple[int, int]] = {}
+        self._finished: dict[tuple[int, int], tuple[int, int]] = {}
 
-    def update(self, record: ShardRecord, skipped: bool = False) -> None:
-        self.shards += 1
-        self.episodes += record.episodes[1] - record.episodes[0]
-        if skipped:
-            return
-        self.frames += record.frames
-        elapsed = max(time.monotonic() - self.start, 1e-9)
-        rate = self.frames / elapsed
-        left = self.total_episodes - self.episodes
-        eta = left * (self.frames / max(self.episodes, 1)) / max(rate, 1e-9)
-        print(
-            f"[{self.shards}/{self.total_shards} shards] {self.episodes}/{self.total_episodes} episodes, "
-            f"{self.frames} frames, {rate:.1f} frames/s, {self.shards / elapsed * 60:.1f} shards/min, "
-            f"eta {eta:.0f}s",
-            file=self.stream,
-            flush=True,
+    def _show(self) -> None:
+        parts = [*self._running.values(), *self._finished.values()]
+        self.meter.update(
+            sum(p[0] for p in parts),
+            sum(p[1] for p in parts),
+            prefix=f"[{len(self._finished)}/{self.total_shards} shards]",
+            last=len(self._finished) == self.total_shards,
         )
+
+    def resumed(self, records: Sequence[ShardRecord]) -> None:
+        """Shards finished before this run: done, but not part of the rates."""
+        with self._lock:
+            for record in records:
+                self._finished[(record.first, record.end)] = (record.end - record.first, record.frames)
+            self.meter.resume(sum(p[0] for p in self._finished.values()), sum(p[1] for p in self._finished.values()))
+
+    def episode(self, first: int, end: int, done: int, frames: int) -> None:
+        """A worker's report: ``done`` episodes of shard [first, end) are finished."""
+        with self._lock:
+            key = (first, end)
+            if key in self._finished or done <= self._running.get(key, (0, 0))[0]:
+                return  # late or repeated
+            self._running[key] = (done, frames)
+            self._show()
+
+    def update(self, record: ShardRecord) -> None:
+        """A shard finished: its episodes and (recorded) frames."""
+        with self._lock:
+            key = (record.first, record.end)
+            self._running.pop(key, None)
+            self._finished[key] = (record.end - record.first, record.frames)
+            self._show()
 
 
 def check_workers(workers: int, scheduler: str | None) -> None:
@@ -357,15 +426,18 @@ def run_tasks(
     scheduler: str | None,
     on_done: Callable[[dict], None],
     key_prefix: str = "shard",
+    on_episode: EpisodeReport | None = None,
 ) -> None:
     """Run ``task_fn(task, payload, str(folder))`` for every task on a local cluster (one
     single-threaded process per worker), on an existing scheduler, or in this process
-    (``workers == 0``); call ``on_done`` in the driver with each result as it finishes."""
+    (``workers == 0``); call ``on_done`` in the driver with each result as it finishes, and
+    ``on_episode`` (on another thread with Dask) with the tasks' episode reports."""
     if not tasks:
         return
     if workers == 0 and not scheduler:
-        for task in tasks:
-            on_done(task_fn(task, payload, str(folder)))
+        with reporting_episodes(on_episode):
+            for task in tasks:
+                on_done(task_fn(task, payload, str(folder)))
         return
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
@@ -387,19 +459,55 @@ def run_tasks(
             except BaseException:
                 cluster.close()
                 raise
+        listening = on_episode is not None
+        topic = f"dyana-progress-{uuid.uuid4().hex}"  # this run's alone, on a shared scheduler too
+
+        def heard(event: tuple[float, Any]) -> None:  # on the client's event loop thread
+            if listening and on_episode is not None:
+                with contextlib.suppress(Exception):
+                    msg = event[1]
+                    on_episode(int(msg["first"]), int(msg["end"]), int(msg["done"]), int(msg["frames"]))
+
         try:
+            if on_episode is not None:
+                client.subscribe_topic(topic, heard)
             futures = [
                 client.submit(
-                    task_fn, task, payload, str(folder), key=f"{key_prefix}-{task.first:06d}-{task.end:06d}", pure=False
+                    _reporting_task,
+                    task_fn,
+                    task,
+                    payload,
+                    str(folder),
+                    topic if on_episode is not None else None,
+                    key=f"{key_prefix}-{task.first:06d}-{task.end:06d}",
+                    pure=False,
                 )
                 for task in tasks
             ]
             for future in as_completed(futures):
                 on_done(future.result())
         finally:
+            listening = False
             client.close()
             if cluster is not None:
                 cluster.close()
+
+
+def _reporting_task(
+    task_fn: Callable[[ShardTask, Any, str], dict], task: ShardTask, payload: Any, folder: str, topic: str | None
+) -> dict:
+    """Worker side: ``task_fn``, its episode reports sent to the driver as Dask events on ``topic``."""
+    if topic is None:
+        return task_fn(task, payload, folder)
+    from distributed import get_worker
+
+    worker = get_worker()
+
+    def report(first: int, end: int, done: int, frames: int) -> None:
+        worker.log_event(topic, {"first": first, "end": end, "done": done, "frames": frames})
+
+    with reporting_episodes(report):
+        return task_fn(task, payload, folder)
 
 
 _SHARD_FILE = re.compile(r"\d{6}-\d{6}\.(frames\.parquet|episodes\.parquet|mcap)")
@@ -448,8 +556,7 @@ def run_job(
         meter = Progress(len(job.ranges), job.episodes) if progress else None
         if meter is not None and done:
             print(f"resuming: {len(done)} of {len(job.ranges)} shards already {job.verb}", file=sys.stderr)
-            for key in sorted(done):
-                meter.update(done[key], skipped=True)
+            meter.resumed([done[key] for key in sorted(done)])
 
         def on_done(result: dict) -> None:
             record = ShardRecord.from_dict(result["record"])
@@ -461,7 +568,17 @@ def run_job(
                 meter.update(record)
 
         try:
-            run_tasks(todo, job.task_fn, job.payload, folder, workers, scheduler, on_done, job.key_prefix)
+            run_tasks(
+                todo,
+                job.task_fn,
+                job.payload,
+                folder,
+                workers,
+                scheduler,
+                on_done,
+                job.key_prefix,
+                on_episode=meter.episode if meter is not None else None,
+            )
         finally:
             remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
 

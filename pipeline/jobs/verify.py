@@ -5,6 +5,9 @@ Integrity (sha256, sizes, readable Parquet/MCAP, no stray temps) comes from
 on the specs stored in each shard's episodes table (so slices built from a user's
 ``--specs`` file verify too) into a temporary folder, and compares the bytes.
 Rollout sets are re-executed through ``pipeline.jobs.replay`` instead.
+
+Progress (with ``on_shard``, or ``progress=True``): a line per rebuilt episode on stderr,
+at most one per 2 s plus the last (:class:`schemas.cli.ProgressMeter`).
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ from catalog.integrity import verify_files
 from catalog.manifest import Manifest
 from catalog.parquet_io import read_episodes
 from catalog.records import ShardRecord
+from pipeline.jobs.runner import ReportingSpecs, reporting_episodes
+from schemas.cli import ProgressMeter
 from schemas.errors import ShardError
 from schemas.spec import EpisodeSpec
 from schemas.versions import DATASET_VERSION
@@ -64,7 +69,7 @@ def rebuild_shard(directory: Path, manifest: Manifest, shard: ShardRecord, scrat
     if unknown:
         raise ShardError(f"{directory / 'catalog.json'}: unknown settings {unknown}: written by another version of Dyana?")
     settings = BuildSettings(**manifest.settings)
-    specs = _stored_specs(directory, shard)
+    specs = ReportingSpecs(_stored_specs(directory, shard), shard.first, shard.end)  # episode progress
     rebuilt = write_ground_truth_shard(specs, shard.first, shard.end, settings, scratch)
     for kind, record in shard.files.items():
         again = rebuilt.files[kind]
@@ -81,8 +86,12 @@ def verify(
     sample: int | None = None,
     rng: np.random.Generator | None = None,
     on_shard: Callable[[ShardRecord], None] | None = None,
+    progress: bool | None = None,
 ) -> VerifyReport:
-    """Check every file, then rebuild ``sample`` shards (all by default) and compare bytes."""
+    """Check every file, then rebuild ``sample`` shards (all by default) and compare bytes.
+
+    ``progress`` (default: whether ``on_shard`` is given) prints episode progress lines of
+    the rebuild on stderr."""
     directory = Path(directory)
     rng = np.random.default_rng(0) if rng is None else rng
     manifest = verify_files(directory)
@@ -93,9 +102,21 @@ def verify(
         replay(directory, shards=[s.first for s in shards])
         return VerifyReport(manifest.slice, len(manifest.shards), len(shards), 0)
     compared = 0
-    with tempfile.TemporaryDirectory(prefix="dyana-verify-") as scratch:
+    show = on_shard is not None if progress is None else progress
+    meter = ProgressMeter(sum(s.end - s.first for s in shards)) if show else None
+    finished = [0, 0]  # episodes, frames of the shards rebuilt
+
+    def report(first: int, end: int, done: int, frames: int) -> None:
+        if meter is not None and done < end - first:  # a shard's last episode is counted when it is compared
+            meter.update(finished[0] + done, finished[1] + frames, prefix=f"[rebuilding {first}-{end - 1}]")
+
+    with tempfile.TemporaryDirectory(prefix="dyana-verify-") as scratch, reporting_episodes(report):
         for shard in shards:
             compared += rebuild_shard(directory, manifest, shard, Path(scratch))
+            finished[0] += shard.end - shard.first
+            finished[1] += shard.frames
+            if meter is not None:
+                meter.update(finished[0], finished[1], prefix=f"[{shards.index(shard) + 1}/{len(shards)} shards rebuilt]")
             if on_shard is not None:
                 on_shard(shard)
     return VerifyReport(manifest.slice, len(manifest.shards), len(shards), compared)

@@ -3,6 +3,15 @@
 Logs the camera image, the object's and the palm's trajectories, the keypoints and the
 hand skeleton, the phase, the palm/fingertip distances and the action over two
 timelines (``frame`` and ``time``), read from the shards alone.
+
+Axes: Dyana's world is left-handed (X right, Y up, Z forward) and rerun's 3D view is
+right-handed, so every 3D thing is logged in the MCAP shard's ``world`` frame
+(:mod:`catalog.mcap_io`): ``x = Dyana x`` (right), ``y = Dyana z`` (forward), ``z = Dyana y``
+(up), declared as ``rr.ViewCoordinates.RFU``; positions swap y and z, rotation quaternions
+``(qx, qy, qz, qw)`` become ``(-qx, -qz, -qy, qw)``. Logged as is, the scene would be the
+mirror image of what the camera shows. The camera is logged at ``world/camera`` (its pose
+and pinhole, as in the MCAP's ``/tf`` and ``/camera/calibration``) with the image under it,
+so rerun shows the image inside the 3D view and the 3D things over the image.
 """
 
 from __future__ import annotations
@@ -16,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from catalog.atomic import commit, discard, temp_path
+from catalog.mcap_io import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
 from schemas.errors import DyanaError, SpecError
@@ -83,7 +93,8 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     rec = rr.RecordingStream("dyana", recording_id=meta["spec_hash"])
     try:
         rec.save(str(temp))
-        _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz)
+        _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz,
+                     dict(manifest.settings))
     except BaseException:
         with contextlib.suppress(RuntimeError):
             rec.disconnect()
@@ -99,23 +110,53 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     return out
 
 
-def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz) -> None:
+#: Entity paths of the camera (pose and pinhole) and of its image.
+CAMERA_ENTITY = "world/camera"
+IMAGE_ENTITY = f"{CAMERA_ENTITY}/image"
+
+
+def to_view(xyz: np.ndarray) -> np.ndarray:
+    """Dyana positions (..., 3) -> the recording's right-handed world (x, z, y), as float32."""
+    return to_foxglove_position(xyz).astype(np.float32)
+
+
+def _log_camera(rec, resolution: int) -> None:
+    """The fixed camera: its optical frame (x right, y down, z forward) in the world and its
+    pinhole for a ``resolution``-pixel square image."""
     import rerun as rr
 
-    rec.log("world", rr.ViewCoordinates.RUF, static=True)
+    eye, rotation = camera_pose()
+    rec.log(CAMERA_ENTITY, rr.Transform3D(translation=eye, quaternion=rr.Quaternion(xyzw=rotation)), static=True)
+    k = np.array(camera_calibration(resolution, resolution)["K"], dtype=np.float64).reshape(3, 3)
+    rec.log(CAMERA_ENTITY, rr.Pinhole(image_from_camera=k, resolution=[resolution, resolution],
+                                      camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0), static=True)
+
+
+def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz,
+                 settings: dict) -> None:
+    import rerun as rr
+
+    rec.log("world", rr.ViewCoordinates.RFU, static=True)
+    resolution = settings.get("resolution")
+    if isinstance(resolution, int) and not isinstance(resolution, bool) and resolution > 0:
+        _log_camera(rec, resolution)
+    media_type = "image/png" if settings.get("image_format") == "png" else "image/jpeg"
     title = f"{meta['episode_id']}: {meta['motion_type']} {meta['intercept_setting']}, {meta['object']}, {meta['hand']} hand"
     rec.log("episode", rr.TextDocument(f"{title}\n\n{meta['text']}\n\npolicy: {meta.get('policy', 'ground truth')}"),
             static=True)
-    rec.log("world/object/path", rr.LineStrips3D([state["object_pose"][:, :3]], colors=[OBJECT_COLOUR], radii=0.02),
-            static=True)
-    rec.log("world/palm/path", rr.LineStrips3D([state["palm_pose"][:, :3]], colors=[(40, 120, 255)], radii=0.02),
-            static=True)
+    object_xyz = to_view(state["object_pose"][:, :3])
+    palm_xyz = to_view(state["palm_pose"][:, :3])
+    target_xyz = to_view(state["action"][:, :3])
+    keypoints_xyz = to_view(state["keypoints"].reshape(-1, 6, 6)[:, :, :3])
+    rec.log("world/object/path", rr.LineStrips3D([object_xyz], colors=[OBJECT_COLOUR], radii=0.02), static=True)
+    rec.log("world/palm/path", rr.LineStrips3D([palm_xyz], colors=[(40, 120, 255)], radii=0.02), static=True)
     obstacles = EpisodeSpec.from_json(meta["spec"]).obstacles if "spec" in meta else ()
     if obstacles:
         rec.log("world/obstacles", rr.Boxes3D(
-            centers=[(o.centre[0], o.half_extents[1], o.centre[1]) for o in obstacles],
-            half_sizes=[o.half_extents for o in obstacles],
-            quaternions=[rr.Quaternion(xyzw=[0.0, math.sin(0.5 * o.yaw), 0.0, math.cos(0.5 * o.yaw)]) for o in obstacles],
+            centers=[to_view(np.array([o.centre[0], o.half_extents[1], o.centre[1]])) for o in obstacles],
+            half_sizes=[to_view(np.array(o.half_extents)) for o in obstacles],
+            quaternions=[rr.Quaternion(xyzw=to_foxglove_quaternion(
+                np.array([0.0, math.sin(0.5 * o.yaw), 0.0, math.cos(0.5 * o.yaw)]))) for o in obstacles],
             colors=[tuple(int(round(255 * c)) for c in o.rgba) for o in obstacles],
             labels=[o.category for o in obstacles],
         ), static=True)
@@ -126,14 +167,15 @@ def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state
         rec.set_time("time", duration=float(timestamps[k]))
         phase = phases[k]
         colour = PHASE_COLOURS.get(phase, (255, 255, 255))
-        rec.log("camera/image", rr.EncodedImage(contents=image, media_type="image/jpeg"))
-        rec.log("world/object/centre", rr.Points3D([state["object_pose"][k, :3]], colors=[OBJECT_COLOUR], radii=0.08))
-        rec.log("world/palm/centre", rr.Points3D([state["palm_pose"][k, :3]], colors=[colour], radii=0.08))
-        rec.log("world/palm/target", rr.Points3D([state["action"][k, :3]], colors=[(255, 255, 255)], radii=0.04))
-        rec.log("world/hand/keypoints", rr.Points3D(state["keypoints"][k].reshape(6, 6)[:, :3], radii=0.04,
+        rec.log(IMAGE_ENTITY, rr.EncodedImage(contents=image, media_type=media_type))
+        rec.log("world/object/centre", rr.Points3D([object_xyz[k]], colors=[OBJECT_COLOUR], radii=0.08))
+        rec.log("world/palm/centre", rr.Points3D([palm_xyz[k]], colors=[colour], radii=0.08))
+        rec.log("world/palm/target", rr.Points3D([target_xyz[k]], colors=[(255, 255, 255)], radii=0.04))
+        rec.log("world/hand/keypoints", rr.Points3D(keypoints_xyz[k], radii=0.04,
                                                    labels=["thumb", "index", "middle", "ring", "little", "wrist"]))
-        rec.log("world/hand/skeleton", rr.LineStrips3D(_skeleton(state["joint_poses"][k], state["keypoints"][k]),
-                                                      colors=[colour], radii=0.015))
+        rec.log("world/hand/skeleton", rr.LineStrips3D(
+            [to_view(strip) for strip in _skeleton(state["joint_poses"][k], state["keypoints"][k])],
+            colors=[colour], radii=0.015))
         rec.log("distance/palm_xz", rr.Scalars(float(palm_xz[k])))
         rec.log("distance/tolerance", rr.Scalars(LOC_TOLERANCE))
         rec.log("distance/fingertip", rr.Scalars(float(fingertip[k])))

@@ -4,11 +4,15 @@ the lock, worker defaults. Jobs here write tiny fake shards in this process."""
 from __future__ import annotations
 
 import hashlib
+import itertools
 import os
+import re
+import subprocess
 from pathlib import Path
 
 import pytest
 
+from catalog.manifest import load_manifest
 from catalog.records import shard_paths
 from pipeline.jobs import runner
 from pipeline.jobs.runner import (
@@ -128,3 +132,100 @@ def test_a_scheduler_address_that_is_not_a_scheduler_is_one_error(monkeypatch):
         address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
         with pytest.raises(DyanaError, match=r"cannot connect to the Dask scheduler: no Dask handshake within 1 s"):
             runner._connect(Client, address)
+
+
+# --- progress ------------------------------------------------------------------------------
+
+
+def spec_shard(task: ShardTask, payload: str, folder: str) -> dict:
+    """A fake shard that walks its specs the way build and eval do."""
+    for _spec in task.specs():
+        pass
+    return fake_shard(task, payload, folder)
+
+
+def test_progress_is_per_episode_in_process(tmp_path, capsys):
+    tasks = tuple(ShardTask("linear-fast", a, b) for a, b in shard_ranges(6, 3))
+    spec_job = Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, tasks, spec_shard, "a", with_stats=False)
+    run_job(spec_job, workers=0, progress=True)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith("[0/2 shards] 1/6 episodes, ") and "eta ?" in lines[0]
+    assert lines[-1].startswith("[2/2 shards] 6/6 episodes, ") and lines[-1].endswith("eta 0s")
+    assert len(lines) == 2  # the rest came within 2 s of the first
+
+
+def test_specs_report_only_inside_a_reporting_block():
+    heard = []
+    specs = ShardTask("linear-fast", 4, 7).specs()
+    assert [s.episode_index for s in specs] == [4, 5, 6] and heard == []
+    with runner.reporting_episodes(lambda *report: heard.append(report)):
+        for spec in specs:
+            assert len(heard) == spec.episode_index - 4  # the previous episode is reported done
+    frames = list(itertools.accumulate(s.num_frames for s in specs))
+    assert heard == [(4, 7, k + 1, frames[k]) for k in range(3)]
+
+
+def test_the_meter_prints_at_most_every_interval_and_the_last():
+    import io
+
+    from schemas.cli import ProgressMeter
+
+    now = [0.0]
+    out = io.StringIO()
+    meter = ProgressMeter(10, stream=out, clock=lambda: now[0])
+    for done in range(1, 11):
+        now[0] = 0.5 * done
+        meter.update(done, 20 * done)
+    lines = out.getvalue().splitlines()
+    # 0.5 s (the first), 2.5 s, 4.5 s, then 5.0 s (the last)
+    assert [line.split(" episodes")[0] for line in lines] == ["1/10", "5/10", "9/10", "10/10"]
+    assert lines[0] == "1/10 episodes, 20 frames, 40.0 frames/s, eta ?"
+    assert lines[1].endswith("eta 2s")  # 4 episodes in 2 s since the first: 0.5 s each, 5 to go
+    meter.finish()
+    assert len(out.getvalue().splitlines()) == 4
+
+
+def _build(out: Path, *flags: str) -> subprocess.CompletedProcess:
+    import sys
+
+    command = [str(Path(sys.executable).parent / "pipeline"), "build", "--slice", "linear-fast", "--episodes", "8",
+               "--shard-size", "8", "--resolution", "32", "--workers", "1", "--out", str(out), *flags]
+    return subprocess.run(command, capture_output=True, text=True, timeout=300)
+
+
+def test_a_dask_build_reports_episodes_before_its_shard_finishes_and_quiet_is_silent(tmp_path):
+    shown = _build(tmp_path / "shown")
+    assert shown.returncode == 0, shown.stderr
+    lines = shown.stderr.splitlines()
+    early = [line for line in lines if re.match(r"\[0/1 shards\] [1-7]/8 episodes, \d+ frames, [\d.]+ frames/s, eta ", line)]
+    assert early, shown.stderr  # a worker process's episode reached the driver before its shard was done
+    assert lines[-1].startswith("[1/1 shards] 8/8 episodes, ") and len(lines) == len(early) + 1, shown.stderr
+    quiet = _build(tmp_path / "quiet", "--quiet")
+    assert quiet.returncode == 0 and quiet.stderr == ""  # no progress, no Dask log lines
+    hashes = [load_manifest(tmp_path / name / "linear-fast").hash for name in ("shown", "quiet")]
+    in_process, _ = run_job_build(tmp_path / "in-process")
+    assert hashes == [in_process.hash] * 2  # progress changes no byte
+
+
+def run_job_build(out: Path):
+    from pipeline.jobs.build import build_job
+
+    return build_job("linear-fast", out, episodes=8, shard_size=8, resolution=32, workers=0, progress=True)
+
+
+def test_a_resumed_run_counts_the_kept_shards_as_done(tmp_path, capsys):
+    def dies(task, payload, folder):
+        if task.first == 3:
+            raise KeyboardInterrupt
+        return spec_shard(task, payload, folder)
+
+    tasks = tuple(ShardTask("linear-fast", a, b) for a, b in shard_ranges(6, 3))
+    with pytest.raises(KeyboardInterrupt):
+        run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, tasks, dies, "a", with_stats=False),
+                workers=0, progress=False)
+    run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, tasks, spec_shard, "a", with_stats=False),
+            workers=0, progress=True)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "resuming: 1 of 2 shards already built"
+    assert lines[1].startswith("[1/2 shards] 4/6 episodes, ") and lines[1].endswith("eta ?")  # 3 kept + 1 new
+    assert lines[-1].startswith("[2/2 shards] 6/6 episodes, 6 frames, ")  # the fake shards' frames: 3 + 3

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from catalog.manifest import load_manifest
@@ -36,8 +37,89 @@ def test_view_writes_a_recording_rerun_can_read(built, tmp_path):
     assert out.stat().st_size > 0
     assert _run("rerun", "rrd", "verify", str(out)).returncode == 0
     printed = _run("rerun", "rrd", "print", str(out)).stdout
-    for entity in ("/camera/image", "/world/object/path", "/world/hand/skeleton", "/distance/palm_xz", "/phase/log"):
+    for entity in ("/world/camera/image", "/world/object/path", "/world/hand/skeleton", "/distance/palm_xz", "/phase/log"):
         assert entity in printed
+
+
+def _read_rrd(path: Path) -> dict[str, list[dict]]:
+    """Entity path -> its logged rows (component columns by name), read back with rerun's reader."""
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, list[dict]] = {}
+    for chunk in RrdReader(path).stream():
+        rows.setdefault(chunk.entity_path, []).extend(chunk.to_record_batch().to_pylist())
+    return rows
+
+
+def _component(rows: list[dict], name: str):
+    return next(row[name] for row in rows if row.get(name) is not None)
+
+
+def test_view_3d_world_is_right_handed_and_agrees_with_the_image(built, tmp_path):
+    """Dyana's world is left-handed; the recording's is the MCAP's right-handed one (x right,
+    y forward, z up). An object on the image's right must be on the camera's right in 3D
+    too, and the logged camera (pose and pinhole) must put it on the image where the
+    renderer drew it."""
+    from catalog.parquet_io import column_to_numpy
+    from catalog.reader import open_folder
+    from generators.camera import project
+    from pipeline.jobs.view import write_recording
+    from schemas.rotations import quaternion_to_matrix
+
+    folder = open_folder(built)
+    size = folder.manifest.settings["resolution"]
+    sides = []
+    for episode in range(3):
+        out = write_recording(built, episode, tmp_path / f"episode-{episode}.rrd")
+        assert _run("rerun", "rrd", "verify", str(out)).returncode == 0
+        logged = _read_rrd(out)
+        assert _component(logged["/world"], "ViewCoordinates:xyz") == [[3, 5, 1]]  # R, F, U: right-handed
+        camera = logged["/world/camera"]
+        eye = np.array(_component(camera, "Transform3D:translation")[0])
+        rotation = quaternion_to_matrix(np.array(_component(camera, "Transform3D:quaternion")[0]))
+        assert _component(camera, "Pinhole:camera_xyz") == [[3, 2, 5]]  # optical frame: right, down, forward
+        k = np.array(_component(camera, "Pinhole:image_from_camera")[0]).reshape(3, 3).T  # stored column-major
+        assert "/world/camera/image" in logged
+        right = rotation[:, 0]
+        assert np.allclose(np.cross(right, rotation[:, 2]), -rotation[:, 1], atol=1e-6)  # right x forward = up
+
+        points = sorted(logged["/world/object/centre"], key=lambda row: row["frame"])
+        logged_xyz = np.array([row["Points3D:positions"][0] for row in points])
+        _, frames = folder.episode(episode)
+        pixels, _ = project(column_to_numpy(frames.column("object_pose"))[:, :3], size, size)
+        in_camera = (logged_xyz - eye) @ rotation  # world -> optical frame
+        through_pinhole = (in_camera @ k.T)[:, :2] / in_camera[:, 2:3]
+        assert np.allclose(through_pinhole, pixels, atol=0.05), "the logged camera does not see what the image shows"
+        offset = pixels[:, 0] - size / 2.0
+        clear = np.abs(offset) > 1.0
+        assert np.array_equal(np.sign((logged_xyz - eye) @ right)[clear], np.sign(offset)[clear])
+        sides += list(np.sign(offset[clear]))
+    assert 1.0 in sides  # the fixture has frames with the object on the image's right
+
+
+def test_view_obstacle_boxes_are_the_same_boxes_in_the_right_handed_world(tmp_path):
+    """Each logged box's corners (centre + rotated half sizes) are the obstacle's corners in
+    Dyana's world with y and z swapped: the yaw quaternion is converted with the positions."""
+    import math
+
+    from catalog.reader import open_folder
+    from pipeline.jobs.view import write_recording
+    from schemas.rotations import quaternion_to_matrix
+    from schemas.spec import EpisodeSpec
+
+    build("obstacle-fast", tmp_path, episodes=1, resolution=32, workers=0, progress=False)
+    folder = tmp_path / "obstacle-fast"
+    obstacles = EpisodeSpec.from_json(open_folder(folder).episode(0)[0]["spec"]).obstacles
+    assert obstacles
+    boxes = _read_rrd(write_recording(folder, 0, tmp_path / "obstacles.rrd"))["/world/obstacles"][0]
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
+    for k, o in enumerate(obstacles):
+        yaw = quaternion_to_matrix(np.array([0.0, math.sin(0.5 * o.yaw), 0.0, math.cos(0.5 * o.yaw)]))
+        dyana = np.array([o.centre[0], o.half_extents[1], o.centre[1]]) + (signs * o.half_extents) @ yaw.T
+        rotation = quaternion_to_matrix(np.array(boxes["Boxes3D:quaternions"][k]))
+        half = signs[:, [0, 2, 1]] * boxes["Boxes3D:half_sizes"][k]  # the same corners, in the same order
+        logged = np.array(boxes["Boxes3D:centers"][k]) + half @ rotation.T
+        assert np.allclose(logged, dyana[:, [0, 2, 1]], atol=1e-5)
 
 
 def test_view_rejects_an_episode_the_folder_does_not_hold(built, tmp_path):
@@ -69,6 +151,11 @@ def test_verify_rebuilds_identical_shards(built):
     result = _run("catalog", "verify", str(built))
     assert result.returncode == 0, result.stderr
     assert "2 rebuilt byte for byte" in result.stdout
+    progress = [line for line in result.stderr.splitlines() if " episodes, " in line]
+    assert progress[0].startswith("[rebuilding 0-1] 1/3 episodes, ") and progress[0].endswith("eta ?"), result.stderr
+    assert progress[-1].startswith("[2/2 shards rebuilt] 3/3 episodes, ") and progress[-1].endswith("eta 0s")
+    quiet = _run("catalog", "verify", str(built), "--quiet")
+    assert quiet.returncode == 0 and quiet.stderr == "" and "2 rebuilt byte for byte" in quiet.stdout
 
 
 def test_verify_names_a_tampered_file(built, tmp_path):
