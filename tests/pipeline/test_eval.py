@@ -237,21 +237,34 @@ def _burn(seconds: float) -> None:
 
 def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
     """No wall-clock deadline by default: two CPU-burning processes beside the run change
-    nothing in its bytes (they once turned slow calls into deadline errors)."""
+    nothing in its bytes (they once turned slow calls into deadline errors). The runs are
+    fresh processes with one BLAS/OpenMP thread each: in this long-lived test process,
+    spinning thread pools left by earlier tests (torch) would otherwise make the loaded run
+    crawl for minutes, which tests nothing more."""
     import multiprocessing
+    import os
 
-    settings = dict(episodes=2, resolution=RESOLUTION, shard_size=2, workers=0, progress=False, summary=False)
-    idle = evaluate("predictive", "test-1k", tmp_path / "idle", **settings)
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    pipeline = str(Path(sys.executable).parent / "pipeline")
+
+    def run(name: str) -> dict:
+        args = [pipeline, "eval", "--policy", "predictive", "--episodes", "2", "--resolution", str(RESOLUTION),
+                "--shard-size", "2", "--workers", "1", "--quiet", "--out", str(tmp_path / name)]
+        result = subprocess.run(args, capture_output=True, text=True, timeout=300, env=env)
+        assert result.returncode == 0, result.stderr
+        return json.loads((tmp_path / name / "catalog.json").read_text())
+
+    idle = run("idle")
     burners = [multiprocessing.get_context("spawn").Process(target=_burn, args=(120.0,), daemon=True) for _ in range(2)]
     for burner in burners:
         burner.start()
     try:
-        loaded = evaluate("predictive", "test-1k", tmp_path / "loaded", **settings)
+        loaded = run("loaded")
     finally:
         for burner in burners:
             burner.kill()
-    assert loaded.hash == idle.hash
-    assert loaded.extra["deadline_s"] is None
+    assert loaded["hash"] == idle["hash"]
+    assert loaded["deadline_s"] is None
 
 
 def test_a_slow_policy_fails_only_with_an_explicit_deadline(tmp_path, monkeypatch):
