@@ -198,9 +198,8 @@ def _obstacle_update(stamp: Timestamp, obstacles: Sequence[Obstacle]) -> SceneUp
     entities = []
     for k, o in enumerate(obstacles):
         hx, hy, hz = o.half_extents
-        centre = to_foxglove_position(np.array([o.centre[0], hy, o.centre[1]]))
-        half = 0.5 * o.yaw
-        rotation = to_foxglove_quaternion(np.array([0.0, math.sin(half), 0.0, math.cos(half)]))
+        centre = to_foxglove_position(np.array(o.position))
+        rotation = to_foxglove_quaternion(np.array(o.quaternion))
         r, g, b, a = o.rgba
         cube = CubePrimitive(pose=_pose(centre, rotation), size=Vector3(x=2 * hx, y=2 * hz, z=2 * hy),
                              color=Color(r=r, g=g, b=b, a=a))

@@ -81,7 +81,7 @@ def obstacle_rotation(obstacle: Obstacle) -> np.ndarray:
 
 def obstacle_centre(obstacle: Obstacle) -> np.ndarray:
     """(3,) the box's centre: its footprint centre, half its height above the table."""
-    return np.array([obstacle.centre[0], obstacle.half_extents[1], obstacle.centre[1]])
+    return np.array(obstacle.position)
 
 
 def obstacle_frames(obstacles: Sequence[Obstacle]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -37,11 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from generators.bullet import p
-from generators.clearance import obstacle_centre
 from generators.hand_urdf import joint_indices, set_hand_state, write_hand_urdf
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle
-from schemas.rotations import euler_to_quaternion
 from schemas.scene import TABLE_X, TABLE_Z
 
 RGBA = tuple[float, float, float, float]
@@ -212,15 +210,14 @@ def build_object(client: int, name: str, size: float, position=(0.0, 0.0, 0.0)) 
 
 def obstacle_parts(obstacle: Obstacle) -> list[Part]:
     """The visual parts of an obstacle (one box), in a body frame at its centre."""
-    turn = tuple(float(v) for v in euler_to_quaternion(np.array([0.0, obstacle.yaw, 0.0])))
-    return [Part(p.GEOM_BOX, obstacle.half_extents, obstacle.rgba, orientation=turn)]
+    return [Part(p.GEOM_BOX, obstacle.half_extents, obstacle.rgba, orientation=obstacle.quaternion)]
 
 
 def build_obstacles(client: int, obstacles: tuple[Obstacle, ...]) -> tuple[int, ...]:
     """Create the obstacle bodies, in order; returns their body ids. Build them after the
     floor and table and before any moving body (see :mod:`generators.render`)."""
     return tuple(
-        create_body(client, obstacle_parts(o), tuple(float(v) for v in obstacle_centre(o))) for o in obstacles
+        create_body(client, obstacle_parts(o), o.position) for o in obstacles
     )
 
 

@@ -12,6 +12,7 @@ obstacle collision event, reported by ``scoring eval``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -94,6 +95,16 @@ class Obstacle:
     @property
     def height(self) -> float:
         return 2.0 * self.half_extents[1]
+
+    @property
+    def position(self) -> tuple[float, float, float]:
+        """The box's centre (x, y, z): its footprint's centre, half its height up."""
+        return (self.centre[0], self.half_extents[1], self.centre[1])
+
+    @property
+    def quaternion(self) -> tuple[float, float, float, float]:
+        """Its orientation (qx, qy, qz, qw): ``Ry(yaw)``, the turn about +Y."""
+        return (0.0, math.sin(0.5 * self.yaw), 0.0, math.cos(0.5 * self.yaw))
 
     def to_dict(self) -> dict[str, Any]:
         return {

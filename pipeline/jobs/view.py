@@ -17,7 +17,6 @@ so rerun shows the image inside the 3D view and the 3D things over the image.
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import shutil
 from pathlib import Path
@@ -153,10 +152,9 @@ def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state
     obstacles = EpisodeSpec.from_json(meta["spec"]).obstacles if "spec" in meta else ()
     if obstacles:
         rec.log("world/obstacles", rr.Boxes3D(
-            centers=[to_view(np.array([o.centre[0], o.half_extents[1], o.centre[1]])) for o in obstacles],
+            centers=[to_view(np.array(o.position)) for o in obstacles],
             half_sizes=[to_view(np.array(o.half_extents)) for o in obstacles],
-            quaternions=[rr.Quaternion(xyzw=to_foxglove_quaternion(
-                np.array([0.0, math.sin(0.5 * o.yaw), 0.0, math.cos(0.5 * o.yaw)]))) for o in obstacles],
+            quaternions=[rr.Quaternion(xyzw=to_foxglove_quaternion(np.array(o.quaternion))) for o in obstacles],
             colors=[tuple(int(round(255 * c)) for c in o.rgba) for o in obstacles],
             labels=[o.category for o in obstacles],
         ), static=True)
