@@ -101,24 +101,24 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
     reader = open_folder(folder)
     if not reader.shards or reader.manifest.episodes == 0:
         raise ShardError(f"{os.fspath(folder)}: the run is empty (no episodes)")
-    columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if reader.rollout else ())
+    protocol = reader.manifest.settings.get("protocol")
+    disturb = bool(protocol and protocol.get("disturb"))
+    columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if reader.rollout else ()) + (("spec",) if disturb else ())
     frame_columns = FRAME_COLUMNS + ((OBSTACLE_CLEARANCE,) if reader.manifest.settings.get(OBSTACLE_CLEARANCE) else ())
     episode_tables, frame_tables = [], []
     for shard in reader:
         episodes = shard.episodes(columns)
         episode_tables.append(episodes)
         frame_tables.append(shard.frames(frame_columns, episodes))
-    data = _assemble(
-        reader.root, reader.manifest.slice, pa.concat_tables(episode_tables), pa.concat_tables(frame_tables), reader.rollout
-    )
-    protocol = reader.manifest.settings.get("protocol")
+    episodes = pa.concat_tables(episode_tables)
+    data = _assemble(reader.root, reader.manifest.slice, episodes, pa.concat_tables(frame_tables), reader.rollout)
     if protocol is None:
         return data
     disturbed = None
-    if protocol.get("disturb"):
-        specs = [shard.episodes(["spec"]).column("spec").to_pylist() for shard in reader]
+    if disturb:
         fps = int(reader.manifest.settings.get("fps", FPS))
-        disturbed = np.array([disturbance_time(text, fps) for part in specs for text in part], dtype=np.float64)
+        disturbed = np.array([disturbance_time(text, fps) for text in episodes.column("spec").to_pylist()],
+                             dtype=np.float64)
     return dataclasses.replace(data, protocol=dict(protocol), disturbance_time_s=disturbed)
 
 
