@@ -8,13 +8,18 @@ topic                  schema                        content (one message per fr
 =====================  ============================  ====================================
 ``/camera/image``      ``foxglove.CompressedImage``  the frame, ``format`` jpeg or png
 ``/camera/calibration`` ``foxglove.CameraCalibration`` pinhole intrinsics of the camera
-``/tf``                ``foxglove.FrameTransforms``  world->camera, world->object, world->palm
+``/tf``                ``foxglove.FrameTransforms``  world->camera, world->object, world->palm, then
+                                                     world-> each keypoint and joint frame
 ``/object/pose``       ``foxglove.PoseInFrame``      the object's pose in ``world``
 ``/hand/palm``         ``foxglove.PoseInFrame``      the palm's pose in ``world``
 ``/hand/keypoints``    ``foxglove.PosesInFrame``     5 fingertips + wrist in ``world``
 ``/hand/joints``       ``foxglove.PosesInFrame``     the 15 finger joints in ``world``
+``/hand/skeleton``     ``foxglove.SceneUpdate``      the hand's links as one line list in ``world``
 ``/scene/obstacles``   ``foxglove.SceneUpdate``      the obstacles as cubes in ``world``
 =====================  ============================  ====================================
+
+The hand's frame ids (``thumb_tip`` ... ``wrist``, ``thumb_cmc`` ... ``little_dip``) and the
+skeleton's points and links are defined in :mod:`catalog.mcap_hand`.
 
 ``/scene/obstacles`` exists only in shards of builds whose scenes may hold obstacles
 (``settings.obstacle_clearance``); each of its messages first deletes every entity, then
@@ -29,16 +34,27 @@ positions swap their y and z and a rotation quaternion ``(qx, qy, qz, qw)`` beco
 convention ``R = Rz(yaw) Ry(pitch) Rx(roll)`` in Dyana's axes, then reflected the same
 way. The ``camera`` frame is the optical frame (x right, y down, z forward in the image).
 
-Time: frame ``f`` of episode ``e`` is logged and published at
-``e * EPISODE_PERIOD_NS + f * (10**9 // fps)`` nanoseconds (episode e starts at
-``e * 100 s``; at 20 FPS frame f is at ``f * 50 ms``), the same value as every message's
-``timestamp``; an episode may have at most ``EPISODE_PERIOD_NS // frame period`` frames
-(2000 at 20 FPS). ``sequence`` is the frame index.
+Time: a shard plays as one continuous clock. Its frames, episode after episode in
+index order, are logged and published at ``n * (10**9 // fps)`` nanoseconds, ``n`` the
+frame's position in the shard (0 for the first episode's first frame): an episode
+starts one frame period after the previous episode's last frame, with no gap. The
+epoch is 0 (Foxglove shows 1970-01-01 00:00:00 at the shard's first frame), so a log
+time reads as the time into the shard; it depends only on the shard's own episodes,
+never on the wall clock or on other shards. Every message's ``timestamp`` holds the
+same value; ``sequence`` is the frame index within its episode. Frame ``f`` of an
+episode is at its record's ``start_time_ns + f * 10**9 // fps``; :func:`read_timeline`
+maps a log time back to ``(episode_index, frame_index)``.
 
 Records beside the messages: a ``dyana.shard`` metadata record first (settings,
-versions, episode range, axes, time layout) and one ``dyana.episode`` metadata record
-per episode (index, id, start time, canonical spec JSON, and for rollouts the
-policy, status and error).
+versions, episode range, axes, time layout) and, before each episode's messages, one
+metadata record named ``dyana.episode.NNNNNN`` (:func:`episode_metadata_name`: the
+episode index zero-padded to six digits, e.g. ``dyana.episode.000042``), so every
+episode's record has a name of its own in the summary's metadata index. It holds the
+episode's ``episode_index``, ``episode_id``, canonical ``spec`` JSON, ``frames`` (logged
+frames), ``start_time_ns`` and ``end_time_ns`` (its first and last frame's log time), and
+for rollouts the ``policy``, ``status``, ``error`` (and ``privileged``). Files written
+before this layout name every episode record ``dyana.episode`` and space episodes 100 s
+apart; :func:`read_episode_metadata` and :func:`read_timeline` read both.
 
 Pinned: the header ``library`` (``dyana/<code version>``) and empty ``profile``; no
 compression (JPEG payloads dominate, and the bytes then do not depend on a zstd
@@ -51,6 +67,8 @@ version (and on ``mcap``'s record layout), which the lock file pins.
 
 from __future__ import annotations
 
+import bisect
+import json
 import math
 import os
 from collections import Counter
@@ -63,7 +81,6 @@ from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
-from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
@@ -81,6 +98,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import register_schema
 
 from catalog.hashing import canonical_json
+from catalog.mcap_hand import HAND_FRAMES, SKELETON_TOPIC, in_hand_order, skeleton_update
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
 from schemas.obstacles import Obstacle
@@ -91,7 +109,8 @@ from schemas.versions import CODE_VERSION, FPS, SCHEMA_VERSION
 LIBRARY = f"dyana/{CODE_VERSION}"
 PROFILE = ""
 CHUNK_SIZE = 4 * 1024 * 1024
-EPISODE_PERIOD_NS = 100 * 10**9
+SHARD_METADATA = "dyana.shard"
+EPISODE_METADATA = "dyana.episode"
 WORLD_FRAME = "world"
 CAMERA_FRAME = "camera"
 IMAGE_TOPIC = "/camera/image"
@@ -106,8 +125,11 @@ CHANNELS: dict[str, type] = {
     "/hand/palm": PoseInFrame,
     "/hand/keypoints": PosesInFrame,
     "/hand/joints": PosesInFrame,
+    SKELETON_TOPIC: SceneUpdate,
 }
 OBSTACLE_TOPIC = "/scene/obstacles"
+#: The child frames of every ``/tf`` message, in order (all with parent ``world``).
+TF_FRAMES: tuple[str, ...] = (CAMERA_FRAME, "object", "palm", *HAND_FRAMES)
 _IMAGE_MAGIC = {"jpeg": b"\xff\xd8\xff", "png": b"\x89PNG\r\n\x1a\n"}
 
 
@@ -120,14 +142,14 @@ def frame_period_ns(fps: int = FPS) -> int:
     return 10**9 // fps
 
 
-def max_frames(fps: int = FPS) -> int:
-    """The most frames an episode may have in the MCAP time layout."""
-    return EPISODE_PERIOD_NS // frame_period_ns(fps)
+def log_time_ns(shard_frame: int, fps: int = FPS) -> int:
+    """Log time of the frame at position ``shard_frame`` of its shard: ``shard_frame * 10**9 // fps``."""
+    return shard_frame * frame_period_ns(fps)
 
 
-def log_time_ns(episode_index: int, frame_index: int, fps: int = FPS) -> int:
-    """``episode_index * EPISODE_PERIOD_NS + frame_index * 10**9 // fps`` (integers only)."""
-    return episode_index * EPISODE_PERIOD_NS + frame_index * frame_period_ns(fps)
+def episode_metadata_name(episode_index: int) -> str:
+    """``dyana.episode.000042``: the name of one episode's metadata record."""
+    return f"{EPISODE_METADATA}.{episode_index:06d}"
 
 
 def to_foxglove_position(xyz: np.ndarray) -> np.ndarray:
@@ -140,10 +162,6 @@ def to_foxglove_quaternion(q: np.ndarray) -> np.ndarray:
     """A Dyana rotation (qx, qy, qz, qw) -> the same rotation in Foxglove's axes, (..., 4)."""
     q = np.asarray(q, dtype=np.float64)
     return np.stack([-q[..., 0], -q[..., 2], -q[..., 1], q[..., 3]], axis=-1)
-
-
-
-
 
 
 def camera_pose() -> tuple[np.ndarray, np.ndarray]:
@@ -179,17 +197,36 @@ def _timestamp(ns: int) -> Timestamp:
     return Timestamp(seconds=ns // 10**9, nanos=ns % 10**9)
 
 
-def _pose(position: np.ndarray, quaternion: np.ndarray) -> Pose:
-    pose = Pose()
-    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in position)
-    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in quaternion)
+def _set_pose(pose: Pose, position: Sequence[float], quaternion: Sequence[float]) -> Pose:
+    pose.position.x, pose.position.y, pose.position.z = position
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = quaternion
     return pose
 
 
-def _transform(stamp: Timestamp, child: str, position: np.ndarray, quaternion: np.ndarray) -> FrameTransform:
-    out = FrameTransform(timestamp=stamp, parent_frame_id=WORLD_FRAME, child_frame_id=child)
-    out.translation.x, out.translation.y, out.translation.z = (float(v) for v in position)
-    out.rotation.x, out.rotation.y, out.rotation.z, out.rotation.w = (float(v) for v in quaternion)
+def _pose(position: Sequence[float], quaternion: Sequence[float]) -> Pose:
+    return _set_pose(Pose(), position, quaternion)
+
+
+def _poses(stamp: Timestamp, positions: Sequence[Sequence[float]], quaternions: Sequence[Sequence[float]]) -> PosesInFrame:
+    out = PosesInFrame(timestamp=stamp, frame_id=WORLD_FRAME)
+    for position, quaternion in zip(positions, quaternions):
+        _set_pose(out.poses.add(), position, quaternion)
+    return out
+
+
+def _transforms(
+    stamp: Timestamp,
+    children: Sequence[str],
+    positions: Sequence[Sequence[float]],
+    quaternions: Sequence[Sequence[float]],
+) -> FrameTransforms:
+    """world -> each child frame, at ``stamp``."""
+    out = FrameTransforms()
+    for child, (x, y, z), (qx, qy, qz, qw) in zip(children, positions, quaternions):
+        transform = out.transforms.add(parent_frame_id=WORLD_FRAME, child_frame_id=child)
+        transform.timestamp.CopyFrom(stamp)
+        transform.translation.x, transform.translation.y, transform.translation.z = x, y, z
+        transform.rotation.x, transform.rotation.y, transform.rotation.z, transform.rotation.w = qx, qy, qz, qw
     return out
 
 
@@ -254,7 +291,7 @@ class McapShardWriter:
         )
         self._writer.start(profile=PROFILE, library=LIBRARY)
         self._writer.add_metadata(
-            "dyana.shard",
+            SHARD_METADATA,
             {
                 "schema_version": SCHEMA_VERSION,
                 "code_version": CODE_VERSION,
@@ -262,7 +299,9 @@ class McapShardWriter:
                 "rollout": "true" if rollout else "false",
                 "settings": canonical_json(dict(settings)),
                 "world_axes": "x = dyana x (right), y = dyana z (forward), z = dyana y (up)",
-                "log_time": f"episode_index * {EPISODE_PERIOD_NS} + frame_index * {self._period} ns",
+                "log_time": f"continuous: the n-th frame of the shard (from 0) at n * {self._period} ns; "
+                "an episode's frame f at its start_time_ns + f * " + f"{self._period} ns",
+                "episode_metadata": f"{EPISODE_METADATA}.NNNNNN, the episode index zero-padded to 6 digits",
             },
         )
         schema_ids: dict[str, int] = {}
@@ -288,10 +327,8 @@ class McapShardWriter:
         )
 
     def check_episode(self, episode_index: int, frames: EpisodeFrames, images: Sequence[bytes]) -> None:
-        """Refuse an episode before anything is written: too long, or images not of the format."""
+        """Refuse an episode before anything is written: images missing or not of the format."""
         n = frames.num_frames
-        if n > max_frames(self._fps):
-            raise ShardError(f"episode {episode_index}: {n} frames exceed the MCAP limit of {max_frames(self._fps)}")
         if len(images) != n:
             raise ShardError(f"episode {episode_index}: {len(images)} images for {n} frames")
         magic = _IMAGE_MAGIC[self._format]
@@ -307,14 +344,21 @@ class McapShardWriter:
         metadata: Mapping[str, str],
         obstacles: Sequence[Obstacle] = (),
     ) -> None:
-        """All messages of one episode plus its ``dyana.episode`` metadata record."""
+        """All messages of one episode, logged right after the previous episode's, plus its
+        ``dyana.episode.NNNNNN`` metadata record."""
         self.check_episode(episode_index, frames, images)
         if obstacles and not self._obstacles:
             raise ShardError(f"episode {episode_index}: has obstacles but the shard's settings record none")
         n = frames.num_frames
-        start = log_time_ns(episode_index, 0, self._fps)
-        record = {"episode_index": str(episode_index), "start_time_ns": str(start), **metadata}
-        self._writer.add_metadata("dyana.episode", {key: str(record[key]) for key in sorted(record)})
+        start = log_time_ns(self.frames, self._fps)
+        record = {
+            **metadata,
+            "episode_index": str(episode_index),
+            "frames": str(n),
+            "start_time_ns": str(start),
+            "end_time_ns": str(log_time_ns(self.frames + n - 1, self._fps)),
+        }
+        self._writer.add_metadata(episode_metadata_name(episode_index), {key: str(record[key]) for key in sorted(record)})
 
         object_pos = to_foxglove_position(np.asarray(frames.object_pose, dtype=np.float64)[:, :3])
         object_rot = to_foxglove_quaternion(np.asarray(frames.object_pose, dtype=np.float64)[:, 3:])
@@ -322,9 +366,14 @@ class McapShardWriter:
         key_pos, key_rot = _six_dof(np.asarray(frames.keypoints).reshape(n, 6, 6))
         joint_pos, joint_rot = _six_dof(np.asarray(frames.joint_poses).reshape(n, 15, 6))
         camera_pos, camera_rot = self._camera
+        tf_pos = np.concatenate([np.broadcast_to(camera_pos, (n, 1, 3)), object_pos[:, None], palm_pos[:, None],
+                                 in_hand_order(key_pos, joint_pos)], axis=1).tolist()
+        tf_rot = np.concatenate([np.broadcast_to(camera_rot, (n, 1, 4)), object_rot[:, None], palm_rot[:, None],
+                                 in_hand_order(key_rot, joint_rot)], axis=1).tolist()
         for f in range(n):
             t = start + f * self._period
             stamp = _timestamp(t)
+            pos, rot = tf_pos[f], tf_rot[f]
             self._write(
                 IMAGE_TOPIC,
                 CompressedImage(timestamp=stamp, frame_id=CAMERA_FRAME, data=bytes(images[f]), format=self._format),
@@ -338,44 +387,14 @@ class McapShardWriter:
                     t,
                     f,
                 )
-            transforms = FrameTransforms(
-                transforms=[
-                    _transform(stamp, CAMERA_FRAME, camera_pos, camera_rot),
-                    _transform(stamp, "object", object_pos[f], object_rot[f]),
-                    _transform(stamp, "palm", palm_pos[f], palm_rot[f]),
-                ]
-            )
-            self._write("/tf", transforms, t, f)
-            self._write(
-                "/object/pose",
-                PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(object_pos[f], object_rot[f])),
-                t,
-                f,
-            )
-            self._write(
-                "/hand/palm",
-                PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(palm_pos[f], palm_rot[f])),
-                t,
-                f,
-            )
-            self._write(
-                "/hand/keypoints",
-                PosesInFrame(
-                    timestamp=stamp, frame_id=WORLD_FRAME, poses=[_pose(p, q) for p, q in zip(key_pos[f], key_rot[f])]
-                ),
-                t,
-                f,
-            )
-            self._write(
-                "/hand/joints",
-                PosesInFrame(
-                    timestamp=stamp,
-                    frame_id=WORLD_FRAME,
-                    poses=[_pose(p, q) for p, q in zip(joint_pos[f], joint_rot[f])],
-                ),
-                t,
-                f,
-            )
+            self._write("/tf", _transforms(stamp, TF_FRAMES, pos, rot), t, f)
+            self._write("/object/pose", PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(pos[1], rot[1])),
+                        t, f)
+            self._write("/hand/palm", PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(pos[2], rot[2])),
+                        t, f)
+            self._write("/hand/keypoints", _poses(stamp, pos[3:9], rot[3:9]), t, f)
+            self._write("/hand/joints", _poses(stamp, pos[9:], rot[9:]), t, f)
+            self._write(SKELETON_TOPIC, skeleton_update(stamp, WORLD_FRAME, pos[3:]), t, f)
             if self._obstacles:
                 self._write(OBSTACLE_TOPIC, _obstacle_update(stamp, obstacles), t, f)
         self.frames += n
@@ -492,14 +511,75 @@ def count_messages(path: str | os.PathLike[str]) -> dict[tuple[str, str], int]:
     return dict(sorted(Counter((m.topic, m.schema) for m in iter_messages(path, decode=False)).items()))
 
 
-def read_episode_metadata(path: str | os.PathLike[str]) -> list[dict[str, str]]:
-    """The ``dyana.episode`` metadata records, in file order."""
+def _is_episode_record(name: str) -> bool:
+    """``dyana.episode.NNNNNN``, or the shared ``dyana.episode`` of older files."""
+    prefix, _, index = name.rpartition(".")
+    return name == EPISODE_METADATA or (prefix == EPISODE_METADATA and index.isdigit())
+
+
+def read_metadata(path: str | os.PathLike[str]) -> list[tuple[str, dict[str, str]]]:
+    """Every metadata record as (name, key/values), in file order (through the summary's
+    metadata index)."""
     with _open(path) as stream:
         try:
-            reader = make_reader(stream)
-            return [dict(m.metadata) for m in reader.iter_metadata() if m.name == "dyana.episode"]
+            return [(m.name, dict(m.metadata)) for m in make_reader(stream).iter_metadata()]
         except Exception as exc:
             raise _fail(path, exc) from None
+
+
+def read_episode_metadata(path: str | os.PathLike[str]) -> list[dict[str, str]]:
+    """Every episode's metadata record, in file order (named ``dyana.episode.NNNNNN``,
+    or ``dyana.episode`` in files written before episodes had names of their own)."""
+    return [data for name, data in read_metadata(path) if _is_episode_record(name)]
+
+
+@dataclass(frozen=True)
+class EpisodeSpan:
+    """Where one episode sits on its shard's clock."""
+
+    episode_index: int
+    start_ns: int
+    frames: int | None
+
+
+@dataclass(frozen=True)
+class Timeline:
+    """A shard's episodes on its clock, to map a log time back to (episode, frame)."""
+
+    period_ns: int
+    episodes: tuple[EpisodeSpan, ...]
+
+    def locate(self, log_time_ns: int) -> tuple[int, int]:
+        """``(episode_index, frame_index)`` of the frame logged at ``log_time_ns``."""
+        starts = [e.start_ns for e in self.episodes]
+        k = bisect.bisect_right(starts, log_time_ns) - 1
+        if k >= 0:
+            span = self.episodes[k]
+            frame, rest = divmod(log_time_ns - span.start_ns, self.period_ns)
+            if not rest and (span.frames is None or frame < span.frames):
+                return span.episode_index, frame
+        raise ShardError(f"log time {log_time_ns} ns is no frame of this shard's episodes")
+
+
+def read_timeline(path: str | os.PathLike[str]) -> Timeline:
+    """The shard's :class:`Timeline`, from its ``dyana.shard`` and episode metadata records."""
+    records = read_metadata(path)
+    shard = next((data for name, data in records if name == SHARD_METADATA), None)
+    if shard is None:
+        raise ShardError(f"{os.fspath(path)}: no {SHARD_METADATA} metadata record")
+    try:
+        period = frame_period_ns(int(json.loads(shard["settings"]).get("fps", FPS)))
+        spans = tuple(
+            EpisodeSpan(int(data["episode_index"]), int(data["start_time_ns"]),
+                        int(data["frames"]) if "frames" in data else None)
+            for name, data in records
+            if _is_episode_record(name)
+        )
+    except (KeyError, ValueError, AttributeError) as exc:
+        raise ShardError(f"{os.fspath(path)}: malformed metadata record: {type(exc).__name__}: {exc}") from None
+    if any(a.start_ns >= b.start_ns for a, b in zip(spans, spans[1:])):
+        raise ShardError(f"{os.fspath(path)}: episode start times do not increase")
+    return Timeline(period, spans)
 
 
 def check_mcap(path: str | os.PathLike[str], frames: int | None = None, full: bool = False) -> McapSummary:

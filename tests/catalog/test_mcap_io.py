@@ -1,9 +1,11 @@
-"""The MCAP file: one foxglove.CompressedImage per frame, decodable poses, computed times."""
+"""The MCAP file: one foxglove.CompressedImage per frame, decodable poses and hand frames,
+continuous computed times, one named metadata record per episode."""
 
 import math
 from collections import Counter
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from catalog import mcap_io
@@ -13,14 +15,19 @@ from catalog.mcap_io import (
     McapShardWriter,
     camera_calibration,
     camera_pose,
+    episode_metadata_name,
     euler_to_quaternion,
     iter_messages,
     log_time_ns,
     mcap_summary,
     read_episode_metadata,
+    read_metadata,
+    read_timeline,
     to_foxglove_position,
     to_foxglove_quaternion,
 )
+from catalog.mcap_hand import HAND_FRAMES, SKELETON_ENTITY, SKELETON_LINKS, SKELETON_TOPIC
+from catalog.parquet_io import column_to_numpy
 from catalog.shard import ShardWriter
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
@@ -53,13 +60,36 @@ def _euler_matrix(roll, pitch, yaw):
     return rz @ ry @ rx
 
 
+EPISODES = range(4, 7)
+PERIOD_NS = 50_000_000
+
+
 @pytest.fixture(scope="module")
-def shard(tmp_path_factory):
+def written(tmp_path_factory):
+    """One shard of episodes 4-6: the writer's record and its folder."""
     root = tmp_path_factory.mktemp("mcap")
-    with ShardWriter(root, 4, 7, SETTINGS) as writer:
-        for i in range(4, 7):
+    with ShardWriter(root, EPISODES[0], EPISODES[-1] + 1, SETTINGS) as writer:
+        for i in EPISODES:
             writer.add_episode(*make_episode(i))
-    return root / writer.record.files["mcap"].path
+    return root, writer.record
+
+
+@pytest.fixture(scope="module")
+def shard(written):
+    root, record = written
+    return root / record.files["mcap"].path
+
+
+@pytest.fixture(scope="module")
+def tables(written):
+    """The shard's frames and episodes tables, as written beside the MCAP."""
+    root, record = written
+    return pq.read_table(root / record.files["frames"].path), pq.read_table(root / record.files["episodes"].path)
+
+
+def _shard_position(episode, frame):
+    """Frame ``frame`` of ``episode``'s position in the test shard (episodes 4-6 back to back)."""
+    return sum(make_episode(i)[1].num_frames for i in EPISODES if i < episode) + frame
 
 
 def test_axes_conversion_is_the_reflected_rotation():
@@ -74,11 +104,13 @@ def test_axes_conversion_is_the_reflected_rotation():
 
 
 def test_log_time_layout():
-    assert log_time_ns(0, 0) == 0
-    assert log_time_ns(3, 7) == 300_000_000_000 + 350_000_000
-    assert mcap_io.max_frames(20) == 2000
+    assert log_time_ns(0) == 0
+    assert log_time_ns(7) == 350_000_000
+    assert log_time_ns(7, fps=10) == 700_000_000
     with pytest.raises(ShardError, match="fps"):
-        log_time_ns(0, 1, fps=7)
+        log_time_ns(1, fps=7)
+    assert episode_metadata_name(42) == "dyana.episode.000042"
+    assert episode_metadata_name(1234567) == "dyana.episode.1234567"
 
 
 def test_one_compressed_image_per_frame(shard):
@@ -95,19 +127,41 @@ def test_one_compressed_image_per_frame(shard):
         assert message.topic == IMAGE_TOPIC
         assert message.message.data == image and message.message.format == "jpeg"
         assert message.message.frame_id == "camera"
-        t = log_time_ns(episode, frame)
+        t = log_time_ns(_shard_position(episode, frame))
         assert message.log_time_ns == message.publish_time_ns == t and message.sequence == frame
         assert message.message.timestamp.seconds * 10**9 + message.message.timestamp.nanos == t
     counts = Counter(m.topic for m in iter_messages(shard, decode=False))
     assert set(counts.values()) == {total} and len(counts) == len(mcap_io.CHANNELS)
 
 
+def test_log_times_are_continuous_across_episodes(shard):
+    """Every channel ticks exactly one frame period from the shard's first frame to its last,
+    across episode boundaries, and the timeline maps each tick back to (episode, frame)."""
+    times = {}
+    for m in iter_messages(shard, decode=False):
+        times.setdefault(m.topic, []).append(m.log_time_ns)
+        assert m.publish_time_ns == m.log_time_ns
+    total = sum(make_episode(i)[1].num_frames for i in EPISODES)
+    assert set(times) == set(mcap_io.CHANNELS)
+    for topic, ts in times.items():
+        assert ts[0] == 0, topic
+        assert set(np.diff(ts).tolist()) == {PERIOD_NS}, topic
+        assert len(ts) == total
+    timeline = read_timeline(shard)
+    assert timeline.period_ns == PERIOD_NS
+    expected = [(i, f) for i in EPISODES for f in range(make_episode(i)[1].num_frames)]
+    assert [timeline.locate(t) for t in times[IMAGE_TOPIC]] == expected
+    for bad in (-PERIOD_NS, PERIOD_NS // 2, total * PERIOD_NS):
+        with pytest.raises(ShardError, match="no frame"):
+            timeline.locate(bad)
+
+
 def test_poses_decode_to_the_frames(shard):
     _, frames, _ = make_episode(5)
-    start = log_time_ns(5, 0)
+    timeline = read_timeline(shard)
     by_topic = {}
     for m in iter_messages(shard, ["/object/pose", "/hand/palm", "/hand/keypoints", "/hand/joints", "/tf"]):
-        if start <= m.log_time_ns < start + frames.num_frames * 50_000_000:
+        if timeline.locate(m.log_time_ns)[0] == 5:
             by_topic.setdefault(m.topic, []).append(m.message)
     assert {len(v) for v in by_topic.values()} == {frames.num_frames}
     f = 3
@@ -128,7 +182,7 @@ def test_poses_decode_to_the_frames(shard):
     assert len(by_topic["/hand/joints"][f].poses) == 15
     tf = by_topic["/tf"][f].transforms
     assert [(t.parent_frame_id, t.child_frame_id) for t in tf] == [
-        ("world", "camera"), ("world", "object"), ("world", "palm")
+        ("world", "camera"), ("world", "object"), ("world", "palm"), *(("world", name) for name in HAND_FRAMES)
     ]
     palm_tf = [tf[2].translation.x, tf[2].translation.y, tf[2].translation.z]
     assert np.allclose(palm_tf, to_foxglove_position(frames.palm_pose[f, :3]))
@@ -151,21 +205,90 @@ def test_camera_calibration_matches_the_renderers_projection():
     assert np.allclose(uv, expected, atol=1e-6)
 
 
+def _xyz(v):
+    return [v.x, v.y, v.z]
+
+
+def test_hand_frames_and_skeleton_are_the_frames_tables_keypoints_and_joints(shard, tables):
+    """/tf's keypoint and joint frames and /hand/skeleton's points are the frames table's
+    keypoints and joint_poses in Foxglove's axes (positions swapped y/z, rotations reflected)."""
+    frames, _ = tables
+    keypoints = column_to_numpy(frames.column("keypoints")).astype(np.float64).reshape(-1, 6, 6)
+    joints = column_to_numpy(frames.column("joint_poses")).astype(np.float64).reshape(-1, 15, 6)
+    rows = np.concatenate([keypoints, joints], axis=1)
+    position = to_foxglove_position(rows[..., :3])
+    rotation = P @ np.stack([[_euler_matrix(*rpy) for rpy in frame] for frame in rows[..., 3:]]) @ P
+    tf = [m.message.transforms[3:] for m in iter_messages(shard, ["/tf"])]
+    updates = [m.message for m in iter_messages(shard, [SKELETON_TOPIC])]
+    assert len(tf) == len(updates) == frames.num_rows
+    for k, (transforms, update) in enumerate(zip(tf, updates)):
+        assert [t.child_frame_id for t in transforms] == list(HAND_FRAMES)
+        assert np.allclose([_xyz(t.translation) for t in transforms], position[k], atol=1e-9)
+        quats = [[t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w] for t in transforms]
+        assert np.allclose([_rot(q) for q in quats], rotation[k], atol=1e-6)
+        (entity,) = update.entities
+        assert entity.id == SKELETON_ENTITY and entity.frame_id == "world" and not update.deletions
+        stamp = transforms[0].timestamp
+        assert (entity.timestamp.seconds, entity.timestamp.nanos) == (stamp.seconds, stamp.nanos)
+        (line,) = entity.lines
+        assert line.type == line.LINE_LIST and line.pose.orientation.w == 1.0
+        assert np.allclose([_xyz(p) for p in line.points], position[k], atol=1e-9)
+        assert list(line.indices) == [i for link in SKELETON_LINKS for i in link]
+
+
+def test_skeleton_links_follow_each_finger_from_the_wrist():
+    names = [(HAND_FRAMES[a], HAND_FRAMES[b]) for a, b in SKELETON_LINKS]
+    assert names[:4] == [("wrist", "thumb_cmc"), ("thumb_cmc", "thumb_mcp"), ("thumb_mcp", "thumb_ip"),
+                         ("thumb_ip", "thumb_tip")]
+    assert names[-4:] == [("thumb_cmc", "index_mcp"), ("index_mcp", "middle_mcp"), ("middle_mcp", "ring_mcp"),
+                          ("ring_mcp", "little_mcp")]
+    assert len(names) == 24 and len(set(names)) == 24
+
+
+def test_every_episode_has_its_own_named_metadata_record(shard, tables):
+    records = read_metadata(shard)
+    names = [name for name, _ in records]
+    assert names == ["dyana.shard", "dyana.episode.000004", "dyana.episode.000005", "dyana.episode.000006"]
+    assert "dyana.episode.NNNNNN" in records[0][1]["episode_metadata"]
+    _, episodes = tables
+    by_name = dict(records)
+    start = 0
+    for row in episodes.to_pylist():
+        record = by_name[episode_metadata_name(row["episode_index"])]
+        assert record["episode_index"] == str(row["episode_index"])
+        assert record["episode_id"] == row["episode_id"] and record["spec"] == row["spec"]
+        assert record["frames"] == str(row["num_frames"])
+        assert record["start_time_ns"] == str(start * PERIOD_NS)
+        assert record["end_time_ns"] == str((start + row["num_frames"] - 1) * PERIOD_NS)
+        start += row["num_frames"]
+    assert read_episode_metadata(shard) == [data for _, data in records[1:]]
+
+
 def test_episode_metadata_holds_the_spec(shard):
     records = read_episode_metadata(shard)
     assert [r["episode_index"] for r in records] == ["4", "5", "6"]
     spec, _, _ = make_episode(6)
     assert records[2]["spec"] == spec.to_json() and records[2]["episode_id"] == spec.episode_id
-    assert records[2]["start_time_ns"] == str(log_time_ns(6, 0))
+    assert records[2]["start_time_ns"] == str(log_time_ns(_shard_position(6, 0)))
 
 
-def test_too_long_episode_is_refused(tmp_path):
-    n = mcap_io.max_frames(20) + 1
+def test_long_episodes_are_written_back_to_back(tmp_path):
+    """No per-episode time window: at 1 FPS an episode of 101 frames (longer than the former
+    100 s per episode) is written, and the next starts one frame period after its last frame."""
+    n, period = 101, 10**9
     zeros = {k: np.zeros((n, w), np.float32) for k, w in [("object_pose", 7), ("object_velocity", 3), ("palm_pose", 6),
              ("joint_angles", 15), ("joint_poses", 90), ("keypoints", 36), ("action", 18)]}
     frames = EpisodeFrames(phase=np.zeros(n, np.int8), fingertip_distance=np.zeros(n, np.float32),
                            palm_distance=np.zeros(n, np.float32), grasp_angles=np.zeros(15, np.float32), **zeros)
-    with open(tmp_path / "x.mcap", "wb") as stream:
-        writer = McapShardWriter(stream, first_episode=0, end_episode=1, settings=SETTINGS)
-        with pytest.raises(ShardError, match="exceed the MCAP limit of 2000"):
-            writer.add_episode(0, frames, [b"\xff\xd8\xff"] * n, {})
+    path = tmp_path / "x.mcap"
+    with open(path, "wb") as stream:
+        writer = McapShardWriter(stream, first_episode=0, end_episode=2, settings=dict(SETTINGS, fps=1))
+        writer.add_episode(0, frames, [b"\xff\xd8\xff"] * n, {})
+        writer.add_episode(1, frames, [b"\xff\xd8\xff"] * n, {})
+        writer.close()
+    timeline = read_timeline(path)
+    assert timeline.period_ns == period
+    assert [(e.episode_index, e.start_ns, e.frames) for e in timeline.episodes] == [(0, 0, n), (1, n * period, n)]
+    assert timeline.locate((n - 1) * period) == (0, n - 1) and timeline.locate(n * period) == (1, 0)
+    times = [m.log_time_ns for m in iter_messages(path, [IMAGE_TOPIC], decode=False)]
+    assert times == [k * period for k in range(2 * n)]
