@@ -11,7 +11,7 @@ The slice hash (:func:`slice_hash`) is the hex sha256 of the canonical JSON of::
 
 where ``files`` lists the sha256 of every file of every shard: shards in manifest
 order (increasing first episode), and within a shard the kinds in the order
-``frames``, ``episodes``, ``mcap`` (:data:`FILE_KINDS`). So everything a reader relies
+``frames``, ``episodes``, ``mcap`` (:data:`FILE_KINDS`; ``mcap`` only when built). So everything a reader relies
 on (the shards, the normalisation statistics, the settings with the dataset version,
 the slice name and seed) is covered. Paths, sizes and episode ranges are not hashed:
 they are implied by the files and the settings.

@@ -18,7 +18,7 @@ from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.mcap_io import check_mcap
 from catalog.parquet_io import check_parquet, open_parquet, table_kind
 from catalog.reader import check_file
-from catalog.records import SHARDS_DIR, FileRecord, ShardRecord
+from catalog.records import SHARD_DIRS, FileRecord, ShardRecord
 from schemas.errors import (
     ShardError,
     ShardHashMismatch,
@@ -112,9 +112,9 @@ def check_files(
         rel = temp.relative_to(root).as_posix()
         problems.append(Problem(rel, "stray-temp", "temporary file of an unfinished write (remove it or rebuild)"))
     listed = {path for path, _, _ in manifest.files()}
-    shard_dir = root / SHARDS_DIR
-    if shard_dir.is_dir():
-        for path in sorted(shard_dir.iterdir()):
+    for folder in SHARD_DIRS:
+        shard_dir = root / folder
+        for path in sorted(shard_dir.iterdir()) if shard_dir.is_dir() else ():
             rel = path.relative_to(root).as_posix()
             if rel not in listed and not path.name.startswith("."):
                 problems.append(Problem(rel, "unlisted", f"not listed in {MANIFEST_NAME}"))

@@ -23,7 +23,8 @@ from typing import Any
 from catalog.atomic import atomic_write_text
 from catalog.hashing import canonical_json, is_sha256, slice_hash
 from catalog.records import FileRecord, ShardRecord
-from schemas.errors import ShardError
+from schemas.errors import ShardError, SpecError
+from schemas.formats import stored_formats
 from schemas.versions import CODE_VERSION
 
 MANIFEST_NAME = "catalog.json"
@@ -120,6 +121,16 @@ class Manifest:
                     f"shards must be ordered and disjoint: {list(shards[i - 1].episodes)} then {list(shard.episodes)}"
                 )
         object.__setattr__(self, "shards", shards)
+        try:
+            with_mcap = "mcap" in stored_formats(settings)
+        except SpecError as exc:
+            raise ShardError(str(exc)) from None
+        for shard in shards:
+            if ("mcap" in shard.files) != with_mcap:
+                raise ShardError(
+                    f"shard {list(shard.episodes)}: {'no' if with_mcap else 'an'} mcap file, but settings.formats is "
+                    f"{settings.get('formats', 'absent (parquet and mcap)')}"
+                )
         episodes = sum(s.num_episodes for s in shards)
         frames = sum(s.frames for s in shards)
         if self.episodes != episodes:

@@ -49,11 +49,11 @@ from schemas.errors import (
     ShardMissing,
     ShardSizeMismatch,
 )
-from schemas.versions import DATASET_VERSION, FPS
+from schemas.versions import FPS, READABLE_DATASET_VERSIONS
 
 VERIFY_MODES = ("size", "sha256")
 #: Settings every reader relies on, with the values this code writes.
-REQUIRED_SETTINGS = {"dataset_version": DATASET_VERSION, "fps": FPS, "image_format": "jpeg"}
+REQUIRED_SETTINGS = {"fps": FPS, "image_format": "jpeg"}
 
 
 def check_file(root: Path, record: FileRecord, verify: str = "size") -> Path:
@@ -82,6 +82,9 @@ def check_file(root: Path, record: FileRecord, verify: str = "size") -> Path:
 def check_settings(root: Path, settings: Mapping[str, Any], expect: Mapping[str, Any] | None = None) -> None:
     """SettingsMismatch unless ``settings`` carry what readers rely on (and ``expect``)."""
     where = root / "catalog.json"
+    version = settings.get("dataset_version")
+    if version not in READABLE_DATASET_VERSIONS and "dataset_version" not in (expect or {}):
+        raise SettingsMismatch(where, "dataset_version", f"one of {list(READABLE_DATASET_VERSIONS)}", version)
     for key, wanted in {**REQUIRED_SETTINGS, **(expect or {})}.items():
         if settings.get(key) != wanted:
             raise SettingsMismatch(where, key, wanted, settings.get(key))
@@ -127,8 +130,9 @@ class ShardReader:
     def path(self, kind: str) -> Path:
         return self.root / self.record.files[kind].path
 
-    def check_files(self, kinds: Sequence[str] = ("frames", "episodes", "mcap")) -> None:
-        for kind in kinds:
+    def check_files(self, kinds: Sequence[str] | None = None) -> None:
+        """Check the shard's files of ``kinds`` (default: every file it has)."""
+        for kind in self.record.files if kinds is None else kinds:
             check_file(self.root, self.record.files[kind], self.verify)
 
     def episodes(self, columns: Sequence[str] | None = None) -> pa.Table:

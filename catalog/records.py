@@ -1,23 +1,39 @@
 """The manifest's records of shards and their files, and the shard file names.
 
-A shard covers episodes ``[first, end)`` of its slice and is stored as three files
-under ``shards/`` (DESIGN.md, "Catalog manifest"), named by the first and the last
-(inclusive) episode: ``000000-000127.frames.parquet``, ``.episodes.parquet``, ``.mcap``.
+A shard covers episodes ``[first, end)`` of its slice. Each table has a folder of its own
+(DESIGN.md, "Catalog manifest"), so any Parquet reader opens ``frames/`` or ``episodes/``
+as one dataset; a shard's files are named by its first and last (inclusive) episode:
+``frames/000000-000127.parquet``, ``episodes/000000-000127.parquet`` and (unless the build
+left MCAP out) ``mcap/000000-000127.mcap``.
+
+Datasets before 3.0.0 kept all three in ``shards/`` (``shards/000000-000127.frames.parquet``,
+``.episodes.parquet``, ``.mcap``): their records still load (:data:`LEGACY_LAYOUT`), and
+``catalog migrate`` moves such a folder into the table folders.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import PurePosixPath
+from pathlib import Path, PurePosixPath
 from types import MappingProxyType
 from typing import Any
 
 from catalog.hashing import FILE_KINDS, is_sha256
 from schemas.errors import ShardError
 
-SHARDS_DIR = "shards"
-_SUFFIXES = {"frames": ".frames.parquet", "episodes": ".episodes.parquet", "mcap": ".mcap"}
+#: The tables every shard has; ``mcap`` is optional (``--formats parquet``).
+REQUIRED_KINDS = ("frames", "episodes")
+#: Folder and suffix of each kind of file, by layout.
+TABLE_LAYOUT = {"frames": ("frames", ".parquet"), "episodes": ("episodes", ".parquet"), "mcap": ("mcap", ".mcap")}
+LEGACY_LAYOUT = {
+    "frames": ("shards", ".frames.parquet"),
+    "episodes": ("shards", ".episodes.parquet"),
+    "mcap": ("shards", ".mcap"),
+}
+#: Every folder a slice's shard files can live in (current and legacy layouts).
+SHARD_DIRS = tuple(sorted({folder for folder, _ in (*TABLE_LAYOUT.values(), *LEGACY_LAYOUT.values())}))
 
 
 def shard_stem(first: int, end: int) -> str:
@@ -27,10 +43,28 @@ def shard_stem(first: int, end: int) -> str:
     return f"{first:06d}-{end - 1:06d}"
 
 
-def shard_paths(first: int, end: int) -> dict[str, str]:
-    """Relative (POSIX) paths of the three files of the shard of episodes ``[first, end)``."""
+def shard_paths(first: int, end: int, layout: Mapping[str, tuple[str, str]] = TABLE_LAYOUT) -> dict[str, str]:
+    """Relative (POSIX) paths of the files of the shard of episodes ``[first, end)``."""
     stem = shard_stem(first, end)
-    return {kind: f"{SHARDS_DIR}/{stem}{_SUFFIXES[kind]}" for kind in FILE_KINDS}
+    return {kind: f"{folder}/{stem}{suffix}" for kind, (folder, suffix) in layout.items()}
+
+
+_SHARD_NAME = re.compile(r"\d{6}-\d{6}(\.frames\.parquet|\.episodes\.parquet|\.parquet|\.mcap)")
+
+
+def shard_like_files(root: Path) -> list[Path]:
+    """Files in ``root``'s shard folders named like shard files (of either layout), sorted."""
+    found: list[Path] = []
+    for folder in SHARD_DIRS:
+        directory = root / folder
+        if directory.is_dir():
+            found.extend(p for p in directory.iterdir() if _SHARD_NAME.fullmatch(p.name) and p.is_file())
+    return sorted(found)
+
+
+def is_legacy(record: ShardRecord) -> bool:
+    """True for a shard stored in the pre-3.0.0 ``shards/`` layout."""
+    return record.files["frames"].path == shard_paths(*record.episodes, LEGACY_LAYOUT)["frames"]
 
 
 def check_relative_path(path: Any, where: str) -> str:
@@ -87,16 +121,23 @@ class ShardRecord:
         object.__setattr__(self, "episodes", episodes)
         if isinstance(self.frames, bool) or not isinstance(self.frames, int) or self.frames < episodes[1] - episodes[0]:
             raise ShardError(f"shard {episodes}: frames must be an integer >= its episode count, got {self.frames!r}")
-        if set(self.files) != set(FILE_KINDS):
-            raise ShardError(f"shard {episodes}: files must be exactly {list(FILE_KINDS)}, got {sorted(self.files)}")
-        expected = shard_paths(*episodes)
-        for kind in FILE_KINDS:
-            record = self.files[kind]
-            if not isinstance(record, FileRecord):
-                raise ShardError(f"shard {episodes}: files[{kind!r}] must be a FileRecord, got {record!r}")
-            if record.path != expected[kind]:
-                raise ShardError(f"shard {episodes}: {kind} file must be {expected[kind]!r}, got {record.path!r}")
-        object.__setattr__(self, "files", MappingProxyType({kind: self.files[kind] for kind in FILE_KINDS}))
+        kinds = set(self.files)
+        if not set(REQUIRED_KINDS) <= kinds <= set(FILE_KINDS):
+            raise ShardError(
+                f"shard {episodes}: files must be {list(REQUIRED_KINDS)} and optionally 'mcap', got {sorted(self.files)}"
+            )
+        for kind in self.files:
+            if not isinstance(self.files[kind], FileRecord):
+                raise ShardError(f"shard {episodes}: files[{kind!r}] must be a FileRecord, got {self.files[kind]!r}")
+        layout = LEGACY_LAYOUT if self.files["frames"].path == shard_paths(*episodes, LEGACY_LAYOUT)["frames"] else TABLE_LAYOUT
+        expected = shard_paths(*episodes, layout)
+        for kind in self.files:
+            if self.files[kind].path != expected[kind]:
+                raise ShardError(
+                    f"shard {episodes}: {kind} file must be {expected[kind]!r}, got {self.files[kind].path!r}"
+                )
+        ordered = {kind: self.files[kind] for kind in FILE_KINDS if kind in self.files}
+        object.__setattr__(self, "files", MappingProxyType(ordered))
 
     @property
     def first(self) -> int:
@@ -112,13 +153,13 @@ class ShardRecord:
 
     def file_hashes(self) -> list[str]:
         """sha256 of the files in :data:`FILE_KINDS` order (the slice hash's order)."""
-        return [self.files[kind].sha256 for kind in FILE_KINDS]
+        return [record.sha256 for record in self.files.values()]
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "episodes": list(self.episodes),
             "frames": self.frames,
-            "files": {kind: self.files[kind].to_dict() for kind in FILE_KINDS},
+            "files": {kind: record.to_dict() for kind, record in self.files.items()},
         }
 
     @classmethod

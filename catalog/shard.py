@@ -1,8 +1,8 @@
-"""ShardWriter: writes one shard (a fixed range of episodes) as its three files.
+"""ShardWriter: writes one shard (a fixed range of episodes) as its files.
 
-The frames Parquet and the MCAP are streamed episode by episode into temporary
-files beside their destinations; the episodes Parquet is written at the end. Only
-:meth:`ShardWriter.finish` renames the three temps to their final names (a shard
+The frames Parquet and the MCAP (unless ``settings.formats`` leaves it out) are streamed
+episode by episode into temporary files beside their destinations; the episodes Parquet
+is written at the end. Only :meth:`ShardWriter.finish` renames the temps to their final names (a shard
 is complete once its files exist; the slice is complete once ``catalog.json`` lists
 them). Any exception inside the ``with`` block, or a shard missing episodes,
 deletes the temps: nothing half-written remains under a final name.
@@ -26,7 +26,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from catalog import atomic
-from catalog.hashing import FILE_KINDS, canonical_json, sha256_file
+from catalog.hashing import canonical_json, sha256_file
 from catalog.mcap_io import McapShardWriter
 from catalog.parquet_io import (
     TableWriter,
@@ -35,8 +35,9 @@ from catalog.parquet_io import (
     frames_table,
     write_table,
 )
-from catalog.records import FileRecord, ShardRecord, shard_paths
-from schemas.errors import ShardError
+from catalog.records import REQUIRED_KINDS, FileRecord, ShardRecord, shard_paths
+from schemas.errors import ShardError, SpecError
+from schemas.formats import stored_formats
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
@@ -69,9 +70,14 @@ class ShardWriter:
     ) -> None:
         self.root = Path(root_dir)
         self.first, self.end = first_episode, last_episode_exclusive
-        self.paths = shard_paths(first_episode, last_episode_exclusive)
         canonical_json(dict(settings))  # refuse settings that cannot go into the manifest
         self.settings = dict(settings)
+        try:
+            kinds = REQUIRED_KINDS + (("mcap",) if "mcap" in stored_formats(self.settings) else ())
+        except SpecError as exc:
+            raise ShardError(str(exc)) from None
+        self.paths = {kind: path for kind, path in shard_paths(first_episode, last_episode_exclusive).items()
+                      if kind in kinds}
         self.fps = self.settings.get("fps", FPS)
         self.rollout = rollout
         #: Frames carry the hand's obstacle clearance (a build whose scenes may hold obstacles).
@@ -95,8 +101,11 @@ class ShardWriter:
             raise ShardError(f"shard {self.paths['frames']}: start() called twice")
         self._state = "open"
         try:
-            self._finals["frames"].parent.mkdir(parents=True, exist_ok=True)
+            for final in self._finals.values():
+                final.parent.mkdir(parents=True, exist_ok=True)
             self._frames_writer = TableWriter(self._temps["frames"], "obstacle_frames" if self.obstacles else "frames")
+            if "mcap" not in self._temps:
+                return self
             self._mcap_stream = open(self._temps["mcap"], "wb")
             self._mcap = McapShardWriter(
                 self._mcap_stream,
@@ -166,14 +175,16 @@ class ShardWriter:
         angles = frames.grasp_angles if grasp_angles is None else grasp_angles
         row = episode_row(spec, angles, policy=policy, status=status, error=error, privileged=privileged)
         table = frames_table(index, frames, images, fps=self.fps, obstacles=self.obstacles)
-        self._mcap.check_episode(index, frames, images)
+        if self._mcap is not None:
+            self._mcap.check_episode(index, frames, images)
         metadata = {"episode_id": spec.episode_id, "spec": spec.to_json()}
         if self.rollout:
             metadata.update(policy=row["policy"], status=row["status"], error=row["error"])
             if privileged:
                 metadata["privileged"] = "true"
         try:
-            self._mcap.add_episode(index, frames, images, metadata, spec.obstacles)
+            if self._mcap is not None:
+                self._mcap.add_episode(index, frames, images, metadata, spec.obstacles)
             self._frames_writer.write(table)
         except BaseException:
             self._state = "failed"
@@ -213,20 +224,20 @@ class ShardWriter:
                 )
             self._frames_writer.close()
             self._frames_writer = None
-            self._mcap.close()
-            self._mcap_stream.close()
+            if self._mcap is not None:
+                self._mcap.close()
+                self._mcap_stream.close()
             self._mcap, self._mcap_stream = None, None
             write_table(self._temps["episodes"], episodes_table(self._rows, self.rollout), self._kind)
             files = {}
-            for kind in FILE_KINDS:
-                temp = self._temps[kind]
+            for kind, temp in self._temps.items():
                 files[kind] = FileRecord(self.paths[kind], sha256_file(temp), temp.stat().st_size)
-            for kind in FILE_KINDS:
+            for kind in self._temps:
                 atomic.commit(self._temps[kind], self._finals[kind])
                 committed.append(self._finals[kind])
         except BaseException:
             self.abort()
-            for final in committed:  # a shard is all three files or none
+            for final in committed:  # a shard is all its files or none
                 atomic.discard(final)
             raise
         self._state = "finished"

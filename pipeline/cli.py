@@ -18,6 +18,7 @@ def _build_arguments(p: argparse.ArgumentParser) -> None:
     cli.add_workers(p)
     cli.add_resolution(p)
     cli.add_shard_size(p, 128)
+    cli.add_formats(p)
     p.add_argument("--specs", help="build the episodes of a JSONL file of EpisodeSpecs instead of the recipe")
     cli.add_overwrite(p)
     cli.add_quiet(p)
@@ -66,7 +67,7 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
                    "(an OpenAI-compatible endpoint, e.g. vlm:http://127.0.0.1:8000/v1)")
     p.add_argument("--slice", default="test-1k", help="slice whose episodes to run (default: test-1k)")
     cli.add_episodes(p)
-    p.add_argument("--out", required=True, help="run folder: RUN/catalog.json and RUN/shards/")
+    p.add_argument("--out", required=True, help="run folder: RUN/catalog.json and RUN/frames/, RUN/episodes/, RUN/mcap/")
     cli.add_workers(p)
     p.add_argument(
         "--deadline", type=cli.positive_float, default=None,
@@ -75,6 +76,7 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     cli.add_resolution(p)
     cli.add_shard_size(p, 32)
+    cli.add_formats(p)
     p.add_argument(
         "--in-process", action="store_true",
         help="run a module:callable policy inside the eval workers (faster start, but its crash or exit "

@@ -112,6 +112,22 @@ def _verify_arguments(p: argparse.ArgumentParser) -> None:
     cli.add_quiet(p)
 
 
+def cmd_migrate(args: argparse.Namespace) -> int:
+    from pipeline.jobs.migrate import migrate
+
+    for report in migrate(args.dir):
+        if report.already:
+            print(f"{report.folder}: already in the frames/, episodes/, mcap/ layout ({report.shards} shards)")
+        else:
+            print(f"{report.folder}: moved {report.moved} files of {report.shards} shards into frames/, episodes/, "
+                  "mcap/ (files and hash unchanged)")
+    return 0
+
+
+def _migrate_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dir", metavar="DIR", help="a dataset 2.0.0 slice or run folder (shards/ layout), or a run of repeats")
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from catalog.export.lerobot import ExportSettings, export, print_progress
 
@@ -153,6 +169,8 @@ COMMANDS = (
         "specs", "print a slice's episode specs as JSONL (edit, then `pipeline build --specs`)", _specs_arguments, cmd_specs
     ),
     cli.Command("verify", "check every file's sha256 and rebuild shards to compare bytes", _verify_arguments, cmd_verify),
+    cli.Command("migrate", "move a dataset 2.0.0 folder's shards/ into frames/, episodes/, mcap/", _migrate_arguments,
+                cmd_migrate),
     cli.Command("export", "export a slice or run as a LeRobot dataset (v3.0, or v2.1 for GR00T)", _export_arguments,
                 cmd_export),
 )

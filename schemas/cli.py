@@ -124,6 +124,14 @@ def add_shard_size(parser: argparse.ArgumentParser, default: int) -> None:
     )
 
 
+def add_formats(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--formats", default="parquet,mcap", metavar="LIST",
+        help="what to store: parquet,mcap (default) or parquet (MCAP is for viewing in Foxglove; "
+        "every reader uses the Parquet tables)",
+    )
+
+
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--overwrite", action="store_true",
@@ -240,6 +248,7 @@ def job_options(args: argparse.Namespace) -> dict[str, Any]:
         "shard_size": args.shard_size,
         "progress": not args.quiet,
         "overwrite": args.overwrite,
+        "formats": args.formats,
     }
 
 

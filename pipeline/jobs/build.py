@@ -16,6 +16,7 @@ from typing import Any
 from catalog.manifest import Manifest
 from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
+from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.spec import EpisodeSpec
 from schemas.versions import DATASET_VERSION, FPS
 
@@ -36,8 +37,11 @@ class BuildSettings:
     #: A rollout's evaluation protocol (pipeline.loop.conditions.EvalProtocol.to_dict), None
     #: for the plain closed loop and for builds.
     protocol: dict | None = None
+    #: What is stored: Parquet always, MCAP (for viewing) unless left out.
+    formats: tuple[str, ...] = ALL_FORMATS
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "formats", parse_formats(self.formats))
         if not isinstance(self.resolution, int) or not 16 <= self.resolution <= 1024:
             raise SpecError(f"resolution must be an integer in [16, 1024], got {self.resolution!r}")
         if not isinstance(self.jpeg_quality, int) or not 1 <= self.jpeg_quality <= 100:
@@ -51,6 +55,7 @@ class BuildSettings:
             del out["obstacle_clearance"]
         if self.protocol is None:
             del out["protocol"]
+        out["formats"] = list(self.formats)
         return out
 
 
@@ -80,6 +85,7 @@ def build_job(
     specs_path: str | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    formats: str | tuple[str, ...] = ALL_FORMATS,
 ) -> tuple[Manifest, bool]:
     """Build a slice (or a specs file) into ``out/<slice>/``: its manifest, and whether
     the folder already held this complete build (then nothing is redone).
@@ -118,7 +124,9 @@ def build_job(
         if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
             raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
 
-    settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY, obstacle_clearance=obstacles)
+    settings = BuildSettings(
+        resolution=resolution, jpeg_quality=JPEG_QUALITY, obstacle_clearance=obstacles, formats=parse_formats(formats)
+    )
     tasks = tuple(
         ShardTask(slice_name, first, end, None if specs_json is None else tuple(specs_json[first:end]))
         for first, end in shard_ranges(total, shard_size)

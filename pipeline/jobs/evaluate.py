@@ -34,6 +34,7 @@ from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.disturb import disturbed_spec
 from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
 from schemas.errors import PolicyError, ShardError, SpecError
+from schemas.formats import ALL_FORMATS, parse_formats
 
 DEFAULT_SHARD_SIZE = 32
 #: Extra seconds a remote policy's socket waits beyond the deadline or watchdog (the
@@ -320,6 +321,7 @@ def evaluate(
     isolate: bool = True,
     vlm: dict[str, Any] | None = None,
     protocol: EvalProtocol | None = None,
+    formats: str | tuple[str, ...] = ALL_FORMATS,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
@@ -349,7 +351,8 @@ def evaluate(
     protocol = protocol or EvalProtocol()
     build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY,
                                    obstacle_clearance=definition.may_hold_obstacles,
-                                   protocol=None if protocol.plain else protocol.to_dict())
+                                   protocol=None if protocol.plain else protocol.to_dict(),
+                                   formats=parse_formats(formats))
     ranges = shard_ranges(total, shard_size)
     if is_vlm(policy_ref):
         from pipeline.policies.vlm import VLMConfig

@@ -24,6 +24,19 @@ def repeat_folder(repeat: int) -> str:
     return f"repeat-{repeat:02d}"
 
 
+def repeat_folders(root: Path) -> list[Path]:
+    """The repeat folders ``root/repeats.json`` names (each a plain folder name inside ``root``)."""
+    path = root / REPEATS_FILE
+    try:
+        names = [entry["path"] for entry in json.loads(path.read_text())["runs"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise SpecError(f"{path}: not a readable repeats index ({type(exc).__name__})") from None
+    for name in names:
+        if not isinstance(name, str) or "/" in name or "\\" in name or name in ("", ".", ".."):
+            raise SpecError(f"{path}: a repeat's path must be a folder name, got {str(name)[:60]!r}")
+    return [root / name for name in names]
+
+
 def repeats_index(policy: str, slice_name: str, protocol: EvalProtocol, manifests: list[Manifest]) -> dict[str, Any]:
     """The ``repeats.json`` object: what was repeated and each repeat's run (path, hash)."""
     shared = protocol.to_dict()

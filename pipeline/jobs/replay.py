@@ -240,8 +240,11 @@ def replay(
     on_shard: Callable[[ShardRecord], None] | None = None,
 ) -> ReplayReport:
     """Re-execute a built slice or a run (``shards``: only those first-episode indices)."""
+    from pipeline.jobs.verify import check_rebuildable
+
     folder = open_folder(path, verify="sha256")
     manifest, rollout = folder.manifest, folder.rollout
+    check_rebuildable(folder.root, manifest)
     settings = dict(manifest.settings)
     chosen = list(folder.shards)
     if shards is not None:

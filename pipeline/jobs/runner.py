@@ -34,7 +34,6 @@ import fcntl
 import json
 import logging
 import os
-import re
 import sys
 import threading
 import uuid
@@ -53,7 +52,7 @@ from catalog.manifest import (
     write_manifest,
 )
 from catalog.reader import check_file
-from catalog.records import FileRecord, ShardRecord
+from catalog.records import FileRecord, ShardRecord, shard_like_files
 from catalog.stats import compute_stats, write_stats
 from schemas.cli import ProgressMeter
 from schemas.errors import DyanaError, ShardError, SpecError
@@ -510,19 +509,15 @@ def _reporting_task(
         return task_fn(task, payload, folder)
 
 
-_SHARD_FILE = re.compile(r"\d{6}-\d{6}\.(frames\.parquet|episodes\.parquet|mcap)")
-
-
 def remove_unlisted_shards(folder: Path, manifest: Manifest) -> list[Path]:
-    """Delete shard files in ``folder/shards`` that ``manifest`` does not list: what is
-    left of a job this one replaced (``--overwrite``), which would otherwise fail
-    ``catalog verify`` and be picked up by ``shards/*.parquet`` globs. Only files named
-    like shards are touched."""
+    """Delete shard files that ``manifest`` does not list: what is left of a job this one
+    replaced (``--overwrite``), which would otherwise fail ``catalog verify`` and be read
+    by anything opening ``frames/`` as a dataset. Only files named like shards, in the
+    shard folders, are touched."""
     listed = {path for path, _, _ in manifest.files()}
     removed = []
-    shard_dir = folder / "shards"
-    for path in sorted(shard_dir.iterdir()) if shard_dir.is_dir() else []:
-        if _SHARD_FILE.fullmatch(path.name) and f"shards/{path.name}" not in listed and path.is_file():
+    for path in shard_like_files(folder):
+        if path.relative_to(folder).as_posix() not in listed:
             path.unlink()
             removed.append(path)
     return removed
@@ -541,7 +536,7 @@ def run_job(
     check_workers(workers, scheduler)
     folder = job.folder
     try:
-        (folder / "shards").mkdir(parents=True, exist_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SpecError(f"{folder}: cannot create the output folder ({exc.strerror or exc})") from None
     with folder_lock(folder):

@@ -52,18 +52,24 @@ def _stored_specs(directory: Path, shard: ShardRecord) -> list[EpisodeSpec]:
     return [EpisodeSpec.from_json(text) for text in table.column("spec").to_pylist()]
 
 
+def check_rebuildable(directory: Path, manifest: Manifest) -> None:
+    """ShardError unless this code writes ``manifest``'s dataset version (rebuilds and replays
+    compare bytes, so an older version's folder can be read and scored but not re-executed)."""
+    built_with = manifest.settings.get("dataset_version")
+    if built_with != DATASET_VERSION:
+        raise ShardError(
+            f"{Path(directory) / 'catalog.json'}: written as dataset version {built_with!r}; this code writes "
+            f"{DATASET_VERSION!r}, so its shards cannot be re-executed byte for byte (check out the commit "
+            f"{manifest.code.commit or 'that wrote it'})"
+        )
+
+
 def rebuild_shard(directory: Path, manifest: Manifest, shard: ShardRecord, scratch: Path) -> int:
     """Rebuild one ground-truth shard into ``scratch`` and compare its files' bytes."""
     from pipeline.jobs.build import BuildSettings
     from pipeline.stages.record import write_ground_truth_shard
 
-    built_with = manifest.settings.get("dataset_version")
-    if built_with != DATASET_VERSION:
-        raise ShardError(
-            f"{directory / 'catalog.json'}: built as dataset version {built_with!r}; this code builds "
-            f"{DATASET_VERSION!r}, so its shards cannot be rebuilt byte for byte (check out the commit "
-            f"{manifest.code.commit or 'that built it'})"
-        )
+    check_rebuildable(directory, manifest)
     known = {f.name for f in fields(BuildSettings)}
     unknown = sorted(set(manifest.settings) - known)
     if unknown:

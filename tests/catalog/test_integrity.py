@@ -13,8 +13,9 @@ from catalog.integrity import check_files, verify_files
 from catalog.manifest import load_manifest
 from catalog.mcap_io import iter_messages, mcap_summary
 from catalog.parquet_io import check_parquet, read_frames
+from catalog.reader import open_folder
 from schemas.errors import ShardError
-from schemas.tables import FRAMES_SCHEMA
+from schemas.tables import EPISODES_SCHEMA, FRAMES_SCHEMA
 
 
 def _paths(slice_dir, shard=0):
@@ -30,7 +31,7 @@ def _flip(path, offset):
 
 def test_duckdb_reads_the_contract_columns(slice_dir):
     manifest = load_manifest(slice_dir)
-    glob = f"{slice_dir}/shards/*.frames.parquet"
+    glob = f"{slice_dir}/frames/*.parquet"
     columns = duckdb.sql(f"DESCRIBE SELECT * FROM read_parquet('{glob}')").fetchall()
     assert [c[0] for c in columns] == FRAMES_SCHEMA.names
     types = dict((c[0], c[1]) for c in columns)
@@ -43,15 +44,36 @@ def test_duckdb_reads_the_contract_columns(slice_dir):
     query = f"SELECT timestamp FROM read_parquet('{glob}') WHERE episode_index = 2 AND frame_index = 7"
     stamp = duckdb.sql(query).fetchall()
     assert stamp == [(7 / 20,)]
-    n = duckdb.sql(f"SELECT count(*) FROM read_parquet('{slice_dir}/shards/*.episodes.parquet')").fetchall()[0][0]
+    n = duckdb.sql(f"SELECT count(*) FROM read_parquet('{slice_dir}/episodes/*.parquet')").fetchall()[0][0]
     assert n == manifest.episodes
+    (rows_only,) = duckdb.sql(f"SELECT count(*) FROM '{slice_dir}/frames/*.parquet'").fetchall()[0]
+    assert rows_only == manifest.frames  # the table folder alone, nothing of the episodes table mixed in
 
 
-def test_pyarrow_dataset_reads_every_shard(slice_dir):
+def test_pyarrow_dataset_opens_each_table_folder(slice_dir):
     import pyarrow.dataset as ds
 
-    table = ds.dataset(sorted(str(p) for p in (slice_dir / "shards").glob("*.frames.parquet"))).to_table()
-    assert table.schema.equals(FRAMES_SCHEMA) and table.num_rows == load_manifest(slice_dir).frames
+    manifest = load_manifest(slice_dir)
+    frames = ds.dataset(slice_dir / "frames", format="parquet").to_table()
+    assert frames.schema.equals(FRAMES_SCHEMA) and frames.num_rows == manifest.frames
+    episodes = ds.dataset(slice_dir / "episodes", format="parquet").to_table()
+    assert episodes.schema.equals(EPISODES_SCHEMA)
+    assert episodes.column("episode_index").to_pylist() == list(range(manifest.episodes))
+
+
+def test_pandas_reads_each_table_folder(slice_dir):
+    import pandas as pd
+
+    manifest = load_manifest(slice_dir)
+    frames = pd.read_parquet(slice_dir / "frames")
+    assert len(frames) == manifest.frames and list(frames.columns) == FRAMES_SCHEMA.names
+    assert frames.groupby("episode_index").size().tolist() == [s for s in _frames_per_episode(slice_dir)]
+    episodes = pd.read_parquet(slice_dir / "episodes")
+    assert episodes["episode_id"].tolist() == [f"linear-fast:{i:06d}" for i in range(manifest.episodes)]
+
+
+def _frames_per_episode(slice_dir):
+    return open_folder(slice_dir).episodes(["num_frames"]).column("num_frames").to_pylist()
 
 
 def test_intact_folder_verifies(slice_dir):
@@ -63,8 +85,8 @@ def test_tampered_file_is_named(slice_dir):
     paths = _paths(slice_dir, 1)
     _flip(paths["mcap"], paths["mcap"].stat().st_size // 2)
     problems = check_files(slice_dir, load_manifest(slice_dir))
-    assert [(p.path, p.kind) for p in problems] == [("shards/000002-000003.mcap", "sha256")]
-    with pytest.raises(ShardError, match=r"shards/000002-000003\.mcap: content changed"):
+    assert [(p.path, p.kind) for p in problems] == [("mcap/000002-000003.mcap", "sha256")]
+    with pytest.raises(ShardError, match=r"mcap/000002-000003\.mcap: content changed"):
         verify_files(slice_dir)
 
 
@@ -72,17 +94,17 @@ def test_truncated_missing_stray_and_unlisted_files(slice_dir):
     paths = _paths(slice_dir)
     paths["frames"].write_bytes(paths["frames"].read_bytes()[:-100])
     paths["episodes"].unlink()
-    temp_path(slice_dir / "shards" / "000004-000004.mcap", pid=999999).write_bytes(b"x")
-    shutil.copy(paths["mcap"], slice_dir / "shards" / "000009-000009.mcap")
+    temp_path(slice_dir / "mcap" / "000004-000004.mcap", pid=999999).write_bytes(b"x")
+    shutil.copy(paths["mcap"], slice_dir / "mcap" / "000009-000009.mcap")
     problems = check_files(slice_dir, load_manifest(slice_dir))
     assert [(p.path, p.kind) for p in problems] == [
-        ("shards/000000-000001.frames.parquet", "size"),
-        ("shards/000000-000001.episodes.parquet", "missing"),
-        ("shards/.000004-000004.mcap.tmp-999999", "stray-temp"),
-        ("shards/000009-000009.mcap", "unlisted"),
+        ("frames/000000-000001.parquet", "size"),
+        ("episodes/000000-000001.parquet", "missing"),
+        ("mcap/.000004-000004.mcap.tmp-999999", "stray-temp"),
+        ("mcap/000009-000009.mcap", "unlisted"),
     ]
     assert "truncated" in problems[0].detail
-    with pytest.raises(ShardError, match=r"000000-000001\.frames\.parquet: truncated.*\(and 3 more problem\(s\)\)"):
+    with pytest.raises(ShardError, match=r"frames/000000-000001\.parquet: truncated.*\(and 3 more problem\(s\)\)"):
         verify_files(slice_dir)
 
 
@@ -94,7 +116,7 @@ def test_sample_checks_k_whole_shards(slice_dir):
     for seed in range(12):
         problems = check_files(slice_dir, manifest, sample=1, rng=np.random.default_rng(seed))
         found.add(tuple(p.path for p in problems))
-    assert found == {(), ("shards/000000-000001.episodes.parquet",)}
+    assert found == {(), ("episodes/000000-000001.parquet",)}
     assert len(check_files(slice_dir, manifest, sample=10)) == 1
     with pytest.raises(ShardError, match="--sample"):
         check_files(slice_dir, manifest, sample=0)
@@ -173,5 +195,5 @@ def test_manifest_over_wrong_files_is_caught_by_the_structural_check(slice_dir):
     shards = (replace(shard, files=files),) + manifest.shards[1:]
     write_manifest(slice_dir, Manifest.create(manifest.slice, manifest.seed, manifest.settings, shards, manifest.code))
     problems = check_files(slice_dir, load_manifest(slice_dir))
-    assert [(p.path, p.kind) for p in problems] == [("shards/000000-000001.frames.parquet", "unreadable")]
+    assert [(p.path, p.kind) for p in problems] == [("frames/000000-000001.parquet", "unreadable")]
     assert "table kind is 'episodes', expected 'frames'" in problems[0].detail

@@ -78,7 +78,7 @@ def test_manifest_round_trip_is_canonical(tmp_path):
     data = json.loads(text)
     assert list(data) == sorted(data)
     assert data["policy"] == "scripted" and data["code"] == {"version": "0.1.0", "commit": CODE.commit}
-    assert data["shards"][0]["files"]["mcap"]["path"] == "shards/000000-000001.mcap"
+    assert data["shards"][0]["files"]["mcap"]["path"] == "mcap/000000-000001.mcap"
     loaded = load_manifest(tmp_path)
     assert loaded == manifest
     assert loaded.to_json() == text
@@ -102,7 +102,7 @@ def test_manifest_accepts_code_as_dict():
         (lambda d: d["settings"].update(fps=30), "does not match"),
         (lambda d: d["shards"][0]["files"]["frames"].update(sha256="0" * 64), "does not match"),
         (lambda d: d["shards"][0]["files"]["frames"].update(path="../x.parquet"), "path"),
-        (lambda d: d["shards"][1].update(episodes=[1, 2]), "must be 'shards/000001-000001.frames.parquet'"),
+        (lambda d: d["shards"][1].update(episodes=[1, 2]), "must be 'frames/000001-000001.parquet'"),
         (lambda d: d["shards"].reverse(), "ordered and disjoint"),
         (lambda d: d["code"].update(commit="abc-dirty"), "commit"),
     ],
@@ -125,9 +125,9 @@ def test_load_missing_or_invalid_json(tmp_path):
 
 
 def test_shard_record_checks_names():
-    with pytest.raises(ShardError, match="must be 'shards/000000-000001.mcap'"):
+    with pytest.raises(ShardError, match="must be 'mcap/000000-000001.mcap'"):
         files = dict(SHARDS[0].files)
-        files["mcap"] = replace(files["mcap"], path="shards/other.mcap")
+        files["mcap"] = replace(files["mcap"], path="mcap/other.mcap")
         ShardRecord((0, 2), 40, files)
     assert ShardRecord.from_dict(SHARDS[0].to_dict()) == SHARDS[0]
 

@@ -25,6 +25,7 @@ from schemas.tables import (
     ROLLOUT_EPISODES_SCHEMA,
     STATE_COLUMNS,
 )
+from tests.shard_files import shard_names
 
 from .conftest import SETTINGS, make_episode, make_frames, make_images, make_spec
 
@@ -45,9 +46,9 @@ def _file_bytes(root, record):
 def test_round_trip_states_exact_and_images_equal(tmp_path):
     record = _write(tmp_path)
     assert record.episodes == (0, 3)
-    assert record.files["frames"].path == "shards/000000-000002.frames.parquet"
-    assert record.files["episodes"].path == "shards/000000-000002.episodes.parquet"
-    assert record.files["mcap"].path == "shards/000000-000002.mcap"
+    assert record.files["frames"].path == "frames/000000-000002.parquet"
+    assert record.files["episodes"].path == "episodes/000000-000002.parquet"
+    assert record.files["mcap"].path == "mcap/000000-000002.mcap"
     for f in record.files.values():
         assert sha256_file(tmp_path / f.path) == f.sha256
         assert (tmp_path / f.path).stat().st_size == f.size
@@ -157,15 +158,15 @@ def test_exception_inside_with_leaves_nothing(tmp_path):
         with ShardWriter(tmp_path, 0, 3, SETTINGS) as writer:
             writer.add_episode(*make_episode(0))
             assert find_stray_temps(tmp_path), "writes go to temp names"
-            assert not (tmp_path / "shards" / "000000-000002.mcap").exists()
+            assert not (tmp_path / "mcap" / "000000-000002.mcap").exists()
             raise RuntimeError("render failed")
-    assert list((tmp_path / "shards").iterdir()) == []
+    assert shard_names(tmp_path) == []
 
 
 def test_missing_episode_fails_finish_and_leaves_nothing(tmp_path):
     with pytest.raises(ShardError, match=r"1 episode\(s\) of \[0, 3\) were not added: \[1\]"):
         _write(tmp_path, episodes=(0, 2))
-    assert list((tmp_path / "shards").iterdir()) == []
+    assert shard_names(tmp_path) == []
 
 
 def test_order_and_range_are_enforced(tmp_path):
@@ -191,7 +192,7 @@ def test_order_and_range_are_enforced(tmp_path):
             writer.finish()
     finally:
         writer.abort()
-    assert list((tmp_path / "shards").iterdir()) == []
+    assert shard_names(tmp_path) == []
 
 
 def test_rollout_shard_has_policy_status_error(tmp_path):
@@ -227,7 +228,7 @@ def test_failed_write_caught_inside_with_still_leaves_nothing(tmp_path):
             with pytest.raises(OSError, match="no space"):
                 writer.add_episode(*make_episode(0))
     assert find_stray_temps(tmp_path) == []
-    assert list((tmp_path / "shards").iterdir()) == []
+    assert shard_names(tmp_path) == []
     assert writer.record is None
 
 
@@ -248,7 +249,7 @@ def test_failure_while_renaming_leaves_no_partial_shard(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="I/O error"):
         _write(tmp_path)
     assert len(calls) == 3
-    assert list((tmp_path / "shards").iterdir()) == []
+    assert shard_names(tmp_path) == []
 
 
 class _FullDiskStream:

@@ -20,6 +20,7 @@ from catalog.manifest import load_manifest
 from pipeline.jobs.build import build
 from pipeline.jobs.runner import STATE_FILE
 from schemas.errors import SpecError
+from tests.shard_files import shard_bytes
 
 SLICE = "linear-fast"
 EPISODES = 6
@@ -29,7 +30,7 @@ BIN = Path(sys.executable).parent
 
 
 def _files(slice_dir: Path) -> dict[str, bytes]:
-    return {p.name: p.read_bytes() for p in sorted((slice_dir / "shards").iterdir())}
+    return shard_bytes(slice_dir)
 
 
 def _build(out: Path, **kwargs):
@@ -50,7 +51,7 @@ def test_build_writes_a_verifiable_catalog(reference):
     assert load_manifest(slice_dir).hash == manifest.hash
     verify_files(slice_dir)
     assert not (slice_dir / STATE_FILE).exists()
-    assert sorted(p.name for p in slice_dir.iterdir()) == ["catalog.json", "shards", "stats.json"]
+    assert sorted(p.name for p in slice_dir.iterdir()) == ["catalog.json", "episodes", "frames", "mcap", "stats.json"]
 
 
 def test_two_workers_give_the_same_bytes(reference, tmp_path):
@@ -205,7 +206,7 @@ def test_rebuilding_with_another_shard_size_leaves_no_stale_shards(reference, tm
         build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=1, progress=False)
     manifest = build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=1, progress=False,
                      overwrite=True)
-    listed = sorted(Path(f.path).name for s in manifest.shards for f in s.files.values())
+    listed = sorted(f.path for s in manifest.shards for f in s.files.values())
     assert sorted(_files(tmp_path / SLICE)) == listed
     verify_files(tmp_path / SLICE)
 

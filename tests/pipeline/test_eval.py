@@ -24,6 +24,7 @@ from pipeline.loop.rollout import run_episode
 from pipeline.policies.base import make_policy
 from schemas.errors import ShardError, SpecError
 from schemas.frames import EpisodeFrames
+from tests.shard_files import shard_names
 
 BIN = Path(sys.executable).parent
 RESOLUTION = 48
@@ -76,7 +77,7 @@ def test_a_run_is_a_verifiable_rollout_folder(runs):
     assert manifest.extra == {"policy": "oracle", "privileged": True, "deadline_s": None}
     assert manifest.slice == "test-1k" and manifest.settings["resolution"] == RESOLUTION
     assert [tuple(s.episodes) for s in manifest.shards] == [(0, 3), (3, 6)]
-    assert sorted(p.name for p in run.iterdir()) == ["catalog.json", "shards", "stats.json"]
+    assert sorted(p.name for p in run.iterdir()) == ["catalog.json", "episodes", "frames", "mcap", "stats.json"]
 
 
 def test_the_oracle_reproduces_the_ground_truth_states(runs):
@@ -186,8 +187,8 @@ def test_a_rerun_with_another_layout_is_refused_and_overwrite_leaves_no_stale_sh
     with pytest.raises(SpecError, match="another job .*shards"):
         evaluate("still", "test-1k", tmp_path / "run", episodes=2, shard_size=2, **settings)
     manifest = evaluate("still", "test-1k", tmp_path / "run", episodes=2, shard_size=2, overwrite=True, **settings)
-    listed = sorted(Path(f.path).name for s in manifest.shards for f in s.files.values())
-    assert sorted(p.name for p in (tmp_path / "run" / "shards").iterdir()) == listed
+    listed = sorted(f.path for s in manifest.shards for f in s.files.values())
+    assert shard_names(tmp_path / "run") == listed
     verify_files(tmp_path / "run")
 
 

@@ -14,7 +14,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 
-from catalog.mcap_io import OBSTACLE_TOPIC, count_messages, iter_messages
+from catalog.mcap_io import OBSTACLE_TOPIC, count_messages, iter_messages, read_timeline
 from catalog.reader import open_folder
 from schemas.obstacles import OBSTACLE_MARGIN
 from schemas.spec import EpisodeSpec
@@ -38,7 +38,7 @@ def built(tmp_path_factory) -> Path:
 def test_frames_record_the_clearance_the_ground_truth_keeps(built):
     manifest = json.loads((built / "catalog.json").read_text())
     assert manifest["settings"]["obstacle_clearance"] is True
-    frames_file = next(p for p in built.rglob("*.parquet") if "frames" in p.name)
+    frames_file = next(p for p in built.rglob("*.parquet") if p.parent.name == "frames")
     table = pq.read_table(frames_file)
     clearance = table.column("obstacle_clearance").to_numpy()
     assert np.isfinite(clearance).all() and clearance.min() >= OBSTACLE_MARGIN - 1e-5
@@ -53,8 +53,9 @@ def test_the_mcap_draws_each_episodes_obstacles(built):
     obstacles = {row["episode_index"]: EpisodeSpec.from_json(row["spec"]).obstacles
                  for shard in folder for row in shard.episodes(["episode_index", "spec"]).to_pylist()}
     seen = {}
+    timeline = read_timeline(mcap)
     for message in iter_messages(mcap, topics=[OBSTACLE_TOPIC]):
-        episode = message.log_time_ns // 100_000_000_000
+        episode, _ = timeline.locate(message.log_time_ns)
         seen[episode] = len(message.message.entities)
         assert [d.type for d in message.message.deletions] == [1]  # ALL
     assert seen == {k: len(v) for k, v in obstacles.items()}
@@ -75,7 +76,7 @@ def test_a_closed_loop_run_on_test_complex_records_clearance_and_scores_contacts
     result = run("pipeline", "eval", "--policy", "chase", "--slice", "test-complex", "--episodes", "3",
                  "--resolution", "48", "--workers", "1", "--out", str(tmp_path / "run"))
     assert result.returncode == 0, result.stderr
-    frames_file = next(p for p in (tmp_path / "run").rglob("*.parquet") if "frames" in p.name)
+    frames_file = next(p for p in (tmp_path / "run").rglob("*.parquet") if p.parent.name == "frames")
     table = pq.read_table(frames_file, columns=["episode_index", "obstacle_clearance"])
     clearance = table.column("obstacle_clearance").to_numpy()
     episode = table.column("episode_index").to_numpy()
@@ -90,7 +91,7 @@ def test_a_slice_without_obstacles_keeps_its_tables(tmp_path):
     assert result.returncode == 0, result.stderr
     folder = tmp_path / "linear-fast"
     assert "obstacle_clearance" not in json.loads((folder / "catalog.json").read_text())["settings"]
-    frames_file = next(p for p in folder.rglob("*.parquet") if "frames" in p.name)
+    frames_file = next(p for p in folder.rglob("*.parquet") if p.parent.name == "frames")
     assert "obstacle_clearance" not in pq.read_schema(frames_file).names
     assert all(topic != OBSTACLE_TOPIC for topic, _ in count_messages(next(folder.rglob("*.mcap"))))
 

@@ -24,6 +24,7 @@ from pipeline.policies.base import make_policy
 from pipeline.remote import protocol
 from pipeline.remote.client import RemotePolicy
 from schemas.errors import PolicyError
+from tests.shard_files import shard_bytes
 
 BIN = Path(sys.executable).parent
 RESOLUTION = 48
@@ -69,7 +70,7 @@ def server():
 
 
 def _shard_bytes(run: Path) -> dict[str, bytes]:
-    return {p.name: p.read_bytes() for p in sorted((run / "shards").iterdir())}
+    return shard_bytes(run)
 
 
 def test_remote_rollouts_are_byte_identical_to_in_process(server, tmp_path):

@@ -110,7 +110,7 @@ def test_a_tampered_mcap_is_named_by_file(built, tmp_path):
     files["mcap"] = FileRecord(shard.files["mcap"].path, sha256_file(path), path.stat().st_size)
     shards = [ShardRecord(shard.episodes, shard.frames, files), *manifest.shards[1:]]
     write_manifest(folder, Manifest.create(manifest.slice, manifest.seed, manifest.settings, shards, code=manifest.code))
-    with pytest.raises(ReplayMismatch, match=r"shards/000000-000001\.mcap differs from the replayed shard") as caught:
+    with pytest.raises(ReplayMismatch, match=r"mcap/000000-000001\.mcap differs from the replayed shard") as caught:
         replay(folder)
     assert caught.value.column == "mcap"
 

@@ -25,6 +25,7 @@ from pipeline.jobs.runner import (
     shard_ranges,
 )
 from schemas.errors import SpecError
+from tests.shard_files import shard_names
 
 CALLS: list[int] = []
 
@@ -34,6 +35,7 @@ def fake_shard(task: ShardTask, payload: str, folder: str) -> dict:
     files = {}
     for kind, rel in shard_paths(task.first, task.end).items():
         data = f"{payload}:{kind}:{task.first}".encode()
+        (Path(folder) / rel).parent.mkdir(exist_ok=True)
         (Path(folder) / rel).write_bytes(data)
         files[kind] = {"path": rel, "sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
     return {"record": {"episodes": [task.first, task.end], "frames": task.end - task.first, "files": files}}
@@ -55,7 +57,7 @@ def test_a_complete_identical_job_is_up_to_date(tmp_path):
     CALLS.clear()
     again, up_to_date = run_job(job(tmp_path), workers=0, progress=False)
     assert up_to_date and CALLS == [] and again == first
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["catalog.json", "shards"]  # no lock or state left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["catalog.json", "episodes", "frames", "mcap"]  # no lock or state left
 
 
 def test_a_damaged_shard_alone_is_redone(tmp_path):
@@ -83,7 +85,7 @@ def test_another_job_is_refused_naming_the_difference_and_nothing_is_lost(tmp_pa
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
     replaced, _ = run_job(job(tmp_path, **other), workers=0, progress=False, overwrite=True)
     listed = {f.path for s in replaced.shards for f in s.files.values()}
-    assert {str(p.relative_to(tmp_path)) for p in (tmp_path / "shards").iterdir()} == listed
+    assert set(shard_names(tmp_path)) == listed
 
 
 def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):

@@ -133,7 +133,7 @@ def test_view_rejects_an_episode_the_folder_does_not_hold(built, tmp_path):
 def test_view_refuses_a_damaged_shard_naming_it(built, tmp_path, damage):
     copy = tmp_path / SLICE
     shutil.copytree(built, copy)
-    victim = copy / "shards" / "000002-000002.frames.parquet"
+    victim = copy / "frames" / "000002-000002.parquet"
     data = bytearray(victim.read_bytes())
     if damage == "flip":
         data[len(data) // 2] ^= 0xFF
@@ -142,7 +142,7 @@ def test_view_refuses_a_damaged_shard_naming_it(built, tmp_path, damage):
     victim.write_bytes(bytes(data))
     result = _run("pipeline", "view", str(copy), "--episode", "2", "--out", str(tmp_path / "x.rrd"))
     assert result.returncode == 2
-    assert "000002-000002.frames.parquet" in result.stderr and result.stderr.count("\n") == 1
+    assert "frames/000002-000002.parquet" in result.stderr and result.stderr.count("\n") == 1
     assert ("content changed" if damage == "flip" else "truncated") in result.stderr
     assert not (tmp_path / "x.rrd").exists()
 
@@ -161,20 +161,20 @@ def test_verify_rebuilds_identical_shards(built):
 def test_verify_names_a_tampered_file(built, tmp_path):
     copy = tmp_path / SLICE
     shutil.copytree(built, copy)
-    victim = copy / "shards" / "000002-000002.frames.parquet"
+    victim = copy / "frames" / "000002-000002.parquet"
     data = bytearray(victim.read_bytes())
     data[len(data) // 2] ^= 0xFF
     victim.write_bytes(bytes(data))
     result = _run("catalog", "verify", str(copy), "--sample", "1")
     assert result.returncode != 0
-    assert "000002-000002.frames.parquet" in result.stderr
+    assert "frames/000002-000002.parquet" in result.stderr
     assert "Traceback" not in result.stderr
 
 
 def test_verify_names_a_truncated_file(built, tmp_path):
     copy = tmp_path / SLICE
     shutil.copytree(built, copy)
-    victim = copy / "shards" / "000000-000001.mcap"
+    victim = copy / "mcap" / "000000-000001.mcap"
     victim.write_bytes(victim.read_bytes()[:100])
     result = _run("catalog", "verify", str(copy))
     assert result.returncode != 0
@@ -193,7 +193,7 @@ def test_verify_rebuild_catches_what_hashes_cannot(built, tmp_path):
 
     copy = tmp_path / SLICE
     shutil.copytree(built, copy)
-    victim = copy / "shards" / "000002-000002.episodes.parquet"
+    victim = copy / "episodes" / "000002-000002.parquet"
     table = pq.read_table(victim)
     text = table.column("text").to_pylist()
     table = table.set_column(table.schema.get_field_index("text"), "text", pa.array([t + "!" for t in text]))
@@ -210,7 +210,7 @@ def test_verify_rebuild_catches_what_hashes_cannot(built, tmp_path):
                                          code=manifest.code, extra=manifest.extra))
     result = _run("catalog", "verify", str(copy))
     assert result.returncode == 2
-    assert "000002-000002.episodes.parquet" in result.stderr
+    assert "episodes/000002-000002.parquet" in result.stderr
     assert "rebuilding gives different bytes" in result.stderr
 
 

@@ -117,7 +117,8 @@ def write_run(
         chunk = episodes[first:first + shard_size]
         end = first + len(chunk)
         paths = shard_paths(first, end)
-        (folder / "shards").mkdir(exist_ok=True)
+        for kind in ("frames", "episodes", "mcap"):
+            (folder / kind).mkdir(exist_ok=True)
         frames = frames_table(first, chunk)
         if drop_frame_column:
             pq.write_table(frames.drop_columns([drop_frame_column]), folder / paths["frames"])

@@ -213,7 +213,7 @@ def test_missing_column(tmp_path, capsys):
     folder = write_run(tmp_path / "bad", [Ep(**GOOD)], drop_frame_column="fingertip_distance")
     code, _, err = run_main(capsys, "eval", str(folder))
     assert code == 2
-    assert "missing column 'fingertip_distance'" in err and "frames.parquet" in err
+    assert "missing column 'fingertip_distance'" in err and "frames/000000-000000.parquet" in err
     assert "Traceback" not in err
 
 
@@ -297,7 +297,7 @@ def test_null_values_in_a_column_are_refused_in_one_line(tmp_path, capsys):
     import pyarrow.parquet as pq
 
     folder = write_run(tmp_path / "nulls", [Ep(**GOOD)], policy=None)
-    path = next((folder / "shards").glob("*.frames.parquet"))
+    path = next((folder / "frames").glob("*.parquet"))
     table = pq.read_table(path)
     column = table.column("palm_pose").combine_chunks()
     values = column.to_pylist()
@@ -307,5 +307,5 @@ def test_null_values_in_a_column_are_refused_in_one_line(tmp_path, capsys):
     rehash(folder, 0, "frames")
     code, out, err = run_main(capsys, "eval", str(folder), "--json")
     assert code == 2 and out == ""
-    assert "frames.parquet" in err and "'palm_pose'" in err and "null" in err
+    assert "frames/000000-000000.parquet" in err and "'palm_pose'" in err and "null" in err
     assert len(err.strip().splitlines()) == 1
