@@ -1,14 +1,22 @@
 """The MCAP file: one foxglove.CompressedImage per frame, decodable poses and hand frames,
 continuous computed times, one named metadata record per episode."""
 
+import contextlib
+import hashlib
+import json
 import math
+import os
+import shutil
+import subprocess
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from catalog import mcap_io
+from catalog.mcap_hand import HAND_FRAMES, SKELETON_ENTITY, SKELETON_LINKS, SKELETON_TOPIC
 from catalog.mcap_io import (
     IMAGE_SCHEMA,
     IMAGE_TOPIC,
@@ -26,7 +34,6 @@ from catalog.mcap_io import (
     to_foxglove_position,
     to_foxglove_quaternion,
 )
-from catalog.mcap_hand import HAND_FRAMES, SKELETON_ENTITY, SKELETON_LINKS, SKELETON_TOPIC
 from catalog.parquet_io import column_to_numpy
 from catalog.shard import ShardWriter
 from schemas.errors import ShardError
@@ -209,15 +216,21 @@ def _xyz(v):
     return [v.x, v.y, v.z]
 
 
+def _expected_hand(frames):
+    """The frames table's keypoints then joints per frame, in Foxglove's axes: positions
+    (rows, 21, 3) and rotation matrices (rows, 21, 3, 3), computed independently of the writer."""
+    keypoints = column_to_numpy(frames.column("keypoints")).astype(np.float64).reshape(-1, 6, 6)
+    joints = column_to_numpy(frames.column("joint_poses")).astype(np.float64).reshape(-1, 15, 6)
+    rows = np.concatenate([keypoints, joints], axis=1)
+    rotation = P @ np.stack([[_euler_matrix(*rpy) for rpy in frame] for frame in rows[..., 3:]]) @ P
+    return to_foxglove_position(rows[..., :3]), rotation
+
+
 def test_hand_frames_and_skeleton_are_the_frames_tables_keypoints_and_joints(shard, tables):
     """/tf's keypoint and joint frames and /hand/skeleton's points are the frames table's
     keypoints and joint_poses in Foxglove's axes (positions swapped y/z, rotations reflected)."""
     frames, _ = tables
-    keypoints = column_to_numpy(frames.column("keypoints")).astype(np.float64).reshape(-1, 6, 6)
-    joints = column_to_numpy(frames.column("joint_poses")).astype(np.float64).reshape(-1, 15, 6)
-    rows = np.concatenate([keypoints, joints], axis=1)
-    position = to_foxglove_position(rows[..., :3])
-    rotation = P @ np.stack([[_euler_matrix(*rpy) for rpy in frame] for frame in rows[..., 3:]]) @ P
+    position, rotation = _expected_hand(frames)
     tf = [m.message.transforms[3:] for m in iter_messages(shard, ["/tf"])]
     updates = [m.message for m in iter_messages(shard, [SKELETON_TOPIC])]
     assert len(tf) == len(updates) == frames.num_rows
@@ -292,3 +305,69 @@ def test_long_episodes_are_written_back_to_back(tmp_path):
     assert timeline.locate((n - 1) * period) == (0, n - 1) and timeline.locate(n * period) == (1, 0)
     times = [m.log_time_ns for m in iter_messages(path, [IMAGE_TOPIC], decode=False)]
     assert times == [k * period for k in range(2 * n)]
+
+
+JS_READER = Path(__file__).parent / "mcap_js"
+
+
+@pytest.fixture(scope="module")
+def node_modules(request, tmp_path_factory):
+    """A folder with @mcap/core and protobufjs installed from the lock file (cached across
+    runs in pytest's cache); skips without node and npm, or when npm cannot install them."""
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if node is None or npm is None:
+        pytest.skip("node and npm are not installed")
+    lock = (JS_READER / "package-lock.json").read_bytes()
+    name = f"mcap-js-{hashlib.sha256(lock).hexdigest()[:16]}"
+    cache = getattr(request.config, "cache", None)
+    parent = cache.mkdir("dyana") if cache is not None else tmp_path_factory.getbasetemp()
+    target = parent / name
+    if not (target / "node_modules" / "@mcap" / "core").is_dir():
+        staging = Path(tmp_path_factory.mktemp("npm"))
+        for file in ("package.json", "package-lock.json"):
+            shutil.copy(JS_READER / file, staging / file)
+        try:
+            result = subprocess.run([npm, "ci", "--ignore-scripts", "--no-audit", "--no-fund", "--loglevel=error"],
+                                    cwd=staging, capture_output=True, text=True, timeout=300)
+        except subprocess.TimeoutExpired:
+            pytest.skip("npm ci timed out (registry unreachable?)")
+        if result.returncode != 0:
+            pytest.skip(f"npm could not install @mcap/core: {result.stderr.strip()[-300:]}")
+        with contextlib.suppress(OSError):
+            os.replace(staging, target)
+        if not target.is_dir():
+            target = staging
+    return target
+
+
+def test_the_typescript_reader_sees_continuous_times_named_episodes_and_the_hand(node_modules, shard, tables):
+    """@mcap/core (the MCAP project's TypeScript library) reads the shard through its indexes
+    with CRCs checked; every episode's record is fetched by its own name, every channel ticks
+    one frame period, and the decoded hand frames and skeleton are the frames table's."""
+    result = subprocess.run([shutil.which("node"), str(JS_READER / "read_mcap.mjs"), str(node_modules), str(shard)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    seen = json.loads(result.stdout)
+    assert seen["library"] == "dyana/0.1.0" and seen["profile"] == ""
+    assert [(m["name"], m["data"]) for m in seen["metadata"]] == read_metadata(shard)
+    frames, episodes = tables
+    assert [m["name"] for m in seen["metadata"][1:]] == [episode_metadata_name(i) for i in EPISODES]
+    assert [m["data"]["episode_id"] for m in seen["metadata"][1:]] == episodes.column("episode_id").to_pylist()
+    assert set(seen["topics"]) == set(mcap_io.CHANNELS)
+    assert sum(len(t["log_times"]) for t in seen["topics"].values()) == int(seen["message_count"])
+    for topic, times in seen["topics"].items():
+        log = [int(t) for t in times["log_times"]]
+        assert log == [int(t) for t in times["publish_times"]] == [k * PERIOD_NS for k in range(frames.num_rows)], topic
+    position, rotation = _expected_hand(frames)
+    assert len(seen["tf"]) == len(seen["skeleton"]) == frames.num_rows
+    for k, (transforms, (entity,)) in enumerate(zip(seen["tf"], seen["skeleton"])):
+        assert [(t["parent"], t["child"]) for t in transforms] == [("world", c) for c in mcap_io.TF_FRAMES]
+        hand = transforms[3:]
+        assert {t["stamp"] for t in transforms} == {entity["stamp"]} == {str(k * PERIOD_NS)}
+        assert np.allclose([t["translation"] for t in hand], position[k], atol=1e-9)
+        assert np.allclose([_rot(t["rotation"]) for t in hand], rotation[k], atol=1e-6)
+        assert (entity["id"], entity["frame_id"]) == (SKELETON_ENTITY, "world")
+        (line,) = entity["lines"]
+        assert line["type"] == 2  # LINE_LIST
+        assert np.allclose(line["points"], position[k], atol=1e-9)
+        assert line["indices"] == [i for link in SKELETON_LINKS for i in link]
