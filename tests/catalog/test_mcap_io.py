@@ -307,6 +307,25 @@ def test_long_episodes_are_written_back_to_back(tmp_path):
     assert times == [k * period for k in range(2 * n)]
 
 
+def test_files_of_the_former_layout_still_map_times_to_episodes(tmp_path):
+    """Before: every episode record named ``dyana.episode``, episodes 100 s apart."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "old.mcap"
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="", library="dyana/0.1.0")
+        writer.add_metadata("dyana.shard", {"settings": json.dumps(SETTINGS)})
+        for episode in (4, 5):
+            writer.add_metadata("dyana.episode", {"episode_index": str(episode),
+                                                  "start_time_ns": str(episode * 100 * 10**9)})
+        writer.finish()
+    assert [r["episode_index"] for r in read_episode_metadata(path)] == ["4", "5"]
+    timeline = read_timeline(path)
+    assert timeline.locate(400 * 10**9 + 3 * PERIOD_NS) == (4, 3)
+    assert timeline.locate(500 * 10**9) == (5, 0)
+
+
 JS_READER = Path(__file__).parent / "mcap_js"
 
 
