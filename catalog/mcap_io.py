@@ -46,10 +46,10 @@ episode is at its record's ``start_time_ns + f * 10**9 // fps``; :func:`read_tim
 maps a log time back to ``(episode_index, frame_index)``.
 
 Records beside the messages: a ``dyana.shard`` metadata record first (settings,
-versions, episode range, axes, time layout) and, before each episode's messages, one
-metadata record named ``dyana.episode.NNNNNN`` (:func:`episode_metadata_name`: the
-episode index zero-padded to six digits, e.g. ``dyana.episode.000042``), so every
-episode's record has a name of its own in the summary's metadata index. It holds the
+versions, episode range, axes, time layout) and, per episode, one metadata record named
+``dyana.episode.NNNNNN`` (:func:`episode_metadata_name`: the episode index zero-padded to
+six digits, e.g. ``dyana.episode.000042``), so every episode's record has a name of its
+own in the summary's metadata index. It holds the
 episode's ``episode_index``, ``episode_id``, canonical ``spec`` JSON, ``frames`` (logged
 frames), ``start_time_ns`` and ``end_time_ns`` (its first and last frame's log time), and
 for rollouts the ``policy``, ``status``, ``error`` (and ``privileged``). Files written
@@ -101,6 +101,7 @@ from catalog.hashing import canonical_json
 from catalog.mcap_hand import HAND_FRAMES, SKELETON_TOPIC, in_hand_order, skeleton_update
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
+from schemas.joints import KEYPOINT_NAMES
 from schemas.obstacles import Obstacle
 from schemas.rotations import euler_to_quaternion, matrix_to_quaternion
 from schemas.scene import CAMERA_EYE, CAMERA_FOV_DEG, CAMERA_TARGET
@@ -130,6 +131,9 @@ CHANNELS: dict[str, type] = {
 OBSTACLE_TOPIC = "/scene/obstacles"
 #: The child frames of every ``/tf`` message, in order (all with parent ``world``).
 TF_FRAMES: tuple[str, ...] = (CAMERA_FRAME, "object", "palm", *HAND_FRAMES)
+_KEYPOINTS = slice(3, 3 + len(KEYPOINT_NAMES))
+_JOINTS = slice(_KEYPOINTS.stop, len(TF_FRAMES))
+_HAND = slice(_KEYPOINTS.start, len(TF_FRAMES))
 _IMAGE_MAGIC = {"jpeg": b"\xff\xd8\xff", "png": b"\x89PNG\r\n\x1a\n"}
 
 
@@ -327,8 +331,10 @@ class McapShardWriter:
         )
 
     def check_episode(self, episode_index: int, frames: EpisodeFrames, images: Sequence[bytes]) -> None:
-        """Refuse an episode before anything is written: images missing or not of the format."""
+        """Refuse an episode before anything is written: no frames, images missing or not of the format."""
         n = frames.num_frames
+        if n < 1:
+            raise ShardError(f"episode {episode_index}: no frames (an episode needs at least one)")
         if len(images) != n:
             raise ShardError(f"episode {episode_index}: {len(images)} images for {n} frames")
         magic = _IMAGE_MAGIC[self._format]
@@ -392,9 +398,9 @@ class McapShardWriter:
                         t, f)
             self._write("/hand/palm", PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(pos[2], rot[2])),
                         t, f)
-            self._write("/hand/keypoints", _poses(stamp, pos[3:9], rot[3:9]), t, f)
-            self._write("/hand/joints", _poses(stamp, pos[9:], rot[9:]), t, f)
-            self._write(SKELETON_TOPIC, skeleton_update(stamp, WORLD_FRAME, pos[3:]), t, f)
+            self._write("/hand/keypoints", _poses(stamp, pos[_KEYPOINTS], rot[_KEYPOINTS]), t, f)
+            self._write("/hand/joints", _poses(stamp, pos[_JOINTS], rot[_JOINTS]), t, f)
+            self._write(SKELETON_TOPIC, skeleton_update(stamp, WORLD_FRAME, pos[_HAND]), t, f)
             if self._obstacles:
                 self._write(OBSTACLE_TOPIC, _obstacle_update(stamp, obstacles), t, f)
         self.frames += n
