@@ -84,6 +84,7 @@ from catalog.index import (
 from catalog.lerobot_keys import IMAGE_DTYPES, KEYS, lerobot_item
 from catalog.manifest import Manifest
 from catalog.shard_cache import OpenShard, ShardCache
+from catalog.storage import as_location
 from catalog.stream import FrameStream
 from catalog.windows import episode_starts, history_window, horizon_window
 from schemas.errors import ShardError, SpecError
@@ -446,9 +447,9 @@ def open_dataset(
     (``"float32"`` in [0, 1], or ``"uint8"``), channels first.
     """
     if isinstance(paths, (str, os.PathLike)):
-        roots = [Path(paths)]
+        roots = [as_location(paths)]
     else:
-        roots = [Path(p) for p in paths]
+        roots = [as_location(p) for p in paths]
     if not roots:
         raise SpecError("catalog.open needs at least one folder")
     if verify not in VERIFY_MODES:

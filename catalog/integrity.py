@@ -19,6 +19,7 @@ from catalog.mcap_io import check_mcap
 from catalog.parquet_io import check_parquet, open_parquet, table_kind
 from catalog.reader import check_file
 from catalog.records import SHARD_DIRS, FileRecord, ShardRecord
+from catalog.storage import as_location, is_remote
 from schemas.errors import (
     ShardError,
     ShardHashMismatch,
@@ -69,7 +70,7 @@ def _check_file(root: Path, shard: ShardRecord, kind: str, full: bool) -> Proble
             check_mcap(path, frames=shard.frames, full=full)
     except ShardError as exc:
         detail = str(exc)
-        prefix = f"{os.fspath(path)}: "
+        prefix = f"{path}: "
         return Problem(record.path, "unreadable", detail[len(prefix) :] if detail.startswith(prefix) else detail)
     return None
 
@@ -89,7 +90,7 @@ def check_files(
     ``full`` also reads every MCAP chunk and checks its CRCs (the sha256 already
     covers every byte; this guards against a manifest written over bad files).
     """
-    root = Path(directory)
+    root = as_location(directory)
     shards = list(manifest.shards)
     if sample is not None:
         if isinstance(sample, bool) or not isinstance(sample, int) or sample < 1:
@@ -108,7 +109,7 @@ def check_files(
         problem = _file_problem(root, manifest.stats)
         if problem is not None:
             problems.append(problem)
-    for temp in find_stray_temps(root):
+    for temp in () if is_remote(root) else find_stray_temps(root):  # object stores have no temporaries
         rel = temp.relative_to(root).as_posix()
         problems.append(Problem(rel, "stray-temp", "temporary file of an unfinished write (remove it or rebuild)"))
     listed = {path for path, _, _ in manifest.files()}
@@ -137,5 +138,6 @@ def verify_files(
     if problems:
         first = problems[0]
         more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
-        raise ShardError(f"{os.path.join(os.fspath(directory), first.path)}: {first.detail}{more}")
+        where = str(directory).rstrip("/") + "/" + first.path
+        raise ShardError(f"{where}: {first.detail}{more}")
     return manifest

@@ -23,6 +23,7 @@ from typing import Any
 from catalog.atomic import atomic_write_text
 from catalog.hashing import canonical_json, is_sha256, slice_hash
 from catalog.records import FileRecord, ShardRecord
+from catalog.storage import as_location
 from schemas.errors import ShardError, SpecError
 from schemas.formats import stored_formats
 from schemas.versions import CODE_VERSION
@@ -235,7 +236,7 @@ class Manifest:
 
 
 def manifest_path(directory: str | os.PathLike[str]) -> Path:
-    return Path(directory) / MANIFEST_NAME
+    return as_location(directory) / MANIFEST_NAME
 
 
 def write_manifest(directory: str | os.PathLike[str], manifest: Manifest) -> Path:

@@ -99,6 +99,7 @@ from mcap_protobuf.schema import register_schema
 
 from catalog.hashing import canonical_json
 from catalog.mcap_hand import HAND_FRAMES, SKELETON_TOPIC, in_hand_order, skeleton_update
+from catalog.storage import open_binary
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
 from schemas.joints import KEYPOINT_NAMES
@@ -440,16 +441,16 @@ class McapMessage:
 
 def _fail(path: str | os.PathLike[str], exc: BaseException) -> ShardError:
     reason = f"{type(exc).__name__}: {exc}"
-    return ShardError(f"{os.fspath(path)}: not a readable MCAP file (truncated or corrupt): {reason}")
+    return ShardError(f"{path}: not a readable MCAP file (truncated or corrupt): {reason}")
 
 
 def _open(path: str | os.PathLike[str]) -> BinaryIO:
     try:
-        return open(path, "rb")
+        return open_binary(path)
     except FileNotFoundError:
-        raise ShardError(f"{os.fspath(path)}: file is missing") from None
+        raise ShardError(f"{path}: file is missing") from None
     except OSError as exc:
-        raise ShardError(f"{os.fspath(path)}: cannot open: {exc.strerror}") from None
+        raise ShardError(f"{path}: cannot open: {exc.strerror or exc}") from None
 
 
 def mcap_summary(path: str | os.PathLike[str]) -> McapSummary:

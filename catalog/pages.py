@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import struct
 import zlib
+from dataclasses import dataclass
 
 import pyarrow.parquet as pq
 
@@ -118,11 +119,16 @@ def _struct(buf: bytes, pos: int) -> tuple[dict[int, object], int]:
         fields[field_id], pos = _value(buf, pos, kind)
 
 
+def _pread(source, length: int, offset: int) -> bytes:
+    """``os.pread`` of a descriptor, or ``source.pread`` of a remote file (:class:`catalog.storage.RangeReader`)."""
+    return os.pread(source, length, offset) if isinstance(source, int) else source.pread(length, offset)
+
+
 def _page_header(fd: int, path: str, pos: int, end: int) -> tuple[dict[int, object], bytes]:
     """The PageHeader at file offset ``pos`` and its raw bytes."""
     want = _HEADER_READ
     while True:
-        buf = os.pread(fd, min(want, end - pos), pos)
+        buf = _pread(fd, min(want, end - pos), pos)
         try:
             fields, size = _struct(buf, 0)
             return fields, buf[:size]
@@ -144,11 +150,79 @@ def image_column_index(metadata: pq.FileMetaData) -> int:
 
 def _hash_range(fd: int, hasher, start: int, end: int) -> None:
     while start < end:
-        block = os.pread(fd, min(_BLOCK, end - start), start)
+        block = _pread(fd, min(_BLOCK, end - start), start)
         if not block:
             return
         hasher.update(block)
         start += len(block)
+
+
+def check_page_crc(path: str, pos: int, crc: object, body: bytes) -> None:
+    """ShardError unless ``body`` (of the page at ``pos``) matches its header's CRC32."""
+    if not isinstance(crc, int):
+        raise ShardError(f"{path}: image page at byte {pos} has no checksum")
+    if zlib.crc32(body) != crc & 0xFFFFFFFF:
+        raise ShardError(f"{path}: image page at byte {pos} fails its CRC32 checksum (corrupt or tampered)")
+
+
+def page_values(path: str, pos: int, body: bytes, start: int, count: int) -> tuple[list[int], list[int]]:
+    """File offsets and lengths of the ``count`` PLAIN values in a page body that starts at ``start``."""
+    offsets, lengths = [], []
+    q = 0
+    try:
+        for _ in range(count):
+            (length,) = _LENGTH.unpack_from(body, q)
+            q += 4
+            offsets.append(start + q)
+            lengths.append(length)
+            q += length
+    except struct.error:
+        q = len(body) + 1
+    if q != len(body):
+        raise ShardError(f"{path}: image page at byte {pos} does not hold {count} whole values (corrupt)")
+    return offsets, lengths
+
+
+@dataclass(frozen=True)
+class ImagePage:
+    """One data page of the image column: its first row, header position, body and CRC."""
+
+    first_row: int
+    pos: int
+    body_start: int
+    body_size: int
+    count: int
+    crc: object
+
+
+def image_pages(source, path: str, metadata: pq.FileMetaData) -> list[ImagePage]:
+    """The image column's data pages, found by reading only their headers (one small ranged
+    read each): how a remote frames file is indexed without downloading it."""
+    column = image_column_index(metadata)
+    pages: list[ImagePage] = []
+    row = 0
+    for group in range(metadata.num_row_groups):
+        chunk = metadata.row_group(group).column(column)
+        rows = metadata.row_group(group).num_rows
+        pos, end = chunk.data_page_offset, chunk.data_page_offset + chunk.total_compressed_size
+        seen = 0
+        while pos < end:
+            header, raw = _page_header(source, path, pos, end)
+            kind, body_size, page = header.get(1), header.get(3), header.get(5)
+            if kind != _DATA_PAGE or not isinstance(page, dict) or page.get(2) != _PLAIN:
+                raise ShardError(f"{path}: image page at byte {pos} is not a PLAIN data page v1")
+            count, start = page.get(1), pos + len(raw)
+            if not isinstance(body_size, int) or body_size < 0 or start + body_size > end:
+                raise ShardError(f"{path}: image page at byte {pos} runs past its column chunk (corrupt)")
+            if not isinstance(count, int) or count < 0 or seen + count > rows:
+                raise ShardError(f"{path}: image page at byte {pos} claims {count!r} values, more than the row group")
+            pages.append(ImagePage(row + seen, pos, start, body_size, count, header.get(4)))
+            seen += count
+            pos = start + body_size
+        if seen != rows:
+            raise ShardError(f"{path}: image pages of row group {group} hold {seen} values, expected {rows}")
+        row += rows
+    return pages
 
 
 def image_offsets(
@@ -169,7 +243,6 @@ def image_offsets(
         raise ShardError(f"{path}: image column is not a required BYTE_ARRAY (written by another writer?)")
     offsets: list[int] = []
     lengths: list[int] = []
-    unpack = _LENGTH.unpack_from
     hashed = 0  # bytes of the file fed to the hasher so far
     for group in range(metadata.num_row_groups):
         chunk = metadata.row_group(group).column(column)
@@ -198,30 +271,17 @@ def image_offsets(
                 raise ShardError(f"{path}: image page at byte {pos} runs past its column chunk (corrupt)")
             if not isinstance(count, int) or count < 0 or seen + count > rows:
                 raise ShardError(f"{path}: image page at byte {pos} claims {count!r} values, more than the row group")
-            body = os.pread(fd, body_size, start)
+            body = _pread(fd, body_size, start)
             if len(body) != body_size:
                 raise ShardError(f"{path}: image page at byte {pos} is cut off (truncated)")
             if hasher is not None:
                 hasher.update(raw)
                 hasher.update(body)
             if check_crc:
-                crc = header.get(4)
-                if not isinstance(crc, int):
-                    raise ShardError(f"{path}: image page at byte {pos} has no checksum")
-                if zlib.crc32(body) != crc & 0xFFFFFFFF:
-                    raise ShardError(f"{path}: image page at byte {pos} fails its CRC32 checksum (corrupt or tampered)")
-            q = 0
-            try:
-                for _ in range(count):
-                    (length,) = unpack(body, q)
-                    q += 4
-                    offsets.append(start + q)
-                    lengths.append(length)
-                    q += length
-            except struct.error:
-                q = body_size + 1
-            if q != body_size:
-                raise ShardError(f"{path}: image page at byte {pos} does not hold {count} whole values (corrupt)")
+                check_page_crc(path, pos, header.get(4), body)
+            page_offsets, page_lengths = page_values(path, pos, body, start, count)
+            offsets.extend(page_offsets)
+            lengths.extend(page_lengths)
             seen += count
             pos = start + body_size
         if seen != rows:

@@ -29,6 +29,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from catalog.storage import is_remote, open_binary
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
 from schemas.scene import PHASES
@@ -305,11 +306,12 @@ def write_table(path: str | os.PathLike[str], table: pa.Table, kind: str) -> Non
 def open_parquet(path: str | os.PathLike[str]) -> pq.ParquetFile:
     """Open a Parquet file (footer parsed, page checksums verified on read), or ShardError."""
     try:
-        return pq.ParquetFile(os.fspath(path), page_checksum_verification=True)
+        source = open_binary(path) if is_remote(path) else os.fspath(path)
+        return pq.ParquetFile(source, page_checksum_verification=True)
     except FileNotFoundError:
-        raise ShardError(f"{os.fspath(path)}: file is missing") from None
+        raise ShardError(f"{path}: file is missing") from None
     except (pa.ArrowException, OSError, ValueError) as exc:
-        raise ShardError(f"{os.fspath(path)}: not a readable Parquet file (truncated or corrupt): {exc}") from None
+        raise ShardError(f"{path}: not a readable Parquet file (truncated or corrupt): {exc}") from None
 
 
 def table_kind(parquet: pq.ParquetFile) -> str:
@@ -336,14 +338,14 @@ def check_columns(
     have = parquet.schema_arrow
     for name in wanted:
         if contract.get_field_index(name) < 0:
-            raise ShardError(f"{os.fspath(path)}: {name!r} is not a column of the {kind} table")
+            raise ShardError(f"{path}: {name!r} is not a column of the {kind} table")
         index = have.get_field_index(name)
         if index < 0:
-            raise ShardError(f"{os.fspath(path)}: missing column {name!r}")
+            raise ShardError(f"{path}: missing column {name!r}")
         expected = contract.field(name).type
         if not have.field(index).type.equals(expected):
             found = have.field(index).type
-            raise ShardError(f"{os.fspath(path)}: column {name!r} has type {found}, expected {expected}")
+            raise ShardError(f"{path}: column {name!r} has type {found}, expected {expected}")
     return wanted
 
 
@@ -352,17 +354,17 @@ def _read(path: str | os.PathLike[str], kinds: tuple[str, ...], columns: Sequenc
         kind = table_kind(parquet)
         if kind not in kinds:
             expected = " or ".join(repr(k) for k in kinds)
-            raise ShardError(f"{os.fspath(path)}: table kind is {kind!r}, expected {expected}")
+            raise ShardError(f"{path}: table kind is {kind!r}, expected {expected}")
         wanted = check_columns(path, parquet, kind, columns)
         contract = _contract(kind, parquet)
         try:
             table = parquet.read(columns=wanted)
         except (pa.ArrowException, OSError, ValueError) as exc:
-            raise ShardError(f"{os.fspath(path)}: corrupt Parquet data: {exc}") from None
+            raise ShardError(f"{path}: corrupt Parquet data: {exc}") from None
     for name in wanted:
         nulls = table.column(name).null_count
         if nulls:
-            raise ShardError(f"{os.fspath(path)}: column {name!r} holds {nulls} null value(s) (the contract has none)")
+            raise ShardError(f"{path}: column {name!r} holds {nulls} null value(s) (the contract has none)")
     return table.select(wanted).cast(pa.schema([contract.field(name) for name in wanted]))
 
 
@@ -381,10 +383,10 @@ def check_parquet(path: str | os.PathLike[str], kind: str, rows: int | None = No
     with open_parquet(path) as parquet:
         found = table_kind(parquet)
         if found != kind:
-            raise ShardError(f"{os.fspath(path)}: table kind is {found!r}, expected {kind!r}")
+            raise ShardError(f"{path}: table kind is {found!r}, expected {kind!r}")
         check_columns(path, parquet, kind, None)
         if rows is not None and parquet.metadata.num_rows != rows:
-            raise ShardError(f"{os.fspath(path)}: has {parquet.metadata.num_rows} rows, expected {rows}")
+            raise ShardError(f"{path}: has {parquet.metadata.num_rows} rows, expected {rows}")
 
 
 def column_to_numpy(column: pa.ChunkedArray | pa.Array) -> np.ndarray:

@@ -39,6 +39,7 @@ from catalog.parquet_io import (
     table_kind,
 )
 from catalog.records import FileRecord, ShardRecord
+from catalog.storage import as_location
 from schemas.errors import (
     DuplicateEpisode,
     FrameNumberingError,
@@ -223,9 +224,9 @@ def open_folder(
 ) -> FolderReader:
     """Open a built slice or a rollout folder: manifest, settings and shard kinds checked;
     each table is checked as it is read (sizes always, sha256 with ``verify="sha256"``)."""
-    root = Path(directory)
+    root = as_location(directory)
     if not root.is_dir():
-        raise ShardError(f"{os.fspath(directory)}: no such folder (expected a built slice or run holding catalog.json)")
+        raise ShardError(f"{directory}: no such folder (expected a built slice or run holding catalog.json)")
     if verify not in VERIFY_MODES:
         raise ValueError(f"verify must be one of {VERIFY_MODES}, got {verify!r}")
     manifest = load_manifest(root)

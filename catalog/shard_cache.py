@@ -10,12 +10,14 @@ import io
 import os
 from collections import OrderedDict
 from collections.abc import Sequence
+from typing import BinaryIO
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from catalog.hashing import sha256_file
 from catalog.index import (
     FLOAT_COLUMNS,
     FLOAT_WIDTH,
@@ -24,8 +26,10 @@ from catalog.index import (
     ShardFile,
     index_digest,
 )
-from catalog.pages import image_offsets
+from catalog.pages import image_offsets, image_pages
 from catalog.parquet_io import check_columns, column_to_numpy, table_kind
+from catalog.remote_images import RemoteImages
+from catalog.storage import RangeReader, as_location, is_url, open_binary
 from schemas.errors import (
     ShardError,
     ShardHashMismatch,
@@ -62,9 +66,11 @@ class OpenShard:
         self.floats, self.timestamp, self.phase = floats, timestamp, phase
         self.offsets, self.lengths = offsets, lengths
         # Python int lists (faster to index than numpy): about 72 bytes a row for the two.
-        self.nbytes = floats.nbytes + timestamp.nbytes + phase.nbytes + 72 * len(offsets)
+        self.nbytes = floats.nbytes + timestamp.nbytes + phase.nbytes + 72 * len(floats)
 
     def jpeg(self, row: int) -> bytes:
+        if self.fd is None:
+            return self.owner.jpeg(row)
         length = self.lengths[row]
         data = os.pread(self.fd, length, self.offsets[row])
         if len(data) != length:
@@ -72,7 +78,7 @@ class OpenShard:
         return data
 
 
-def parquet_file(handle: io.FileIO, path: str, checksums: bool) -> pq.ParquetFile:
+def parquet_file(handle: BinaryIO, path: str, checksums: bool) -> pq.ParquetFile:
     """The Parquet reader of an open file (the very file that was hashed, even if the path
     has since been replaced), verifying page checksums if asked."""
     try:
@@ -115,6 +121,8 @@ class ShardCache:
 
     def _load(self, key: int) -> OpenShard:
         record = self.files[key]
+        if is_url(record.path):
+            return self._load_remote(key)
         path = record.path
         try:
             owner = Descriptor(os.open(path, os.O_RDONLY))
@@ -136,33 +144,32 @@ class ShardCache:
                 if digest != record.sha256:
                     raise ShardHashMismatch(path, record.sha256, digest)
                 self.verified.add(key)
-            if table_kind(parquet) != "frames":
-                raise ShardError(f"{path}: not a frames table")
-            check_columns(path, parquet, "frames", SHARD_COLUMNS)
-            if parquet.metadata.num_rows != record.frames:
-                raise ShardError(f"{path}: has {parquet.metadata.num_rows} rows, catalog.json says {record.frames}")
-            try:
-                table = parquet.read(columns=list(SHARD_COLUMNS), use_threads=False)
-            except (pa.ArrowException, OSError, ValueError) as exc:
-                raise ShardError(f"{path}: corrupt Parquet data: {exc}") from None
-        episode = column_to_numpy(table.column("episode_index"))
-        frame = column_to_numpy(table.column("frame_index"))
-        if index_digest(episode, frame) != record.index_digest:
-            raise ShardError(f"{path}: episode_index/frame_index changed since the dataset was opened")
-        for name in SHARD_COLUMNS:
-            if table.column(name).null_count:
-                raise ShardError(f"{path}: column {name!r} holds null values (the contract has none)")
-        n = table.num_rows
-        floats = np.empty((n, FLOAT_WIDTH), dtype=np.float32)
-        for name in FLOAT_COLUMNS:
-            start, stop = LAYOUT[name]
-            floats[:, start:stop] = column_to_numpy(table.column(name)).reshape(n, stop - start)
-        codes = pc.index_in(table.column("phase"), value_set=pa.array(PHASES))
-        if codes.null_count:
-            raise ShardError(f"{path}: phase holds a value outside {list(PHASES)}")
-        phase = column_to_numpy(codes).astype(np.int8)
-        timestamp = np.ascontiguousarray(column_to_numpy(table.column("timestamp")), dtype=np.float64)
-        return OpenShard(path, owner, floats, timestamp, phase, offsets, lengths, record.resolution)
+            table = _index_columns(parquet, record)
+        return _open_shard(record, owner, table, offsets, lengths)
+
+    def _load_remote(self, key: int) -> OpenShard:
+        """A remote frames file: size checked, float columns read, image pages located;
+        its JPEGs are fetched page by page (:mod:`catalog.remote_images`)."""
+        record = self.files[key]
+        path = as_location(record.path)
+        try:
+            size = path.stat().st_size
+        except FileNotFoundError:
+            raise ShardMissing(record.path) from None
+        except OSError as exc:
+            raise ShardError(f"{record.path}: cannot read: {exc}") from None
+        if size != record.size:
+            raise ShardSizeMismatch(record.path, record.size, size)
+        if self.verify == "sha256" and key not in self.verified:
+            digest = sha256_file(path)
+            if digest != record.sha256:
+                raise ShardHashMismatch(record.path, record.sha256, digest)
+            self.verified.add(key)
+        with open_binary(path) as handle, parquet_file(handle, record.path, checksums=True) as parquet:
+            table = _index_columns(parquet, record)
+            images = RemoteImages(RangeReader(path), record.path, image_pages(RangeReader(path), record.path,
+                                                                             parquet.metadata))
+        return _open_shard(record, images, table, None, None)
 
     def close(self) -> None:
         """Forget every loaded shard (descriptors close as soon as no item is being read from them)."""
@@ -170,3 +177,39 @@ class ShardCache:
         self.bytes = 0
         self.last = (-1, None)
 
+
+
+def _index_columns(parquet: pq.ParquetFile, record: ShardFile) -> pa.Table:
+    """The frames file's index and float columns, checked against the record and the contract."""
+    path = record.path
+    if table_kind(parquet) != "frames":
+        raise ShardError(f"{path}: not a frames table")
+    check_columns(path, parquet, "frames", SHARD_COLUMNS)
+    if parquet.metadata.num_rows != record.frames:
+        raise ShardError(f"{path}: has {parquet.metadata.num_rows} rows, catalog.json says {record.frames}")
+    try:
+        return parquet.read(columns=list(SHARD_COLUMNS), use_threads=False)
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        raise ShardError(f"{path}: corrupt Parquet data: {exc}") from None
+
+
+def _open_shard(record: ShardFile, owner, table: pa.Table, offsets, lengths) -> OpenShard:
+    path = record.path
+    episode = column_to_numpy(table.column("episode_index"))
+    frame = column_to_numpy(table.column("frame_index"))
+    if index_digest(episode, frame) != record.index_digest:
+        raise ShardError(f"{path}: episode_index/frame_index changed since the dataset was opened")
+    for name in SHARD_COLUMNS:
+        if table.column(name).null_count:
+            raise ShardError(f"{path}: column {name!r} holds null values (the contract has none)")
+    n = table.num_rows
+    floats = np.empty((n, FLOAT_WIDTH), dtype=np.float32)
+    for name in FLOAT_COLUMNS:
+        start, stop = LAYOUT[name]
+        floats[:, start:stop] = column_to_numpy(table.column(name)).reshape(n, stop - start)
+    codes = pc.index_in(table.column("phase"), value_set=pa.array(PHASES))
+    if codes.null_count:
+        raise ShardError(f"{path}: phase holds a value outside {list(PHASES)}")
+    phase = column_to_numpy(codes).astype(np.int8)
+    timestamp = np.ascontiguousarray(column_to_numpy(table.column("timestamp")), dtype=np.float64)
+    return OpenShard(path, owner, floats, timestamp, phase, offsets, lengths, record.resolution)

@@ -34,6 +34,7 @@ from catalog.manifest import Manifest, load_manifest
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import ShardReader, check_file, open_folder
 from catalog.records import FileRecord, ShardRecord
+from catalog.storage import as_location
 from schemas.errors import ShardError
 from schemas.tables import ARRAY_WIDTHS, STATE_COLUMNS
 
@@ -160,7 +161,7 @@ def compute_stats(
     manifest exists), from the float columns of its frames files, checked as every reader
     checks them. ``verify`` also compares each frames file's sha256 (reading, not
     decoding, the image bytes); page checksums are verified either way."""
-    root = Path(directory)
+    root = as_location(directory)
     records = open_folder(root).manifest.shards if shards is None else tuple(shards)
     accumulators = {name: _Accumulator(SHAPES[name]) for name in STATS_COLUMNS}
     frames = 0
@@ -178,7 +179,7 @@ def compute_stats(
 
 
 def stats_path(directory: str | os.PathLike[str]) -> Path:
-    return Path(directory) / STATS_NAME
+    return as_location(directory) / STATS_NAME
 
 
 def write_stats(directory: str | os.PathLike[str], stats: Stats) -> FileRecord:
@@ -191,7 +192,7 @@ def load_stats(directory: str | os.PathLike[str], manifest: Manifest | None = No
     """The folder's statistics: ``stats.json`` once its size and sha256 match the manifest's
     record (else a typed ShardError naming it), or computed in memory when the manifest
     lists none."""
-    root = Path(directory)
+    root = as_location(directory)
     manifest = load_manifest(root) if manifest is None else manifest
     if manifest.stats is None:
         return compute_stats(root, manifest.shards, verify=verify)

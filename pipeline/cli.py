@@ -38,11 +38,11 @@ def cmd_build(args: argparse.Namespace) -> int:
             names = list(definition.parts)
             print(f"{args.slice} is built as its {len(names)} parts: {', '.join(names)}", file=sys.stderr)
     for name in names:
-        manifest, up_to_date = build_job(name, Path(args.out), specs_path=args.specs, **cli.job_options(args))
+        manifest, up_to_date = build_job(name, args.out, specs_path=args.specs, **cli.job_options(args))
         verb = "up to date" if up_to_date else "built"
         print(
             f"{verb} {manifest.slice}: {manifest.episodes} episodes, {manifest.frames} frames, "
-            f"{len(manifest.shards)} shards -> {Path(args.out) / manifest.slice / 'catalog.json'} "
+            f"{len(manifest.shards)} shards -> {str(args.out).rstrip('/')}/{manifest.slice}/catalog.json "
             f"(hash {manifest.hash[:16]})"
         )
     return 0
@@ -161,7 +161,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.repeats != 1:
         evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
     else:
-        evaluate(args.policy, args.slice, Path(args.out), protocol=protocol, **options)
+        evaluate(args.policy, args.slice, args.out, protocol=protocol, **options)
     return 0
 
 

@@ -302,6 +302,16 @@ def one_line(exc: BaseException) -> str:
     return shorten(" ".join(text.split()), MESSAGE_LIMIT)
 
 
+def _storage_errors() -> tuple[type[BaseException], ...]:
+    """botocore's errors (an object store unreachable, refusing, misconfigured), once loaded:
+    a URL's failure is one line like a file's. Not imported when no URL was used."""
+    if "botocore.exceptions" not in sys.modules:
+        return ()
+    from botocore.exceptions import BotoCoreError, ClientError
+
+    return (BotoCoreError, ClientError)
+
+
 def run(prog: str, description: str, commands: Sequence[Command], argv: Sequence[str] | None = None) -> int:
     """Parse ``argv``, run the command, map failures to one line and an exit code."""
     args = make_parser(prog, description, commands).parse_args(argv)
@@ -316,7 +326,7 @@ def run(prog: str, description: str, commands: Sequence[Command], argv: Sequence
     except BrokenPipeError:
         _silence_stdout()
         return EXIT_BROKEN_PIPE
-    except (DyanaError, OSError) as exc:
+    except (DyanaError, OSError, *_storage_errors()) as exc:  # type: ignore[misc]
         if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EPIPE, errno.EIO) and exc.filename is None:
             _silence_stdout()
             message = f"cannot write the output: {exc.strerror}"

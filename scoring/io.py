@@ -100,7 +100,7 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
     :func:`catalog.reader.open_folder` (the checks every reader makes)."""
     reader = open_folder(folder)
     if not reader.shards or reader.manifest.episodes == 0:
-        raise ShardError(f"{os.fspath(folder)}: the run is empty (no episodes)")
+        raise ShardError(f"{folder}: the run is empty (no episodes)")
     protocol = reader.manifest.settings.get("protocol")
     disturb = bool(protocol and protocol.get("disturb"))
     columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if reader.rollout else ()) + (("spec",) if disturb else ())
@@ -130,7 +130,7 @@ def disturbance_time(spec_json: str, fps: int) -> float:
 
 
 def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table, rollout: bool) -> RunData:
-    where = os.fspath(root)
+    where = str(root)
     index = episodes.column("episode_index").to_numpy()
 
     if rollout:

@@ -30,6 +30,7 @@ import numpy as np
 
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
+from catalog.storage import as_location
 from schemas.errors import ShardError
 from schemas.scene import LOC_TOLERANCE
 from scoring.io import RunData, load_run
@@ -41,7 +42,7 @@ _ATTRIBUTES = {"E_loc": "e_loc", "E_gra": "e_gra", "Q_smooth": "q_smooth", "Q_li
 
 
 def is_repeats_folder(folder: str | os.PathLike[str]) -> bool:
-    return (Path(folder) / REPEATS_FILE).is_file()
+    return (as_location(folder) / REPEATS_FILE).is_file()
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ def _targets(folder: Path) -> dict[int, np.ndarray]:
 
 def load_repeats(folder: str | os.PathLike[str]) -> RepeatSet:
     """Read ``repeats.json`` and every repeat it names (each manifest's hash checked)."""
-    root = Path(folder)
+    root = as_location(folder)
     path = root / REPEATS_FILE
     try:
         index = json.loads(path.read_text())

@@ -14,7 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from catalog.manifest import Manifest
-from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
+from catalog.storage import is_url
+from pipeline.jobs.object_store import run_job_at
+from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.spec import EpisodeSpec
@@ -131,8 +133,10 @@ def build_job(
         ShardTask(slice_name, first, end, None if specs_json is None else tuple(specs_json[first:end]))
         for first, end in shard_ranges(total, shard_size)
     )
+    remote = is_url(out)
+    destination = f"{str(out).rstrip('/')}/{slice_name}" if remote else Path(out) / slice_name
     job = Job(
-        folder=Path(out) / slice_name,
+        folder=Path("/nonexistent-remote-job") if remote else Path(destination),
         slice_name=slice_name,
         seed=seed,
         settings=settings.as_dict(),
@@ -143,9 +147,9 @@ def build_job(
         verb="built",
         key_prefix="shard",
     )
-    manifest, up_to_date = run_job(
-        job, workers=default_workers() if workers is None else workers, scheduler=scheduler, progress=progress,
-        overwrite=overwrite,
+    manifest, up_to_date = run_job_at(
+        job, destination, workers=default_workers() if workers is None else workers, scheduler=scheduler,
+        progress=progress, overwrite=overwrite,
     )
     return manifest, up_to_date
 

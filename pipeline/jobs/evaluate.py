@@ -28,8 +28,10 @@ from typing import Any, TextIO
 import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
+from catalog.storage import as_location, is_url
 from pipeline.jobs.build import BuildSettings
-from pipeline.jobs.runner import Job, ShardTask, default_workers, run_job, shard_ranges
+from pipeline.jobs.object_store import run_job_at
+from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.disturb import disturbed_spec
 from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
@@ -280,7 +282,7 @@ def summarize(run_dir: str | Path) -> EvalSummary:
     from scoring.io import load_run
     from scoring.report import score_run
 
-    root = Path(run_dir)
+    root = as_location(run_dir)
     manifest = load_manifest(root)
     if "policy" not in manifest.extra:
         raise SpecError(f"{root}: not a rollout run (catalog.json has no policy)")
@@ -363,9 +365,11 @@ def evaluate(
     name, privileged = describe_policy(policy_ref, WATCHDOG_S if deadline_s is None else deadline_s, isolate, vlm)
     settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate), vlm,
                             protocol)
-    run_dir = Path(out)
+    if is_url(out) and vlm is not None:
+        raise SpecError(f"--out {str(out)[:60]}: a VLM run keeps its audit trail on local disk; evaluate it locally")
+    run_dir = as_location(out)
     job = Job(
-        folder=run_dir,
+        folder=Path("/nonexistent-remote-job") if is_url(out) else run_dir,
         slice_name=slice_name,
         seed=definition.seed,
         settings=build_settings.as_dict(),
@@ -386,8 +390,9 @@ def evaluate(
             timing["remote"] = _merge_timing(timing["remote"], stats["remote"])
 
     start = time.monotonic()
-    manifest, up_to_date = run_job(
+    manifest, up_to_date = run_job_at(
         job,
+        out,
         workers=default_workers() if workers is None else workers,
         scheduler=scheduler,
         progress=progress,

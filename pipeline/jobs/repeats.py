@@ -14,6 +14,7 @@ from typing import Any
 
 from catalog.atomic import atomic_open
 from catalog.manifest import Manifest
+from catalog.storage import is_url
 from pipeline.loop.conditions import MAX_REPEATS, EvalProtocol
 from schemas.errors import SpecError
 
@@ -60,6 +61,8 @@ def evaluate_repeats(
 
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 2 <= repeats <= MAX_REPEATS:
         raise SpecError(f"--repeats must be an integer in [2, {MAX_REPEATS}], got {repeats!r}")
+    if is_url(out):
+        raise SpecError(f"--out {str(out)[:60]}: repeats are written to a local folder (upload it afterwards)")
     out = Path(out)
     if (out / "catalog.json").exists():
         raise SpecError(f"{out} holds a single run: repeats need a folder of their own")

@@ -23,6 +23,7 @@ from catalog.integrity import verify_files
 from catalog.manifest import Manifest
 from catalog.parquet_io import read_episodes
 from catalog.records import ShardRecord
+from catalog.storage import as_location
 from pipeline.jobs.runner import ReportingSpecs, reporting_episodes
 from schemas.cli import ProgressMeter
 from schemas.errors import ShardError
@@ -58,7 +59,7 @@ def check_rebuildable(directory: Path, manifest: Manifest) -> None:
     built_with = manifest.settings.get("dataset_version")
     if built_with != DATASET_VERSION:
         raise ShardError(
-            f"{Path(directory) / 'catalog.json'}: written as dataset version {built_with!r}; this code writes "
+            f"{directory}/catalog.json: written as dataset version {built_with!r}; this code writes "
             f"{DATASET_VERSION!r}, so its shards cannot be re-executed byte for byte (check out the commit "
             f"{manifest.code.commit or 'that wrote it'})"
         )
@@ -98,7 +99,7 @@ def verify(
 
     ``progress`` (default: whether ``on_shard`` is given) prints episode progress lines of
     the rebuild on stderr."""
-    directory = Path(directory)
+    directory = as_location(directory)
     rng = np.random.default_rng(0) if rng is None else rng
     manifest = verify_files(directory)
     shards = _sample_shards(manifest, sample, rng)

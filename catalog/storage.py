@@ -1,0 +1,75 @@
+"""Where a folder lives: a local path, or an object-store URL (``s3://bucket/prefix``) read
+and written through fsspec.
+
+A URL becomes a :class:`upath.UPath` (pathlib's API over an fsspec filesystem), so the
+readers' path arithmetic (``root / "frames/000000-000127.parquet"``, ``stat().st_size``,
+``read_text()``) is the same for both. Credentials and the endpoint come from the
+environment only (``AWS_ACCESS_KEY_ID``, ``AWS_SECRET_ACCESS_KEY``, ``AWS_ENDPOINT_URL``
+for an S3-compatible server, as botocore reads them); nothing about them is written
+anywhere. Files are opened for ranged reads (a small read-ahead cache), never downloaded
+whole unless every byte is needed (a sha256).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any, BinaryIO
+
+from schemas.errors import ShardError
+
+_URL = re.compile(r"^([a-z][a-z0-9+.-]*)://", re.IGNORECASE)
+#: Bytes fetched per ranged read when a remote file is walked (Parquet page headers).
+READ_AHEAD = 64 * 1024
+
+
+def is_url(location: Any) -> bool:
+    """True for a string ``scheme://...`` other than ``file://``."""
+    match = _URL.match(location) if isinstance(location, str) else None
+    return match is not None and match.group(1).lower() != "file"
+
+
+def as_location(location: str | os.PathLike[str]) -> Path:
+    """A local :class:`~pathlib.Path`, or a :class:`upath.UPath` for a URL (a Path subclass)."""
+    if isinstance(location, Path) or (not isinstance(location, str) and is_remote(location)):
+        return location  # type: ignore[return-value]
+    if is_url(location):
+        try:
+            from upath import UPath
+        except ImportError:
+            raise ShardError(f"{str(location)[:80]}: object storage needs universal-pathlib and s3fs "
+                             "(pip install 'dyana[s3]')") from None
+        try:
+            return UPath(str(location))  # type: ignore[return-value]  # Path's API, not its class
+        except (ValueError, ImportError) as exc:
+            raise ShardError(f"{str(location)[:80]}: not a storage URL this installation reads ({exc})") from None
+    return Path(location)
+
+
+def is_remote(path: Any) -> bool:
+    """True for a location that is not on the local filesystem."""
+    if isinstance(path, str):
+        return is_url(path)
+    protocol = getattr(path, "protocol", None)
+    return isinstance(protocol, str) and protocol not in ("", "file", "local")
+
+
+def open_binary(path: str | os.PathLike[str]) -> BinaryIO:
+    """``path`` opened for reading bytes (a ranged-read file object for a remote path)."""
+    path = as_location(path)
+    if is_remote(path):
+        return path.fs.open(path.path, "rb", block_size=READ_AHEAD, cache_type="readahead")  # type: ignore[attr-defined]
+    return open(path, "rb")
+
+
+class RangeReader:
+    """``os.pread``'s contract over a remote file: ``pread(length, offset)`` is one ranged request."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def pread(self, length: int, offset: int) -> bytes:
+        if length <= 0:
+            return b""
+        return self.path.fs.cat_file(self.path.path, start=offset, end=offset + length)  # type: ignore[attr-defined]

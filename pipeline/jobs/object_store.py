@@ -1,0 +1,156 @@
+"""Sharded jobs whose output folder is an object-store URL (``--out s3://bucket/prefix``).
+
+Object stores have no rename and no lock, so the job runs in a local staging folder
+(``$DYANA_STAGING/<sha256 of the URL>``, default ``~/.cache/dyana/staging``) exactly as a
+local job (:func:`pipeline.jobs.runner.run_job`: same bytes, same refusals), and is
+published to the URL as it goes:
+
+- each finished shard's files are uploaded, then the job's state (``.build-state.json``),
+  so the remote state only ever lists shards whose objects are complete (an object
+  appears whole or not at all);
+- at the end ``stats.json``, then ``catalog.json`` last, then objects of a replaced job
+  are deleted and the remote state removed; the staging folder is deleted.
+
+Before starting, a remote ``catalog.json`` describing this job with every listed object
+present at its size means "up to date" (nothing is downloaded); one describing another job
+is refused unless ``overwrite``, as locally; otherwise the shards the remote state or
+manifest lists are downloaded into staging (on any machine), so a killed job resumes there.
+Two processes writing one URL at once are not prevented (object stores have no locks).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
+from catalog.records import ShardRecord
+from catalog.stats import STATS_NAME
+from catalog.storage import as_location, is_url
+from pipeline.jobs.runner import STATE_FILE, Job, _manifest_identity, describe_difference, run_job
+from schemas.errors import ShardError, SpecError
+from schemas.versions import CODE_VERSION
+
+
+def staging_folder(url: str) -> Path:
+    """The local folder a job for ``url`` runs in."""
+    base = os.environ.get("DYANA_STAGING") or Path.home() / ".cache" / "dyana" / "staging"
+    return Path(base) / hashlib.sha256(url.encode()).hexdigest()[:24]
+
+
+def _remote_json(remote: Any, name: str) -> dict | None:
+    path = remote / name
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise ShardError(f"{path}: unreadable ({type(exc).__name__}: {str(exc)[:80]})") from None
+
+
+def _remote_sizes(remote: Any) -> dict[str, int]:
+    """``{relative path: size}`` of every object under ``remote``."""
+    fs, root = remote.fs, remote.path.rstrip("/")
+    try:
+        found = fs.find(root, detail=True)
+    except FileNotFoundError:
+        return {}
+    return {name[len(root) + 1:]: int(info["size"]) for name, info in found.items() if name.startswith(root + "/")}
+
+
+def _upload(local: Path, remote: Any, rel: str) -> None:
+    remote.fs.put_file(os.fspath(local / rel), f"{remote.path.rstrip('/')}/{rel}")
+
+
+def _download(remote: Any, local: Path, rel: str) -> None:
+    target = local / rel
+    target.parent.mkdir(parents=True, exist_ok=True)
+    partial = target.with_name(f".{target.name}.download")
+    remote.fs.get_file(f"{remote.path.rstrip('/')}/{rel}", os.fspath(partial))
+    os.replace(partial, target)
+
+
+def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
+    try:
+        return [ShardRecord.from_dict(raw) for raw in (data or {}).get(key, [])]
+    except ShardError as exc:
+        raise ShardError(f"remote {key}: {exc}") from None
+
+
+def run_job_at(job: Job, out: str | os.PathLike[str], **options: Any) -> tuple[Manifest, bool]:
+    """:func:`run_job` into ``job.folder``, or :func:`run_remote_job` into ``out`` when it is a URL."""
+    if is_url(out):
+        return run_remote_job(job, str(out), **options)
+    return run_job(job, **options)
+
+
+def run_remote_job(job: Job, url: str, **options: Any) -> tuple[Manifest, bool]:
+    """Run ``job`` (whose folder is ignored) into ``url``; the manifest and whether it was up to date."""
+    try:
+        return _run_remote_job(job, url, **options)
+    except FileNotFoundError as exc:  # s3fs: a missing bucket
+        raise ShardError(f"{url}: {exc}") from None
+
+
+def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: Any) -> tuple[Manifest, bool]:
+    remote: Any = as_location(url)
+    staging = staging_folder(url)
+    local_job = dataclasses.replace(job, folder=staging)
+    wanted = local_job.identity()
+    manifest_data = _remote_json(remote, MANIFEST_NAME)
+    sizes = _remote_sizes(remote)
+    if manifest_data is not None:
+        held = Manifest.from_dict(manifest_data)
+        identity = _manifest_identity(held)
+        if identity != wanted and not overwrite:
+            raise SpecError(f"{url} holds another job ({describe_difference(identity, wanted)}): "
+                            "choose another --out, or pass --overwrite to replace it")
+        listed = [(path, size) for path, _, size in held.files()]
+        if identity == wanted and (held.code.version, held.code.commit) == (CODE_VERSION, git_commit()) and all(
+            sizes.get(path) == size for path, size in listed
+        ):
+            return held, True
+    state = _remote_json(remote, STATE_FILE)
+    if state is not None and state.get("identity") not in (None, wanted) and not overwrite:
+        raise SpecError(f"{url} holds an unfinished run of another job "
+                        f"({describe_difference(state['identity'], wanted)}): pass --overwrite to replace it")
+    staging.mkdir(parents=True, exist_ok=True)
+    if state is not None and state.get("identity") == wanted:
+        for record in _records_of(state, "shards"):
+            for file in record.files.values():
+                if sizes.get(file.path) == file.size and not (staging / file.path).is_file():
+                    _download(remote, staging, file.path)
+        (staging / STATE_FILE).write_text(json.dumps(state, sort_keys=True, indent=2) + "\n")
+
+    user_result: Callable[[dict], None] | None = options.pop("on_result", None)
+
+    def publish(result: dict) -> None:
+        record = ShardRecord.from_dict(result["record"])
+        for file in record.files.values():
+            _upload(staging, remote, file.path)
+        _upload(staging, remote, STATE_FILE)
+        if user_result is not None:
+            user_result(result)
+
+    manifest, _ = run_job(local_job, overwrite=overwrite, on_result=publish, **options)
+    sizes = _remote_sizes(remote)
+    for path, _, size in manifest.files():
+        if sizes.get(path) != size:
+            _upload(staging, remote, path)
+    if manifest.stats is not None:
+        _upload(staging, remote, STATS_NAME)
+    _upload(staging, remote, MANIFEST_NAME)
+    keep = {path for path, _, _ in manifest.files()} | {MANIFEST_NAME, STATS_NAME}
+    for path in sizes:
+        stale = path == STATE_FILE or (path not in keep and path.split("/")[0] in ("frames", "episodes", "mcap"))
+        if stale:
+            remote.fs.rm_file(f"{remote.path.rstrip('/')}/{path}")
+    shutil.rmtree(staging, ignore_errors=True)
+    return manifest, False
+
