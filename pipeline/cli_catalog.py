@@ -27,20 +27,43 @@ def _print_json(data) -> None:
     print(json.dumps(data, sort_keys=False))
 
 
+def _size(n: int) -> str:
+    """Bytes as a short decimal size: 845 MB, 12.3 GB."""
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            value = n / scale
+            return f"{value:.1f} {unit}" if value < 100 else f"{value:.0f} {unit}"
+    return f"{n} B"
+
+
 def cmd_list(args: argparse.Namespace) -> int:
+    from catalog.footprint import expected_footprint
     from generators.recipe import slice_overview
 
     rows = slice_overview()
+    by_name = {row["slice"]: row for row in rows}
+    for row in rows:
+        definition = get_slice(row["slice"])
+        parts = definition.parts if definition.union else (row["slice"],)
+        size = expected_footprint({p: (by_name[p]["episodes"], by_name[p]["frames"]) for p in parts})
+        row["expected_bytes"] = None if size is None else {"parquet": size.parquet, "mcap": size.mcap,
+                                                           "total": size.total}
     if args.json:
         _print_json(rows)
         return 0
-    print(f"{'slice':<17} {'motion':<10} {'setting':<8} {'episodes':>9} {'frames':>11} {'seed':>5}")
+    print(f"{'slice':<17} {'motion':<10} {'setting':<8} {'episodes':>9} {'frames':>11} {'seed':>5} "
+          f"{'parquet':>9} {'+ mcap':>9}")
     for row in rows:
         definition = get_slice(row["slice"])
         motion = row["motion_type"] or ("all" if definition.union else "mixed")
         setting = row["intercept_setting"] or ("all" if definition.union else "mixed")
         seed = "parts" if definition.union else str(row["seed"])
-        print(f"{row['slice']:<17} {motion:<10} {setting:<8} {row['episodes']:>9,} {row['frames']:>11,} {seed:>5}")
+        size = row["expected_bytes"]
+        parquet, total = ("-", "-") if size is None else (_size(size["parquet"]), _size(size["total"]))
+        print(f"{row['slice']:<17} {motion:<10} {setting:<8} {row['episodes']:>9,} {row['frames']:>11,} {seed:>5} "
+              f"{parquet:>9} {total:>9}")
+    print("sizes: expected on disk at 224 px (catalog/footprint.json, measured by benchmarks/footprint.py); "
+          "'+ mcap' is the default --formats parquet,mcap")
     return 0
 
 

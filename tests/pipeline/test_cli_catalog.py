@@ -105,6 +105,13 @@ def test_list_counts_every_slice(capsys):
     assert rows["dyana-12m"]["frames"] == sum(rows[n]["frames"] for n in ATOMIC_SLICES)
     assert 11_500_000 <= rows["dyana-12m"]["frames"] <= 12_500_000
     assert rows["test-1k"]["frames"] == slice_summary("test-1k")["total_frames"]
+    sizes = {name: row["expected_bytes"] for name, row in rows.items()}
+    assert all(s["total"] == s["parquet"] + s["mcap"] and s["parquet"] > 0 and s["mcap"] > 0 for s in sizes.values())
+    for key in ("parquet", "mcap"):
+        parts = sum(sizes[n][key] for n in ATOMIC_SLICES)
+        assert abs(sizes["dyana-12m"][key] - parts) <= len(ATOMIC_SLICES)  # the union is the sum of its parts
+    per_frame = sizes["linear-fast"]["total"] / rows["linear-fast"]["frames"]
+    assert 5_000 < per_frame < 50_000  # a 224 px JPEG twice (Parquet and MCAP) plus the states
 
 
 @pytest.mark.slow
@@ -112,7 +119,8 @@ def test_list_table():
     result = run("list")
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
-    assert len(lines) == 1 + len(SLICES)
+    assert len(lines) == 2 + len(SLICES) and lines[-1].startswith("sizes: expected on disk")
+    lines = lines[:-1]
     assert lines[1 + list(SLICES).index("dyana-12m")].split()[:4] == ["dyana-12m", "all", "all", "184,718"]
     assert lines[-2].split()[:4] == ["test-irregular", "mixed", "mixed", "99"]
     assert lines[-1].split()[:4] == ["test-complex", "mixed", "mixed", "300"]
