@@ -1,8 +1,8 @@
 """`pipeline eval`: a policy in the loop on a slice's episodes, recorded as rollout shards.
 
-The run folder (RUN) has the layout of a built slice: ``shards/`` with the same
-three files per shard (the episodes table adds ``policy``, ``status``, ``error``)
-and ``RUN/catalog.json``, whose ``policy`` key marks it as rollouts. Shards run
+The run folder (RUN, or an ``s3://`` URL) has the layout of a built slice: ``frames/``,
+``episodes/`` and ``mcap/`` (unless ``--formats parquet``) with one file per shard each
+(the episodes table adds ``policy``, ``status``, ``error``) and ``RUN/catalog.json``, whose ``policy`` key marks it as rollouts. Shards run
 through :func:`pipeline.jobs.runner.run_job` as a build's do (and resume the same way); each task makes its own policy: a built-in name or a
 ``module:callable`` ref is resolved inside the worker, a ``ws://`` URL is connected
 from the worker. After an episode fails the worker discards that policy (a hung
