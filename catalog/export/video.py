@@ -8,7 +8,9 @@ random frame decodes at most one frame before it).
 Deterministic: frame ``k`` has presentation time ``k / fps`` exactly (time base
 1/fps), encoders run single-threaded with FFmpeg's bit-exact flags and the muxer
 writes no creation time, so the same frames give the same bytes under the same PyAV
-build; :func:`codec_versions` records that build in every export.
+build; :func:`codec_versions` records that build in every export. libx264 runs without
+its AVX-512 kernels (:func:`encoder_options`): those read memory x264 never
+initialised, so on an AVX-512 CPU the bytes depended on the process's heap history.
 
 :class:`VideoWriter` is an explicit open/add/finish writer used as a context
 manager: the file appears under its name only once finished (write-then-rename).
@@ -16,6 +18,8 @@ manager: the file appears under its name only once finished (write-then-rename).
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -39,6 +43,78 @@ class VideoError(DyanaError):
     """A video could not be written or read."""
 
 
+class _X264CpuName(ctypes.Structure):
+    """One entry of libx264's exported ``x264_cpu_names`` table (name, CPU-flag mask)."""
+
+    _fields_ = [("name", ctypes.c_char_p), ("flags", ctypes.c_uint32)]
+
+
+def _x264_library(av) -> ctypes.CDLL | None:
+    """The libx264 this process's libavcodec uses, opened through ctypes (None if not found).
+
+    Looked for among the libraries mapped into the process (Linux), then beside PyAV's
+    package (the wheels' bundled copies); it must export ``x264_cpu_detect``."""
+    candidates: list[str] = []
+    try:
+        maps = Path("/proc/self/maps").read_text(encoding="utf-8", errors="replace")
+    except OSError:  # not Linux: only the bundled copies are candidates
+        maps = ""
+    for line in maps.splitlines():
+        fields = line.split(maxsplit=5)
+        if len(fields) == 6 and "x264" in os.path.basename(fields[5]):
+            candidates.append(fields[5])
+    package = Path(av.__file__).parent
+    for folder in (package.parent / "av.libs", package / ".dylibs", package):
+        candidates += sorted(str(p) for p in folder.glob("*x264*") if p.is_file())
+    for path in dict.fromkeys(candidates):
+        try:
+            library = ctypes.CDLL(path)
+        except OSError:
+            continue
+        if hasattr(library, "x264_cpu_detect") and hasattr(library, "x264_cpu_names"):
+            return library
+    return None
+
+
+@functools.cache
+def _x264_params() -> str | None:
+    """libx264's ``x264-params`` that keep its output independent of uninitialised memory.
+
+    x264's AVX-512 macroblock-tree kernels (mbtree_propagate_cost/list) process 16 and 8
+    macroblocks at a time and, unlike the AVX2 and C versions, use the lanes past the end of
+    a row, which hold memory x264 never wrote (a non-referenced B-frame's propagate row is
+    zeroed for the row's width only). With 224 px frames (14 macroblocks a row) the bytes
+    then depend on what the heap held. So x264 gets the CPU features it detects itself, minus
+    AVX-512 (``asm=<flags>``, None when it detects no AVX-512); if libx264 cannot be asked,
+    the macroblock tree is switched off instead (``mbtree=0``: larger files, no such kernels).
+    """
+    av = _av()
+    library = _x264_library(av)
+    if library is None:
+        return "mbtree=0"
+    library.x264_cpu_detect.restype = ctypes.c_uint32
+    detected = int(library.x264_cpu_detect())
+    names: dict[str, int] = {}
+    table = ctypes.cast(library.x264_cpu_names, ctypes.POINTER(_X264CpuName))
+    for k in range(256):  # the table ends with an entry of no flags
+        if not table[k].flags:
+            break
+        names[table[k].name.decode("ascii", "replace")] = int(table[k].flags)
+    avx512 = names.get("AVX512", 0) & ~names.get("AVX2", 0)
+    if not detected & avx512:
+        return None
+    return f"asm={detected & ~avx512}"
+
+
+def encoder_options(codec: str) -> dict[str, str]:
+    """The options ``codec``'s encoder runs with: :data:`CODECS`' own plus, for libx264, :func:`_x264_params`."""
+    encoder, options = CODECS[codec]
+    options = dict(options)
+    if encoder == "libx264" and (params := _x264_params()) is not None:
+        options["x264-params"] = params
+    return options
+
+
 def _av():
     try:
         import av
@@ -50,7 +126,7 @@ def _av():
 def codec_versions(codec: str) -> dict[str, str]:
     """What decides an encoded video's bytes: PyAV's version, its libav* versions and the encoder."""
     av = _av()
-    encoder, options = CODECS[codec]
+    encoder, options = CODECS[codec][0], encoder_options(codec)
     libs = {name: ".".join(str(v) for v in version) for name, version in sorted(av.library_versions.items())}
     return {"pyav": av.__version__, **libs, "encoder": encoder, "options": " ".join(f"{k}={v}" for k, v in sorted(options.items()))}
 
@@ -70,7 +146,7 @@ class VideoWriter:
         self._temp = temp_path(self.path)
         self.frames = 0
         self._shape = (height, width, 3)
-        encoder, options = CODECS[codec]
+        encoder, options = CODECS[codec][0], encoder_options(codec)
         if encoder == "libsvtav1":
             os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its banner to stderr unless told not to
         self._container = av.open(os.fspath(self._temp), "w", format="mp4", options={"fflags": "+bitexact"})
