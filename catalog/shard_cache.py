@@ -26,10 +26,10 @@ from catalog.index import (
     ShardFile,
     index_digest,
 )
-from catalog.pages import image_offsets, image_pages
+from catalog.pages import image_offsets
 from catalog.parquet_io import check_columns, column_to_numpy, table_kind
-from catalog.remote_images import RemoteImages
-from catalog.storage import RangeReader, as_location, is_url, open_binary
+from catalog.remote_images import remote_images
+from catalog.storage import as_location, is_url, open_binary
 from schemas.errors import (
     ShardError,
     ShardHashMismatch,
@@ -167,8 +167,7 @@ class ShardCache:
             self.verified.add(key)
         with open_binary(path) as handle, parquet_file(handle, record.path, checksums=True) as parquet:
             table = _index_columns(parquet, record)
-            images = RemoteImages(RangeReader(path), record.path, image_pages(RangeReader(path), record.path,
-                                                                             parquet.metadata))
+            images = remote_images(path, record.path, parquet.metadata, size)
         return _open_shard(record, images, table, None, None)
 
     def close(self) -> None:

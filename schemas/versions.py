@@ -19,7 +19,8 @@ RELEASE_NOTES = {
         "Storage only: each table has a folder of its own (frames/, episodes/, mcap/ instead of "
         "all three in shards/), so pandas, pyarrow.dataset and DuckDB open a table folder as one "
         "dataset; settings record the stored formats (MCAP can be left out); MCAP episodes play "
-        "back to back with per-episode metadata records and the hand's frames. Frames and "
+        "back to back with per-episode metadata records and the hand's frames; Parquet files "
+        "carry a page index and ~40 kB data pages (a remote reader fetches one page per image). Frames and "
         "episodes tables hold the same rows and values as 2.0.0. `catalog migrate DIR` moves a "
         "2.0.0 folder into the new layout without rewriting its files."
     ),
