@@ -578,7 +578,7 @@ def export(
             raise ExportError(f"{shorten(os.fspath(source))}: video export needs an even image size, got {height}")
         tasks = _tasks(reader)
         firsts = np.concatenate([[0], np.cumsum([s.frames for s in reader.manifest.shards])]).astype(int)
-        units = [Unit(os.fspath(reader.root), k, int(firsts[k]), tasks, settings, os.fspath(target), height, width)
+        units = [Unit(str(reader.root), k, int(firsts[k]), tasks, settings, os.fspath(target), height, width)
                  for k in range(len(reader.shards))]
         parts: dict[int, dict[str, Any]] = {}
         for unit in units:

@@ -27,6 +27,7 @@ from catalog.atomic import commit, discard, temp_path
 from catalog.mcap_io import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
+from catalog.storage import as_location
 from schemas.errors import DyanaError, SpecError
 from schemas.names import shorten
 from schemas.scene import LOC_TOLERANCE, PHASES
@@ -68,7 +69,7 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     os.environ.setdefault("RUST_LOG", "off")
     import rerun as rr
 
-    directory, out = Path(directory), Path(out)
+    directory, out = as_location(directory), Path(out)
     if out.suffix != ".rrd":
         raise SpecError(f"--out must end in .rrd, got {str(out)!r}")
     manifest, rows, meta = _episode_rows(directory, episode)

@@ -135,3 +135,14 @@ def test_a_killed_remote_build_resumes_on_another_machine(server, local, tmp_pat
     assert ".build-state.json" not in objects
     digest = hashlib.sha256(objects["catalog.json"]).hexdigest()
     assert digest and json.loads(objects["catalog.json"])["hash"] == load_manifest(local).hash
+
+
+def test_view_replay_and_export_read_the_url(remote, server, tmp_path):
+    view = _cli("pipeline", "view", remote, "--episode", "1", "--out", str(tmp_path / "e1.rrd"), env=server,
+                staging=tmp_path)
+    assert view.returncode == 0 and (tmp_path / "e1.rrd").stat().st_size > 0, view.stderr
+    replay = _cli("pipeline", "replay", remote, env=server, staging=tmp_path)
+    assert replay.returncode == 0 and "identical" in replay.stdout, replay.stderr
+    export = _cli("catalog", "export", remote, "--out", str(tmp_path / "lerobot"), "--workers", "1", "--quiet",
+                  env=server, staging=tmp_path)
+    assert export.returncode == 0 and "6 episodes" in export.stdout, export.stderr
