@@ -40,11 +40,11 @@ from __future__ import annotations
 
 import functools
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import ConvexHull, QhullError
 
 from generators.camera import projection_matrix, unproject_to_plane, view_matrix
 from generators.hand import (
@@ -55,7 +55,7 @@ from generators.hand import (
 )
 from generators.scene import TABLE_BORDER
 from schemas.objects import OBJECTS, ObjectCategory
-from schemas.scene import CAMERA_FOV_DEG, TABLE_X, TABLE_Z
+from schemas.scene import CAMERA_EYE, CAMERA_FOV_DEG, TABLE_X, TABLE_Z
 
 #: A pixel is foreground when its RGB distance to the table's colour is larger (the
 #: table's JPEG noise stays under 15; the darkest shades of the blue and green objects
@@ -111,6 +111,29 @@ def _project(points: np.ndarray, width: int, height: int) -> tuple[np.ndarray, n
     return np.concatenate([cols, rows], axis=-1), w[..., 0]
 
 
+@functools.lru_cache(maxsize=8)
+def _unprojection(width: int, height: int) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """The constants :func:`generators.camera.unproject_to_plane` recomputes per call."""
+    proj = projection_matrix(width / height)
+    rot = view_matrix()[:3, :3]
+    rot.setflags(write=False)
+    eye = np.asarray(CAMERA_EYE, dtype=np.float64)
+    eye.setflags(write=False)
+    return float(proj[0, 0]), float(proj[1, 1]), rot, eye
+
+
+def _unproject(pixels: np.ndarray, width: int, height: int, plane_y: float) -> np.ndarray:
+    """:func:`generators.camera.unproject_to_plane` with its matrices computed once per
+    resolution (the same operations in the same order, so the same bits)."""
+    px = np.asarray(pixels, dtype=np.float64)
+    ndc_x = 1.0 - px[..., 0] / width * 2.0
+    ndc_y = 1.0 - px[..., 1] / height * 2.0
+    p00, p11, rot, eye = _unprojection(width, height)
+    dirs = np.stack([ndc_x / p00, ndc_y / p11, -np.ones_like(ndc_x)], axis=-1) @ rot
+    scale = (plane_y - eye[1]) / dirs[..., 1]
+    return eye + dirs * scale[..., None]
+
+
 def focal_px(height: int) -> float:
     """The camera's focal length in pixels for images ``height`` pixels tall."""
     return (height / 2.0) / np.tan(np.radians(CAMERA_FOV_DEG) / 2.0)
@@ -139,25 +162,51 @@ def table_colour(image: np.ndarray) -> np.ndarray:
 
 
 def _convex_hull(points: np.ndarray) -> np.ndarray:
-    """Convex hull vertices (k, 2) of 2D points (m, 2), in order (empty if degenerate)."""
-    try:
-        return points[ConvexHull(points).vertices]
-    except QhullError:
-        return np.empty((0, 2))
+    """Convex hull vertices (k, 2) of 2D points (m, 2), counterclockwise (positive signed
+    area), without collinear or repeated points; empty if degenerate (fewer than 3).
 
+    Andrew's monotone chain on the points' own coordinates: the vertices and their
+    orientation are Qhull's (``scipy.spatial.ConvexHull``, which this replaced), at a
+    fraction of a call's cost, which perception pays for every template.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    order = np.lexsort((pts[:, 1], pts[:, 0]))
+    xy = pts[order].tolist()
 
-def _inside_hull(px: np.ndarray, hull: np.ndarray, margin: float) -> np.ndarray:
-    """Pixels (..., 2) inside a convex polygon grown by ``margin`` pixels."""
+    def chain(sequence: Iterable[list[float]]) -> list[tuple[float, float]]:
+        out: list[tuple[float, float]] = []
+        for x, y in sequence:
+            while len(out) >= 2:
+                (ax, ay), (bx, by) = out[-2], out[-1]
+                if (bx - ax) * (y - ay) - (by - ay) * (x - ax) > 0.0:
+                    break
+                out.pop()
+            out.append((x, y))
+        return out
+
+    lower, upper = chain(xy), chain(reversed(xy))
+    hull = lower[:-1] + upper[:-1]
     if len(hull) < 3:
-        return np.zeros(px.shape[:-1], dtype=bool)
+        return np.empty((0, 2))
+    return np.array(hull, dtype=np.float64)
+
+
+def _hull_depth(xs: np.ndarray, ys: np.ndarray, hull: np.ndarray) -> np.ndarray:
+    """(h, w): how far (pixels) each pixel centre of the grid ``xs`` (w,) x ``ys`` (h,)
+    lies inside the nearest edge of a convex polygon: a pixel is inside the polygon
+    grown by ``m`` pixels when this is >= -m (-inf everywhere for a degenerate hull)."""
+    if len(hull) < 3:
+        return np.full((len(ys), len(xs)), -np.inf)
     a, b = hull, np.roll(hull, -1, axis=0)
     edge = b - a
     length = np.maximum(np.linalg.norm(edge, axis=1), 1e-12)
-    rel = px[..., None, :] - a
-    # the interior lies on the side of every edge that the hull's orientation gives
-    cross = (edge[:, 0] * rel[..., 1] - edge[:, 1] * rel[..., 0]) / length
+    # the interior lies on the side of every edge that the hull's orientation gives; the
+    # cross product edge x (pixel - a) splits into a row term and a column term
     sign = 1.0 if _signed_area(hull) > 0 else -1.0
-    return np.all(sign * cross >= -margin, axis=-1)
+    across = edge[:, 0:1] * (ys[None, :] - a[:, 1:2])  # (k, h)
+    along = edge[:, 1:2] * (xs[None, :] - a[:, 0:1])  # (k, w)
+    cross = (across[:, :, None] - along[:, None, :]) / length[:, None, None]
+    return (sign * cross).min(axis=0)
 
 
 def _signed_area(hull: np.ndarray) -> float:
@@ -181,13 +230,13 @@ def _hand_parts(palm_pose, joint_poses, keypoints) -> tuple[np.ndarray, np.ndarr
 
 
 def _window(lo: np.ndarray, hi: np.ndarray, width: int, height: int):
-    """Pixel window (rows slice, cols slice) and its pixel centres (h, w, 2), or None if empty."""
+    """Pixel window (rows slice, cols slice) and its pixel centres' columns (w,) and rows
+    (h,), or None if empty."""
     c0, r0 = max(int(np.floor(lo[0])), 0), max(int(np.floor(lo[1])), 0)
     c1, r1 = min(int(np.ceil(hi[0])) + 1, width), min(int(np.ceil(hi[1])) + 1, height)
     if c0 >= c1 or r0 >= r1:
         return None
-    cols, rows = np.meshgrid(np.arange(c0, c1) + 0.5, np.arange(r0, r1) + 0.5)
-    return (slice(r0, r1), slice(c0, c1)), np.stack([cols, rows], axis=-1)
+    return (slice(r0, r1), slice(c0, c1)), np.arange(c0, c1) + 0.5, np.arange(r0, r1) + 0.5
 
 
 def hand_mask(
@@ -197,38 +246,77 @@ def hand_mask(
     """(H, W) bool: the pixels the hand covers, predicted from its state and geometry
     (palm box, wrist cylinder, finger capsules), grown by ``margin`` pixels; only
     inside ``window`` (row0, row1, col0, col1) when given."""
-    starts, ends, radii, corners = _hand_parts(palm_pose, joint_poses, keypoints)
-    pa, da = _project(starts, width, height)
-    pb, db = _project(ends, width, height)
-    pc, _ = _project(corners, width, height)
-    r_px = radii * focal_px(height) / np.maximum(np.minimum(da, db), 1e-6) + margin
-    mask = np.zeros((height, width), dtype=bool)
-    lo = np.minimum((np.minimum(pa, pb) - r_px[:, None]).min(axis=0), pc.min(axis=0) - margin)
-    hi = np.maximum((np.maximum(pa, pb) + r_px[:, None]).max(axis=0), pc.max(axis=0) + margin)
-    if window is not None:
-        r0, r1, c0, c1 = window
-        lo = np.maximum(lo, [c0, r0])
-        hi = np.minimum(hi, [c1 - 1, r1 - 1])
-    win = _window(lo, hi, width, height)
-    if win is None:
+    shape = HandShape.of(palm_pose, joint_poses, keypoints, width, height, margin)
+    return shape.mask(width, height, window)
+
+
+@dataclass(frozen=True)
+class HandShape:
+    """The hand projected into the image: finger and wrist capsules from ``starts`` to
+    ``ends`` (k, 2 pixels) with radii ``radii`` (k,), the palm box's convex hull, and the
+    bounding box ``lo``-``hi`` (column, row) of everything, all grown by ``margin``.
+    One state gives one shape, so the frames of an observe window (the hand at rest)
+    project it once; :meth:`mask` draws it inside any window, pixel by pixel the same."""
+
+    starts: np.ndarray
+    ends: np.ndarray
+    radii: np.ndarray
+    hull: np.ndarray
+    margin: float
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def of(
+        cls, palm_pose: np.ndarray, joint_poses: np.ndarray, keypoints: np.ndarray, width: int, height: int,
+        margin: float = HAND_MARGIN_PX,
+    ) -> HandShape:
+        starts, ends, radii, corners = _hand_parts(palm_pose, joint_poses, keypoints)
+        pa, da = _project(starts, width, height)
+        pb, db = _project(ends, width, height)
+        pc, _ = _project(corners, width, height)
+        r_px = radii * focal_px(height) / np.maximum(np.minimum(da, db), 1e-6) + margin
+        lo = np.minimum((np.minimum(pa, pb) - r_px[:, None]).min(axis=0), pc.min(axis=0) - margin)
+        hi = np.maximum((np.maximum(pa, pb) + r_px[:, None]).max(axis=0), pc.max(axis=0) + margin)
+        return cls(pa, pb, r_px, _convex_hull(pc), margin, lo, hi)
+
+    def mask(self, width: int, height: int, window: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """(H, W) bool: the hand's pixels, only inside ``window`` (row0, row1, col0, col1)."""
+        mask = np.zeros((height, width), dtype=bool)
+        lo, hi = self.lo, self.hi
+        if window is not None:
+            r0, r1, c0, c1 = window
+            lo = np.maximum(lo, [c0, r0])
+            hi = np.minimum(hi, [c1 - 1, r1 - 1])
+        win = _window(lo, hi, width, height)
+        if win is None:
+            return mask
+        (rows, cols), xs, ys = win
+        pa, pb, r_px = self.starts, self.ends, self.radii
+        x, y = xs[None, :, None], ys[:, None, None]  # (h, w, 1) against the k capsules
+        ab = pb - pa
+        rx, ry = x - pa[:, 0], y - pa[:, 1]
+        s = np.clip((rx * ab[:, 0] + ry * ab[:, 1]) / np.maximum((ab * ab).sum(axis=1), 1e-12), 0.0, 1.0)
+        dx, dy = rx - s * ab[:, 0], ry - s * ab[:, 1]
+        covered = np.any(dx * dx + dy * dy <= r_px * r_px, axis=-1)
+        mask[rows, cols] = covered | (_hull_depth(xs, ys, self.hull) >= -self.margin)
         return mask
-    (rows, cols), px = win
-    x, y = px[..., 0:1], px[..., 1:2]  # (h, w, 1) against the k capsules
-    ab = pb - pa
-    rx, ry = x - pa[:, 0], y - pa[:, 1]
-    s = np.clip((rx * ab[:, 0] + ry * ab[:, 1]) / np.maximum((ab * ab).sum(axis=1), 1e-12), 0.0, 1.0)
-    dx, dy = rx - s * ab[:, 0], ry - s * ab[:, 1]
-    covered = np.any(dx * dx + dy * dy <= r_px * r_px, axis=-1)
-    mask[rows, cols] = covered | _inside_hull(px, _convex_hull(pc), margin)
-    return mask
 
 
+@functools.lru_cache(maxsize=256)
 def _surface_points(category: ObjectCategory, size: float, heading: float) -> np.ndarray:
-    """Points (m, 3) whose convex hull is the object's body at ``size``, centre at the origin.
+    """Points (m, 3) whose convex hull is the object's body at ``size``, centre at the origin
+    (read-only: cached, as a window's frames share size and heading).
 
     ``heading`` turns a lying cylinder's axis in the XZ plane; other shapes ignore it
     (non-rolling objects keep their orientation; a sphere looks the same any way).
     """
+    points = _body_points(category, size, heading)
+    points.setflags(write=False)
+    return points
+
+
+def _body_points(category: ObjectCategory, size: float, heading: float) -> np.ndarray:
     dims = category.scaled_dims(size)
     ring = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
     if category.shape == "sphere":
@@ -276,9 +364,10 @@ def template(
     win = _window(px.min(axis=0) - HALO_PX, px.max(axis=0) + HALO_PX, width, height)
     if win is None:
         return None
-    (rows, cols), grid = win
-    mask = _inside_hull(grid, hull, HALO_PX)
-    area = int(_inside_hull(grid, hull, 0.0).sum())
+    (rows, cols), xs, ys = win
+    depth = _hull_depth(xs, ys, hull)
+    mask = depth >= -HALO_PX
+    area = int(np.count_nonzero(depth >= 0.0))
     if area == 0:
         return None
     return Template(mask, (rows.start, cols.start), _project(centre, width, height)[0], area)
@@ -294,12 +383,13 @@ def _crop(image: np.ndarray, r0: int, c0: int, h: int, w: int) -> np.ndarray:
     return out
 
 
-def _correlate(images: np.ndarray, tpl: Template, reach: int) -> np.ndarray:
+def _correlate(images: np.ndarray, tpl: Template, reach: int, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
     """Overlap counts (k, 2 reach + 1, 2 reach + 1) of each image (k, H, W) with the
     template shifted by (row, col) offsets in [-reach, reach]; exact integers (FFT,
-    rounded)."""
+    rounded). The images' top-left pixel is ``origin`` (row, col) of the frame, and
+    they are taken as zero outside."""
     h, w = tpl.mask.shape
-    r0, c0 = tpl.origin
+    r0, c0 = tpl.origin[0] - origin[0], tpl.origin[1] - origin[1]
     crops = np.stack([_crop(image, r0 - reach, c0 - reach, h + 2 * reach, w + 2 * reach) for image in images])
     shape = crops.shape[1:]
     spectrum = np.fft.rfft2(crops, s=shape) * np.conj(np.fft.rfft2(tpl.mask.astype(np.float64), s=shape))
@@ -307,14 +397,18 @@ def _correlate(images: np.ndarray, tpl: Template, reach: int) -> np.ndarray:
     return np.rint(full[:, : 2 * reach + 1, : 2 * reach + 1]).astype(np.int64)
 
 
-def match_template(tpl: Template, blob: np.ndarray, background: np.ndarray, reach: int) -> tuple[np.ndarray, int]:
+def match_template(
+    tpl: Template, blob: np.ndarray, background: np.ndarray, reach: int, origin: tuple[int, int] = (0, 0)
+) -> tuple[np.ndarray, int]:
     """Best shift (column, row) of the template and its mismatch.
 
     Mismatch = template pixels over clearly visible table + blob pixels outside the
     template; pixels the hand covers cost nothing (the object may be behind it).
-    Several equally good shifts (an object mostly hidden) are averaged.
+    Several equally good shifts (an object mostly hidden) are averaged. ``blob`` and
+    ``background`` may be a crop of the frame whose top-left pixel is ``origin`` (row,
+    col), empty outside it.
     """
-    on_background, on_blob = _correlate(np.stack([background, blob]), tpl, reach)
+    on_background, on_blob = _correlate(np.stack([background, blob]), tpl, reach, origin)
     score = on_background + int(blob.sum()) - on_blob
     best = int(score.min())
     rows, cols = np.nonzero(score == best)
@@ -398,17 +492,22 @@ class ObjectLocator:
         self._heading: int | None = None
         self._last_pixel: np.ndarray | None = None
         self._size_samples: list[float] = []
+        self._size: float | None = None
+        self._hand: tuple[bytes, HandShape] | None = None
 
     @property
     def size(self) -> float | None:
         """The estimated object size (None when the category is unknown)."""
         if self.category is None:
             return None
-        nominal = self.category.nominal_size
-        if not self._size_samples:
-            return nominal
-        est = float(np.median(self._size_samples))
-        return float(np.clip(est, SIZE_RANGE[0] * nominal, SIZE_RANGE[1] * nominal))
+        if self._size is None:  # computed once per new sample: every template needs it
+            nominal = self.category.nominal_size
+            if not self._size_samples:
+                self._size = nominal
+            else:
+                est = float(np.median(self._size_samples))
+                self._size = float(np.clip(est, SIZE_RANGE[0] * nominal, SIZE_RANGE[1] * nominal))
+        return self._size
 
     @property
     def centre_height(self) -> float:
@@ -425,38 +524,43 @@ class ObjectLocator:
     def locate(
         self, image: np.ndarray, palm_pose: np.ndarray, joint_poses: np.ndarray, keypoints: np.ndarray
     ) -> Detection | None:
-        """The object in ``image`` (H, W, 3 uint8), given the hand's state at that frame."""
+        """The object in ``image`` (H, W, 3 uint8), given the hand's state at that frame.
+
+        Only the search window (:meth:`_roi`) is examined, so the masks below are crops
+        of the frame whose top-left pixel is ``(r0, c0)``; the frame outside is empty.
+        """
         image = np.asarray(image)
         if self._table_rgb is None:
             self._table_rgb = table_colour(image)
             levels = np.arange(256)
             self._squares = [((levels - c) ** 2).astype(np.int32) for c in self._table_rgb]
         r0, r1, c0, c1 = window = self._roi()
-        region = np.zeros((self.height, self.width), dtype=bool)
-        region[r0:r1, c0:c1] = table_region(self.width, self.height)[r0:r1, c0:c1]
+        region = table_region(self.width, self.height)[r0:r1, c0:c1]
         sq = self._squares
         crop = image[r0:r1, c0:c1]
-        foreground = np.zeros_like(region)
-        distance2 = np.zeros((self.height, self.width), dtype=np.int32)
-        distance2[r0:r1, c0:c1] = sq[0][crop[..., 0]] + sq[1][crop[..., 1]] + sq[2][crop[..., 2]]
-        foreground[r0:r1, c0:c1] = distance2[r0:r1, c0:c1] > COLOUR_THRESHOLD**2
-        foreground &= region
-        hand = hand_mask(palm_pose, joint_poses, keypoints, self.width, self.height, window=window)
-        blob = find_blob(foreground, hand)
+        distance2 = np.take(sq[0], crop[..., 0]) + np.take(sq[1], crop[..., 1]) + np.take(sq[2], crop[..., 2])
+        foreground = (distance2 > COLOUR_THRESHOLD**2) & region
+        hand = self._hand_shape(palm_pose, joint_poses, keypoints).mask(self.width, self.height, window)
+        hand_crop = hand[r0:r1, c0:c1]
+        blob = find_blob(foreground, hand_crop)
         if blob is None:
             self._last_pixel = None
             return None
         area = weighted_area(blob, distance2)
         rows, cols = np.nonzero(blob)
-        touches = bool(np.any(hand[np.clip(rows[:, None] + _NEIGHBOURS[:, 0], 0, self.height - 1),
-                                   np.clip(cols[:, None] + _NEIGHBOURS[:, 1], 0, self.width - 1)]))
-        centroid = _centroid(blob)
-        first = unproject_to_plane(centroid, self.width, self.height, self.centre_height)
+        rows, cols = rows + r0, cols + c0
+        # the hand is drawn inside the window only: without a hand pixel there, nothing touches it
+        touches = bool(hand_crop.any()) and bool(
+            np.any(hand[np.clip(rows[:, None] + _NEIGHBOURS[:, 0], 0, self.height - 1),
+                        np.clip(cols[:, None] + _NEIGHBOURS[:, 1], 0, self.width - 1)])
+        )
+        centroid = np.array([cols.mean() + 0.5, rows.mean() + 0.5])
+        first = _unproject(centroid, self.width, self.height, self.centre_height)
         if self.category is None:
             self._last_pixel = centroid
             return Detection(centroid, first, area, 1.0, touches, 0.0)
 
-        background = region & ~foreground & ~hand
+        background = region & ~foreground & ~hand_crop
         size = self.size
         options = headings(self.category)
         tried = range(len(options))
@@ -470,7 +574,7 @@ class ObjectLocator:
             reach = CLEAN_REACH_PX
             if touches:
                 reach = int(min(np.ceil(np.hypot(*tpl.mask.shape) / 2) + 2, MAX_REACH_PX))
-            shift, miss = match_template(tpl, blob, background, reach)
+            shift, miss = match_template(tpl, blob, background, reach, (r0, c0))
             if best is None or miss < best[2]:
                 best = (tpl, shift, miss, index)
         if best is None:
@@ -488,9 +592,19 @@ class ObjectLocator:
             if np.hypot(*delta) <= MAX_CENTROID_CORRECTION_PX:
                 pixel = tpl.centre + offset[::-1] + delta
             self._size_samples.append(size * float(np.sqrt(area / tpl.area)))
-        position = unproject_to_plane(pixel, self.width, self.height, self.centre_height)
+            self._size = None
+        position = _unproject(pixel, self.width, self.height, self.centre_height)
         self._last_pixel = pixel
         return Detection(pixel, position, area, area / tpl.area, touches, miss / tpl.area)
+
+    def _hand_shape(self, palm_pose: np.ndarray, joint_poses: np.ndarray, keypoints: np.ndarray) -> HandShape:
+        """The hand's :class:`HandShape`, projected once per state (an observe window's
+        frames all show the resting hand of the first observation)."""
+        palm, joints, keys = (np.asarray(a) for a in (palm_pose, joint_poses, keypoints))
+        key = b"|".join(a.dtype.str.encode() + repr(a.shape).encode() + a.tobytes() for a in (palm, joints, keys))
+        if self._hand is None or self._hand[0] != key:
+            self._hand = (key, HandShape.of(palm, joints, keys, self.width, self.height))
+        return self._hand[1]
 
     def _roi(self) -> tuple[int, int, int, int]:
         """Rows and columns to search: around the last sighting, else the whole image."""
