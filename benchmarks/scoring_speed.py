@@ -1,15 +1,19 @@
 """How long `scoring eval` takes on 1,000 recorded rollouts, against a bare baseline.
 
-Writes a synthetic run (``--episodes`` rollouts of ``--frames`` frames, images of
-``--image-bytes`` incompressible bytes, the contract's tables written with the
-catalog's pinned Parquet writer) to a temporary folder, then times, best of
-``--repeats``:
+Writes a synthetic run (``--episodes`` rollouts of ``--frames`` frames in shards of
+``--shard-size`` episodes, images of ``--image-bytes`` incompressible bytes, the
+contract's tables written with the catalog's pinned Parquet writer and listed in a
+manifest) to a temporary folder, or takes an existing run (``--run RUN``), then
+times, best of ``--repeats``:
 
-- baseline: pyarrow reading the very columns scoring needs from every shard;
-- scoring: ``load_run`` + ``score_run`` + ``report_dict`` (everything but printing).
+- baseline: pyarrow reading the very columns scoring needs from every shard, at the
+  paths the manifest records (no checks);
+- scoring: ``load_run`` (the reader's checks included) + ``score_run`` + ``report_dict``
+  in this process: everything ``scoring eval RUN --json`` does but start and print;
+- command: ``scoring eval RUN --json`` as a fresh process, start-up and imports included.
 
-Prints a summary, then one JSON line ``{"episodes", "frames", "seconds",
-"read_seconds", "ratio"}`` (ratio = seconds / read_seconds).
+Prints a summary, then one JSON line ``{"episodes", "frames", "shards", "seconds",
+"read_seconds", "ratio", "cli_seconds", ...}`` (ratio = seconds / read_seconds).
 Tiny check: ``python benchmarks/scoring_speed.py --episodes 20 --repeats 1``.
 """
 
@@ -17,6 +21,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -28,12 +34,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from catalog.hashing import sha256_file  # noqa: E402
-from catalog.manifest import CodeInfo, Manifest, write_manifest  # noqa: E402
+from catalog.manifest import CodeInfo, Manifest, load_manifest, write_manifest  # noqa: E402
 from catalog.parquet_io import write_table  # noqa: E402
 from catalog.records import FileRecord, ShardRecord, shard_paths  # noqa: E402
 from schemas.objects import OBJECTS  # noqa: E402
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES  # noqa: E402
 from schemas.tables import ARRAY_WIDTHS, FRAMES_SCHEMA, ROLLOUT_EPISODES_SCHEMA  # noqa: E402
+from schemas.versions import DATASET_VERSION  # noqa: E402
 from scoring.io import EPISODE_COLUMNS, FRAME_COLUMNS, ROLLOUT_COLUMNS, load_run  # noqa: E402
 from scoring.report import report_dict, score_run  # noqa: E402
 
@@ -127,26 +134,27 @@ def write_synthetic_run(folder: Path, episodes: int, frames: int, image_bytes: i
     for first in range(0, episodes, shard_size):
         end = min(first + shard_size, episodes)
         paths = shard_paths(first, end)
-        (folder / "shards").mkdir(parents=True, exist_ok=True)
+        for path in paths.values():
+            (folder / path).parent.mkdir(parents=True, exist_ok=True)
         frames_table, episodes_table = _shard_tables(rng, first, end, frames, image_bytes)
         write_table(folder / paths["frames"], frames_table, "frames")
         write_table(folder / paths["episodes"], episodes_table, "rollout_episodes")
         (folder / paths["mcap"]).write_bytes(b"")
         files = {k: FileRecord(p, sha256_file(folder / p), (folder / p).stat().st_size) for k, p in paths.items()}
         shards.append(ShardRecord((first, end), frames_table.num_rows, files))
-    settings = {"fps": 20, "resolution": 224, "image_format": "jpeg"}
+    settings = {"dataset_version": DATASET_VERSION, "fps": 20, "resolution": 224, "image_format": "jpeg"}
     manifest = Manifest.create("test-1k", seed, settings, shards, code=CodeInfo("0.1.0", None), extra={"policy": "synthetic"})
     write_manifest(folder, manifest)
     return folder
 
 
 def read_baseline(folder: Path) -> int:
-    """Bare pyarrow: read the columns scoring needs from every shard."""
+    """Bare pyarrow: read the columns scoring needs from every shard, at the paths its
+    manifest records (no hashing, no checks)."""
     rows = 0
-    for frames_path in sorted((folder / "shards").glob("*.frames.parquet")):
-        rows += pq.read_table(frames_path, columns=list(FRAME_COLUMNS)).num_rows
-        episodes_path = frames_path.with_name(frames_path.name.replace(".frames.", ".episodes."))
-        pq.read_table(episodes_path, columns=list(EPISODE_COLUMNS + ROLLOUT_COLUMNS))
+    for shard in load_manifest(folder).shards:
+        rows += pq.read_table(folder / shard.files["frames"].path, columns=list(FRAME_COLUMNS)).num_rows
+        pq.read_table(folder / shard.files["episodes"].path, columns=list(EPISODE_COLUMNS + ROLLOUT_COLUMNS))
     return rows
 
 
@@ -163,38 +171,72 @@ def best_of(repeats: int, fn, *args) -> tuple[float, object]:
     return best, result
 
 
+def cli_seconds(folder: Path) -> float:
+    """Wall seconds of ``scoring eval FOLDER --json`` as a fresh process: interpreter
+    start-up, imports, loading, scoring and printing."""
+    env = {**os.environ, "PYTHONPATH": bench_setup.ROOT}
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "scoring.cli", "eval", str(folder), "--json"], cwd=bench_setup.ROOT,
+                   env=env, stdout=subprocess.DEVNULL, check=True)
+    return time.perf_counter() - start
+
+
+def measure(folder: Path, repeats: int) -> dict:
+    """Best-of-``repeats`` seconds of the bare read, of scoring in this process and of the
+    ``scoring eval`` command, on one run folder."""
+    manifest = load_manifest(folder)
+    read_seconds, rows = best_of(repeats, read_baseline, folder)
+    seconds, result = best_of(repeats, score, folder)
+    command = min(cli_seconds(folder) for _ in range(repeats))
+    assert rows == manifest.frames and result["episodes"] == manifest.episodes
+    return {
+        "episodes": manifest.episodes,
+        "frames": manifest.frames,
+        "shards": len(manifest.shards),
+        "seconds": round(seconds, 4),
+        "read_seconds": round(read_seconds, 4),
+        "ratio": round(seconds / read_seconds, 3),
+        "cli_seconds": round(command, 4),
+        "metrics": result["metrics"],
+        "errors": result["errors"],
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", metavar="RUN", help="time an existing run folder instead of a synthetic one")
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--frames", type=int, default=70)
     parser.add_argument("--image-bytes", type=int, default=12_000, help="bytes per (incompressible) image")
-    parser.add_argument("--shard-size", type=int, default=128)
+    parser.add_argument("--shard-size", type=int, default=32, help="episodes per shard (pipeline eval's default)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
-    with tempfile.TemporaryDirectory(prefix="dyana-scoring-bench-") as tmp:
-        folder = Path(tmp) / "run"
-        start = time.perf_counter()
-        write_synthetic_run(folder, args.episodes, args.frames, args.image_bytes, args.shard_size, args.seed)
-        write_seconds = time.perf_counter() - start
+    load = [round(v, 2) for v in os.getloadavg()]
+    if args.run is not None:
+        folder = Path(args.run)
         size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
-        read_seconds, rows = best_of(args.repeats, read_baseline, folder)
-        seconds, result = best_of(args.repeats, score, folder)
+        print(f"run: {folder}, {size / 1e6:.1f} MB on disk")
+        out = measure(folder, args.repeats)
+    else:
+        with tempfile.TemporaryDirectory(prefix="dyana-scoring-bench-") as tmp:
+            folder = Path(tmp) / "run"
+            start = time.perf_counter()
+            write_synthetic_run(folder, args.episodes, args.frames, args.image_bytes, args.shard_size, args.seed)
+            write_seconds = time.perf_counter() - start
+            size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+            print(f"run: synthetic, {size / 1e6:.1f} MB on disk (written in {write_seconds:.1f} s)")
+            out = measure(folder, args.repeats)
 
-    frames = args.episodes * args.frames
-    assert rows == frames and result["episodes"] == args.episodes
-    m = result["metrics"]
-    print(f"run: {args.episodes} episodes, {frames} frames, {size / 1e6:.1f} MB on disk (written in {write_seconds:.1f} s)")
-    print(f"metrics: S_loc {m['S_loc']:.2f}%  S_gra {m['S_gra']:.2f}%  errors {result['errors']}")
-    print(f"baseline read (same columns): {read_seconds:.3f} s; scoring: {seconds:.3f} s; ratio {seconds / read_seconds:.2f}")
-    print(json.dumps({
-        "episodes": args.episodes,
-        "frames": frames,
-        "seconds": round(seconds, 4),
-        "read_seconds": round(read_seconds, 4),
-        "ratio": round(seconds / read_seconds, 3),
-    }))
+    m = out.pop("metrics")
+    print(f"{out['episodes']} episodes, {out['frames']} frames in {out['shards']} shards; "
+          f"S_loc {m['S_loc']:.2f}%  S_gra {m['S_gra']:.2f}%  errors {out['errors']}")
+    print(f"baseline read (same columns): {out['read_seconds']:.3f} s; scoring (load + metrics + report, "
+          f"in process): {out['seconds']:.3f} s; ratio {out['ratio']:.2f}; "
+          f"`scoring eval RUN --json` as a fresh process: {out['cli_seconds']:.3f} s")
+    print(json.dumps({"benchmark": "scoring_speed", "run": args.run or "synthetic", **out,
+                      "repeats": args.repeats, "load_average": load}))
     return 0
 
 

@@ -1,0 +1,190 @@
+"""The closed loop's speed: the predictive policy's first action, and evaluation against building.
+
+- ``first_act``: the ``predictive`` policy's first ``act`` on each of the first
+  ``--episodes`` test-1k episodes at ``--resolution`` px. That call localises the object
+  in every frame of the observe window (up to 100 frames) and fits the motion, so it is
+  the loop's longest. Each episode's call is timed ``--repeats`` times (a fresh
+  ``reset`` each time; the same action every time) and its best CPU and wall times
+  kept, against other users' load; then the median, p95 and max over the episodes.
+  In this process, one thread.
+- ``build`` and ``eval``: ``pipeline build --specs`` of the same episodes' specs and
+  ``pipeline eval --policy still|predictive`` on them, each a fresh process with
+  ``--workers`` workers (default 1), timed by wall clock including interpreter and
+  cluster start-up; episodes/s and frames/s (recorded frames: an evaluated episode
+  ends at its grasp, so it may record fewer frames than the built one), and each
+  evaluation's rates over the build's. The CPU seconds of each command (its process
+  and its workers, from ``getrusage``) are recorded too: on a shared machine their
+  ratios move less than the wall clock's.
+
+Prints a summary on stderr and, as the last line, one JSON object. The load average
+(``os.getloadavg``) is recorded before and after: the machine may be shared.
+
+    python benchmarks/closed_loop_speed.py                   # 50 episodes, ~2 minutes
+    python benchmarks/closed_loop_speed.py --episodes 5 --repeats 1 --no-throughput
+"""
+
+from __future__ import annotations
+
+import os
+
+import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import hashlib  # noqa: E402
+import json  # noqa: E402
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+SLICE = "test-1k"
+POLICIES = ("still", "predictive")
+
+
+def load_average() -> list[float]:
+    return [round(v, 2) for v in os.getloadavg()]
+
+
+def first_act(episodes: int, resolution: int, repeats: int) -> dict:
+    """Best-of-``repeats`` CPU and wall seconds of the predictive policy's first act per
+    episode, summarised over the first ``episodes`` test-1k episodes; ``actions_sha256``
+    digests the first actions (the same code gives the same digest)."""
+    from generators.recipe import spec_for
+    from pipeline.loop.env import DyanaEnv, horizon
+    from pipeline.loop.rollout import task_for
+    from pipeline.policies.predictive import PredictivePolicy
+
+    env = DyanaEnv(resolution)
+    policy = PredictivePolicy()
+    cpu, wall, window = [], [], []
+    digest = hashlib.sha256()
+    for i in range(episodes):
+        spec = spec_for(SLICE, i)
+        obs, _ = env.reset(options={"spec": spec})
+        task = task_for(spec, env.resolution, policy.privileged, horizon(spec))
+        best_cpu = best_wall = float("inf")
+        for _ in range(repeats):
+            policy.reset(task)
+            c0, w0 = time.process_time(), time.perf_counter()
+            action = policy.act(obs)
+            best_cpu = min(best_cpu, time.process_time() - c0)
+            best_wall = min(best_wall, time.perf_counter() - w0)
+        cpu.append(best_cpu)
+        wall.append(best_wall)
+        images = obs.get("observe_images")
+        window.append(0 if images is None else len(images))
+        digest.update(np.asarray(action, dtype=np.float32).tobytes())
+    c, w = np.array(cpu), np.array(wall)
+    return {
+        "episodes": episodes,
+        "repeats": repeats,
+        "resolution": resolution,
+        "cpu_median_s": round(float(np.median(c)), 4),
+        "cpu_p95_s": round(float(np.percentile(c, 95)), 4),
+        "cpu_max_s": round(float(c.max()), 4),
+        "wall_median_s": round(float(np.median(w)), 4),
+        "wall_p95_s": round(float(np.percentile(w, 95)), 4),
+        "wall_max_s": round(float(w.max()), 4),
+        "observe_frames_median": float(np.median(window)),
+        "observe_frames_max": int(max(window)),
+        "actions_sha256": digest.hexdigest(),
+    }
+
+
+def run_command(argv: list[str], out: Path | None = None) -> tuple[float, float]:
+    """Wall and CPU seconds (user + system of the process and every child it waited
+    for) of ``python -m ARGV...`` run from this repository as a fresh process; its
+    stdout goes to ``out``."""
+    env = {**os.environ, "PYTHONPATH": bench_setup.ROOT}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    with open(out if out is not None else os.devnull, "w") as sink:
+        done = subprocess.run([sys.executable, "-m", *argv], cwd=bench_setup.ROOT, env=env, stdout=sink,
+                              stderr=subprocess.PIPE, text=True)
+    seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} exited with {done.returncode}: {done.stderr.strip()[-500:]}")
+    return seconds, (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+
+
+def _rates(timing: tuple[float, float], folder: Path) -> dict:
+    seconds, cpu = timing
+    manifest = json.loads((folder / "catalog.json").read_text())
+    return {
+        "seconds": round(seconds, 3),
+        "cpu_seconds": round(cpu, 3),
+        "episodes": manifest["episodes"],
+        "frames": manifest["frames"],
+        "episodes_per_s": round(manifest["episodes"] / seconds, 3),
+        "frames_per_s": round(manifest["frames"] / seconds, 1),
+        "frames_per_cpu_s": round(manifest["frames"] / cpu, 1),
+        "hash": manifest["hash"],
+    }
+
+
+def throughput(episodes: int, resolution: int, workers: int, tmp: Path) -> dict:
+    """``pipeline build --specs`` of the episodes' specs and ``pipeline eval`` of each of
+    :data:`POLICIES` on the same episodes, timed in turn."""
+    specs = tmp / "specs.jsonl"
+    run_command(["pipeline.cli_catalog", "specs", SLICE, "--episodes", str(episodes)], out=specs)
+    common = ["--workers", str(workers), "--resolution", str(resolution), "--quiet"]
+    timing = run_command(["pipeline.cli", "build", "--specs", str(specs), "--out", str(tmp / "build"), *common])
+    build = _rates(timing, tmp / "build" / SLICE)
+    result = {"build": build, "eval": {}}
+    for name in POLICIES:
+        out = tmp / f"eval-{name}"
+        timing = run_command(["pipeline.cli", "eval", "--policy", name, "--slice", SLICE, "--episodes", str(episodes),
+                              "--out", str(out), *common])
+        rates = _rates(timing, out)
+        rates["episodes_per_s_vs_build"] = round(rates["episodes_per_s"] / build["episodes_per_s"], 3)
+        rates["frames_per_s_vs_build"] = round(rates["frames_per_s"] / build["frames_per_s"], 3)
+        rates["frames_per_cpu_s_vs_build"] = round(rates["frames_per_cpu_s"] / build["frames_per_cpu_s"], 3)
+        result["eval"][name] = rates
+    return result
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=50, help="first N test-1k episodes (default 50)")
+    parser.add_argument("--repeats", type=int, default=3, help="first-act timings per episode, best kept")
+    parser.add_argument("--resolution", type=int, default=224)
+    parser.add_argument("--workers", type=int, default=1, help="workers of each build and eval (default 1)")
+    parser.add_argument("--no-throughput", action="store_true", help="time the first act only")
+    args = parser.parse_args(argv)
+    if args.episodes < 1 or args.repeats < 1 or args.workers < 1:
+        parser.error("--episodes, --repeats and --workers must be >= 1")
+
+    result: dict = {"benchmark": "closed_loop_speed", "slice": SLICE, "load_average_start": load_average()}
+    act = first_act(args.episodes, args.resolution, args.repeats)
+    print(f"first act (predictive, {args.episodes} episodes, best of {args.repeats}): CPU median "
+          f"{act['cpu_median_s']:.3f} s, p95 {act['cpu_p95_s']:.3f} s, max {act['cpu_max_s']:.3f} s; wall median "
+          f"{act['wall_median_s']:.3f} s, p95 {act['wall_p95_s']:.3f} s", file=sys.stderr)
+    result["first_act"] = act
+    if not args.no_throughput:
+        with tempfile.TemporaryDirectory(prefix="dyana-closed-loop-") as tmp:
+            rates = throughput(args.episodes, args.resolution, args.workers, Path(tmp))
+        build = rates["build"]
+        print(f"build: {build['episodes_per_s']:.2f} episodes/s, {build['frames_per_s']:.0f} frames/s "
+              f"({build['frames']} frames in {build['seconds']:.1f} s, {build['cpu_seconds']:.1f} CPU s; "
+              f"{args.workers} worker(s))", file=sys.stderr)
+        for name, r in rates["eval"].items():
+            print(f"eval {name}: {r['episodes_per_s']:.2f} episodes/s ({r['episodes_per_s_vs_build']:.2f}x the build), "
+                  f"{r['frames_per_s']:.0f} frames/s ({r['frames_per_s_vs_build']:.2f}x; {r['frames']} frames in "
+                  f"{r['seconds']:.1f} s, {r['cpu_seconds']:.1f} CPU s: {r['frames_per_cpu_s_vs_build']:.2f}x "
+                  f"the build's frames per CPU second)", file=sys.stderr)
+        result.update(rates, workers=args.workers)
+    result["load_average_end"] = load_average()
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()
