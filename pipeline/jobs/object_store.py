@@ -55,8 +55,9 @@ def _remote_json(remote: Any, name: str) -> dict | None:
 
 
 def _remote_sizes(remote: Any) -> dict[str, int]:
-    """``{relative path: size}`` of every object under ``remote``."""
+    """``{relative path: size}`` of every object under ``remote`` (listed afresh, not cached)."""
     fs, root = remote.fs, remote.path.rstrip("/")
+    fs.invalidate_cache()
     try:
         found = fs.find(root, detail=True)
     except FileNotFoundError:
@@ -74,6 +75,26 @@ def _download(remote: Any, local: Path, rel: str) -> None:
     partial = target.with_name(f".{target.name}.download")
     remote.fs.get_file(f"{remote.path.rstrip('/')}/{rel}", os.fspath(partial))
     os.replace(partial, target)
+
+
+def _clear_foreign_staging(staging: Path, wanted: dict) -> None:
+    """Empty the staging folder if it holds another job's work (or unreadable state): it is
+    this tool's cache, whose finished shards went to the URL as they were done, never a
+    user's folder."""
+    try:
+        state = json.loads((staging / STATE_FILE).read_text())
+        held = state["identity"]
+    except FileNotFoundError:
+        try:
+            held = _manifest_identity(Manifest.from_dict(json.loads((staging / MANIFEST_NAME).read_text())))
+        except FileNotFoundError:
+            return
+        except (OSError, ValueError, ShardError):
+            held = None
+    except (OSError, ValueError, KeyError, TypeError):
+        held = None
+    if held != wanted:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
@@ -105,8 +126,14 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
     wanted = local_job.identity()
     manifest_data = _remote_json(remote, MANIFEST_NAME)
     sizes = _remote_sizes(remote)
+    held = None
     if manifest_data is not None:
-        held = Manifest.from_dict(manifest_data)
+        try:
+            held = Manifest.from_dict(manifest_data)
+        except ShardError as exc:
+            if not overwrite:
+                raise ShardError(f"{url}/{MANIFEST_NAME}: {exc} (pass --overwrite to replace it)") from None
+    if held is not None:
         identity = _manifest_identity(held)
         if identity != wanted and not overwrite:
             raise SpecError(f"{url} holds another job ({describe_difference(identity, wanted)}): "
@@ -120,6 +147,7 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
     if state is not None and state.get("identity") not in (None, wanted) and not overwrite:
         raise SpecError(f"{url} holds an unfinished run of another job "
                         f"({describe_difference(state['identity'], wanted)}): pass --overwrite to replace it")
+    _clear_foreign_staging(staging, wanted)
     staging.mkdir(parents=True, exist_ok=True)
     if state is not None and state.get("identity") == wanted:
         for record in _records_of(state, "shards"):

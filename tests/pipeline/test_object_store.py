@@ -146,3 +146,22 @@ def test_view_replay_and_export_read_the_url(remote, server, tmp_path):
     export = _cli("catalog", "export", remote, "--out", str(tmp_path / "lerobot"), "--workers", "1", "--quiet",
                   env=server, staging=tmp_path)
     assert export.returncode == 0 and "6 episodes" in export.stdout, export.stderr
+
+
+def test_staging_left_by_another_job_is_cleared_not_refused(server, tmp_path):
+    from pipeline.jobs.object_store import staging_folder
+
+    url = f"s3://{BUCKET}/fresh"
+    os.environ["DYANA_STAGING"], saved = str(tmp_path), os.environ.get("DYANA_STAGING")
+    try:
+        stale = staging_folder(f"{url}/linear-fast")
+    finally:
+        if saved is None:
+            del os.environ["DYANA_STAGING"]
+        else:
+            os.environ["DYANA_STAGING"] = saved
+    stale.mkdir(parents=True)
+    (stale / ".build-state.json").write_text(json.dumps({"identity": {"slice": "other"}, "shards": []}))
+    result = _cli("pipeline", "build", *ARGS[:3], "2", *ARGS[4:], "--out", url, "--quiet", env=server, staging=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert not stale.exists() and "catalog.json" in _objects("fresh/linear-fast")
