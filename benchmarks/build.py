@@ -1,4 +1,4 @@
-"""Build throughput against pybullet's naive renderer, measured in one run.
+"""Build throughput: against pybullet's naive renderer, per stage, and against JPEG encoding alone.
 
 - ``naive_render_fps``: TinyRenderer drawing the full scene (floor, table, object, hand)
   for every frame of the same episodes at the same resolution, in this process (one core).
@@ -6,22 +6,45 @@
   MCAP, manifest) with one worker, frames over wall time including cluster start-up.
 - ``ratio`` = build_fps / naive_render_fps; ``workers_2_speedup`` = the 2-worker build's
   frames/s over the 1-worker build's.
+- ``profile_ms_per_frame``: one more real build of the same episodes, in this process
+  (``workers=0``: the same shard task a worker runs, then the driver's statistics and
+  manifest), with each stage's functions wrapped by a timer; a stage's time is this
+  thread's CPU time inside its functions minus the stages nested in them, per frame.
+  ``other`` is the rest of the build's CPU time (spec sampling, Python glue, the manifest).
+- ``jpeg_only_fps``: the same frames, decoded from that build's Parquet, encoded again with
+  the build's encoder and options (OpenCV's ``imencode`` on the BGR pixels it decodes to),
+  CPU time of the encode calls alone: the most frames/s a build that only encoded JPEG
+  could reach on one core. ``build_fraction_of_jpeg`` = build_fps / jpeg_only_fps (wall
+  time, the 1-worker build: frames/s per core); ``profile_fraction_of_jpeg`` = the profiled
+  build's frames per CPU second / jpeg_only_fps (CPU time, robust to other load).
 
 Usage: python benchmarks/build.py [--slice circular-medium] [--episodes 96] [--json] [--quiet]
-The last line printed is the JSON result; progress lines (per episode, at most one per
-2 s) go to stderr unless --quiet.
+           [--profile-only]
+Prints the profile table, then the JSON result as the last line; progress lines (per
+episode, at most one per 2 s) go to stderr unless --quiet. Run it under the shared lock
+(``flock /tmp/dyana-bench.lock python benchmarks/build.py``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
+import importlib
 import json
 import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
+import numpy as np
+import pyarrow.parquet as pq
+
+from generators.encode import JPEG_QUALITY, jpeg_params
 from generators.recipe import slice_specs
 from generators.render import Renderer
 from pipeline.jobs.build import build
@@ -30,9 +53,100 @@ from schemas.cli import ProgressMeter
 from schemas.slices import get_slice
 
 
+@dataclass(frozen=True)
+class Hook:
+    """A function timed as part of ``stage``: attribute ``name`` of ``owner`` ("module" or
+    "module:Class")."""
+
+    stage: str
+    owner: str
+    name: str
+
+
+#: The stages of a build, in the order they are printed, and the functions that make them up.
+STAGES = ("episode stage", "scene setup", "render", "composite", "JPEG encode", "Parquet", "MCAP",
+          "hashing", "statistics")
+HOOKS = (
+    Hook("episode stage", "pipeline.stages.episode", "episode"),
+    Hook("scene setup", "generators.render:Renderer", "set_scene"),
+    Hook("render", "generators.render:Renderer", "_pose"),
+    Hook("render", "generators.render:Renderer", "_draw"),
+    Hook("composite", "generators.render:Renderer", "render"),
+    Hook("composite", "generators.render:Renderer", "render_bgr"),
+    Hook("JPEG encode", "pipeline.stages.record", "encode_jpeg"),
+    Hook("JPEG encode", "pipeline.stages.record", "encode_bgr_jpeg"),
+    Hook("Parquet", "catalog.shard", "frames_table"),
+    Hook("Parquet", "catalog.shard", "episode_row"),
+    Hook("Parquet", "catalog.shard", "episodes_table"),
+    Hook("Parquet", "catalog.shard", "write_table"),
+    Hook("Parquet", "catalog.parquet_io:TableWriter", "__init__"),
+    Hook("Parquet", "catalog.parquet_io:TableWriter", "write"),
+    Hook("Parquet", "catalog.parquet_io:TableWriter", "close"),
+    Hook("MCAP", "catalog.mcap_io:McapShardWriter", "__init__"),
+    Hook("MCAP", "catalog.mcap_io:McapShardWriter", "check_episode"),
+    Hook("MCAP", "catalog.mcap_io:McapShardWriter", "add_episode"),
+    Hook("MCAP", "catalog.mcap_io:McapShardWriter", "close"),
+    Hook("hashing", "catalog.shard", "sha256_file"),
+    Hook("hashing", "catalog.stats", "sha256_file"),
+    Hook("statistics", "pipeline.jobs.runner", "compute_stats"),
+)
+
+
 def _phase(title: str, quiet: bool) -> None:
     if not quiet:
         print(title, file=sys.stderr, flush=True)
+
+
+def _owner(path: str):
+    module, _, cls = path.partition(":")
+    target = importlib.import_module(module)
+    return getattr(target, cls) if cls else target
+
+
+class StageClock:
+    """Exclusive CPU time per stage: time inside a hooked function, minus the hooked
+    functions it calls (which count for their own stage)."""
+
+    def __init__(self) -> None:
+        self.totals = dict.fromkeys(STAGES, 0.0)
+        self._nested: list[float] = []
+
+    def wrap(self, stage: str, fn):
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            self._nested.append(0.0)
+            start = time.thread_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                elapsed = time.thread_time() - start
+                inner = self._nested.pop()
+                self.totals[stage] += elapsed - inner
+                if self._nested:
+                    self._nested[-1] += elapsed
+
+        return timed
+
+
+@contextlib.contextmanager
+def hooked(clock: StageClock) -> Iterator[list[str]]:
+    """Wrap every hook's function with ``clock`` for the duration; yields the stages none of
+    whose functions exist. (A stage lists the names of older code too, so the same script
+    profiles an earlier checkout.)"""
+    saved, found = [], set()
+    try:
+        for hook in HOOKS:
+            owner = _owner(hook.owner)
+            fn = owner.__dict__.get(hook.name) if isinstance(owner, type) else getattr(owner, hook.name, None)
+            if fn is None:
+                continue
+            found.add(hook.stage)
+            saved.append((owner, hook.name, fn))
+            setattr(owner, hook.name, clock.wrap(hook.stage, fn))
+        yield [stage for stage in STAGES if stage not in found]
+    finally:
+        for owner, name, fn in reversed(saved):
+            setattr(owner, name, fn)
 
 
 def naive_render_fps(slice_name: str, episodes: int, resolution: int, quiet: bool = True) -> tuple[float, int]:
@@ -74,6 +188,78 @@ def build_fps(slice_name: str, episodes: int, resolution: int, workers: int, sha
         shutil.rmtree(out, ignore_errors=True)
 
 
+@dataclass(frozen=True)
+class Profile:
+    """One profiled in-process build: CPU ms per frame by stage, totals and its hash."""
+
+    frames: int
+    ms_per_frame: dict[str, float]
+    cpu_s: float
+    wall_s: float
+    hash: str
+    missing: tuple[str, ...]  # stages without a hooked function
+    jpeg_only_fps: float
+
+
+def profile_build(slice_name: str, episodes: int, resolution: int, shard_size: int, quiet: bool = True) -> Profile:
+    """Build in this process with every stage timed, then time JPEG encoding alone on the
+    frames it wrote."""
+    out = Path(tempfile.mkdtemp(prefix="dyana-bench-profile-"))
+    _phase("pipeline build in this process, stages timed:", quiet)
+    clock = StageClock()
+    try:
+        with hooked(clock) as missing:
+            wall, cpu = time.perf_counter(), time.thread_time()
+            manifest = build(slice_name, out, episodes=episodes, workers=0, resolution=resolution,
+                             shard_size=shard_size, progress=not quiet)
+            cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
+        frames = manifest.frames
+        ms = {stage: 1000.0 * clock.totals[stage] / frames for stage in STAGES}
+        ms["other"] = 1000.0 * (cpu - sum(clock.totals.values())) / frames
+        _phase("JPEG encoding alone, the same frames (timed):", quiet)
+        jpeg = jpeg_only_fps(out / slice_name / "frames")
+        return Profile(frames, ms, cpu, wall, manifest.hash, tuple(missing), jpeg)
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+
+
+def decode_bgr(data: bytes) -> np.ndarray:
+    bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise ValueError(f"an image of {len(data)} bytes does not decode")
+    return bgr
+
+
+def jpeg_only_fps(frames_dir: Path) -> float:
+    """Frames per CPU second of ``cv2.imencode`` with the build's options over every frame
+    stored in ``frames_dir`` (decoded one row group at a time; only the encoding is timed)."""
+    params = jpeg_params(JPEG_QUALITY)
+    count, elapsed = 0, 0.0
+    for path in sorted(frames_dir.glob("*.parquet")):
+        parquet = pq.ParquetFile(path)
+        for group in range(parquet.num_row_groups):
+            images = parquet.read_row_group(group, columns=["image"]).column("image").to_pylist()
+            decoded = [decode_bgr(data) for data in images]
+            start = time.thread_time()
+            for bgr in decoded:
+                cv2.imencode(".jpg", bgr, params)
+            elapsed += time.thread_time() - start
+            count += len(decoded)
+    return count / elapsed
+
+
+def profile_table(profile: Profile) -> str:
+    total = sum(profile.ms_per_frame.values())
+    lines = [f"per-stage profile: {profile.frames} frames, one core, CPU ms per frame",
+             f"{'stage':<14} {'ms/frame':>9} {'share':>7}"]
+    for stage, ms in profile.ms_per_frame.items():
+        lines.append(f"{stage:<14} {ms:9.3f} {100.0 * ms / total:6.1f}%")
+    lines.append(f"{'total':<14} {total:9.3f} {100.0:6.1f}%  ({1000.0 / total:.1f} frames per CPU second)")
+    lines.append(f"{'JPEG alone':<14} {1000.0 / profile.jpeg_only_fps:9.3f}          "
+                 f"({profile.jpeg_only_fps:.1f} frames per CPU second)")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--slice", default="circular-medium")
@@ -82,29 +268,49 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shard-size", type=int, default=12)
     parser.add_argument("--json", action="store_true", help="print only the JSON line")
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    parser.add_argument("--profile-only", action="store_true",
+                        help="only the profiled in-process build and JPEG alone (no naive render, no Dask builds)")
     args = parser.parse_args(argv)
     get_slice(args.slice)
 
-    naive, frames = naive_render_fps(args.slice, args.episodes, args.resolution, args.quiet)
-    one, hash_one = build_fps(args.slice, args.episodes, args.resolution, 1, args.shard_size, args.quiet)
-    two, hash_two = build_fps(args.slice, args.episodes, args.resolution, 2, args.shard_size, args.quiet)
-    if hash_one != hash_two:
-        print(f"catalog hashes differ between 1 and 2 workers: {hash_one} vs {hash_two}", file=sys.stderr)
-        return 1
-    result = {
-        "naive_render_fps": round(naive, 1),
-        "build_fps": round(one, 1),
-        "ratio": round(one / naive, 3),
-        "workers_2_speedup": round(two / one, 3),
-        "build_fps_2_workers": round(two, 1),
-        "frames": frames,
+    profile = profile_build(args.slice, args.episodes, args.resolution, args.shard_size, args.quiet)
+    per_cpu_s = profile.frames / profile.cpu_s
+    result: dict = {}
+    if not args.profile_only:
+        naive, frames = naive_render_fps(args.slice, args.episodes, args.resolution, args.quiet)
+        one, hash_one = build_fps(args.slice, args.episodes, args.resolution, 1, args.shard_size, args.quiet)
+        two, hash_two = build_fps(args.slice, args.episodes, args.resolution, 2, args.shard_size, args.quiet)
+        if len({hash_one, hash_two, profile.hash}) != 1:
+            print(f"catalog hashes differ: 1 worker {hash_one}, 2 workers {hash_two}, in process {profile.hash}",
+                  file=sys.stderr)
+            return 1
+        result = {
+            "naive_render_fps": round(naive, 1),
+            "build_fps": round(one, 1),
+            "ratio": round(one / naive, 3),
+            "workers_2_speedup": round(two / one, 3),
+            "build_fps_2_workers": round(two, 1),
+            "build_fraction_of_jpeg": round(one / profile.jpeg_only_fps, 3),
+        }
+    result.update({
+        "profile_ms_per_frame": {stage: round(ms, 3) for stage, ms in profile.ms_per_frame.items()},
+        "profile_fps_per_cpu_s": round(per_cpu_s, 1),
+        "jpeg_only_fps": round(profile.jpeg_only_fps, 1),
+        "profile_fraction_of_jpeg": round(per_cpu_s / profile.jpeg_only_fps, 3),
+        "hash": profile.hash[:16],
+        "frames": profile.frames,
         "episodes": args.episodes,
         "resolution": args.resolution,
         "slice": args.slice,
-    }
+    })
+    if profile.missing:
+        print(f"stages not found (not timed): {', '.join(profile.missing)}", file=sys.stderr, flush=True)
     if not args.json:
-        print(f"naive TinyRenderer: {naive:.1f} frames/s; build 1 worker: {one:.1f} frames/s "
-              f"(x{one / naive:.2f}); 2 workers: {two:.1f} frames/s (x{two / one:.2f} over 1)")
+        print(profile_table(profile))
+        if not args.profile_only:
+            print(f"naive TinyRenderer: {naive:.1f} frames/s; build 1 worker: {one:.1f} frames/s "
+                  f"(x{one / naive:.2f}; {one / profile.jpeg_only_fps:.3f} of JPEG alone); "
+                  f"2 workers: {two:.1f} frames/s (x{two / one:.2f} over 1)")
     print(json.dumps(result))
     return 0
 

@@ -26,9 +26,21 @@ that frame (counted in :attr:`Renderer.fallbacks`). No shadows, explicit lights.
 
 Between two moving surfaces at exactly equal depth, the winner depends on
 TinyRenderer's internal draw order, which hiding, removing or adding bodies perturbs.
-Nothing is ever hidden or removed: every episode starts from empty clients filled in a
-fixed order (:meth:`Renderer.set_scene`), so a frame's bytes depend on its episode
-alone, not on what the process rendered before.
+A frame also depends on how often its client drew before: each draw normalises every
+stored vertex normal of every body in place (``Model::normal``), which is not
+idempotent in float, so shading can differ by a level between a body's first and
+later draws. Nothing is ever hidden or removed, and no body outlives its episode:
+every episode starts from empty clients filled in a fixed order
+(:meth:`Renderer.set_scene`), and the moving-bodies client draws exactly once per
+frame, so a frame's bytes depend on its episode alone, not on what the process
+rendered before. (Keeping a hand loaded across episodes would save its ~18 ms of
+hull building per episode, but its normals would then have been normalised by every
+earlier episode's draws: measured, 1 of 252 episodes got other bytes.)
+
+The composite touches only the window around the moving bodies: the plate is copied,
+then the window's front pixels are converted, mirrored and copied with OpenCV (one
+pass each). :meth:`Renderer.render_bgr` gives the same frame in OpenCV's channel order,
+so the build hands it to the JPEG encoder without another conversion.
 
 Images are mirrored left-right so that world +X is on the image's right
 (:mod:`generators.camera`).
@@ -45,6 +57,7 @@ import importlib.util
 import numbers
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from generators.bullet import p
@@ -73,6 +86,8 @@ LIGHT_SPECULAR = 0.0
 
 #: Depths within this many float32 ulps count as a tie the plate cannot settle.
 TIE_ULPS = 4
+#: The moving-bodies client is reset, not emptied body by body, once in this many scenes.
+RESET_EVERY = 32
 BACKENDS = ("tiny", "egl")
 
 
@@ -112,6 +127,7 @@ class Renderer:
             raise SpecError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
         self.backend = backend
         self.fallbacks = 0
+        self._scenes = 0
         self._client = p.connect(p.DIRECT)
         self._full_client = p.connect(p.DIRECT)
         try:
@@ -143,13 +159,15 @@ class Renderer:
         _, empty = self._draw(self._client)
         self._empty_depth = float(empty.min())
 
-    def _plate_from(self, client: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The static plate drawn in ``client``: depth, mirrored RGB and depth tie widths."""
-        rgb, depth = self._draw(client)
-        return depth, np.ascontiguousarray(rgb[:, ::-1]), TIE_ULPS * np.spacing(depth)
+    def _plate_from(self, client: int) -> tuple[np.ndarray, ...]:
+        """The static plate drawn in ``client``: depth, mirrored RGB, mirrored BGR and depth
+        tie widths."""
+        rgba, depth = self._draw(client)
+        rgb = np.ascontiguousarray(rgba[:, ::-1, :3])
+        return depth, rgb, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), TIE_ULPS * np.spacing(depth)
 
-    def _use_plate(self, plate: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
-        self._plate_depth, self._plate_mirrored, self._tie = plate
+    def _use_plate(self, plate: tuple[np.ndarray, ...]) -> None:
+        self._plate_depth, self._plate_rgb, self._plate_bgr, self._tie = plate
 
     def _add_moving(self, client: int) -> tuple[_Body | None, _Body | None]:
         """Create the episode's hand, then its object, in ``client``."""
@@ -166,16 +184,28 @@ class Renderer:
     def _build(self) -> None:
         """Empty the moving-bodies client and create the episode's hand and object in it.
 
-        TinyRenderer settles exact depth ties by its internal draw order, which adding,
-        removing or re-colouring bodies perturbs. So nothing is ever hidden or removed:
-        each episode starts from an empty client with bodies created in a fixed order,
-        which makes every frame a function of its episode alone, whatever the process
-        rendered before (1 or 2 workers, a replay). The full-scene client (static bodies,
-        the obstacles, then the same hand and object) is built the same way, only when a
-        frame needs it; with obstacles, its static part is built at once to draw the
-        scene's plate, and the hand and object are added when a frame needs them.
+        TinyRenderer's frames depend on its draw order and on each body's draw count
+        (see the module docstring). So nothing is ever hidden and no body outlives its
+        episode: each episode starts from an empty client with fresh bodies created in a
+        fixed order, which makes every frame a function of its episode alone, whatever
+        the process rendered before (1 or 2 workers, a replay). The client is emptied by
+        removing its two bodies, which leaves TinyRenderer's table of shapes empty as a
+        reset does, but keeps pybullet's cache of the hand's GUI shapes
+        (:func:`generators.scene.load_hand`: 8 ms an episode); every
+        :data:`RESET_EVERY` scenes it is reset instead, which frees the ~50 KB that each
+        cached load leaves behind (measured). The full-scene client
+        (static bodies, the obstacles, then the same hand and object) is reset and
+        filled only when a frame needs it; with obstacles, its static part is built at
+        once to draw the scene's plate, and the hand and object are added when a frame
+        needs them.
         """
-        p.resetSimulation(physicsClientId=self._client)
+        self._scenes += 1
+        if self._scenes % RESET_EVERY == 0:
+            p.resetSimulation(physicsClientId=self._client)
+        else:
+            for body in (self._object, self._hand):
+                if body is not None:
+                    p.removeBody(body.body, physicsClientId=self._client)
         self._hand, self._object = self._add_moving(self._client)
         self._full_bodies = None
         self._full_static = False
@@ -274,8 +304,9 @@ class Renderer:
 
     # drawing -----------------------------------------------------------------
     def _draw(self, client: int) -> tuple[np.ndarray, np.ndarray]:
-        """One TinyRenderer pass over whatever is in view: (H, W, 3) RGB and (H, W) depth,
-        unmirrored."""
+        """One TinyRenderer pass over whatever is in view: (H, W, 4) RGBA and (H, W) depth,
+        unmirrored. (Kept as RGBA: OpenCV converts that in one pass, while any copy of its
+        three-of-four-channel view runs element by element, ~40x slower.)"""
         _, _, rgba, depth, _ = p.getCameraImage(
             self.width,
             self.height,
@@ -294,13 +325,13 @@ class Renderer:
         )
         rgba = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)
         depth = np.asarray(depth, dtype=np.float32).reshape(self.height, self.width)
-        return rgba[:, :, :3], depth
+        return rgba, depth
 
-    def _full(self) -> np.ndarray:
+    def _full(self, bgr: bool = False) -> np.ndarray:
         hand, obj = self._full_scene()
         self._apply(self._full_client, hand, obj)
-        rgb, _ = self._draw(self._full_client)
-        return np.ascontiguousarray(rgb[:, ::-1])
+        rgba, _ = self._draw(self._full_client)
+        return cv2.flip(cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR if bgr else cv2.COLOR_RGBA2RGB), 1)
 
     def render_full(self, object_pose=None, palm_pose=None, joint_angles=None) -> np.ndarray:
         """The naive frame: the whole scene drawn by TinyRenderer. (H, W, 3) uint8 RGB."""
@@ -310,25 +341,41 @@ class Renderer:
     def render(self, object_pose=None, palm_pose=None, joint_angles=None) -> np.ndarray:
         """The frame for these states, composited over the static plate; equal to
         :meth:`render_full` pixel for pixel. (H, W, 3) uint8 RGB."""
+        return self._frame(object_pose, palm_pose, joint_angles, bgr=False)
+
+    def render_bgr(self, object_pose=None, palm_pose=None, joint_angles=None) -> np.ndarray:
+        """The frame of :meth:`render` with its channels in OpenCV's order: (H, W, 3) uint8
+        BGR, for :func:`generators.encode.encode_bgr_jpeg`."""
+        return self._frame(object_pose, palm_pose, joint_angles, bgr=True)
+
+    def _frame(self, object_pose, palm_pose, joint_angles, bgr: bool) -> np.ndarray:
         self._pose(object_pose, palm_pose, joint_angles)
         if self.backend != "tiny":
-            return self._full()
+            return self._full(bgr)
         if self._object is None and self._hand is None:
-            return self._plate_mirrored.copy()
-        rgb, depth = self._draw(self._client)
+            return (self._plate_bgr if bgr else self._plate_rgb).copy()
+        return self._composite(*self._draw(self._client), bgr)
+
+    def _composite(self, rgba: np.ndarray, depth: np.ndarray, bgr: bool) -> np.ndarray:
+        """The moving bodies' draw over the plate: a moving pixel shows where its depth is
+        at least as near as the plate's; a near-tie falls back to a full render."""
+        plate = self._plate_bgr if bgr else self._plate_rgb
         moving = depth < self._empty_depth
         rows = np.flatnonzero(moving.any(axis=1))
-        out = self._plate_mirrored.copy()
         if rows.size == 0:
-            return out
-        cols = np.flatnonzero(moving.any(axis=0))
-        win = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
-        near, plate, inside = depth[win], self._plate_depth[win], moving[win]
-        if np.any(inside & (np.abs(near - plate) <= self._tie[win])):
+            return plate.copy()
+        r0, r1 = int(rows[0]), int(rows[-1]) + 1
+        band = moving[r0:r1]
+        cols = np.flatnonzero(band.any(axis=0))
+        c0, c1 = int(cols[0]), int(cols[-1]) + 1
+        inside, near, far = band[:, c0:c1], depth[r0:r1, c0:c1], self._plate_depth[r0:r1, c0:c1]
+        if np.any(inside & (np.abs(near - far) <= self._tie[r0:r1, c0:c1])):
             self.fallbacks += 1
-            return self._full()
-        front = inside & (near <= plate)
-        np.copyto(out[:, ::-1][win], rgb[win], where=front[:, :, None])
+            return self._full(bgr)
+        front = cv2.flip((inside & (near <= far)).view(np.uint8), 1)
+        pixels = cv2.flip(cv2.cvtColor(rgba[r0:r1, c0:c1], cv2.COLOR_RGBA2BGR if bgr else cv2.COLOR_RGBA2RGB), 1)
+        out = plate.copy()
+        cv2.copyTo(pixels, front, out[r0:r1, self.width - c1 : self.width - c0])
         return out
 
     def object_pixels(self, object_pose, palm_pose, joint_angles) -> tuple[int, int]:

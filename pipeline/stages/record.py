@@ -12,7 +12,7 @@ from pathlib import Path
 
 from catalog.records import ShardRecord
 from catalog.shard import ShardWriter
-from generators.encode import encode_jpeg
+from generators.encode import encode_bgr_jpeg
 from generators.render import Renderer
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
@@ -37,10 +37,16 @@ def _close_renderers() -> None:
 
 
 def encoded_frames(spec: EpisodeSpec, frames: EpisodeFrames, resolution: int, jpeg_quality: int) -> list[bytes]:
-    """Render every frame of an episode and encode it as JPEG."""
+    """Render every frame of an episode and encode it as JPEG (frames drawn in OpenCV's
+    channel order, so nothing is converted between renderer and encoder)."""
     renderer = renderer_for(resolution)
-    images = renderer.render_episode(frames, spec.object, spec.object_size, spec.hand, obstacles=spec.obstacles)
-    return [encode_jpeg(image, jpeg_quality) for image in images]
+    renderer.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
+    return [
+        encode_bgr_jpeg(
+            renderer.render_bgr(frames.object_pose[i], frames.palm_pose[i], frames.joint_angles[i]), jpeg_quality
+        )
+        for i in range(frames.num_frames)
+    ]
 
 
 def write_ground_truth_shard(

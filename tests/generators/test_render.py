@@ -436,3 +436,76 @@ def test_a_frame_does_not_depend_on_what_the_renderer_drew_before():
     assert np.array_equal(composited, full)
     assert np.array_equal(again, composited)
     assert np.array_equal(again_full, full)
+
+
+def test_a_scene_starts_from_fresh_bodies_whatever_was_drawn_before():
+    """TinyRenderer normalises every stored vertex normal in place on each draw, so a
+    body's first draw can shade a pixel a level differently from its later draws (here
+    circular-slow episode 17611, frame 73). A renderer that drew other episodes with the
+    same hand before must still draw an episode's first frame with fresh bodies."""
+    from generators.recipe import spec_for
+    from pipeline.stages.episode import episode
+
+    spec = spec_for("circular-slow", 17611)
+    state = (lambda f: (f.object_pose[73], f.palm_pose[73], f.joint_angles[73]))(episode(spec))
+    with Renderer(224) as fresh:
+        fresh.set_scene(spec.object, spec.object_size, spec.hand)
+        first, second = fresh.render(*state), fresh.render(*state)
+    assert not np.array_equal(first, second), "premise: a body's first and second draws differ here"
+    with Renderer(224) as used:
+        for index in range(3):
+            other = spec_for("harmonic-fast", index)
+            frames = episode(other)
+            used.set_scene(other.object, other.object_size, spec.hand)
+            for k in range(3):
+                used.render(frames.object_pose[k], frames.palm_pose[k], frames.joint_angles[k])
+        used.set_scene(spec.object, spec.object_size, spec.hand)
+        assert np.array_equal(used.render(*state), first)
+        assert np.array_equal(used.render(*state), second)
+
+
+def test_bgr_frames_and_their_jpeg_equal_the_rgb_ones(small):
+    from generators.encode import encode_bgr_jpeg
+
+    rng = np.random.default_rng(5)
+    for name, size, side, pose, palm, joints in random_states(rng, 12):
+        small.set_scene(name, size, side)
+        rgb = small.render(pose, palm, joints)
+        bgr = small.render_bgr(pose, palm, joints)
+        assert bgr.flags.c_contiguous and np.array_equal(bgr, rgb[:, :, ::-1])
+        assert encode_bgr_jpeg(bgr) == encode_jpeg(rgb) == encode_jpeg(np.ascontiguousarray(rgb[:, ::-1])[:, ::-1])
+    small.set_scene(None, None, None)
+    assert np.array_equal(small.render_bgr(), small.render()[:, :, ::-1])
+    with pytest.raises(SpecError, match="uint8"):
+        encode_bgr_jpeg(rgb[:, :, :2])
+
+
+def test_tie_fallbacks_give_bgr_frames_too(small):
+    cat = OBJECTS["toy_cube"]
+    hy = cat.scaled_dims(cat.nominal_size)[1]
+    pose = np.array([0.0, -TABLE_TOP_GAP - hy, 4.0, *IDENTITY])
+    small.set_scene("toy_cube", cat.nominal_size, None)
+    before = small.fallbacks
+    assert np.array_equal(small.render_bgr(pose), small.render_full(pose)[:, :, ::-1])
+    assert small.fallbacks == before + 1
+
+
+def test_frames_do_not_depend_on_when_the_moving_client_was_last_reset(monkeypatch):
+    """The moving client is emptied by removing its bodies and, every RESET_EVERY scenes,
+    reset instead: either way a scene's frames equal a fresh renderer's."""
+    import generators.render as render
+
+    rng = np.random.default_rng(23)
+    states = list(random_states(rng, 5))
+    fresh = []
+    for name, size, side, pose, palm, joints in states:
+        with Renderer(SMALL) as once:
+            once.set_scene(name, size, side)
+            fresh.append([once.render(pose, palm, joints), once.render(pose, palm, joints)])
+    for every in (1, 2, 3):
+        monkeypatch.setattr(render, "RESET_EVERY", every)
+        with Renderer(SMALL) as used:
+            for (name, size, side, pose, palm, joints), expected in zip(states, fresh):
+                used.set_scene(name, size, side)
+                assert np.array_equal(used.render(pose, palm, joints), expected[0]), (every, name)
+                assert np.array_equal(used.render(pose, palm, joints), expected[1]), (every, name)

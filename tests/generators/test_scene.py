@@ -146,3 +146,18 @@ def test_switching_scenes_gives_back_the_same_frame(renderer):
     renderer.set_scene(None, None, "left")
     renderer.set_scene(None, None, "right")
     assert np.array_equal(renderer.render(None, REST_PALM, REST_JOINTS), with_hand)
+
+
+def test_the_hand_urdf_is_written_once_per_process_and_again_if_removed(client):
+    import os
+
+    from generators.scene import hand_urdf_file
+
+    path = hand_urdf_file("left")
+    assert hand_urdf_file("left") == path and hand_urdf_file("right") != path
+    first, _ = load_hand(client, "left")
+    os.unlink(path)
+    again = hand_urdf_file("left")
+    assert os.path.exists(again)
+    second, _ = load_hand(client, "left")
+    assert p.getNumJoints(first, physicsClientId=client) == p.getNumJoints(second, physicsClientId=client)
