@@ -148,7 +148,22 @@ def image_column_index(metadata: pq.FileMetaData) -> int:
     raise ValueError("no image column")
 
 
-def _hash_range(fd: int, hasher, start: int, end: int) -> None:
+def _hash_range(fd: int, hasher, start: int, end: int, keep=None, path: str = "") -> None:
+    """Feed bytes ``[start, end)`` to ``hasher`` (if any), read into ``keep[start:end]`` (if given)."""
+    if keep is not None:
+        if start < end:
+            view = memoryview(keep)[start:end]
+            if hasattr(os, "preadv"):
+                got = os.preadv(fd, (view,), start)
+            else:
+                data = os.pread(fd, end - start, start)
+                view[: len(data)] = data
+                got = len(data)
+            if got != end - start:
+                raise ShardError(f"{path}: cut off at byte {start + got} (truncated)")
+            if hasher is not None:
+                hasher.update(view)
+        return
     while start < end:
         block = _pread(fd, min(_BLOCK, end - start), start)
         if not block:
@@ -226,14 +241,24 @@ def image_pages(source, path: str, metadata: pq.FileMetaData) -> list[ImagePage]
 
 
 def image_offsets(
-    fd: int, path: str, metadata: pq.FileMetaData, check_crc: bool = True, hasher=None, size: int | None = None
+    fd: int,
+    path: str,
+    metadata: pq.FileMetaData,
+    check_crc: bool = True,
+    hasher=None,
+    size: int | None = None,
+    keep=None,
 ) -> tuple[list[int], list[int]]:
     """File offsets and lengths (one per row, in file order) of the image values.
 
     ``fd`` is an open descriptor of ``path``; ``metadata`` its parsed footer. With a
     ``hashlib`` ``hasher`` and the file's ``size``, every byte of the file is also fed
-    to it, in order, in the same pass (the image bytes are read once).
+    to it, in order, in the same pass (the image bytes are read once). ``keep``, a
+    writable uint8 buffer of the file's size, receives every byte outside the image
+    column (footer and other columns: what a Parquet reader then reads from memory).
     """
+    if keep is not None:
+        size = len(keep)
     try:
         column = image_column_index(metadata)
     except ValueError:
@@ -255,10 +280,10 @@ def image_offsets(
             )
         pos = chunk.data_page_offset
         end = pos + chunk.total_compressed_size
-        if hasher is not None:
+        if hasher is not None or keep is not None:
             if pos < hashed:
                 raise ShardError(f"{path}: image column chunks overlap or are out of order (corrupt)")
-            _hash_range(fd, hasher, hashed, pos)
+            _hash_range(fd, hasher, hashed, pos, keep, path)
         seen = 0
         while pos < end:
             header, raw = _page_header(fd, path, pos, end)
@@ -289,8 +314,8 @@ def image_offsets(
         hashed = end
     if len(offsets) != metadata.num_rows:
         raise ShardError(f"{path}: {len(offsets)} images for {metadata.num_rows} rows (corrupt)")
-    if hasher is not None:
+    if hasher is not None or keep is not None:
         if size is None:
             raise ValueError("hashing needs the file size")
-        _hash_range(fd, hasher, hashed, size)
+        _hash_range(fd, hasher, hashed, size, keep, path)
     return offsets, lengths

@@ -32,6 +32,11 @@ def _define() -> None:
         def __getitem__(self, index: int) -> dict[str, Any]:
             return self.frames[index]
 
+        def __getitems__(self, indices: list[int]) -> list[dict[str, Any]]:
+            """A batch's items (what DataLoader's fetcher asks for when it is defined)."""
+            frames = self.frames
+            return [frames[i] for i in indices]
+
     class TorchFrameStream(IterableDataset):
         """A :class:`catalog.dataset.FrameStream` as a torch IterableDataset (split by worker and rank)."""
 

@@ -40,6 +40,21 @@ def horizon_window(frame: int, num_frames: int, horizon: int) -> tuple[np.ndarra
     return window(frame, num_frames, 0, horizon)
 
 
+def history_span(frame: int, history: int) -> tuple[int, int]:
+    """(padded slots, first real frame) of :func:`history_window`: the window is ``pad``
+    copies of frame 0 followed by frames ``start ... frame``. Plain integers, for the
+    dataloader's per-item path (no arrays made)."""
+    start = frame - history
+    return (-start, 0) if start < 0 else (0, start)
+
+
+def horizon_span(frame: int, num_frames: int, horizon: int) -> tuple[int, int]:
+    """(last real frame + 1, padded slots) of :func:`horizon_window`: the window is frames
+    ``frame ... stop - 1`` followed by ``pad`` copies of frame ``num_frames - 1``."""
+    stop = frame + horizon
+    return (num_frames, stop - num_frames) if stop > num_frames else (stop, 0)
+
+
 def episode_starts(lengths: Sequence[int]) -> list[int]:
     """Position of each episode's first frame when episodes of ``lengths`` frames are concatenated."""
     starts, total = [], 0

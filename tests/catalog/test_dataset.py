@@ -186,6 +186,52 @@ def test_resize_on_load(built):
         catalog.open(built, resize=(0, 4))
 
 
+def _reduced_rgb(jpeg: bytes, scale: int) -> np.ndarray:
+    flags = getattr(cv2, f"IMREAD_REDUCED_COLOR_{scale}")
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(jpeg, np.uint8), flags), cv2.COLOR_BGR2RGB)
+
+
+def test_resample_jpeg_decodes_at_reduced_size(built):
+    """resample="jpeg": targets of half the resolution or less come from libjpeg's 1/2, 1/4, 1/8
+    decoding (then INTER_AREA for the rest); bigger ones from the full decode, as "area"."""
+    _, _, images = make_episode(0)
+    half = catalog.open(built, resize=16, resample="jpeg")[0]["image"]
+    np.testing.assert_array_equal(half, _reduced_rgb(images[0], 2))
+    np.testing.assert_array_equal(catalog.open(built, resize=8, resample="jpeg")[0]["image"], _reduced_rgb(images[0], 4))
+    np.testing.assert_array_equal(catalog.open(built, resize=4, resample="jpeg")[0]["image"], _reduced_rgb(images[0], 8))
+    want = cv2.resize(_reduced_rgb(images[0], 2), (12, 10), interpolation=cv2.INTER_AREA)
+    np.testing.assert_array_equal(catalog.open(built, resize=(10, 12), resample="jpeg")[0]["image"], want)
+    for size in (20, 32):
+        np.testing.assert_array_equal(
+            catalog.open(built, resize=size, resample="jpeg")[0]["image"], catalog.open(built, resize=size)[0]["image"]
+        )
+    area = catalog.open(built, resize=16)[0]["image"]
+    assert half.shape == area.shape and not np.array_equal(half, area)  # another resampling, documented as such
+    windows = catalog.open(built, resize=8, resample="jpeg", history=2)
+    np.testing.assert_array_equal(windows[5]["image"][1], catalog.open(built, resize=8, resample="jpeg")[4]["image"])
+    with pytest.raises(SpecError, match="resample"):
+        catalog.open(built, resize=16, resample="cubic")
+
+
+def test_sequential_windows_decode_each_frame_once(built, monkeypatch):
+    """A sequential pass reuses the previous window's frames (one decode per item) and returns
+    what random access returns; items never alias the frames kept for the next window."""
+    import catalog.dataset as dataset_module
+
+    ds = catalog.open(built, history=2, action_horizon=3)
+    expected = {i: ds[i] for i in np.random.default_rng(2).permutation(len(ds)).tolist()}
+    decodes = []
+    real = cv2.imdecode
+    monkeypatch.setattr(dataset_module.cv2, "imdecode", lambda *args: decodes.append(1) or real(*args))
+    fresh = catalog.open(built, history=2, action_horizon=3)
+    for i in range(len(fresh)):
+        item = fresh[i]
+        for key, value in expected[i].items():
+            np.testing.assert_array_equal(item[key], value)
+        item["image"][:] = 0
+    assert len(decodes) == len(fresh)
+
+
 def test_bad_options_are_refused(built, tmp_path):
     for kwargs in ({"history": -1}, {"action_horizon": 0}, {"verify": "md5"}, {"cache_mb": 0}, {"history": 1.5}):
         with pytest.raises(SpecError):
@@ -582,9 +628,11 @@ def test_image_offsets_span_pages_and_row_groups(tmp_path):
         assert hasher.hexdigest() == load_manifest(root).shards[0].files["frames"].sha256
     finally:
         os.close(fd)
-    ds = catalog.open(root, verify="checksums")
-    for i in (0, 1023, 1024, len(ds) - 1):
-        np.testing.assert_array_equal(ds[i]["image"], _rgb(stored[i]))
+    for verify in ("checksums", "sha256"):
+        ds = catalog.open(root, verify=verify)
+        for i in (0, 1023, 1024, len(ds) - 1):
+            np.testing.assert_array_equal(ds[i]["image"], _rgb(stored[i]))
+        np.testing.assert_array_equal(ds[1024]["palm_pose"], read_frames(path, ["palm_pose"]).column("palm_pose")[1024].values)
 
 
 def test_null_values_in_a_hashed_frames_file_are_named(copy):

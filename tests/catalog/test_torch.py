@@ -90,6 +90,15 @@ def test_iterable_shards_by_rank_and_worker(built):
     assert total == _all_keys(ds)
 
 
+def test_batched_fetch_equals_items(built):
+    """DataLoader's fetcher asks the wrapper for a batch at once (``__getitems__``)."""
+    ds = catalog.open(built, history=1)
+    batch = ds.torch().__getitems__([3, 0, 3])
+    for item, i in zip(batch, (3, 0, 3)):
+        np.testing.assert_array_equal(item["image"], ds[i]["image"])
+        np.testing.assert_array_equal(item["palm_pose"], ds[i]["palm_pose"])
+
+
 def test_wrappers_pickle_by_reference(built):
     """spawn-started workers unpickle the wrappers from catalog.torch_adapter."""
     wrapped = catalog.open(built).torch()

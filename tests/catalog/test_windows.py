@@ -9,7 +9,9 @@ from hypothesis import strategies as st
 
 from catalog.windows import (
     episode_starts,
+    history_span,
     history_window,
+    horizon_span,
     horizon_window,
     locate,
     window,
@@ -70,6 +72,19 @@ def test_windows_match_brute_force(n, data, history, horizon):
         assert frames[j] == min(wanted, n - 1)
     assert frames[0] == f and not is_pad[0]
     assert np.all((frames >= 0) & (frames < n))
+
+
+@given(n=st.integers(1, 60), data=st.data(), history=st.integers(0, 20), horizon=st.integers(1, 20))
+def test_spans_describe_the_windows(n, data, history, horizon):
+    f = data.draw(st.integers(0, n - 1))
+    pad, start = history_span(f, history)
+    frames, is_pad = history_window(f, n, history)
+    assert frames.tolist() == [0] * pad + list(range(start, f + 1))
+    assert is_pad.tolist() == [True] * pad + [False] * (f + 1 - start)
+    stop, pad = horizon_span(f, n, horizon)
+    frames, is_pad = horizon_window(f, n, horizon)
+    assert frames.tolist() == list(range(f, stop)) + [n - 1] * pad
+    assert is_pad.tolist() == [False] * (stop - f) + [True] * pad
 
 
 @given(st.lists(st.integers(0, 6), min_size=1, max_size=12))
