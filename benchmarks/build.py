@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 import pyarrow.parquet as pq
 
-from generators.encode import JPEG_QUALITY, jpeg_params
+import generators.encode as encode
 from generators.recipe import slice_specs
 from generators.render import Renderer
 from pipeline.jobs.build import build
@@ -223,6 +223,12 @@ def profile_build(slice_name: str, episodes: int, resolution: int, shard_size: i
         shutil.rmtree(out, ignore_errors=True)
 
 
+def _jpeg_params(quality: int) -> list[int]:
+    """The build's ``cv2.imencode`` options (under their older private name in earlier checkouts)."""
+    params = getattr(encode, "jpeg_params", None) or encode._params  # type: ignore[attr-defined]
+    return params(quality)
+
+
 def decode_bgr(data: bytes) -> np.ndarray:
     bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
     if bgr is None:
@@ -233,7 +239,7 @@ def decode_bgr(data: bytes) -> np.ndarray:
 def jpeg_only_fps(frames_dir: Path) -> float:
     """Frames per CPU second of ``cv2.imencode`` with the build's options over every frame
     stored in ``frames_dir`` (decoded one row group at a time; only the encoding is timed)."""
-    params = jpeg_params(JPEG_QUALITY)
+    params = _jpeg_params(encode.JPEG_QUALITY)
     count, elapsed = 0, 0.0
     for path in sorted(frames_dir.glob("*.parquet")):
         parquet = pq.ParquetFile(path)
