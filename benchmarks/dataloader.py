@@ -5,7 +5,10 @@ Writes a realistic slice to a temporary folder with the catalog's shard writer
 90 of rendered-like content: a smooth gradient, a table, a moving ball and a hand
 blob; ``--shard-size`` episodes per shard), then times, best of ``--repeats``:
 
-- decode: ``cv2.imdecode`` of every frame's JPEG bytes, already in memory;
+- decode: ``cv2.imdecode`` of every frame's JPEG bytes, already in memory (the issue's
+  baseline); ``sj_*``: the same with ``simplejpeg.decode_jpeg`` to RGB, the decoder the
+  loader uses (the same pixels, ~30% faster), so ``*_vs_simplejpeg`` ratios are what the
+  loader adds beyond its own decoder;
 - random: ``catalog.open`` then ``ds[i]`` over a seeded random permutation of all frames;
 - sequential: ``catalog.open`` then ``ds[i]`` for i in order;
 - windows: ``history=1, action_horizon=16`` items in the random and in sequential order,
@@ -65,6 +68,7 @@ from pathlib import Path
 import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 import cv2
 import numpy as np
+import simplejpeg
 
 import catalog  # noqa: E402
 from catalog.manifest import CodeInfo, Manifest, write_manifest  # noqa: E402
@@ -278,6 +282,10 @@ def main(argv: list[str] | None = None) -> int:
             for r in rows:
                 cv2.imdecode(jpegs[r], flags)
 
+        def sj_decode_rows(rows, side: int = 0) -> None:
+            for r in rows:
+                simplejpeg.decode_jpeg(jpegs[r], colorspace="RGB", min_height=side, min_width=side)
+
         def opened(**kwargs):
             start = time.perf_counter()
             ds, resample = _open(root, verify=args.verify, **kwargs)
@@ -305,6 +313,10 @@ def main(argv: list[str] | None = None) -> int:
             "decode_random": lambda: decode_rows(order),
             "decode_reduced": lambda: decode_rows(order, cv2.IMREAD_REDUCED_COLOR_2),
             **{f"decode_{name}": (lambda rows=rows: decode_rows(rows)) for name, rows in needs.items()},
+            "sj_decode": lambda: sj_decode_rows(range(n)),
+            "sj_decode_random": lambda: sj_decode_rows(order),
+            "sj_decode_windows_random": lambda: sj_decode_rows(needs["windows_random"]),
+            "sj_decode_reduced": lambda: sj_decode_rows(order, half),
         }
         names = (*bare, *loader_passes, *(f"warm_{name}" for name in loader_passes), "decode_wall", "open")
         best = dict.fromkeys(names, np.inf)
@@ -355,6 +367,12 @@ def main(argv: list[str] | None = None) -> int:
         "warm_ratio_random": ratio("warm_random", "decode"),
         "warm_ratio_sequential": ratio("warm_sequential", "decode"),
         "ratio_random_same_order": ratio("random", "decode_random"),
+        "simplejpeg_decode_fps": round(fps["sj_decode"], 1),
+        "ratio_random_vs_simplejpeg": ratio("random", "sj_decode_random"),
+        "ratio_sequential_vs_simplejpeg": ratio("sequential", "sj_decode"),
+        "warm_ratio_random_vs_simplejpeg": ratio("warm_random", "sj_decode_random"),
+        "ratio_windows_random_vs_simplejpeg": ratio("windows_random", "sj_decode_windows_random"),
+        "ratio_resize_vs_simplejpeg_reduced": ratio("resize", "sj_decode_reduced"),
         "windows_fps": round(fps["windows_random"], 1),
         "ratio_windows_random": ratio("windows_random", "decode_windows_random"),
         "ratio_windows_sequential": ratio("windows_sequential", "decode_windows_sequential"),
@@ -384,6 +402,13 @@ def main(argv: list[str] | None = None) -> int:
         f"{' '.join(f'{v:.2f}' for v in load_start)} at the start:"
     )
     print(f"  bare cv2.imdecode  {fps['decode']:9.1f} fps")
+    print(
+        f"  bare simplejpeg    {fps['sj_decode']:9.1f} fps  (the loader's decoder; loader vs it: random "
+        f"{result['ratio_random_vs_simplejpeg']:.3f}, sequential {result['ratio_sequential_vs_simplejpeg']:.3f}, "
+        f"warm random {result['warm_ratio_random_vs_simplejpeg']:.3f}, windows random "
+        f"{result['ratio_windows_random_vs_simplejpeg']:.3f}, resize vs its reduced decode "
+        f"{result['ratio_resize_vs_simplejpeg_reduced']:.3f})"
+    )
     for name, label in (("random", "random ds[i]"), ("sequential", "sequential ds[i]")):
         print(
             f"  {label:<18} {fps[name]:9.1f} fps  ({fps[name] / fps['decode']:.3f} of decode) first pass, "

@@ -79,10 +79,11 @@ from bisect import bisect_right
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import cv2
 import numpy as np
+import simplejpeg
 
 from catalog.index import (
     ACTION_SLICE,
@@ -105,7 +106,6 @@ from schemas.errors import ShardError, SpecError
 from schemas.objects import OBJECTS
 from schemas.scene import COMPLEX_MOTION_TYPES, INTERCEPT_SECONDS, MOTION_TYPES, PHASES
 
-_IMREAD = getattr(cv2, "IMREAD_COLOR_RGB", None)
 _getpid = os.getpid
 #: How ``resize`` resamples: ``"area"`` (a full decode, then ``cv2.INTER_AREA``) or ``"jpeg"``
 #: (for sizes of half the resolution or less, the JPEG decoder's own 1/2, 1/4 or 1/8 scaling).
@@ -123,9 +123,23 @@ class LoadOptions(Options):
     resample: str = "area"
 
 
-def decode_plan(resolution: int, resize: tuple[int, int] | None, resample: str):
-    """How a ``resolution`` px JPEG becomes an item's image: (``cv2.imdecode`` flags, whether
-    BGR must become RGB, the decoded shape, the ``cv2.resize`` size or None, the scale).
+@dataclass(frozen=True)
+class DecodePlan:
+    """How a ``resolution`` px JPEG becomes an item's image (:func:`decode_plan`)."""
+
+    decoded: tuple[int, int, int]  # the decoder's output shape
+    min_side: int  # simplejpeg's ``min_height``/``min_width``: 0 for a full decode
+    size: tuple[int, int] | None  # ``cv2.resize``'s (width, height) after decoding, or None
+    scale: int  # 1, 2, 4 or 8: the decoder's own reduction
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """The item image's shape."""
+        return self.decoded if self.size is None else (self.size[1], self.size[0], 3)
+
+
+def decode_plan(resolution: int, resize: tuple[int, int] | None, resample: str) -> DecodePlan:
+    """How a ``resolution`` px JPEG becomes an item's image.
 
     With ``resample="jpeg"`` and a target no bigger than half the resolution on both sides,
     the decoder scales by the largest of 1/8, 1/4, 1/2 that keeps the image at least as big
@@ -136,15 +150,29 @@ def decode_plan(resolution: int, resize: tuple[int, int] | None, resample: str):
     if resample == "jpeg" and resize is not None:
         scale = next((s for s in _REDUCED if -(-resolution // s) >= max(resize)), 1)
     side = -(-resolution // scale)
-    if scale == 1:
-        flags = cv2.IMREAD_COLOR if _IMREAD is None else _IMREAD
-    elif _IMREAD is None:
-        flags = getattr(cv2, f"IMREAD_REDUCED_COLOR_{scale}")
-    else:
-        flags = getattr(cv2, f"IMREAD_REDUCED_GRAYSCALE_{scale}") | _IMREAD
     size = None if resize is None or resize == (side, side) else (resize[1], resize[0])
-    return flags, _IMREAD is None, (side, side, 3), size, scale
+    return DecodePlan((side, side, 3), 0 if scale == 1 else side, size, scale)
 
+
+def decode_rgb(data, plan: DecodePlan, out: np.ndarray | None = None) -> np.ndarray | None:
+    """JPEG bytes -> the item's (H, W, 3) uint8 RGB image by ``plan``, written into ``out``
+    if given; None for bytes that do not decode to the planned picture.
+
+    simplejpeg (libjpeg-turbo, accurate inverse DCT and upsampling) gives the pixels
+    ``cv2.imdecode`` gives (checked on every test fixture), ~30% faster at 224 px, and can
+    decode straight into a window's array."""
+    try:
+        if plan.size is None:
+            image = simplejpeg.decode_jpeg(
+                data, colorspace="RGB", min_height=plan.min_side, min_width=plan.min_side, buffer=out
+            )
+            return image if image.shape == plan.decoded else None
+        image = simplejpeg.decode_jpeg(data, colorspace="RGB", min_height=plan.min_side, min_width=plan.min_side)
+    except ValueError:
+        return None
+    if image.shape != plan.decoded:
+        return None
+    return cv2.resize(image, plan.size, dst=out, interpolation=cv2.INTER_AREA)
 
 
 def _choices(name: str, value: Any, allowed: Iterable[str]) -> frozenset[str] | None:
@@ -213,7 +241,7 @@ class FrameDataset:
         #: Instruction -> task_index, in order of first use over the opened folders (kept by views).
         self._tasks: dict[str, int] = tasks if tasks is not None else {t: i for i, t in enumerate(dict.fromkeys(self._texts))}
         self._task_of = [self._tasks[t] for t in self._texts]
-        self._plans: dict[int, tuple] = {}
+        self._plans: dict[int, DecodePlan] = {}
 
     # --- sizes and metadata -----------------------------------------------------------
 
@@ -319,30 +347,26 @@ class FrameDataset:
             reader = self._new_reader()
         return reader.get(key)
 
-    def _plan(self, resolution: int) -> tuple:
+    def _plan(self, resolution: int) -> DecodePlan:
         options = self._options
         plan = decode_plan(resolution, options.resize, getattr(options, "resample", "area"))
         self._plans[resolution] = plan
         return plan
 
-    def _decode(self, shard: OpenShard, row: int, data: np.ndarray | None = None) -> np.ndarray:
-        """The image of ``row`` (its JPEG bytes ``data`` if already read), checked and resized."""
+    def _decode(self, shard: OpenShard, row: int, data=None, out: np.ndarray | None = None) -> np.ndarray:
+        """The image of ``row`` (its JPEG bytes ``data`` if already read), checked and resized,
+        written into ``out`` if given."""
         plan = self._plans.get(shard.resolution) or self._plan(shard.resolution)
-        flags, bgr, shape, size, _ = plan
-        image = cv2.imdecode(shard.jpeg(row) if data is None else data, flags)
-        if image is None or image.shape != shape:
+        image = decode_rgb(shard.jpeg(row) if data is None else data, plan, out)
+        if image is None:
             self._refuse(shard, row)
-        if bgr:
-            image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-        if size is not None:
-            image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
         return image
 
-    def _refuse(self, shard: OpenShard, row: int) -> None:
+    def _refuse(self, shard: OpenShard, row: int) -> NoReturn:
         """ShardError for a JPEG that does not decode to the picture catalog.json promises
-        (decoded again in full, so that the message gives its real size)."""
+        (looked at again with OpenCV, so that the message gives its real size)."""
         image = cv2.imdecode(shard.jpeg(row), cv2.IMREAD_COLOR)
-        if image is None or image.ndim != 3 or image.shape[2] != 3:
+        if image is None or image.ndim != 3 or image.shape[2] != 3 or image.shape[:2] == (shard.resolution,) * 2:
             raise ShardError(f"{shard.path}: the image of row {row} does not decode to an RGB picture")
         raise ShardError(
             f"{shard.path}: the image of row {row} is {image.shape[1]}x{image.shape[0]} px, "
@@ -429,31 +453,35 @@ class FrameDataset:
 
     def _window_images(self, reader: ShardCache, shard: OpenShard, pad: int, lo: int, hi: int) -> np.ndarray:
         """A window's frames stacked: ``pad`` copies of row ``lo``, then rows ``lo ... hi - 1``,
-        each decoded once, those not kept read together. The decoded frames of its last
-        ``history`` rows are kept (per process) for the next window, which in a sequential
-        pass shares all of them but one: one decode per item. Kept frames are private;
-        items get copies."""
-        kept_shard, kept_first, kept = reader.recent
-        k0, k1 = max(lo, kept_first), min(hi, kept_first + len(kept))
-        if kept_shard is not shard or k0 >= k1:
+        each decoded once, straight into the item's array, those not kept read together.
+        When windows come in order (this one ends one row after the last) or one starts an
+        episode, copies of the frames of its last ``history`` rows are kept (per process)
+        for the next, which shares all of them but one: one decode per item in a
+        sequential pass, and no copies kept in random order."""
+        plan = self._plans.get(shard.resolution) or self._plan(shard.resolution)
+        out = np.empty((pad + hi - lo, *plan.shape), dtype=np.uint8)
+        kept_shard, kept_first, kept, last_hi = reader.recent
+        in_order = kept_shard is shard and hi == last_hi + 1
+        k0, k1 = (max(lo, kept_first), min(hi, kept_first + len(kept))) if in_order else (hi, hi)
+        if k0 >= k1:
             k0 = k1 = hi
-        images = self._decode_rows(shard, lo, k0)
-        images += kept[k0 - kept_first : k1 - kept_first]
-        images += self._decode_rows(shard, k1, hi)
-        image = images[0]
-        out = np.empty((pad + hi - lo, *image.shape), dtype=image.dtype)
+        self._decode_rows(shard, lo, k0, out[pad:])
+        for row in range(k0, k1):
+            out[pad + row - lo] = kept[row - kept_first]
+        self._decode_rows(shard, k1, hi, out[pad + k1 - lo :])
         for j in range(pad):
-            out[j] = image
-        for j, image in enumerate(images, pad):
-            out[j] = image
+            out[j] = out[pad]
         keep = max(0, hi - lo - self._options.history)
-        reader.recent = (shard, lo + keep, images[keep:])
+        starts_episode = pad == self._options.history
+        kept = [out[pad + j].copy() for j in range(keep, hi - lo)] if in_order or starts_episode else []
+        reader.recent = (shard, lo + keep, kept, hi)
         return out
 
-    def _decode_rows(self, shard: OpenShard, lo: int, hi: int) -> list[np.ndarray]:
-        if lo >= hi:
-            return []
-        return [self._decode(shard, row, data) for row, data in zip(range(lo, hi), shard.jpegs(lo, hi))]
+    def _decode_rows(self, shard: OpenShard, lo: int, hi: int, out: np.ndarray) -> None:
+        """Decode rows ``lo ... hi - 1`` into ``out[0 ... hi - lo - 1]``."""
+        if lo < hi:
+            for j, data in enumerate(shard.jpegs(lo, hi)):
+                self._decode(shard, lo + j, data, out[j])
 
     def __iter__(self) -> Iterator[dict[str, Any]]:
         for i in range(self._len):

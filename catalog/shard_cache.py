@@ -134,9 +134,10 @@ class ShardCache:
         self.bytes = 0
         self.verified: set[int] = set()
         self.last: tuple[int, OpenShard | None] = (-1, None)  # one tuple: swapped atomically between threads
-        #: The last window's decoded frames: (shard, first row, images of consecutive rows), for
-        #: the next window of a sequential pass. Replaced whole, never mutated.
-        self.recent: tuple[OpenShard | None, int, list[np.ndarray]] = (None, 0, [])
+        #: The last window's kept frames: (shard, first row, images of consecutive rows, the
+        #: window's end row), for the next window of a sequential pass. Replaced whole,
+        #: never mutated.
+        self.recent: tuple[OpenShard | None, int, list[np.ndarray], int] = (None, 0, [], -2)
 
     def get(self, key: int) -> OpenShard:
         last_key, last = self.last
@@ -218,7 +219,7 @@ class ShardCache:
         self.cache.clear()
         self.bytes = 0
         self.last = (-1, None)
-        self.recent = (None, 0, [])
+        self.recent = (None, 0, [], -2)
 
 
 

@@ -347,3 +347,24 @@ def test_a_dask_build_prints_only_dyana_lines_even_beside_another_dashboard(tmp_
     assert result.returncode == 0, result.stderr
     lines = result.stderr.splitlines()
     assert lines and all(line.startswith("[") for line in lines), result.stderr
+
+
+def test_the_loader_gives_opencvs_pixels_of_the_rendered_frames(reference):
+    """The dataloader decodes with simplejpeg (faster, and straight into a window's array);
+    on real renders it gives exactly what ``cv2.imdecode`` gives, so items did not change."""
+    import cv2
+    import numpy as np
+
+    import catalog
+
+    manifest, root = reference
+    ds = catalog.open(root)
+    windows = catalog.open(root, history=1)
+    images = []
+    for shard in manifest.shards:
+        images += pq.read_table(root / shard.files["frames"].path, columns=["image"]).column("image").to_pylist()
+    assert len(images) == len(ds)
+    for i, jpeg in enumerate(images):
+        expected = cv2.cvtColor(cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        np.testing.assert_array_equal(ds[i]["image"], expected)
+        np.testing.assert_array_equal(windows[i]["image"][-1], expected)
