@@ -62,12 +62,6 @@ from generators.bullet import p
 from generators.camera import projection_matrix, view_matrix
 from generators.recipe import slice_specs
 from generators.render import (
-    LIGHT_AMBIENT,
-    LIGHT_COLOR,
-    LIGHT_DIFFUSE,
-    LIGHT_DIRECTION,
-    LIGHT_DISTANCE,
-    LIGHT_SPECULAR,
     Renderer,
 )
 from pipeline.stages.episode import episode
@@ -201,23 +195,7 @@ class Window:
 
 def draw_window(r: Renderer, proj: list[float], w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
     """``Renderer._draw`` with another projection and viewport size."""
-    _, _, rgba, depth, _ = p.getCameraImage(
-        w,
-        h,
-        viewMatrix=r._view,
-        projectionMatrix=proj,
-        lightDirection=LIGHT_DIRECTION,
-        lightColor=LIGHT_COLOR,
-        lightDistance=LIGHT_DISTANCE,
-        shadow=0,
-        lightAmbientCoeff=LIGHT_AMBIENT,
-        lightDiffuseCoeff=LIGHT_DIFFUSE,
-        lightSpecularCoeff=LIGHT_SPECULAR,
-        renderer=p.ER_TINY_RENDERER,
-        flags=p.ER_NO_SEGMENTATION_MASK,
-        physicsClientId=r._client,
-    )
-    return np.asarray(rgba, dtype=np.uint8).reshape(h, w, 4), np.asarray(depth, dtype=np.float32).reshape(h, w)
+    return r._draw(r._client, proj, w, h)
 
 
 def outside(mask: np.ndarray, win) -> int:

@@ -303,15 +303,19 @@ class Renderer:
             set_hand_pose(client, hand.body, hand.joints, palm, joints)
 
     # drawing -----------------------------------------------------------------
-    def _draw(self, client: int) -> tuple[np.ndarray, np.ndarray]:
+    def _draw(
+        self, client: int, projection: list[float] | None = None, width: int | None = None, height: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """One TinyRenderer pass over whatever is in view: (H, W, 4) RGBA and (H, W) depth,
         unmirrored. (Kept as RGBA: OpenCV converts that in one pass, while any copy of its
-        three-of-four-channel view runs element by element, ~40x slower.)"""
+        three-of-four-channel view runs element by element, ~40x slower.) Another
+        ``projection`` and viewport size are for measurements (``benchmarks/window_render.py``)."""
+        width, height = width or self.width, height or self.height
         _, _, rgba, depth, _ = p.getCameraImage(
-            self.width,
-            self.height,
+            width,
+            height,
             viewMatrix=self._view,
-            projectionMatrix=self._proj,
+            projectionMatrix=self._proj if projection is None else projection,
             lightDirection=LIGHT_DIRECTION,
             lightColor=LIGHT_COLOR,
             lightDistance=LIGHT_DISTANCE,
@@ -323,8 +327,8 @@ class Renderer:
             flags=p.ER_NO_SEGMENTATION_MASK,
             physicsClientId=client,
         )
-        rgba = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)
-        depth = np.asarray(depth, dtype=np.float32).reshape(self.height, self.width)
+        rgba = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)
+        depth = np.asarray(depth, dtype=np.float32).reshape(height, width)
         return rgba, depth
 
     def _full(self, bgr: bool = False) -> np.ndarray:
