@@ -1,0 +1,312 @@
+"""Whole batches for ``torch.utils.data.DataLoader``, made in the worker: ``ds.torch().loader(...)``.
+
+``torch_loader(ds, batch_size=32, shuffle=True, num_workers=2, seed=0)`` (also
+``ds.torch().loader(...)``) returns a ready :class:`FrameLoader`, a
+``torch.utils.data.DataLoader`` whose batches are those of
+``DataLoader(ds.torch(), batch_size=32, shuffle=True, num_workers=2,
+generator=torch.Generator().manual_seed(0))`` with the default collate: the same
+positions in the same order, epoch after epoch, and the same keys, dtypes, shapes and
+values (numbers as tensors with the batch dimension first, strings as lists). Every
+item comes exactly once per epoch (the last batch is short unless ``drop_last``).
+It works with 0 workers, with ``fork`` or ``spawn`` workers, with ``pin_memory`` and
+``persistent_workers``. A ShardError in a worker is raised in the main process as a
+ShardError (DataLoader re-raises a worker's error as ``type(error)(traceback text)``; the
+ShardError subclasses that take other arguments, e.g. ShardHashMismatch, would become a
+RuntimeError, so a worker raises them as their nearest base class that takes a message,
+with the subclass's name, message and traceback in the text).
+
+Why. Default collate stacks each of an item's ~12 arrays into a fresh shared-memory
+segment, and each segment travels to the main process as its own file descriptor
+through multiprocessing's resource sharer (a socket connection and handshake per
+descriptor). On a small VM, touching a fresh 4.8 MB segment per batch of 224 px images
+costs about as much as decoding the batch. Here the sampler hands a worker a whole
+batch of positions (``batch_size=None`` with a ``BatchSampler``), and the worker writes
+the batch into one shared-memory slab of its own, reused from batch to batch (at most
+:data:`SLABS` per worker; more are made, and not kept, while the main process still
+holds that many batches). One descriptor travels per batch; the main process maps the
+slab once (torch caches the mapping) and gives out tensors that are views of it. When
+the last of a batch's tensors (and anything viewing them) is freed, the slab goes back
+to its worker. Consequences: a batch's tensors live in one slab (keeping one alive keeps
+the batch's slab), and a tensor keeps the whole slab from reuse until it is freed, so
+keep ``.clone()``s of what you store for long.
+
+:meth:`FrameLoader.set_epoch` reseeds the order: after ``set_epoch(e)`` the next epoch's
+order is the first epoch's order of ``seed + e``, whatever epochs came before (for
+resuming). Without it, epochs follow one another as one generator's draws, as the
+default DataLoader's do.
+
+torch is optional: this module imports it only when a loader is made or a batch is built.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import weakref
+from typing import Any
+
+import numpy as np
+
+#: Slabs a worker keeps for reuse (prefetched batches, the batch in use, the one being freed).
+SLABS = 6
+_ALIGN = 64
+_HEADER = _ALIGN  # byte 0: 1 while the main process holds the slab's batch
+
+
+class FrameBatches:
+    """A map-style dataset over batches: ``batches[[i, j, ...]]`` is the collated batch of
+    ``frames[i], frames[j], ...`` (for ``DataLoader(batch_size=None, sampler=BatchSampler(...))``).
+    In a DataLoader worker the batch is written to a reused shared-memory slab."""
+
+    def __init__(self, frames: Any) -> None:
+        self.frames = frames
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, indices: Any) -> Any:
+        frames = self.frames
+        if isinstance(indices, (int, np.integer)):
+            indices = [indices]
+        try:
+            items = [frames[i] for i in indices]
+        except Exception as error:
+            raise _rebuildable(error) from error
+        return collate(items)
+
+
+def _rebuildable(error: Exception) -> Exception:
+    """``error``, or its nearest base class that takes one message (e.g. ShardError for a
+    ShardHashMismatch) with its message: DataLoader re-raises a worker's error in the main
+    process as ``type(error)(message)``, and a RuntimeError when that call fails."""
+    message = f"{type(error).__name__}: {error}"
+    for cls in type(error).__mro__:
+        if not issubclass(cls, Exception):
+            break
+        try:
+            rebuilt = cls(message)
+        except Exception:
+            continue
+        return error if cls is type(error) else rebuilt
+    return error
+
+
+class _Array(tuple):
+    """Where a field lies in the batch's buffer: (dtype, shape, offset, nbytes)."""
+
+    __slots__ = ()
+
+
+def _kind(value: Any) -> tuple[np.dtype, tuple[int, ...]] | None:
+    """The dtype and shape default collate gives one item's ``value`` (None: not a plain number array)."""
+    if isinstance(value, (np.ndarray, np.generic)):
+        dtype = value.dtype
+        if dtype.kind not in "biufc" or dtype.byteorder not in "=|" and dtype.itemsize > 1:
+            return None
+        if dtype.kind == "f" and dtype.itemsize == 16 or dtype.kind == "c" and dtype.itemsize > 16:
+            return None
+        return dtype, value.shape
+    if isinstance(value, bool):
+        return np.dtype(bool), ()
+    if isinstance(value, int):
+        return np.dtype(np.int64), ()
+    if isinstance(value, float):
+        return np.dtype(np.float64), ()
+    return None
+
+
+def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
+    """``default_collate(items)`` for the dataset's items (dicts of numpy arrays, numbers and
+    strings), built in one buffer: in a DataLoader worker, a reused shared-memory slab."""
+    import torch
+    from torch.utils.data import get_worker_info
+    from torch.utils.data._utils.collate import default_collate
+
+    m = len(items)
+    first = items[0]
+    plan: list[tuple[str, Any]] = []  # (key, _Array | list of strings | default collate's result)
+    size = _HEADER
+    for key, value in first.items():
+        if isinstance(value, str):
+            plan.append((key, [item[key] for item in items]))
+            continue
+        kind = _kind(value)
+        if kind is None:
+            plan.append((key, default_collate([item[key] for item in items])))
+            continue
+        dtype, shape = kind
+        nbytes = m * dtype.itemsize * int(np.prod(shape, dtype=np.int64))
+        plan.append((key, _Array((dtype, (m, *shape), size, nbytes))))
+        size += -(-nbytes // _ALIGN) * _ALIGN
+    shared = get_worker_info() is not None
+    if shared:
+        slab, buffer = _slabs().take(size)
+    else:
+        slab, buffer = None, np.empty(size, dtype=np.uint8)
+    try:
+        fields = []
+        for key, spec in plan:
+            if type(spec) is _Array:
+                dtype, shape, offset, nbytes = spec
+                out = buffer[offset : offset + nbytes].view(dtype).reshape(shape)
+                values = [item[key] for item in items]
+                try:
+                    np.stack(values, out=out, casting="no")
+                except (ValueError, TypeError):
+                    # unequal shapes or dtypes: what default collate makes (or raises) of them
+                    spec = default_collate(values)
+            fields.append((key, spec))
+    except BaseException:
+        buffer[0] = 0
+        raise
+    if shared:
+        return _Packed(slab, fields)
+    return _views(buffer, fields, torch)
+
+
+def _views(buffer: np.ndarray, fields: list[tuple[str, Any]], torch: Any) -> dict[str, Any]:
+    out = {}
+    for key, spec in fields:
+        if type(spec) is _Array:
+            dtype, shape, offset, nbytes = spec
+            out[key] = torch.from_numpy(buffer[offset : offset + nbytes].view(dtype).reshape(shape))
+        else:
+            out[key] = spec
+    return out
+
+
+class _Packed:
+    """A worker's batch in its slab; unpickled in the main process as the batch dict itself."""
+
+    __slots__ = ("slab", "fields")
+
+    def __init__(self, slab: Any, fields: list[tuple[str, Any]]) -> None:
+        self.slab, self.fields = slab, fields
+
+    def __reduce__(self):
+        return (_unpack, (self.slab, self.fields))
+
+
+def _release(flag: np.ndarray) -> None:
+    flag[0] = 0
+
+
+def _unpack(slab: Any, fields: list[tuple[str, Any]]) -> dict[str, Any]:
+    """The batch's tensors, views of ``slab``; the slab returns to its worker when the last
+    of them (and of whatever views them) is freed."""
+    import torch
+
+    whole = slab.numpy()
+    owner = (ctypes.c_ubyte * whole.size).from_buffer(whole)
+    weakref.finalize(owner, _release, whole[:1])
+    return _views(np.frombuffer(owner, dtype=np.uint8), fields, torch)
+
+
+class _Slabs:
+    """This worker's reusable shared-memory slabs (uint8 tensors; byte 0 flags one in use)."""
+
+    def __init__(self) -> None:
+        self.pid = os.getpid()
+        self.slabs: list[tuple[Any, np.ndarray]] = []
+
+    def take(self, nbytes: int) -> tuple[Any, np.ndarray]:
+        for slab, buffer in self.slabs:
+            if buffer[0] == 0 and buffer.size >= nbytes:
+                buffer[0] = 1
+                return slab, buffer
+        slab = _shared(nbytes)
+        buffer = slab.numpy()
+        buffer[0] = 1
+        if len(self.slabs) < SLABS:
+            self.slabs.append((slab, buffer))
+        return slab, buffer
+
+
+_SLABS: _Slabs | None = None
+
+
+def _slabs() -> _Slabs:
+    global _SLABS
+    if _SLABS is None or _SLABS.pid != os.getpid():
+        _SLABS = _Slabs()
+    return _SLABS
+
+
+def _shared(nbytes: int) -> Any:
+    """A uint8 tensor of ``nbytes`` in shared memory (the way default collate allocates its own)."""
+    import torch
+
+    make = getattr(torch.UntypedStorage, "_new_shared", None)
+    if make is None:
+        return torch.empty(nbytes, dtype=torch.uint8).share_memory_()
+    return torch.empty(0, dtype=torch.uint8).set_(make(nbytes), 0, (nbytes,), (1,))
+
+
+def _passthrough(batch: Any) -> Any:
+    return batch
+
+
+def _define() -> None:
+    if "FrameLoader" in globals():
+        return
+    from torch.utils.data import DataLoader
+
+    class FrameLoader(DataLoader):
+        """A DataLoader over :class:`FrameBatches` (see :func:`torch_loader`), with ``set_epoch``."""
+
+        def __init__(self, frames: Any, sampler: Any, seed: int, **kwargs: Any) -> None:
+            super().__init__(FrameBatches(frames), batch_size=None, sampler=sampler, collate_fn=_passthrough, **kwargs)
+            self.seed = seed
+
+        def set_epoch(self, epoch: int) -> None:
+            """Make the next epoch's order the first epoch's order of ``seed + epoch``."""
+            self.generator.manual_seed(self.seed + epoch)
+
+    FrameLoader.__module__ = __name__
+    FrameLoader.__qualname__ = "FrameLoader"
+    globals()["FrameLoader"] = FrameLoader
+
+
+def __getattr__(name: str) -> Any:
+    if name == "FrameLoader":
+        _define()
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def torch_loader(
+    frames: Any,
+    batch_size: int = 32,
+    shuffle: bool = False,
+    num_workers: int = 0,
+    seed: int = 0,
+    drop_last: bool = False,
+    **kwargs: Any,
+) -> Any:
+    """A ready ``DataLoader`` (:class:`FrameLoader`) over ``frames`` (a FrameDataset, or its
+    ``ds.torch()`` wrapper) that builds whole batches in its workers; see the module docstring.
+
+    Its batches equal those of ``DataLoader(ds.torch(), batch_size, shuffle, num_workers=...,
+    drop_last=..., generator=torch.Generator().manual_seed(seed))`` with the default collate.
+    Other keyword arguments go to ``DataLoader`` (``pin_memory``, ``persistent_workers``,
+    ``prefetch_factor``, ``multiprocessing_context``, ``timeout``, ``worker_init_fn``,
+    ``pin_memory_device``, ``in_order``); ``len(loader)`` is the number of batches.
+    """
+    import torch
+    from torch.utils.data import BatchSampler, RandomSampler, SequentialSampler
+
+    _define()
+    for name in ("batch_sampler", "sampler", "collate_fn", "generator", "dataset"):
+        if name in kwargs:
+            raise TypeError(f"torch_loader does not take {name!r}")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    frames = getattr(frames, "frames", frames)  # the ds.torch() wrapper
+    generator = torch.Generator()
+    generator.manual_seed(seed)
+    positions = range(len(frames))
+    order = RandomSampler(positions, generator=generator) if shuffle else SequentialSampler(positions)
+    sampler = BatchSampler(order, batch_size, drop_last)
+    return globals()["FrameLoader"](
+        frames, sampler, seed, num_workers=num_workers, generator=generator, **kwargs
+    )
