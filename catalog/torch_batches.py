@@ -23,8 +23,9 @@ costs about as much as decoding the batch. Here the sampler hands a worker a who
 batch of positions (``batch_size=None`` with a ``BatchSampler``), and the worker writes
 the batch into one shared-memory slab of its own, reused from batch to batch (at most
 :data:`SLABS` per worker; more are made, and not kept, while the main process still
-holds that many batches). One descriptor travels per batch; the main process maps the
-slab once (torch caches the mapping) and gives out tensors that are views of it. When
+holds that many batches). A slab's file descriptor travels to the main process once;
+the main process keeps the slab mapped (until its worker has exited) and later batches
+name it by a token. The main process gives out tensors that are views of the slab. When
 the last of a batch's tensors (and anything viewing them) is freed, the slab goes back
 to its worker. Consequences: a batch's tensors live in one slab (keeping one alive keeps
 the batch's slab), and a tensor keeps the whole slab from reuse until it is freed, so
@@ -42,6 +43,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import threading
 import weakref
 from typing import Any
 
@@ -140,9 +142,10 @@ def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
         size += -(-nbytes // _ALIGN) * _ALIGN
     shared = get_worker_info() is not None
     if shared:
-        slab, buffer = _slabs().take(size)
+        slabs = _slabs()
+        slab, buffer, token = slabs.take(size)
     else:
-        slab, buffer = None, np.empty(size, dtype=np.uint8)
+        buffer = np.empty(size, dtype=np.uint8)
     try:
         fields = []
         for key, spec in plan:
@@ -150,9 +153,7 @@ def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
                 dtype, shape, offset, nbytes = spec
                 out = buffer[offset : offset + nbytes].view(dtype).reshape(shape)
                 values = [item[key] for item in items]
-                try:
-                    np.stack(values, out=out, casting="no")
-                except (ValueError, TypeError):
+                if not _fill(out, values):
                     # unequal shapes or dtypes: what default collate makes (or raises) of them
                     spec = default_collate(values)
             fields.append((key, spec))
@@ -160,8 +161,27 @@ def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
         buffer[0] = 0
         raise
     if shared:
-        return _Packed(slab, fields)
+        return slabs.packed(slab, buffer, token, fields)
     return _views(buffer, fields, torch)
+
+
+def _fill(out: np.ndarray, values: list[Any]) -> bool:
+    """Copy ``values`` (one per item) into ``out`` if they all have its dtype and item shape."""
+    dtype, shape = out.dtype, out.shape[1:]
+    if out[0].nbytes >= 4096:
+        for j, value in enumerate(values):
+            if not isinstance(value, np.ndarray) or value.dtype != dtype or value.shape != shape:
+                return False
+            out[j] = value
+        return True
+    try:
+        array = np.asarray(values)
+    except ValueError:
+        return False
+    if array.dtype != dtype or array.shape != out.shape:
+        return False
+    out[...] = array
+    return True
 
 
 def _views(buffer: np.ndarray, fields: list[tuple[str, Any]], torch: Any) -> dict[str, Any]:
@@ -176,50 +196,92 @@ def _views(buffer: np.ndarray, fields: list[tuple[str, Any]], torch: Any) -> dic
 
 
 class _Packed:
-    """A worker's batch in its slab; unpickled in the main process as the batch dict itself."""
+    """A worker's batch in its slab; unpickled in the main process as the batch dict itself.
+    The slab tensor itself (a file descriptor) travels only until the main process has
+    registered it; after that, its token does."""
 
-    __slots__ = ("slab", "fields")
+    __slots__ = ("slab", "token", "pid", "fields")
 
-    def __init__(self, slab: Any, fields: list[tuple[str, Any]]) -> None:
-        self.slab, self.fields = slab, fields
+    def __init__(self, slab: Any, token: int, pid: int, fields: list[tuple[str, Any]]) -> None:
+        self.slab, self.token, self.pid, self.fields = slab, token, pid, fields
 
     def __reduce__(self):
-        return (_unpack, (self.slab, self.fields))
+        return (_unpack, (self.slab, self.token, self.pid, self.fields))
 
 
 def _release(flag: np.ndarray) -> None:
     flag[0] = 0
 
 
-def _unpack(slab: Any, fields: list[tuple[str, Any]]) -> dict[str, Any]:
-    """The batch's tensors, views of ``slab``; the slab returns to its worker when the last
+#: The main process's slabs, by token: {token: (worker pid, slab)}; a worker's slabs are
+#: dropped once the worker has exited (checked when a new worker's first slab arrives).
+_REGISTERED: dict[int, tuple[int, Any]] = {}
+_REGISTERED_LOCK = threading.Lock()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def _register(token: int, pid: int, slab: Any) -> None:
+    with _REGISTERED_LOCK:
+        if all(p != pid for p, _ in _REGISTERED.values()):
+            for dead in [t for t, (p, _) in _REGISTERED.items() if not _alive(p)]:
+                del _REGISTERED[dead]
+        _REGISTERED[token] = (pid, slab)
+
+
+def _unpack(slab: Any, token: int, pid: int, fields: list[tuple[str, Any]]) -> dict[str, Any]:
+    """The batch's tensors, views of its slab; the slab returns to its worker when the last
     of them (and of whatever views them) is freed."""
     import torch
 
+    if slab is None:
+        slab = _REGISTERED[token][1]
+    elif token:
+        _register(token, pid, slab)
     whole = slab.numpy()
+    if token:
+        whole[1] = 1  # registered: the worker sends the token from now on
     owner = (ctypes.c_ubyte * whole.size).from_buffer(whole)
     weakref.finalize(owner, _release, whole[:1])
     return _views(np.frombuffer(owner, dtype=np.uint8), fields, torch)
 
 
 class _Slabs:
-    """This worker's reusable shared-memory slabs (uint8 tensors; byte 0 flags one in use)."""
+    """This worker's reusable shared-memory slabs: uint8 tensors whose header holds, at byte
+    0, 1 while the main process holds the slab's batch (the main process sets it back to
+    0), at byte 1, 1 once the main process has registered the slab, at bytes 8-15 its
+    token (0 for a slab made for one batch only)."""
 
     def __init__(self) -> None:
         self.pid = os.getpid()
-        self.slabs: list[tuple[Any, np.ndarray]] = []
+        self.slabs: list[tuple[Any, np.ndarray, int]] = []
 
-    def take(self, nbytes: int) -> tuple[Any, np.ndarray]:
-        for slab, buffer in self.slabs:
+    def take(self, nbytes: int) -> tuple[Any, np.ndarray, int]:
+        for slab, buffer, token in self.slabs:
             if buffer[0] == 0 and buffer.size >= nbytes:
                 buffer[0] = 1
-                return slab, buffer
+                return slab, buffer, token
         slab = _shared(nbytes)
         buffer = slab.numpy()
+        buffer[:_HEADER] = 0
         buffer[0] = 1
+        token = 0
         if len(self.slabs) < SLABS:
-            self.slabs.append((slab, buffer))
-        return slab, buffer
+            token = int.from_bytes(os.urandom(8), "little") | 1
+            buffer[8:16].view(np.uint64)[0] = token
+            self.slabs.append((slab, buffer, token))
+        return slab, buffer, token
+
+    def packed(self, slab: Any, buffer: np.ndarray, token: int, fields: list[tuple[str, Any]]) -> _Packed:
+        return _Packed(None if token and buffer[1] else slab, token, self.pid, fields)
 
 
 _SLABS: _Slabs | None = None
