@@ -28,7 +28,11 @@ blob; ``--shard-size`` episodes per shard), then times, best of ``--repeats``:
   workers; ``torch_first_epoch_speedup`` includes it); ``torch_ready_speedup`` is the same
   DataLoader over copies of one ready-made item (no reading, no decoding): the ceiling
   that DataLoader's own transport (collate into fresh shared memory, one file descriptor
-  passed per tensor) sets.
+  passed per tensor) sets. ``torch_fast_speedup`` (``torch_fast_first_epoch_speedup``,
+  ``torch_fast_ready_speedup``) is the same for ``ds.torch().loader(batch_size=32,
+  shuffle=True, num_workers=W, persistent_workers=True)`` (:mod:`catalog.torch_batches`:
+  the same batches, each built by its worker in one reused shared-memory slab); None
+  where the code predates it.
 
 Each loader pass uses a freshly opened dataset, so it pays what a DataLoader worker
 pays every epoch: loading each shard on first use (sha256 of the file, the float
@@ -50,7 +54,8 @@ fps / decode fps, first pass), ``warm_ratio_random``, ``warm_ratio_sequential``,
 ``ratio_windows_random``, ``ratio_windows_sequential``,
 ``ratio_windows_sequential_frames``, ``window_overhead_us``, ``ratio_resize``,
 ``ratio_resize_reduced``, ``ratio_resize_area``, ``torch_speedup``,
-``torch_first_epoch_speedup``, ``torch_ready_speedup``, ``frames``, ``rss_mb``, ``rss_growth_mb``, ``open_ms``,
+``torch_first_epoch_speedup``, ``torch_ready_speedup``, ``torch_fast_speedup``,
+``torch_fast_first_epoch_speedup``, ``torch_fast_ready_speedup``, ``frames``, ``rss_mb``, ``rss_growth_mb``, ``open_ms``,
 ``verify``, ``load_average``.
 Tiny check: ``python benchmarks/dataloader.py --episodes 8 --repeats 1 --json``.
 """
@@ -223,18 +228,31 @@ class _Ready:
 
 def _torch_epochs(root: Path, verify: str, workers: int, epochs: int) -> dict[str, list[float]] | None:
     """Wall seconds of each epoch of a shuffled map-style DataLoader (persistent workers), over
-    the dataset and over ready-made items (``ready``)."""
+    the dataset and over ready-made items (``ready``), and of ``ds.torch().loader`` over both
+    (``fast``, ``fast_ready``; skipped where ``catalog.torch_batches`` does not exist)."""
     try:
         import torch
     except ImportError:
         return None
     ds = catalog.open(root, verify=verify)
     times: dict[str, list[float]] = {}
-    for name, dataset in (("loader", ds.torch()), ("ready", _Ready(ds))):
-        loader = torch.utils.data.DataLoader(
-            dataset, batch_size=32, shuffle=True, num_workers=workers, persistent_workers=True,
-            generator=torch.Generator().manual_seed(0),
-        )
+    try:
+        from catalog.torch_batches import torch_loader
+    except ImportError:
+        torch_loader = None
+    runs = [("loader", ds.torch()), ("ready", _Ready(ds))]
+    if torch_loader is not None:
+        runs += [("fast", catalog.open(root, verify=verify)), ("fast_ready", _Ready(ds))]
+    for name, dataset in runs:
+        if name.startswith("fast"):
+            loader = torch_loader(
+                dataset, batch_size=32, shuffle=True, num_workers=workers, persistent_workers=True, seed=0
+            )
+        else:
+            loader = torch.utils.data.DataLoader(
+                dataset, batch_size=32, shuffle=True, num_workers=workers, persistent_workers=True,
+                generator=torch.Generator().manual_seed(0),
+            )
         for _ in range(epochs):
             start = time.perf_counter()
             for _batch in loader:
@@ -356,7 +374,9 @@ def main(argv: list[str] | None = None) -> int:
 
     def speedup(name: str) -> float | None:
         """Bare decode wall time / the best epoch after the first (which starts the workers)."""
-        return round(best["decode_wall"] / min(epochs[name][1:] or epochs[name]), 3) if epochs else None
+        if not epochs or name not in epochs:
+            return None
+        return round(best["decode_wall"] / min(epochs[name][1:] or epochs[name]), 3)
 
     result = {
         "decode_fps": round(fps["decode"], 1),
@@ -388,6 +408,11 @@ def main(argv: list[str] | None = None) -> int:
         "torch_speedup": speedup("loader"),
         "torch_first_epoch_speedup": round(best["decode_wall"] / epochs["loader"][0], 3) if epochs else None,
         "torch_ready_speedup": speedup("ready"),
+        "torch_fast_speedup": speedup("fast"),
+        "torch_fast_first_epoch_speedup": (
+            round(best["decode_wall"] / epochs["fast"][0], 3) if epochs and "fast" in epochs else None
+        ),
+        "torch_fast_ready_speedup": speedup("fast_ready"),
         "frames": n,
         "rss_mb": round(rss_end, 1),
         "rss_growth_mb": round(rss_end - rss_warm, 2),
@@ -432,6 +457,13 @@ def main(argv: list[str] | None = None) -> int:
             f"(first epoch {result['torch_first_epoch_speedup']:.2f}x); ready-made items "
             f"{', '.join(f'{n / t:.0f}' for t in epochs['ready'])} fps: {result['torch_ready_speedup']:.2f}x"
         )
+        if "fast" in epochs:
+            print(
+                f"  ds.torch().loader  epochs {', '.join(f'{n / t:.0f}' for t in epochs['fast'])} fps: "
+                f"{result['torch_fast_speedup']:.2f}x (first epoch {result['torch_fast_first_epoch_speedup']:.2f}x); "
+                f"ready-made items {', '.join(f'{n / t:.0f}' for t in epochs['fast_ready'])} fps: "
+                f"{result['torch_fast_ready_speedup']:.2f}x"
+            )
     print(f"  catalog.open       {best['open'] * 1e3:9.2f} ms (once per training run, not timed above)")
     print(f"  RSS {rss_end:.1f} MB, growth over 90% of a random pass {result['rss_growth_mb']:+.2f} MB")
     print(f"  load average at the end {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
