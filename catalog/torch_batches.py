@@ -73,8 +73,16 @@ class FrameBatches:
         try:
             items = [frames[i] for i in indices]
         except Exception as error:
-            raise _rebuildable(error) from error
+            if _in_worker():
+                raise _rebuildable(error) from error
+            raise
         return collate(items)
+
+
+def _in_worker() -> bool:
+    from torch.utils.data import get_worker_info
+
+    return get_worker_info() is not None
 
 
 def _rebuildable(error: Exception) -> Exception:
@@ -117,9 +125,10 @@ def _kind(value: Any) -> tuple[np.dtype, tuple[int, ...]] | None:
     return None
 
 
-def collate(items: list[dict[str, Any]]) -> dict[str, Any]:
+def collate(items: list[dict[str, Any]]) -> Any:
     """``default_collate(items)`` for the dataset's items (dicts of numpy arrays, numbers and
-    strings), built in one buffer: in a DataLoader worker, a reused shared-memory slab."""
+    strings), built in one buffer: in a DataLoader worker, a reused shared-memory slab, and
+    then returned wrapped, to be unpickled in the main process as the dict."""
     import torch
     from torch.utils.data import get_worker_info
     from torch.utils.data._utils.collate import default_collate
@@ -217,6 +226,15 @@ def _release(flag: np.ndarray) -> None:
 #: dropped once the worker has exited (checked when a new worker's first slab arrives).
 _REGISTERED: dict[int, tuple[int, Any]] = {}
 _REGISTERED_LOCK = threading.Lock()
+
+
+def _forget_registered() -> None:
+    """In a forked child (e.g. a later DataLoader's worker): the parent's slabs are not its own."""
+    _REGISTERED.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_registered)
 
 
 def _alive(pid: int) -> bool:
@@ -317,7 +335,8 @@ def _define() -> None:
         """A DataLoader over :class:`FrameBatches` (see :func:`torch_loader`), with ``set_epoch``."""
 
         def __init__(self, frames: Any, sampler: Any, seed: int, **kwargs: Any) -> None:
-            super().__init__(FrameBatches(frames), batch_size=None, sampler=sampler, collate_fn=_passthrough, **kwargs)
+            batches: Any = FrameBatches(frames)  # map-style: __getitem__ and __len__
+            super().__init__(batches, batch_size=None, sampler=sampler, collate_fn=_passthrough, **kwargs)
             self.seed = seed
 
         def set_epoch(self, epoch: int) -> None:
