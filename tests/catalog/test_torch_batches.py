@@ -162,3 +162,18 @@ def test_batch_of_positions_in_process_is_plain_tensors(built):
     assert batch["phase"] == [ds[i]["phase"] for i in (2, 0, 2)]
     with pytest.raises(TypeError, match="sampler"):
         torch_loader(ds, sampler=[0])
+
+
+def test_batches_after_the_first_name_their_slab_by_token(built):
+    """Each worker's slabs travel to the main process once and are reused: the main process
+    registers at most SLABS of them per worker, however many batches pass."""
+    from catalog import torch_batches
+
+    ds = catalog.open(built)
+    loader = ds.torch().loader(batch_size=2, num_workers=2, persistent_workers=True)
+    for _ in range(3):
+        count = sum(1 for _ in loader)
+    pids = {w.pid for w in loader._iterator._workers}
+    registered = [pid for pid, _ in torch_batches._REGISTERED.values() if pid in pids]
+    assert count == len(loader) > 2 * torch_batches.SLABS
+    assert 2 <= len(registered) <= 2 * torch_batches.SLABS
