@@ -39,8 +39,10 @@ the batch's slab), and a tensor keeps the whole slab from reuse until it is free
 keep ``.clone()``s of what you store for long.
 
 Measured (``benchmarks/dataloader.py``, 2,560 frames of 224 px, batch 32, 2 workers on a
-2-core VM at load ~0.6-1.2): epochs at 1.61-1.68x one process's bare ``cv2.imdecode``
-(the default DataLoader: 0.46-0.49x); over ready-made items, 4.9x (default: 0.65x).
+2-core VM, load average 0.6-1.3, 4 runs): epochs at 1.04-1.68x one process's bare
+``cv2.imdecode`` (the default DataLoader in the same runs: 0.43-0.49x); over ready-made
+items 3.0-4.9x (default: 0.46-0.65x). The spread is the VM's: two processes of bare
+decoding alone ran 1.4-1.95x one process at different times.
 
 :meth:`FrameLoader.set_epoch` reseeds the order: after ``set_epoch(e)`` the next epoch's
 order is the first epoch's order of ``seed + e``, whatever epochs came before (for
