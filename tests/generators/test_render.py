@@ -85,7 +85,7 @@ def random_states(rng: np.random.Generator, n: int):
 
 def test_composited_equals_full_render_pixel_for_pixel(small):
     rng = np.random.default_rng(7)
-    for name, size, side, pose, palm, joints in random_states(rng, 300):
+    for name, size, side, pose, palm, joints in random_states(rng, 200):
         small.set_scene(name, size, side)
         fast = small.render(pose, palm, joints)
         reference = small.render_full(pose, palm, joints)

@@ -69,7 +69,6 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.mark.slow
 def test_external_scheduler_gives_the_same_hash(reference, tmp_path):
     manifest, _ = reference
     port = _free_port()

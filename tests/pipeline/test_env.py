@@ -341,7 +341,6 @@ print(json.dumps({"version": gymnasium.__version__, "warnings": [str(w.message) 
 """
 
 
-@pytest.mark.slow
 def test_plain_make_and_check_env_in_a_fresh_gymnasium_0_29_interpreter(tmp_path):
     """Gymnasium 0.29 (the last release that loads plugins) in a venv of its own, seeing this
     installation: ``gymnasium.make("Dyana/Grasp-v0")`` works without importing Dyana, and

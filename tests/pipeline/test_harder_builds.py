@@ -7,8 +7,11 @@ import pytest
 from pipeline.jobs.build import build
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("slice_name", ["projectile-medium", "obstacle-medium", "irregular-slow"])
+@pytest.mark.parametrize(
+    "slice_name",
+    [pytest.param("projectile-medium", marks=pytest.mark.slow), "obstacle-medium",
+     pytest.param("irregular-slow", marks=pytest.mark.slow)],
+)
 def test_a_harder_slice_builds_byte_identically_with_one_and_two_workers(tmp_path, slice_name):
     hashes = []
     for workers in (1, 2):

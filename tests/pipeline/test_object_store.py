@@ -26,7 +26,6 @@ BIN = Path(sys.executable).parent
 BUCKET = "dyana-test"
 ARGS = ["--slice", "linear-fast", "--episodes", "6", "--shard-size", "2", "--resolution", "32", "--workers", "1"]
 
-pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
@@ -91,6 +90,7 @@ def test_the_dataloader_reads_items_with_ranged_requests(remote, local, monkeypa
     assert 0 < sum(fetched) < frames_bytes  # pages of the items, not whole files
 
 
+@pytest.mark.slow
 def test_verify_and_scoring_work_on_the_url(remote, local, server, tmp_path):
     result = _cli("catalog", "verify", remote, "--quiet", env=server, staging=tmp_path)
     assert result.returncode == 0 and "3 rebuilt byte for byte" in result.stdout, result.stderr
@@ -100,6 +100,7 @@ def test_verify_and_scoring_work_on_the_url(remote, local, server, tmp_path):
     assert json.loads(there.stdout)["metrics"] == json.loads(here.stdout)["metrics"]
 
 
+@pytest.mark.slow
 def test_a_rerun_is_up_to_date_and_another_job_is_refused(remote, server, tmp_path):
     again = _cli("pipeline", "build", *ARGS, "--out", f"s3://{BUCKET}/data", env=server, staging=tmp_path)
     assert again.returncode == 0 and again.stdout.startswith("up to date"), again.stderr
@@ -137,6 +138,7 @@ def test_a_killed_remote_build_resumes_on_another_machine(server, local, tmp_pat
     assert digest and json.loads(objects["catalog.json"])["hash"] == load_manifest(local).hash
 
 
+@pytest.mark.slow
 def test_view_replay_and_export_read_the_url(remote, server, tmp_path):
     view = _cli("pipeline", "view", remote, "--episode", "1", "--out", str(tmp_path / "e1.rrd"), env=server,
                 staging=tmp_path)
@@ -148,6 +150,7 @@ def test_view_replay_and_export_read_the_url(remote, server, tmp_path):
     assert export.returncode == 0 and "6 episodes" in export.stdout, export.stderr
 
 
+@pytest.mark.slow
 def test_staging_left_by_another_job_is_cleared_not_refused(server, tmp_path):
     from pipeline.jobs.object_store import staging_folder
 

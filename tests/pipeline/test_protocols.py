@@ -172,6 +172,7 @@ def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow
 def test_repeats_from_the_command_line(tmp_path):
     out = tmp_path / "rob"
     args = ("pipeline", "eval", "--policy", "chase", "--episodes", "2", "--resolution", str(RES), "--workers", "1",

@@ -133,6 +133,7 @@ def test_hold_keeps_going_through_faults_and_counts_them(serve, tmp_path):
     assert replay(run).episodes == 2
 
 
+@pytest.mark.slow
 def test_latency_is_simulated_deterministically(serve, tmp_path):
     url = serve("prose")
     for name in ("a", "b"):
