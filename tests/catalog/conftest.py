@@ -7,6 +7,7 @@ explicit ``numpy.random.Generator`` or seed; nothing touches global RNGs.
 
 from __future__ import annotations
 
+import collections
 from pathlib import Path
 
 import cv2
@@ -133,3 +134,20 @@ def slice_dir(tmp_path: Path) -> Path:
     root = tmp_path / "linear-fast"
     write_slice(root)
     return root
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> Path:
+    """A written slice of 6 episodes in shards of 2 (a module may define its own ``built``)."""
+    root = tmp_path_factory.mktemp("built6") / "linear-fast"
+    write_slice(root, episodes=6, shard_size=2)
+    return root
+
+
+def frame_keys(batches) -> collections.Counter:
+    """How often each (episode_index, frame_index) occurs in torch ``batches``."""
+    seen: collections.Counter = collections.Counter()
+    for batch in batches:
+        for e, f in zip(batch["episode_index"].tolist(), batch["frame_index"].tolist()):
+            seen[(e, f)] += 1
+    return seen

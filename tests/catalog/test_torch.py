@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import collections
 import pickle
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,24 +13,9 @@ torch = pytest.importorskip("torch")
 import catalog  # noqa: E402
 from catalog.manifest import load_manifest  # noqa: E402
 
-from .conftest import write_slice  # noqa: E402
+from .conftest import frame_keys as _keys  # noqa: E402
 
 pytestmark = pytest.mark.torch
-
-
-@pytest.fixture(scope="module")
-def built(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("torch") / "linear-fast"
-    write_slice(root, episodes=6, shard_size=2)
-    return root
-
-
-def _keys(batches) -> collections.Counter:
-    seen = collections.Counter()
-    for batch in batches:
-        for e, f in zip(batch["episode_index"].tolist(), batch["frame_index"].tolist()):
-            seen[(e, f)] += 1
-    return seen
 
 
 def _all_keys(ds) -> collections.Counter:

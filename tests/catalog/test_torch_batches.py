@@ -6,7 +6,6 @@ import collections
 import gc
 import itertools
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,16 +17,9 @@ from catalog.manifest import load_manifest  # noqa: E402
 from catalog.torch_batches import FrameBatches, torch_loader  # noqa: E402
 from schemas.errors import ShardError  # noqa: E402
 
-from .conftest import write_slice  # noqa: E402
+from .conftest import frame_keys as _keys  # noqa: E402
 
 pytestmark = pytest.mark.torch
-
-
-@pytest.fixture(scope="module")
-def built(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("torch_batches") / "linear-fast"
-    write_slice(root, episodes=6, shard_size=2)
-    return root
 
 
 def _default(ds, batch_size, shuffle, seed, drop_last=False, **kwargs):
@@ -51,14 +43,6 @@ def _assert_same_batches(expected, got) -> int:
                 assert type(b[key]) is type(value) and b[key] == value, key
         count += 1
     return count
-
-
-def _keys(batches) -> collections.Counter:
-    seen = collections.Counter()
-    for batch in batches:
-        for e, f in zip(batch["episode_index"].tolist(), batch["frame_index"].tolist()):
-            seen[(e, f)] += 1
-    return seen
 
 
 @pytest.mark.parametrize(
