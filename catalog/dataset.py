@@ -36,9 +36,10 @@ Resizing. ``resize=(h, w)`` with ``resample="area"`` (the default) decodes in fu
 resizes with ``cv2.INTER_AREA``. ``resample="jpeg"`` takes targets of half the
 resolution or less from the JPEG decoder's own reduced-size decoding (1/2, 1/4 or
 1/8, the largest that keeps the image at least as big as the target; then
-``INTER_AREA`` for the rest), 2-3x faster than a full decode: a different resampling
-(libjpeg's scaled inverse DCT; pixels differ from ``"area"`` by a few levels),
-deterministic for a given OpenCV/libjpeg-turbo build. Larger targets resize as
+``INTER_AREA`` for the rest), ~1.3x faster than ``"area"`` at half size (measured by
+``benchmarks/dataloader.py``): a different resampling (libjpeg's scaled inverse DCT;
+pixels differ from ``"area"`` by a few levels), deterministic for a given libjpeg-turbo
+(simplejpeg's). Larger targets resize as
 ``"area"`` does.
 
 Reading. Opening reads the manifests, the episodes tables and the ``episode_index``
@@ -117,20 +118,12 @@ _PAD_KEYS = ("image_is_pad", *(key for _, _, key in _STATE_KEYS), "fingertip_dis
 
 
 @dataclass(frozen=True)
-class LoadOptions(Options):
-    """The dataset's options, with how images are resampled (:data:`RESAMPLE_MODES`)."""
-
-    resample: str = "area"
-
-
-@dataclass(frozen=True)
 class DecodePlan:
     """How a ``resolution`` px JPEG becomes an item's image (:func:`decode_plan`)."""
 
     decoded: tuple[int, int, int]  # the decoder's output shape
     min_side: int  # simplejpeg's ``min_height``/``min_width``: 0 for a full decode
     size: tuple[int, int] | None  # ``cv2.resize``'s (width, height) after decoding, or None
-    scale: int  # 1, 2, 4 or 8: the decoder's own reduction
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -151,7 +144,7 @@ def decode_plan(resolution: int, resize: tuple[int, int] | None, resample: str) 
         scale = next((s for s in _REDUCED if -(-resolution // s) >= max(resize)), 1)
     side = -(-resolution // scale)
     size = None if resize is None or resize == (side, side) else (resize[1], resize[0])
-    return DecodePlan((side, side, 3), 0 if scale == 1 else side, size, scale)
+    return DecodePlan((side, side, 3), 0 if scale == 1 else side, size)
 
 
 def decode_rgb(data, plan: DecodePlan, out: np.ndarray | None = None) -> np.ndarray | None:
@@ -348,16 +341,16 @@ class FrameDataset:
         return reader.get(key)
 
     def _plan(self, resolution: int) -> DecodePlan:
-        options = self._options
-        plan = decode_plan(resolution, options.resize, getattr(options, "resample", "area"))
-        self._plans[resolution] = plan
+        """The decode plan of this dataset's options for ``resolution`` px images (made once)."""
+        plan = self._plans.get(resolution)
+        if plan is None:
+            plan = self._plans[resolution] = decode_plan(resolution, self._options.resize, self._options.resample)
         return plan
 
     def _decode(self, shard: OpenShard, row: int, data=None, out: np.ndarray | None = None) -> np.ndarray:
         """The image of ``row`` (its JPEG bytes ``data`` if already read), checked and resized,
         written into ``out`` if given."""
-        plan = self._plans.get(shard.resolution) or self._plan(shard.resolution)
-        image = decode_rgb(shard.jpeg(row) if data is None else data, plan, out)
+        image = decode_rgb(shard.jpeg(row) if data is None else data, self._plan(shard.resolution), out)
         if image is None:
             self._refuse(shard, row)
         return image
@@ -458,8 +451,7 @@ class FrameDataset:
         episode, copies of the frames of its last ``history`` rows are kept (per process)
         for the next, which shares all of them but one: one decode per item in a
         sequential pass, and no copies kept in random order."""
-        plan = self._plans.get(shard.resolution) or self._plan(shard.resolution)
-        out = np.empty((pad + hi - lo, *plan.shape), dtype=np.uint8)
+        out = np.empty((pad + hi - lo, *self._plan(shard.resolution).shape), dtype=np.uint8)
         kept_shard, kept_first, kept, last_hi = reader.recent
         in_order = kept_shard is shard and hi == last_hi + 1
         k0, k1 = (max(lo, kept_first), min(hi, kept_first + len(kept))) if in_order else (hi, hi)
@@ -570,7 +562,7 @@ def open_dataset(
     ``resize=(height, width)`` (or one size) resizes images on load: ``resample="area"``
     (the default) decodes in full and resizes with ``cv2.INTER_AREA``; ``resample="jpeg"``
     lets the JPEG decoder scale by 1/2, 1/4 or 1/8 when the target is half the resolution
-    or less (2-3x faster than a full decode; other sizes as ``"area"``): a different
+    or less (~1.3x faster than ``"area"`` at half size; other sizes as ``"area"``): a different
     resampling than ``"area"`` (pixels differ by a few levels), deterministic for a given
     libjpeg build (:func:`decode_plan`).
     ``verify`` is ``"sha256"`` or ``"checksums"`` (module docstring); ``cache_mb``
@@ -594,7 +586,7 @@ def open_dataset(
         raise SpecError(f"image_dtype must be one of {list(IMAGE_DTYPES)}, got {image_dtype!r}")
     if resample not in RESAMPLE_MODES:
         raise SpecError(f"resample must be one of {list(RESAMPLE_MODES)}, got {resample!r}")
-    options = LoadOptions(
+    options = Options(
         resample=resample,
         keys=keys,
         image_dtype=image_dtype,

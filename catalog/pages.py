@@ -124,6 +124,19 @@ def _pread(source, length: int, offset: int) -> bytes:
     return os.pread(source, length, offset) if isinstance(source, int) else source.pread(length, offset)
 
 
+def pread_into(fd: int, buffer, offset: int) -> int:
+    """Read into ``buffer`` (a writable uint8 array or memoryview) from file offset ``offset``
+    without an intermediate bytes object where the platform has ``os.preadv``; bytes read."""
+    if _PREADV is not None:
+        return _PREADV(fd, (buffer,), offset)
+    data = os.pread(fd, len(buffer), offset)
+    memoryview(buffer)[: len(data)] = data
+    return len(data)
+
+
+_PREADV = getattr(os, "preadv", None)
+
+
 def _page_header(fd: int, path: str, pos: int, end: int) -> tuple[dict[int, object], bytes]:
     """The PageHeader at file offset ``pos`` and its raw bytes."""
     want = _HEADER_READ
@@ -153,12 +166,7 @@ def _hash_range(fd: int, hasher, start: int, end: int, keep=None, path: str = ""
     if keep is not None:
         if start < end:
             view = memoryview(keep)[start:end]
-            if hasattr(os, "preadv"):
-                got = os.preadv(fd, (view,), start)
-            else:
-                data = os.pread(fd, end - start, start)
-                view[: len(data)] = data
-                got = len(data)
+            got = pread_into(fd, view, start)
             if got != end - start:
                 raise ShardError(f"{path}: cut off at byte {start + got} (truncated)")
             if hasher is not None:

@@ -26,7 +26,7 @@ from catalog.index import (
     ShardFile,
     index_digest,
 )
-from catalog.pages import image_offsets
+from catalog.pages import image_offsets, pread_into
 from catalog.parquet_io import check_columns, column_to_numpy, table_kind
 from catalog.remote_images import remote_images
 from catalog.storage import as_location, is_url, open_binary
@@ -75,7 +75,7 @@ class OpenShard:
             return np.frombuffer(self.owner.jpeg(row), dtype=np.uint8)
         length = self.lengths[row]
         data = np.empty(length, dtype=np.uint8)
-        if _preadv(self.fd, data, self.offsets[row]) != length:
+        if pread_into(self.fd, data, self.offsets[row]) != length:
             raise ShardError(f"{self.path}: image of row {row} is cut off (file truncated while open)")
         return data
 
@@ -90,25 +90,13 @@ class OpenShard:
         if stop - start > _SPAN:
             return [self.jpeg(row) for row in range(lo, hi)]
         data = np.empty(stop - start, dtype=np.uint8)
-        if _preadv(self.fd, data, start) != stop - start:
+        if pread_into(self.fd, data, start) != stop - start:
             raise ShardError(f"{self.path}: images of rows {lo}-{hi - 1} are cut off (file truncated while open)")
         return [data[offsets[row] - start : offsets[row] - start + lengths[row]] for row in range(lo, hi)]
 
 
 #: Longest span of bytes :meth:`OpenShard.jpegs` reads at once (else one read per row).
 _SPAN = 1 << 20
-
-
-def _preadv(fd: int, buffer, offset: int) -> int:
-    """Read into ``buffer`` (a writable uint8 array or memoryview) from ``offset``; bytes read."""
-    if _PREADV is not None:
-        return _PREADV(fd, (buffer,), offset)
-    data = os.pread(fd, len(buffer), offset)
-    memoryview(buffer)[: len(data)] = data
-    return len(data)
-
-
-_PREADV = getattr(os, "preadv", None)
 
 
 def parquet_file(handle: Any, path: str, checksums: bool) -> pq.ParquetFile:
@@ -230,7 +218,7 @@ def _footer(fd: int, path: str, size: int) -> memoryview:
     if length + 4 > size:
         raise ShardError(f"{path}: not a readable Parquet file (truncated or corrupt): no footer")
     kept = memoryview(mmap.mmap(-1, size))
-    if _preadv(fd, kept[size - length :], size - length) != length:
+    if pread_into(fd, kept[size - length :], size - length) != length:
         raise ShardError(f"{path}: cut off while reading its footer (truncated)")
     return kept
 
