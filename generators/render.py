@@ -422,11 +422,12 @@ class Renderer:
         hand: str,
         full: bool = False,
         obstacles=(),
+        bgr: bool = False,
     ) -> list[np.ndarray]:
         """All frames of one episode among ``obstacles`` (pass the spec's); ``full`` draws
-        each with :meth:`render_full`."""
+        each with :meth:`render_full`, ``bgr`` (composited only) with :meth:`render_bgr`."""
         self.set_scene(object_name, object_size, hand, obstacles)
-        draw = self.render_full if full else self.render
+        draw = self.render_full if full else self.render_bgr if bgr else self.render
         return [
             draw(frames.object_pose[i], frames.palm_pose[i], frames.joint_angles[i]) for i in range(frames.num_frames)
         ]

@@ -39,14 +39,10 @@ def _close_renderers() -> None:
 def encoded_frames(spec: EpisodeSpec, frames: EpisodeFrames, resolution: int, jpeg_quality: int) -> list[bytes]:
     """Render every frame of an episode and encode it as JPEG (frames drawn in OpenCV's
     channel order, so nothing is converted between renderer and encoder)."""
-    renderer = renderer_for(resolution)
-    renderer.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
-    return [
-        encode_bgr_jpeg(
-            renderer.render_bgr(frames.object_pose[i], frames.palm_pose[i], frames.joint_angles[i]), jpeg_quality
-        )
-        for i in range(frames.num_frames)
-    ]
+    images = renderer_for(resolution).render_episode(
+        frames, spec.object, spec.object_size, spec.hand, obstacles=spec.obstacles, bgr=True
+    )
+    return [encode_bgr_jpeg(image, jpeg_quality) for image in images]
 
 
 def write_ground_truth_shard(
