@@ -166,7 +166,9 @@ def keypoint_link_indices(body: int, client: int = 0) -> np.ndarray:
 
 
 def set_hand_state(body: int, palm_pose, joint_angles, client: int = 0, indices: np.ndarray | None = None) -> None:
-    """Pose a loaded hand: palm pose (6,) and joint angles (15,)."""
+    """Pose a loaded hand: palm pose (6,) and joint angles (15,), velocities zero. Two
+    pybullet calls (the joints in one ``resetJointStatesMultiDof``, so the link transforms
+    are computed once), the state of one ``resetJointState`` per joint."""
     from generators.bullet import p
 
     palm = [float(v) for v in palm_pose]
@@ -174,5 +176,10 @@ def set_hand_state(body: int, palm_pose, joint_angles, client: int = 0, indices:
         body, palm[:3], p.getQuaternionFromEuler(palm[3:]), physicsClientId=client
     )
     idx = joint_indices(body, client) if indices is None else indices
-    for i, angle in zip(idx, joint_angles):
-        p.resetJointState(body, int(i), float(angle), physicsClientId=client)
+    p.resetJointStatesMultiDof(
+        body,
+        [int(i) for i in idx],
+        [[float(a)] for a in joint_angles],
+        targetVelocities=[[0.0]] * len(idx),
+        physicsClientId=client,
+    )

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from generators.bullet import p
-from generators.hand_urdf import joint_indices, write_hand_urdf
+from generators.hand_urdf import joint_indices, set_hand_state, write_hand_urdf
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle
 from schemas.scene import TABLE_X, TABLE_Z
@@ -83,7 +83,6 @@ MARKING_RGBA: dict[str, RGBA] = {
 }
 
 _IDENTITY = (0.0, 0.0, 0.0, 1.0)
-_ZERO_VELOCITIES = [[0.0]] * 15
 _Z_TO_X = (0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5))  # rotates a cylinder's local Z axis onto X
 _Z_TO_Y = (-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5))  # ... onto Y
 
@@ -268,16 +267,5 @@ def set_object_pose(client: int, body: int, object_pose) -> None:
 
 
 def set_hand_pose(client: int, body: int, indices: np.ndarray, palm_pose, joint_angles) -> None:
-    """Pose a loaded hand: palm pose (6,), joint angles (15,). The state of
-    :func:`generators.hand_urdf.set_hand_state` (joint positions set, velocities zero), in
-    two pybullet calls instead of sixteen: the link transforms are computed once from the
-    same positions, so frames are unchanged."""
-    palm = [float(v) for v in palm_pose]
-    p.resetBasePositionAndOrientation(body, palm[:3], p.getQuaternionFromEuler(palm[3:]), physicsClientId=client)
-    p.resetJointStatesMultiDof(
-        body,
-        [int(i) for i in indices],
-        [[float(a)] for a in joint_angles],
-        targetVelocities=_ZERO_VELOCITIES[: len(indices)],
-        physicsClientId=client,
-    )
+    """Pose a loaded hand: palm pose (6,), joint angles (15,)."""
+    set_hand_state(body, palm_pose, joint_angles, client=client, indices=indices)
