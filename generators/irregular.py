@@ -32,7 +32,7 @@ import numpy as np
 
 from generators.draws import SETTINGS, CommonChoices, common_choices, episode_rng, first_feasible, path_fits, uniform
 from generators.grids import MAX_SPEED, OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES, OBJECT_TOPS
-from generators.tracks import _compile, _end_state, evaluate
+from generators.tracks import compile_track, end_state, evaluate
 from schemas.errors import SpecError
 from schemas.motion import ArcToken, ClothoidToken, HarmonicToken, LineToken, Motion, Track
 from schemas.spec import EpisodeSpec
@@ -78,8 +78,8 @@ def _chain(rng: np.random.Generator, family: str, observe_s: float) -> tuple[Clo
 
 def _end_curvature(tokens: tuple[ClothoidToken, ...]) -> tuple[float, float]:
     """(curvature, speed) entering the last clothoid."""
-    pieces = _compile(Track(tokens[:-1])).pieces
-    _, _, speed, kappa = _end_state(pieces[-1])
+    pieces = compile_track(Track(tokens[:-1])).pieces
+    _, _, speed, kappa = end_state(pieces[-1])
     return kappa, speed
 
 
@@ -98,8 +98,8 @@ def irregular_motion(rng: np.random.Generator, family: str, observe_s: float, to
         target = turn / radius
     length = speed * last.duration
     tokens = tokens[:-1] + (ClothoidToken(curvature_slope=(target - kappa) / length, duration=last.duration),)
-    pieces = _compile(Track(tokens)).pieces
-    _, heading, speed, _ = _end_state(pieces[-1])
+    pieces = compile_track(Track(tokens)).pieces
+    _, heading, speed, _ = end_state(pieces[-1])
     rest = total_s - observe_s
     regular: LineToken | ArcToken | HarmonicToken
     if family == "L":

@@ -1,6 +1,7 @@
 """Motion tokens evaluated in closed form (the public face of four modules:
 :mod:`generators.tracks`, :mod:`generators.segments`, :mod:`generators.rolling`,
-:mod:`generators.bounds`): r(t), v(t), a(t), curvature and arc length,
+:mod:`generators.bounds`; each token type's closed forms are one class in
+:mod:`generators.primitives`): r(t), v(t), a(t), curvature and arc length,
 the target's 7-DoF pose with no-slip rolling, and cheap XZ bounds (paper 3.1, A.6).
 
 Semantics are those of :mod:`schemas.motion`: each token runs on local time since its

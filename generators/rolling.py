@@ -8,36 +8,24 @@ import math
 import numpy as np
 
 from generators.ballistics import elevation
-from generators.segments import _along, _gauss, _grid, _Segment, _walk, _weighted
-from generators.tracks import (
-    _FIRST_HEADING,
-    _GL3_W,
-    _GL3_X,
-    _IDENTITY,
-    _MAGNUS_C,
-    _SQRT3,
-    ROLL_STEP_S,
-    ZERO_SPEED,
-    _check_motion,
-    _evaluate,
-    _natural_heading,
-    _times,
-    evaluate,
-)
+from generators.primitives import Segment
+from generators.quadrature import GL3_NODES, GL3_WEIGHTS, node_times, weighted_sum
+from generators.segments import along, grid_steps, walk
+from generators.tracks import ROLL_STEP_S, ZERO_SPEED, as_times, check_motion, evaluate, sample_motion
 from schemas.errors import SpecError
-from schemas.motion import (
-    Motion,
-)
+from schemas.motion import Motion
 from schemas.objects import ObjectCategory, object_category
 from schemas.rotations import qaxis, qexp, qmul
 
+_SQRT3 = math.sqrt(3.0)
+#: The two Gauss-Legendre nodes on [0, 1] of the 4th-order Magnus step.
+_MAGNUS_C = (0.5 - _SQRT3 / 6.0, 0.5 + _SQRT3 / 6.0)
+_IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+#: A lying cylinder's path heading at the identity orientation: its axis (body +X,
+#: as :mod:`generators.scene` builds it) lies across travel along Z.
+_FIRST_HEADING = math.pi / 2.0
+
 # ------------------------------------------------------------------------ rotations
-
-
-
-
-
-
 
 
 def _scan(steps: np.ndarray) -> np.ndarray:
@@ -80,10 +68,10 @@ def _sphere_orientation(motion: Motion, radius: float, t: np.ndarray) -> np.ndar
     rotation, so quaternions stay unit and continuous.
     """
 
-    def handler(seg: _Segment, times: np.ndarray, q0: np.ndarray):
+    def handler(seg: Segment, times: np.ndarray, q0: np.ndarray):
         if seg.kind == "line":
-            pos = _evaluate(motion, np.append(times, seg.t0)).position
-            dist = _along(pos[:-1] - pos[-1], seg.u)
+            pos = sample_motion(motion, np.append(times, seg.t0)).position
+            dist = along(pos[:-1] - pos[-1], seg.u)
             axis = np.array([seg.u[1], 0.0, -seg.u[0]])
             q = qmul(qexp(np.outer(dist / radius, axis)), q0)
         elif seg.kind == "arc":
@@ -92,7 +80,7 @@ def _sphere_orientation(motion: Motion, radius: float, t: np.ndarray) -> np.ndar
             w0[1] += seg.rate
             q = qmul(qaxis(1, -seg.rate * tau), qmul(qexp(np.outer(tau, w0)), q0))
         else:
-            k, steps = _grid(seg, times)
+            k, steps = grid_steps(seg, times)
             a = seg.t0 + ROLL_STEP_S * np.arange(steps)
             nodes = np.vstack([_IDENTITY, _scan(_magnus(motion, a, np.full(steps, ROLL_STEP_S), radius))])
             ak = seg.t0 + ROLL_STEP_S * k
@@ -100,13 +88,13 @@ def _sphere_orientation(motion: Motion, radius: float, t: np.ndarray) -> np.ndar
         q /= np.linalg.norm(q, axis=1, keepdims=True)
         return q, q[-1]
 
-    return _walk(motion, t, handler, _IDENTITY, 4)
+    return walk(motion, t, handler, _IDENTITY, 4)
 
 
 def _magnus(motion: Motion, a: np.ndarray, h: np.ndarray, radius: float) -> np.ndarray:
     """One 4th-order Magnus step per row: the rotation over ``[a, a + h]`` as a quaternion."""
-    g = _gauss(a, h, np.array(_MAGNUS_C))
-    v = _evaluate(motion, g.reshape(-1)).velocity.reshape(g.shape + (2,))
+    g = node_times(a, h, np.array(_MAGNUS_C))
+    v = sample_motion(motion, g.reshape(-1)).velocity.reshape(g.shape + (2,))
     w = _roll_rate(v, radius)
     w1, w2 = w[:, 0], w[:, 1]
     hh = h[:, None]
@@ -128,7 +116,7 @@ def _cylinder_state(motion: Motion, radius: float, t: np.ndarray) -> np.ndarray:
     the identity's nearest; at kinks of the path the heading jumps to the nearest branch.
     """
 
-    def handler(seg: _Segment, times: np.ndarray, state):
+    def handler(seg: Segment, times: np.ndarray, state):
         prev, s0 = state
         if seg.kind == "line":
             direction = math.atan2(seg.u[1], seg.u[0])
@@ -138,8 +126,8 @@ def _cylinder_state(motion: Motion, radius: float, t: np.ndarray) -> np.ndarray:
                 psi = prev
             else:
                 psi = float(_branch(direction, prev))
-            pos = _evaluate(motion, np.append(times, seg.t0)).position
-            s = s0 + _along(pos[:-1] - pos[-1], (math.cos(psi), math.sin(psi)))
+            pos = sample_motion(motion, np.append(times, seg.t0)).position
+            s = s0 + along(pos[:-1] - pos[-1], (math.cos(psi), math.sin(psi)))
             out = np.column_stack([np.full(times.shape, psi), s])
         elif seg.kind == "arc":
             psi0 = float(_branch(seg.heading, _FIRST_HEADING if prev is None else prev))
@@ -150,13 +138,13 @@ def _cylinder_state(motion: Motion, radius: float, t: np.ndarray) -> np.ndarray:
             out = _cylinder_general(motion, seg, times, prev, s0)
         return out, (float(out[-1, 0]), float(out[-1, 1]))
 
-    return _walk(motion, t, handler, (None, 0.0), 2)
+    return walk(motion, t, handler, (None, 0.0), 2)
 
 
-def _cylinder_general(motion: Motion, seg: _Segment, times: np.ndarray, prev, s0: float) -> np.ndarray:
-    k, steps = _grid(seg, times)
+def _cylinder_general(motion: Motion, seg: Segment, times: np.ndarray, prev, s0: float) -> np.ndarray:
+    k, steps = grid_steps(seg, times)
     nodes_t = seg.t0 + ROLL_STEP_S * np.arange(steps + 1)
-    sample = _evaluate(motion, nodes_t)
+    sample = sample_motion(motion, nodes_t)
     v, acc = sample.velocity, sample.acceleration
     moving = np.hypot(v[:, 0], v[:, 1]) > ZERO_SPEED
     raw = _heading_of(v)
@@ -166,7 +154,7 @@ def _cylinder_general(motion: Motion, seg: _Segment, times: np.ndarray, prev, s0
         elif math.hypot(*acc[0]) > ZERO_SPEED:
             raw[0] = math.atan2(acc[0, 1], acc[0, 0])
         elif seg.piece is not None:
-            raw[0] = _natural_heading(seg.piece, seg.t0 - seg.piece.t0)
+            raw[0] = seg.piece.primitive.natural_heading(seg.piece, seg.t0 - seg.piece.t0)
         else:
             raw[0] = 0.0
         moving[0] = True
@@ -176,17 +164,17 @@ def _cylinder_general(motion: Motion, seg: _Segment, times: np.ndarray, prev, s0
     psi_nodes += math.pi * round(((_FIRST_HEADING if prev is None else prev) - psi_nodes[0]) / math.pi)
 
     def signed_speed(at: np.ndarray, psi_ref: np.ndarray) -> np.ndarray:
-        vel = _evaluate(motion, at.reshape(-1)).velocity.reshape(at.shape + (2,))
+        vel = sample_motion(motion, at.reshape(-1)).velocity.reshape(at.shape + (2,))
         along = vel[..., 0] * np.cos(psi_ref)[:, None] + vel[..., 1] * np.sin(psi_ref)[:, None]
         return np.copysign(np.hypot(vel[..., 0], vel[..., 1]), along)
 
     a = nodes_t[:-1]
-    full = _weighted(signed_speed(_gauss(a, np.full(steps, ROLL_STEP_S), _GL3_X), psi_nodes[:-1]), _GL3_W) * ROLL_STEP_S
+    full = weighted_sum(signed_speed(node_times(a, np.full(steps, ROLL_STEP_S), GL3_NODES), psi_nodes[:-1]), GL3_WEIGHTS) * ROLL_STEP_S
     s_nodes = s0 + np.concatenate([[0.0], np.cumsum(full)])
     ak = seg.t0 + ROLL_STEP_S * k
     h = times - ak
-    s = s_nodes[k] + _weighted(signed_speed(_gauss(ak, h, _GL3_X), psi_nodes[k]), _GL3_W) * h
-    vq = _evaluate(motion, times).velocity
+    s = s_nodes[k] + weighted_sum(signed_speed(node_times(ak, h, GL3_NODES), psi_nodes[k]), GL3_WEIGHTS) * h
+    vq = sample_motion(motion, times).velocity
     moving_q = np.hypot(vq[:, 0], vq[:, 1]) > ZERO_SPEED
     psi = np.where(moving_q, _branch(_heading_of(vq), psi_nodes[k]), psi_nodes[k])
     return np.column_stack([psi, s])
@@ -222,8 +210,8 @@ def object_orientation(motion: Motion, category: ObjectCategory | str, size: flo
     """
     category = _category(category)
     size = _check_size(category, size)
-    _check_motion(motion)
-    t = _times(t)
+    check_motion(motion)
+    t = as_times(t)
     if not category.rolling:
         return np.tile(_IDENTITY, (t.shape[0], 1))
     radius = category.rolling_radius(size)
@@ -242,9 +230,9 @@ def object_pose(motion: Motion, category: ObjectCategory | str, size: float, t) 
 
     category = _category(category)
     size = _check_size(category, size)
-    _check_motion(motion)
-    t = _times(t)
-    sample = _evaluate(motion, t)
+    check_motion(motion)
+    t = as_times(t)
+    sample = sample_motion(motion, t)
     n = t.shape[0]
     pose = np.empty((n, 7))
     pose[:, 0] = sample.position[:, 0]
@@ -264,7 +252,7 @@ def object_angular_velocity(motion: Motion, category: ObjectCategory | str, size
     the yaw rate -dpsi/dt about +Y (dpsi/dt = (v x a) / |v|^2, 0 when standing still)."""
     category = _category(category)
     size = _check_size(category, size)
-    _check_motion(motion)
+    check_motion(motion)
     sample = evaluate(motion, t)
     n = sample.velocity.shape[0]
     if not category.rolling:
