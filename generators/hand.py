@@ -85,17 +85,18 @@ def root_rotations(side: str) -> np.ndarray:
     """(5, 3, 3) fixed rotations of each finger's chain root in the palm frame."""
     rots = np.repeat(np.eye(3)[None], 5, axis=0)
     rots[0] = _thumb_root_right()
-    if _side(side) == "left":
+    if check_side(side) == "left":
         rots = _MIRROR @ rots @ _MIRROR
     return rots
 
 
 def root_positions(side: str) -> np.ndarray:
     """(5, 3) positions of each finger's first joint in the palm frame."""
-    return _ROOTS_RIGHT @ _MIRROR if _side(side) == "left" else _ROOTS_RIGHT.copy()
+    return _ROOTS_RIGHT @ _MIRROR if check_side(side) == "left" else _ROOTS_RIGHT.copy()
 
 
-def _side(side: str) -> str:
+def check_side(side: str) -> str:
+    """``side`` itself when it names a hand side, else a :class:`SpecError`."""
     if not isinstance(side, str) or side not in SIDES:
         raise SpecError(f"hand side must be one of {list(SIDES)}, got {side!r}")
     return side
@@ -126,7 +127,7 @@ def chain_frames(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> 
     q = np.atleast_2d(np.asarray(joint_angles, dtype=np.float64))
     if palm.ndim != 2 or q.ndim != 2 or palm.shape[-1] != 6 or q.shape[-1] != 15 or palm.shape[0] != q.shape[0]:
         raise SpecError(f"need palm_pose (n, 6) and joint_angles (n, 15), got {palm.shape} and {q.shape}")
-    roots, root_rots = _CACHE[_side(side)]
+    roots, root_rots = _CACHE[check_side(side)]
     n = palm.shape[0]
     r_palm = euler_to_matrix(palm[:, 3:])
     pos = np.empty((n, 5, 4, 3))

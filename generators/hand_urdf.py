@@ -34,7 +34,7 @@ from generators.hand import (
     PALM_HALF_EXTENTS,
     SEGMENT_LENGTHS,
     WRIST_OFFSET,
-    _side,
+    check_side,
     matrix_to_euler,
     root_positions,
     root_rotations,
@@ -72,7 +72,7 @@ def _segment_link(name: str, length: float, radius: float, material: str) -> str
 
 def hand_urdf(side: str) -> str:
     """URDF text of the ``side`` hand ("right" or "left"); deterministic."""
-    side = _side(side)
+    side = check_side(side)
     hx, hy, hz = PALM_HALF_EXTENTS
     roots, rots = root_positions(side), root_rotations(side)
     parts = [

@@ -20,56 +20,15 @@ from __future__ import annotations
 
 import json
 import math
-import numbers
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar
 
 from schemas.errors import SpecError
 from schemas.names import shorten
+from schemas.values import Vec2, Vec3, finite, load_json, non_negative, pair, positive, triple
 
-Vec2 = tuple[float, float]
-Vec3 = tuple[float, float, float]
 #: Standard gravity in scene units (9.81 m/s^2 = 98.1 units/s^2), the default of ``P``.
 STANDARD_GRAVITY = 98.1
-
-
-def _finite(owner: str, name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise SpecError(f"{owner}.{name} must be a number, got {shorten(repr(value))}")
-    try:
-        value = float(value)
-    except OverflowError:
-        raise SpecError(f"{owner}.{name} must be finite, got {shorten(repr(value))}") from None
-    if not math.isfinite(value):
-        raise SpecError(f"{owner}.{name} must be finite, got {shorten(repr(value))}")
-    return value
-
-
-def _vec2(owner: str, name: str, value: Any) -> Vec2:
-    if not isinstance(value, (tuple, list)) or len(value) != 2:
-        raise SpecError(f"{owner}.{name} must be a pair [x, z], got {shorten(repr(value))}")
-    return (_finite(owner, f"{name}[0]", value[0]), _finite(owner, f"{name}[1]", value[1]))
-
-
-def _vec3(owner: str, name: str, value: Any) -> Vec3:
-    if not isinstance(value, (tuple, list)) or len(value) != 3:
-        raise SpecError(f"{owner}.{name} must be a triple [x, y, z], got {shorten(repr(value))}")
-    return (_finite(owner, f"{name}[0]", value[0]), _finite(owner, f"{name}[1]", value[1]),
-            _finite(owner, f"{name}[2]", value[2]))
-
-
-def _positive(owner: str, name: str, value: Any) -> float:
-    value = _finite(owner, name, value)
-    if value <= 0:
-        raise SpecError(f"{owner}.{name} must be > 0, got {shorten(repr(value))}")
-    return value
-
-
-def _non_negative(owner: str, name: str, value: Any) -> float:
-    value = _finite(owner, name, value)
-    if value < 0:
-        raise SpecError(f"{owner}.{name} must be >= 0, got {shorten(repr(value))}")
-    return value
 
 
 @dataclass(frozen=True)
@@ -84,11 +43,11 @@ class LineToken:
     type: ClassVar[str] = "L"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "start", _vec2("L", "start", self.start))
-        object.__setattr__(self, "direction", _finite("L", "direction", self.direction))
-        object.__setattr__(self, "speed", _non_negative("L", "speed", self.speed))
-        object.__setattr__(self, "acceleration", _finite("L", "acceleration", self.acceleration))
-        object.__setattr__(self, "duration", _positive("L", "duration", self.duration))
+        object.__setattr__(self, "start", pair("L", "start", self.start))
+        object.__setattr__(self, "direction", finite("L", "direction", self.direction))
+        object.__setattr__(self, "speed", non_negative("L", "speed", self.speed))
+        object.__setattr__(self, "acceleration", finite("L", "acceleration", self.acceleration))
+        object.__setattr__(self, "duration", positive("L", "duration", self.duration))
 
 
 @dataclass(frozen=True)
@@ -107,14 +66,14 @@ class ArcToken:
     type: ClassVar[str] = "A"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "centre", _vec2("A", "centre", self.centre))
-        object.__setattr__(self, "radius", _positive("A", "radius", self.radius))
-        object.__setattr__(self, "angular_velocity", _non_negative("A", "angular_velocity", self.angular_velocity))
-        object.__setattr__(self, "start_angle", _finite("A", "start_angle", self.start_angle))
+        object.__setattr__(self, "centre", pair("A", "centre", self.centre))
+        object.__setattr__(self, "radius", positive("A", "radius", self.radius))
+        object.__setattr__(self, "angular_velocity", non_negative("A", "angular_velocity", self.angular_velocity))
+        object.__setattr__(self, "start_angle", finite("A", "start_angle", self.start_angle))
         if self.turn not in (1, -1) or isinstance(self.turn, bool):
             raise SpecError(f"A.turn must be +1 or -1, got {shorten(repr(self.turn))}")
         object.__setattr__(self, "turn", int(self.turn))
-        object.__setattr__(self, "duration", _positive("A", "duration", self.duration))
+        object.__setattr__(self, "duration", positive("A", "duration", self.duration))
 
 
 @dataclass(frozen=True)
@@ -134,13 +93,13 @@ class HarmonicToken:
     type: ClassVar[str] = "H"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "centre", _vec2("H", "centre", self.centre))
-        object.__setattr__(self, "axis", _finite("H", "axis", self.axis))
-        object.__setattr__(self, "amplitude", _non_negative("H", "amplitude", self.amplitude))
-        object.__setattr__(self, "frequency", _positive("H", "frequency", self.frequency))
-        object.__setattr__(self, "phase", _finite("H", "phase", self.phase))
-        object.__setattr__(self, "duration", _positive("H", "duration", self.duration))
-        object.__setattr__(self, "drift", _vec2("H", "drift", self.drift))
+        object.__setattr__(self, "centre", pair("H", "centre", self.centre))
+        object.__setattr__(self, "axis", finite("H", "axis", self.axis))
+        object.__setattr__(self, "amplitude", non_negative("H", "amplitude", self.amplitude))
+        object.__setattr__(self, "frequency", positive("H", "frequency", self.frequency))
+        object.__setattr__(self, "phase", finite("H", "phase", self.phase))
+        object.__setattr__(self, "duration", positive("H", "duration", self.duration))
+        object.__setattr__(self, "drift", pair("H", "drift", self.drift))
 
 
 @dataclass(frozen=True)
@@ -161,12 +120,12 @@ class ClothoidToken:
     type: ClassVar[str] = "C"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "curvature_slope", _finite("C", "curvature_slope", self.curvature_slope))
-        object.__setattr__(self, "duration", _positive("C", "duration", self.duration))
-        object.__setattr__(self, "start", _vec2("C", "start", self.start))
-        object.__setattr__(self, "heading", _finite("C", "heading", self.heading))
-        object.__setattr__(self, "speed", _non_negative("C", "speed", self.speed))
-        object.__setattr__(self, "curvature", _finite("C", "curvature", self.curvature))
+        object.__setattr__(self, "curvature_slope", finite("C", "curvature_slope", self.curvature_slope))
+        object.__setattr__(self, "duration", positive("C", "duration", self.duration))
+        object.__setattr__(self, "start", pair("C", "start", self.start))
+        object.__setattr__(self, "heading", finite("C", "heading", self.heading))
+        object.__setattr__(self, "speed", non_negative("C", "speed", self.speed))
+        object.__setattr__(self, "curvature", finite("C", "curvature", self.curvature))
 
 
 @dataclass(frozen=True)
@@ -192,30 +151,15 @@ class ProjectileToken:
     type: ClassVar[str] = "P"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "start", _vec2("P", "start", self.start))
-        object.__setattr__(self, "velocity", _vec3("P", "velocity", self.velocity))
-        object.__setattr__(self, "duration", _positive("P", "duration", self.duration))
-        object.__setattr__(self, "height", _non_negative("P", "height", self.height))
-        object.__setattr__(self, "gravity", _positive("P", "gravity", self.gravity))
-        restitution = _non_negative("P", "restitution", self.restitution)
+        object.__setattr__(self, "start", pair("P", "start", self.start))
+        object.__setattr__(self, "velocity", triple("P", "velocity", self.velocity))
+        object.__setattr__(self, "duration", positive("P", "duration", self.duration))
+        object.__setattr__(self, "height", non_negative("P", "height", self.height))
+        object.__setattr__(self, "gravity", positive("P", "gravity", self.gravity))
+        restitution = non_negative("P", "restitution", self.restitution)
         if restitution >= 1.0:
             raise SpecError(f"P.restitution must be < 1 (a bounce loses energy), got {shorten(repr(restitution))}")
         object.__setattr__(self, "restitution", restitution)
-
-
-def _load_json(what: str, text: Any) -> Any:
-    """``json.loads`` whose every failure (bad syntax, wrong type, nesting too deep for
-    the parser) is a :class:`SpecError` naming ``what``."""
-    if not isinstance(text, (str, bytes, bytearray)):
-        raise SpecError(f"{what} JSON must be text, got {type(text).__name__}")
-    try:
-        return json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SpecError(f"{what} is not valid JSON: {exc}") from exc
-    except ValueError as exc:  # e.g. an integer over Python's 4,300-digit conversion limit
-        raise SpecError(f"{what} holds a number Dyana cannot read: {shorten(str(exc), 160)}") from None
-    except RecursionError:
-        raise SpecError(f"{what} JSON is nested too deeply") from None
 
 
 Token = LineToken | ArcToken | HarmonicToken | ClothoidToken | ProjectileToken
@@ -275,7 +219,7 @@ class Track:
             if not isinstance(token, tuple(TOKEN_TYPES.values())):
                 raise SpecError(f"not a motion token: {shorten(repr(token))}")
         object.__setattr__(self, "tokens", tokens)
-        object.__setattr__(self, "start", _non_negative("track", "start", self.start))
+        object.__setattr__(self, "start", non_negative("track", "start", self.start))
 
     @property
     def duration(self) -> float:
@@ -370,5 +314,5 @@ class Motion:
 
     @classmethod
     def from_json(cls, text: str) -> Motion:
-        data = _load_json("motion", text)
+        data = load_json("motion", text)
         return cls.from_dict(data)

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import SpecError
-from schemas.motion import _finite
 from schemas.names import shorten
 from schemas.scene import TABLE_X, TABLE_Z
+from schemas.values import finite
 
 #: Most obstacles one spec may hold.
 MAX_OBSTACLES = 8
@@ -53,7 +53,7 @@ OBSTACLE_CATEGORIES: dict[str, ObstacleCategory] = {
 
 def _number(name: str, value: Any) -> float:
     owner, _, field = name.partition(".")
-    return _finite(owner, field, value)
+    return finite(owner, field, value)
 
 
 def _pair(name: str, value: Any, width: int) -> tuple[float, ...]:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import SpecError
-from schemas.motion import Motion, _load_json
+from schemas.motion import Motion
 from schemas.names import shorten, validate_name
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle, obstacles_from_list, obstacles_to_list
@@ -27,6 +27,7 @@ from schemas.scene import (
     MOTION_TYPES,
     ROLLOUT_FORMATS,
 )
+from schemas.values import load_json
 from schemas.versions import FPS
 
 SPEC_FIELDS = (
@@ -259,7 +260,7 @@ class EpisodeSpec:
 
     @classmethod
     def from_json(cls, text: str) -> EpisodeSpec:
-        return cls.from_dict(_load_json("spec", text))
+        return cls.from_dict(load_json("spec", text))
 
 
 #: Motion type of each token kind; ``C`` (clothoid) only connects the others.

@@ -37,7 +37,7 @@ def clothoid_integral(h0: float, k0: float, c: float, s: np.ndarray) -> np.ndarr
     smax = float(s.max()) if s.size else 0.0
     wmax = max(abs(w0), abs(w0 + smax / lam))
     if 2.2e-16 * (lam * (1.0 + wmax) + smax * wmax * wmax) > _FRESNEL_BUDGET:
-        return _quadrature(h0, k0, c, s)
+        return clothoid_quadrature(h0, k0, c, s)
     s1, c1 = fresnel(w1)
     s0, c0 = fresnel(w0)
     sign = 1.0 if c > 0 else -1.0
@@ -45,7 +45,7 @@ def clothoid_integral(h0: float, k0: float, c: float, s: np.ndarray) -> np.ndarr
     return lam * complex(math.cos(phase), math.sin(phase)) * ((c1 - c0) + 1j * sign * (s1 - s0))
 
 
-def _quadrature(h0: float, k0: float, c: float, s: np.ndarray) -> np.ndarray:
+def clothoid_quadrature(h0: float, k0: float, c: float, s: np.ndarray) -> np.ndarray:
     """Composite 10-point Gauss-Legendre with at most 0.5 rad of turning per panel
     (error near machine precision); used where the Fresnel form is ill-conditioned
     (a slope tiny against the squared initial curvature)."""

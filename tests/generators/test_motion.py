@@ -20,6 +20,7 @@ from generators.motion import (
     object_pose,
     qmul,
 )
+from generators.primitives import clothoid
 from schemas.errors import SpecError
 from schemas.motion import (
     ArcToken,
@@ -71,7 +72,7 @@ def finite_differences(m: Motion, t: np.ndarray, h: float = 1e-5):
 def interior_times(m: Motion, n: int = 60) -> np.ndarray:
     """Times away from every join (where one-sided derivatives may differ)."""
     t = np.linspace(0.01, m.duration + 0.5, n)
-    cuts = [s.t0 for s in segments._segments(m)]
+    cuts = [s.t0 for s in segments.segments(m)]
     keep = np.min(np.abs(t[:, None] - np.array(cuts)[None, :]), axis=1) > 2e-3
     return t[keep]
 
@@ -102,16 +103,16 @@ def test_line_closed_form_values():
 def test_clothoid_fresnel_form_matches_quadrature():
     s = np.linspace(0.0, 6.0, 25)
     for h0, k0, c in [(0.2, 0.7, 0.5), (0.2, -0.7, 0.5), (0.2, 0.7, -0.5), (1.0, 2.0, -0.05), (0.0, 0.0, 0.3), (3.0, -1.5, 2.0)]:
-        exact = tracks._clothoid_integral(h0, k0, c, s)
-        assert np.abs(exact - tracks._clothoid_quadrature(h0, k0, c, s)).max() < 1e-12
+        exact = clothoid.clothoid_integral(h0, k0, c, s)
+        assert np.abs(exact - clothoid.clothoid_quadrature(h0, k0, c, s)).max() < 1e-12
 
 
 def test_clothoid_with_tiny_slope_stays_accurate():
     """Far from its inflection point the Fresnel form loses digits: the quadrature path
     takes over and stays within the slope's effect of the arc with the same start."""
     s = np.linspace(0.0, 6.0, 25)
-    tiny = tracks._clothoid_integral(0.2, 0.7, 1e-9, s)
-    arc = tracks._clothoid_integral(0.2, 0.7, 0.0, s)
+    tiny = clothoid.clothoid_integral(0.2, 0.7, 1e-9, s)
+    arc = clothoid.clothoid_integral(0.2, 0.7, 0.0, s)
     assert np.abs(tiny - arc).max() < 1e-9 * 6.0**3
     assert np.abs(tiny - arc).max() > 0.0
 
@@ -347,7 +348,7 @@ def test_integrated_orientation_matches_exact_arc():
     for speed, kappa in ((1.5, 0.7), (4.0, 2.0)):
         exact = Motion.of(ClothoidToken(0.0, 5.0, (0.0, 3.0), 0.2, speed, kappa))
         grid = Motion.of(ClothoidToken(1e-13, 5.0, (0.0, 3.0), 0.2, speed, kappa))
-        assert segments._segments(grid)[0].kind == "general"
+        assert segments.segments(grid)[0].kind == "general"
         for cat in (BALL, CAN):
             q_exact, q_grid = object_orientation(exact, cat, 0.6, t), object_orientation(grid, cat, 0.6, t)
             assert np.abs(q_exact - q_grid).max() < 1e-7
@@ -394,9 +395,9 @@ def test_signed_zero_does_not_change_the_output():
     a = Motion.of(LineToken((0.0, 0.0), 0.0, 1.0, 0.0, 1.0))
     b = Motion.of(LineToken((-0.0, -0.0), -0.0, 1.0, -0.0, 1.0))
     t = np.array([0.0, 0.5])
-    tracks._compile.cache_clear()
+    tracks.compile_track.cache_clear()
     first = evaluate(b, t).position.tobytes()
-    tracks._compile.cache_clear()
+    tracks.compile_track.cache_clear()
     evaluate(a, t)
     assert evaluate(b, t).position.tobytes() == first
 
@@ -479,6 +480,6 @@ def test_token_starts_are_the_exact_prefix_sums_of_durations():
     rng = np.random.default_rng(11)
     durations = [round(float(d), int(k)) for d, k in zip(rng.uniform(0.011, 0.3, 250), rng.integers(2, 9, 250))]
     track = Track(tuple(LineToken((0.0, 4.0), 0.3, 0.2, 0.0, float(d)) for d in durations), start=0.1)
-    compiled = tracks._compile(track)
+    compiled = tracks.compile_track(track)
     expected = [0.1 + math.fsum(durations[:i]) for i in range(len(durations))]
     assert compiled.starts.tolist() == expected
