@@ -14,6 +14,11 @@ A :class:`Motion` is a base track plus optional overlay tracks. An overlay acts 
 its own interval ``[start, start + duration]`` and adds its displacement since its
 start, so overlays compose different degrees of freedom (say a harmonic sway on top
 of a line) without breaking continuity (Allen's "during"/"overlaps" relations).
+
+A token type is a frozen dataclass here (its fields, validation, ``type`` letter and
+whether it is ``airborne``), listed in :data:`Token` and :data:`TOKEN_TYPES`; its motion
+(closed forms, bounds, segments, elevation) is one registered class in
+:mod:`generators.primitives`. Those two files are all a new token type touches.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ class LineToken:
     acceleration: float
     duration: float
     type: ClassVar[str] = "L"
+    airborne: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "start", pair("L", "start", self.start))
@@ -64,6 +70,7 @@ class ArcToken:
     turn: int
     duration: float
     type: ClassVar[str] = "A"
+    airborne: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "centre", pair("A", "centre", self.centre))
@@ -91,6 +98,7 @@ class HarmonicToken:
     duration: float
     drift: Vec2 = (0.0, 0.0)
     type: ClassVar[str] = "H"
+    airborne: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "centre", pair("H", "centre", self.centre))
@@ -118,6 +126,7 @@ class ClothoidToken:
     speed: float = 1.0
     curvature: float = 0.0
     type: ClassVar[str] = "C"
+    airborne: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "curvature_slope", finite("C", "curvature_slope", self.curvature_slope))
@@ -149,6 +158,7 @@ class ProjectileToken:
     gravity: float = STANDARD_GRAVITY
     restitution: float = 0.0
     type: ClassVar[str] = "P"
+    airborne: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "start", pair("P", "start", self.start))
@@ -167,7 +177,7 @@ Token = LineToken | ArcToken | HarmonicToken | ClothoidToken | ProjectileToken
 #: episode stage is linear in the token count, these only cap a hostile input).
 MAX_TRACK_TOKENS = 256
 MAX_OVERLAYS = 16
-TOKEN_TYPES: dict[str, type] = {
+TOKEN_TYPES: dict[str, type[Token]] = {
     cls.type: cls for cls in (LineToken, ArcToken, HarmonicToken, ClothoidToken, ProjectileToken)
 }
 
@@ -250,8 +260,10 @@ class Motion:
         for overlay in overlays:
             if not isinstance(overlay, Track):
                 raise SpecError(f"motion overlay must be a Track, got {shorten(repr(overlay))}")
-            if any(isinstance(t, ProjectileToken) for t in overlay.tokens):
-                raise SpecError("a projectile token (P) may only be in the base track, not in an overlay")
+            for token in overlay.tokens:
+                if token.airborne:
+                    raise SpecError(f"a token that leaves the table ({token.type}) may only be in the base track, "
+                                    "not in an overlay")
         object.__setattr__(self, "overlays", overlays)
 
     @classmethod
@@ -266,8 +278,8 @@ class Motion:
 
     @property
     def airborne(self) -> bool:
-        """Whether the object may leave the table (a ``P`` token in the base track)."""
-        return any(t.type == "P" for t in self.base.tokens)
+        """Whether the object may leave the table (an ``airborne`` token, ``P``, in the base track)."""
+        return any(t.airborne for t in self.base.tokens)
 
     @property
     def token_types(self) -> str:

@@ -1,0 +1,28 @@
+"""The motion-primitive registry: every token type has exactly one primitive."""
+
+from __future__ import annotations
+
+import pytest
+
+from generators.primitives import Primitive, primitive_for, register, registered
+from schemas.errors import SpecError
+from schemas.motion import TOKEN_TYPES, LineToken
+
+
+def test_every_token_type_has_one_registered_primitive() -> None:
+    assert sorted(t.__name__ for t in registered()) == sorted(t.__name__ for t in TOKEN_TYPES.values())
+
+
+def test_a_token_finds_its_primitive_and_a_non_token_is_refused() -> None:
+    token = LineToken((0.0, 4.0), 0.3, 1.0, 0.0, 1.0)
+    assert isinstance(primitive_for(token), Primitive)
+    with pytest.raises(SpecError, match="not a motion token"):
+        primitive_for("L")  # type: ignore[type-var]  # the wrong input is the point
+
+
+def test_a_second_primitive_for_a_token_type_is_refused() -> None:
+    with pytest.raises(ValueError, match="already registered"):
+
+        @register(LineToken)
+        class Again(Primitive[LineToken]):
+            pass
