@@ -141,9 +141,11 @@ def centre_bounds(motion_type: str, cols: dict[str, np.ndarray], seconds: np.nda
 
     Linear: exact, from the extremes of s(t) = v t + a t^2 / 2 (a turning point counts
     when it falls inside). Circular: the whole circle. Harmonic: the whole swing plus the
-    drift's displacement; ``seconds=None`` is allowed only for circular.
+    drift's displacement; ``seconds=None`` is allowed only for circular (the others raise).
     """
     if motion_type == "linear":
+        if seconds is None:
+            raise SpecError("linear bounds need a duration")
         v, a = cols["speed"], cols["acceleration"]
         s_end = v * seconds + 0.5 * a * seconds * seconds
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -180,6 +182,8 @@ def centre_bounds(motion_type: str, cols: dict[str, np.ndarray], seconds: np.nda
 def max_speed(motion_type: str, cols: dict[str, np.ndarray], seconds: np.ndarray | None) -> np.ndarray:
     """Largest speed of the object's centre over ``[0, seconds]`` (units/s)."""
     if motion_type == "linear":
+        if seconds is None:
+            raise SpecError("linear bounds need a duration")
         v, a = cols["speed"], cols["acceleration"]
         return np.maximum(np.abs(v), np.abs(v + a * seconds))
     if motion_type == "circular":

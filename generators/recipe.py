@@ -221,6 +221,13 @@ def _type_offset(definition: SliceDef) -> int:
     )
 
 
+def _cell(definition: SliceDef) -> tuple[str, str]:
+    """An atomic slice's (motion type, interception setting), both set by construction."""
+    if definition.motion_type is None or definition.intercept_setting is None:
+        raise SpecError(f"slice {definition.name!r} is not one motion type in one setting")
+    return definition.motion_type, definition.intercept_setting
+
+
 def _cell_table(
     definition: SliceDef, indices: np.ndarray, motion_type: str, setting: str, heldout: bool
 ) -> dict[str, np.ndarray]:
@@ -253,13 +260,10 @@ def _table(definition: SliceDef, indices: np.ndarray) -> EpisodeTable:
                 out["part"][mask] = p
         return EpisodeTable(names, out)
     if definition.atomic:
-        cells = [(np.arange(n), definition.motion_type, definition.intercept_setting, False)]
+        cells = [(np.arange(n), *_cell(definition), False)]
     else:
         cell = indices % len(ATOMIC_SLICES)
-        cells = [
-            (np.flatnonzero(cell == c), SLICES[name].motion_type, SLICES[name].intercept_setting, True)
-            for c, name in enumerate(ATOMIC_SLICES)
-        ]
+        cells = [(np.flatnonzero(cell == c), *_cell(SLICES[name]), True) for c, name in enumerate(ATOMIC_SLICES)]
     for where, motion_type, setting, heldout in cells:
         if len(where):
             columns = _cell_table(definition, indices[where], motion_type, setting, heldout)

@@ -97,10 +97,17 @@ class RendererUnavailable(DyanaError):
 
 @dataclass(frozen=True)
 class _Body:
-    """A loaded moving body and (hands) its joint indices."""
+    """A loaded moving object."""
 
     body: int
-    joints: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class _Hand:
+    """A loaded hand and its joint indices."""
+
+    body: int
+    joints: np.ndarray
 
 
 def _floats(values) -> np.ndarray | None:
@@ -148,9 +155,11 @@ class Renderer:
     def _setup(self) -> None:
         self._view, self._proj = pybullet_matrices(self.width, self.height)
         self._scene: tuple = (None, None, None, ())
-        self._poses: tuple = (None, None, None)
-        self._hand = self._object = None
-        self._full_bodies: tuple | None = None
+        self._object_pose: np.ndarray | None = None  # (7,), set by _pose when the scene has an object
+        self._hand_pose: tuple[np.ndarray, np.ndarray] | None = None  # palm (6,), joints (15,), likewise
+        self._hand: _Hand | None = None
+        self._object: _Body | None = None
+        self._full_bodies: tuple[_Hand | None, _Body | None] | None = None
         self._full_static = False  # the full-scene client holds exactly the static bodies and obstacles
         p.resetSimulation(physicsClientId=self._full_client)
         build_static(self._full_client)
@@ -169,13 +178,14 @@ class Renderer:
     def _use_plate(self, plate: tuple[np.ndarray, ...]) -> None:
         self._plate_depth, self._plate_rgb, self._plate_bgr, self._tie = plate
 
-    def _add_moving(self, client: int) -> tuple[_Body | None, _Body | None]:
+    def _add_moving(self, client: int) -> tuple[_Hand | None, _Body | None]:
         """Create the episode's hand, then its object, in ``client``."""
         name, size, hand, _ = self._scene
-        hand_body = object_body = None
+        hand_body: _Hand | None = None
+        object_body: _Body | None = None
         if hand is not None:
             body, indices = load_hand(client, hand)
-            hand_body = _Body(body, indices)
+            hand_body = _Hand(body, indices)
         if name is not None:
             body = build_object(client, name, size)
             object_body = _Body(body)
@@ -223,7 +233,7 @@ class Renderer:
         build_obstacles(c, self._scene[3])
         self._full_static = True
 
-    def _full_scene(self) -> tuple[_Body | None, _Body | None]:
+    def _full_scene(self) -> tuple[_Hand | None, _Body | None]:
         if self._full_bodies is None:
             if not self._full_static:
                 self._build_full_static()
@@ -292,15 +302,15 @@ class Renderer:
                 or not (np.all(np.isfinite(palm)) and np.all(np.isfinite(joints)))
             ):
                 raise SpecError(f"palm_pose (6,) and joint_angles (15,) must be finite numbers, got {palm_pose!r}, {joint_angles!r}")
-        self._poses = (pose, palm, joints)
+        self._object_pose = pose
+        self._hand_pose = None if palm is None or joints is None else (palm, joints)
         self._apply(self._client, self._hand, self._object)
 
-    def _apply(self, client: int, hand: _Body | None, obj: _Body | None) -> None:
-        pose, palm, joints = self._poses
-        if obj is not None:
-            set_object_pose(client, obj.body, pose)
-        if hand is not None:
-            set_hand_pose(client, hand.body, hand.joints, palm, joints)
+    def _apply(self, client: int, hand: _Hand | None, obj: _Body | None) -> None:
+        if obj is not None and self._object_pose is not None:
+            set_object_pose(client, obj.body, self._object_pose)
+        if hand is not None and self._hand_pose is not None:
+            set_hand_pose(client, hand.body, hand.joints, *self._hand_pose)
 
     # drawing -----------------------------------------------------------------
     def _draw(
@@ -390,14 +400,18 @@ class Renderer:
         if self._object is None or self._hand is None:
             raise SpecError("object_pixels needs a scene with an object and a hand (set_scene)")
         self._pose(object_pose, palm_pose, joint_angles)
+        if self._hand_pose is None:
+            raise SpecError("object_pixels needs the hand posed (palm_pose and joint_angles)")
         if self._scene[3]:
             hand, obj = self._full_scene()
+            if obj is None:  # the full scene holds the same object as self._object
+                raise SpecError("object_pixels needs a scene with an object (set_scene)")
             self._apply(self._full_client, hand, obj)
             shown = self._object_mask(self._full_client, obj)
         else:
             shown = self._object_mask(self._client, self._object)
         away = np.array([0.0, -1000.0, 0.0, 0.0, 0.0, 0.0])
-        set_hand_pose(self._client, self._hand.body, self._hand.joints, away, self._poses[2])
+        set_hand_pose(self._client, self._hand.body, self._hand.joints, away, self._hand_pose[1])
         alone = self._object_mask(self._client, self._object)
         self._apply(self._client, self._hand, self._object)
         return int(shown.sum()), int(alone.sum())

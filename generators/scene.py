@@ -99,7 +99,7 @@ class Part:
 
 
 def _visual(client: int, part: Part) -> int:
-    kwargs = {"rgbaColor": part.rgba, "visualFramePosition": part.position, "visualFrameOrientation": part.orientation}
+    kwargs: dict[str, object] = {"rgbaColor": part.rgba, "visualFramePosition": part.position, "visualFrameOrientation": part.orientation}
     if part.shape == p.GEOM_SPHERE:
         kwargs["radius"] = part.dims[0]
     elif part.shape == p.GEOM_CYLINDER:

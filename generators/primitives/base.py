@@ -25,7 +25,7 @@ class Piece:
     """One token placed on the global clock with absolute parameters ``p`` (their layout
     is the primitive's own, see its module)."""
 
-    primitive: Primitive[Token]
+    primitive: Shape
     t0: float
     duration: float
     p: tuple[float, ...]
@@ -80,13 +80,8 @@ class FlightArc:
     g: float
 
 
-class Primitive(Generic[TokenT]):
-    """The closed-form behaviour of one token type. Subclasses implement the planar
-    methods; :meth:`lift` defaults to staying on the table (only ``P`` leaves it)."""
-
-    def place(self, token: TokenT, t0: float, prev: EndState | None) -> Piece:
-        """``token`` on the global clock from ``t0``, translated to start where ``prev`` ends."""
-        raise NotImplementedError
+class Shape:
+    """The closed forms of a placed piece (what a :class:`Piece` calls, whatever its token)."""
 
     def evaluate(self, piece: Piece, tau: np.ndarray) -> XZ:
         """Closed-form position, velocity and acceleration ``(n, 2)`` at local times ``tau``."""
@@ -106,6 +101,16 @@ class Primitive(Generic[TokenT]):
 
     def bounds(self, piece: Piece, span: float) -> Box:
         """Exact ``(x_min, x_max, z_min, z_max)`` of the position over local ``[0, span]``."""
+        raise NotImplementedError
+
+
+class Primitive(Shape, Generic[TokenT]):
+    """The motion behaviour of one token type: placing it (:meth:`place`), its piece's
+    closed forms (:class:`Shape`) and its elevation; :meth:`lift` defaults to staying on
+    the table (only ``P`` leaves it)."""
+
+    def place(self, token: TokenT, t0: float, prev: EndState | None) -> Piece:
+        """``token`` on the global clock from ``t0``, translated to start where ``prev`` ends."""
         raise NotImplementedError
 
     def lift(self, token: TokenT, index: int, t0: float, t1: float, y: float) -> tuple[list[FlightArc], float]:
