@@ -2,10 +2,10 @@
 matching pybullet's ``computeViewMatrix``/``computeProjectionMatrixFOV``, projection
 of world points to pixels, and back-projection of pixels onto a horizontal plane.
 
-Dyana's world is X right, Y up, Z forward (DESIGN.md, like the paper's Unity scene):
-seen from the camera, +X is on the image's right. pybullet's camera is right-handed,
-so the renderer mirrors its image left-right (``image[:, ::-1]``) and pixel columns
-here are measured on the mirrored image."""
+Dyana's world is X right, Y up, Z forward, like the paper's Unity scene (the data
+contract, docs/concepts/data-contract.md): seen from the camera, +X is on the image's
+right. pybullet's camera is right-handed, so the renderer mirrors its image left-right
+(``image[:, ::-1]``) and pixel columns here are measured on the mirrored image."""
 
 from __future__ import annotations
 
