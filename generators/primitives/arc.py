@@ -16,6 +16,8 @@ from schemas.motion import ArcToken
 
 @register(ArcToken)
 class Arc(Primitive[ArcToken]):
+    """``A`` tokens; after another token the centre moves so the arc starts at its end."""
+
     def place(self, token: ArcToken, t0: float, prev: EndState | None) -> Piece:
         w = token.turn * token.angular_velocity
         cx, cz = token.centre

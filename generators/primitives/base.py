@@ -16,11 +16,13 @@ TokenT = TypeVar("TokenT", bound=Token)
 #: How far from the table (units) a planar token may find the object at its start.
 ON_TABLE = 1e-9
 
+#: Position, velocity and acceleration, each ``(n, 2)``.
 XZ = tuple[np.ndarray, np.ndarray, np.ndarray]
+#: ``(x_min, x_max, z_min, z_max)``.
 Box = tuple[float, float, float, float]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True)
 class Piece:
     """One token placed on the global clock with absolute parameters ``p`` (their layout
     is the primitive's own, see its module)."""

@@ -92,6 +92,8 @@ def _extreme_lengths(h0: float, k0: float, c: float, length: float) -> list[floa
 
 @register(ClothoidToken)
 class Clothoid(Primitive[ClothoidToken]):
+    """``C`` tokens; after another token only ``curvature_slope`` and ``duration`` are its own."""
+
     def place(self, token: ClothoidToken, t0: float, prev: EndState | None) -> Piece:
         if prev is None:
             p = (*token.start, token.heading, token.speed, token.curvature, token.curvature_slope)

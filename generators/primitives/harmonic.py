@@ -43,6 +43,8 @@ def _axis_bounds(c0: float, e: float, d: float, amp: float, om: float, ph: float
 
 @register(HarmonicToken)
 class Harmonic(Primitive[HarmonicToken]):
+    """``H`` tokens; after another token the centre moves so the swing starts at its end."""
+
     def place(self, token: HarmonicToken, t0: float, prev: EndState | None) -> Piece:
         ex, ez = math.cos(token.axis), math.sin(token.axis)
         cx, cz = token.centre

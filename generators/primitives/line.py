@@ -57,6 +57,8 @@ class StraightLine(Primitive[TokenT]):
 
 @register(LineToken)
 class Line(StraightLine[LineToken]):
+    """``L`` tokens: a line from ``start`` (or the previous token's end) along ``direction``."""
+
     def place(self, token: LineToken, t0: float, prev: EndState | None) -> Piece:
         sx, sz = token.start if prev is None else (float(prev.position[0]), float(prev.position[1]))
         p = (sx, sz, math.cos(token.direction), math.sin(token.direction), token.speed, token.acceleration)

@@ -45,6 +45,8 @@ def flight(token: ProjectileToken, t0: float, t1: float, y0: float) -> tuple[lis
 
 @register(ProjectileToken)
 class Projectile(StraightLine[ProjectileToken]):
+    """``P`` tokens: a constant-velocity line in the plan view, flights and bounces above it."""
+
     def place(self, token: ProjectileToken, t0: float, prev: EndState | None) -> Piece:
         sx, sz = token.start if prev is None else (float(prev.position[0]), float(prev.position[1]))
         vx, vz = token.velocity[0], token.velocity[2]
