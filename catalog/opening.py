@@ -22,7 +22,9 @@ from schemas.errors import SpecError
 def _resize(value: int | tuple[int, int] | None) -> tuple[int, int] | None:
     if value is None:
         return None
-    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+    if isinstance(value, bool):
+        raise SpecError(f"resize must be a size or (height, width), got {value!r}")
+    if isinstance(value, (int, np.integer)):
         value = (int(value), int(value))
     try:
         height, width = (int(v) for v in value)

@@ -31,7 +31,9 @@ def _choices(name: str, value: str | Iterable[str] | None, allowed: Iterable[str
 def _episode_set(value: range | Iterable[int] | int | None) -> frozenset[int] | range | None:
     if value is None or isinstance(value, range):
         return value
-    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+    if isinstance(value, (int, np.integer)):
+        if isinstance(value, bool):
+            raise SpecError(f"episodes must be integers (or a range), got {value!r}")
         return frozenset([int(value)])
     values = set()
     for v in value:
