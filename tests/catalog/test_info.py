@@ -156,3 +156,19 @@ def test_the_console_script_gives_no_traceback(tmp_path):
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr == f"catalog info: error: {tmp_path / 'nowhere'}: no such folder\n"
+
+
+def test_a_folder_in_object_storage(slice_dir, capsys):
+    """``catalog info s3://...`` reads the manifest there and says what it says locally."""
+    from tests.s3_server import s3_server
+
+    with s3_server("dyana-info"):
+        import fsspec
+
+        fsspec.filesystem("s3").put(str(slice_dir), "dyana-info/linear-fast", recursive=True)
+        code, out, err = info(capsys, "s3://dyana-info/linear-fast", "--json")
+        missing, _, gone = info(capsys, "s3://dyana-info/nothing")
+    assert code == 0, err
+    _, local, _ = info(capsys, str(slice_dir), "--json")
+    assert json.loads(out) == {**json.loads(local), "path": "s3://dyana-info/linear-fast"}
+    assert missing == 2 and "no catalog.json (not a built slice or run folder" in gone
