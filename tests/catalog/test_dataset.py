@@ -233,7 +233,8 @@ def test_sequential_windows_decode_each_frame_once(built, monkeypatch):
 
 
 def test_bad_options_are_refused(built, tmp_path):
-    for kwargs in ({"history": -1}, {"action_horizon": 0}, {"verify": "md5"}, {"cache_mb": 0}, {"history": 1.5}):
+    for kwargs in ({"history": -1}, {"action_horizon": 0}, {"verify": "md5"}, {"cache_mb": 0}, {"history": 1.5},
+                   {"resize": True}, {"episodes": True}, {"episodes": [1, "2"]}, {"object": "anvil"}):
         with pytest.raises(SpecError):
             catalog.open(built, **kwargs)
     with pytest.raises(ShardError, match="catalog.json"):
