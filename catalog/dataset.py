@@ -78,135 +78,29 @@ from __future__ import annotations
 import os
 from bisect import bisect_right
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
 import cv2
 import numpy as np
-import simplejpeg
 
-from catalog.index import (
-    ACTION_SLICE,
-    DISTANCE_COLUMN,
-    STATE_SLICES,
-    VERIFY_MODES,
-    Episode,
-    Options,
-    ShardFile,
-    load_source,
-    non_negative,
-)
-from catalog.lerobot_keys import IMAGE_DTYPES, KEYS, lerobot_item
+from catalog.decode import DecodePlan, decode_plan, decode_rgb
+from catalog.index import ACTION_SLICE, DISTANCE_COLUMN, STATE_SLICES, Episode, Options, ShardFile
+from catalog.lerobot_keys import lerobot_item
 from catalog.manifest import Manifest
+from catalog.selection import Selection
 from catalog.shard_cache import OpenShard, ShardCache
-from catalog.storage import as_location
+from catalog.stats import Stats, combine, load_stats
 from catalog.stream import FrameStream
+from catalog.torch_adapter import torch_dataset
 from catalog.windows import episode_starts, history_span, horizon_span
-from schemas.errors import ShardError, SpecError
-from schemas.objects import OBJECTS
-from schemas.scene import COMPLEX_MOTION_TYPES, INTERCEPT_SECONDS, MOTION_TYPES, PHASES
+from schemas.errors import ShardError
+from schemas.scene import PHASES
 
 _getpid = os.getpid
-#: How ``resize`` resamples: ``"area"`` (a full decode, then ``cv2.INTER_AREA``) or ``"jpeg"``
-#: (for sizes of half the resolution or less, the JPEG decoder's own 1/2, 1/4 or 1/8 scaling).
-RESAMPLE_MODES = ("area", "jpeg")
-_REDUCED = (8, 4, 2)
 #: (state, its columns, its pad flag's key); ``_PAD_KEYS`` orders a window's pad flags.
 _STATE_KEYS = tuple((name, columns, f"{name}_is_pad") for name, columns in STATE_SLICES)
 _PAD_KEYS = ("image_is_pad", *(key for _, _, key in _STATE_KEYS), "fingertip_distance_is_pad")
-
-
-@dataclass(frozen=True)
-class DecodePlan:
-    """How a ``resolution`` px JPEG becomes an item's image (:func:`decode_plan`)."""
-
-    decoded: tuple[int, int, int]  # the decoder's output shape
-    min_side: int  # simplejpeg's ``min_height``/``min_width``: 0 for a full decode
-    size: tuple[int, int] | None  # ``cv2.resize``'s (width, height) after decoding, or None
-
-    @property
-    def shape(self) -> tuple[int, int, int]:
-        """The item image's shape."""
-        return self.decoded if self.size is None else (self.size[1], self.size[0], 3)
-
-
-def decode_plan(resolution: int, resize: tuple[int, int] | None, resample: str) -> DecodePlan:
-    """How a ``resolution`` px JPEG becomes an item's image.
-
-    With ``resample="jpeg"`` and a target no bigger than half the resolution on both sides,
-    the decoder scales by the largest of 1/8, 1/4, 1/2 that keeps the image at least as big
-    as the target (libjpeg's reduced inverse DCT: each side ``ceil(resolution / scale)``),
-    and ``cv2.INTER_AREA`` takes it the rest of the way; otherwise the image is decoded in
-    full and resized with ``cv2.INTER_AREA``."""
-    scale = 1
-    if resample == "jpeg" and resize is not None:
-        scale = next((s for s in _REDUCED if -(-resolution // s) >= max(resize)), 1)
-    side = -(-resolution // scale)
-    size = None if resize is None or resize == (side, side) else (resize[1], resize[0])
-    return DecodePlan((side, side, 3), 0 if scale == 1 else side, size)
-
-
-def decode_rgb(data, plan: DecodePlan, out: np.ndarray | None = None) -> np.ndarray | None:
-    """JPEG bytes -> the item's (H, W, 3) uint8 RGB image by ``plan``, written into ``out``
-    if given; None for bytes that do not decode to the planned picture.
-
-    simplejpeg (libjpeg-turbo, accurate inverse DCT and upsampling) gives the pixels
-    ``cv2.imdecode`` gives (checked on every test fixture), ~30% faster at 224 px, and can
-    decode straight into a window's array."""
-    try:
-        if plan.size is None:
-            image = simplejpeg.decode_jpeg(
-                data, colorspace="RGB", min_height=plan.min_side, min_width=plan.min_side, buffer=out
-            )
-            return image if image.shape == plan.decoded else None
-        image = simplejpeg.decode_jpeg(data, colorspace="RGB", min_height=plan.min_side, min_width=plan.min_side)
-    except ValueError:
-        return None
-    if image.shape != plan.decoded:
-        return None
-    return cv2.resize(image, plan.size, dst=out, interpolation=cv2.INTER_AREA)
-
-
-def _choices(name: str, value: Any, allowed: Iterable[str]) -> frozenset[str] | None:
-    if value is None:
-        return None
-    values = {value} if isinstance(value, str) else set(value)
-    allowed = set(allowed)
-    unknown = sorted(v for v in values if v not in allowed)
-    if unknown:
-        raise SpecError(f"{name} {unknown} unknown (expected some of {sorted(allowed)})")
-    return frozenset(values)
-
-
-def _episode_set(value: Any) -> frozenset[int] | range | None:
-    if value is None:
-        return None
-    if isinstance(value, range):
-        return value
-    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-        return frozenset([int(value)])
-    values = set()
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-            raise SpecError(f"episodes must be integers (or a range), got {v!r}")
-        values.add(int(v))
-    return frozenset(values)
-
-
-def _resize(value: Any) -> tuple[int, int] | None:
-    if value is None:
-        return None
-    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-        value = (int(value), int(value))
-    try:
-        height, width = (int(v) for v in value)
-    except (TypeError, ValueError):
-        raise SpecError(f"resize must be a size or (height, width), got {value!r}") from None
-    if height < 1 or width < 1:
-        raise SpecError(f"resize must be positive, got {value!r}")
-    return height, width
-
 
 
 class FrameDataset:
@@ -217,7 +111,18 @@ class FrameDataset:
     files are opened lazily in each process.
     """
 
-    def __init__(self, roots, manifests, files, episodes, spans, options, reader=None, stats=None, tasks=None) -> None:
+    def __init__(
+        self,
+        roots: Iterable[Path],
+        manifests: Iterable[Manifest],
+        files: Iterable[ShardFile],
+        episodes: Iterable[Episode],
+        spans: Iterable[tuple[int, int, int]],
+        options: Options,
+        reader: ShardCache | None = None,
+        stats: Stats | None = None,
+        tasks: dict[str, int] | None = None,
+    ) -> None:
         self._roots: tuple[Path, ...] = tuple(roots)
         self._manifests: tuple[Manifest, ...] = tuple(manifests)
         self._files: tuple[ShardFile, ...] = tuple(files)
@@ -285,24 +190,11 @@ class FrameDataset:
     ) -> FrameDataset:
         """The episodes matching every given filter (values may be one or several; ``episodes``
         filters on ``episode_index``, e.g. ``range(0, 100)``; ``where`` is any predicate)."""
-        motions = _choices("motion_type", motion_type, (*MOTION_TYPES, *COMPLEX_MOTION_TYPES, "custom"))
-        settings = _choices("intercept_setting", intercept_setting, INTERCEPT_SECONDS)
-        objects = _choices("object", object, OBJECTS)
-        indices = _episode_set(episodes)
-        keep = []
-        for k, e in enumerate(self._episodes):
-            if motions is not None and e.motion_type not in motions:
-                continue
-            if settings is not None and e.intercept_setting not in settings:
-                continue
-            if objects is not None and e.object not in objects:
-                continue
-            if indices is not None and e.episode_index not in indices:
-                continue
-            if where is not None and not where(e):
-                continue
-            keep.append(k)
-        return self._view(keep)
+        return self.filtered(Selection.of(motion_type, intercept_setting, object, episodes, where))
+
+    def filtered(self, selection: Selection) -> FrameDataset:
+        """The episodes ``selection`` matches (what :meth:`select` builds from its arguments)."""
+        return self._view([k for k, e in enumerate(self._episodes) if selection.matches(e)])
 
     def _view(self, keep: Sequence[int]) -> FrameDataset:
         return FrameDataset(
@@ -318,12 +210,10 @@ class FrameDataset:
         )
 
     @property
-    def stats(self):
+    def stats(self) -> Stats:
         """Normalisation statistics of the opened folders (all their frames, whatever the filters):
         ``ds.stats["action"].mean`` etc. (``catalog.stats``); read from or written to ``stats.json``."""
         if self._stats is None:
-            from catalog.stats import combine, load_stats
-
             verify = self._options.verify == "sha256"
             self._stats = combine([load_stats(r, m, verify=verify) for r, m in zip(self._roots, self._manifests)])
         return self._stats
@@ -334,12 +224,6 @@ class FrameDataset:
         self._reader = ShardCache(self._files, self._options.verify, self._options.cache_bytes)
         return self._reader
 
-    def _shard(self, key: int) -> OpenShard:
-        reader = self._reader
-        if reader is None or reader.pid != _getpid():
-            reader = self._new_reader()
-        return reader.get(key)
-
     def _plan(self, resolution: int) -> DecodePlan:
         """The decode plan of this dataset's options for ``resolution`` px images (made once)."""
         plan = self._plans.get(resolution)
@@ -347,7 +231,7 @@ class FrameDataset:
             plan = self._plans[resolution] = decode_plan(resolution, self._options.resize, self._options.resample)
         return plan
 
-    def _decode(self, shard: OpenShard, row: int, data=None, out: np.ndarray | None = None) -> np.ndarray:
+    def _decode(self, shard: OpenShard, row: int, data: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """The image of ``row`` (its JPEG bytes ``data`` if already read), checked and resized,
         written into ``out`` if given."""
         image = decode_rgb(shard.jpeg(row) if data is None else data, self._plan(shard.resolution), out)
@@ -381,12 +265,12 @@ class FrameDataset:
         reader = self._reader
         if reader is None or reader.pid != _getpid():
             reader = self._new_reader()
-        last_key, shard = reader.last
-        if key != last_key:
-            shard = reader.get(key)
+        last_key, last = reader.last
+        shard = last if key == last_key and last is not None else reader.get(key)
         row = first + f
         options = self._options
         floats = shard.floats
+        item: dict[str, Any]
         if options.history == 0:
             item = {"image": self._decode(shard, row)}
             vec = floats[row].copy()
@@ -492,10 +376,9 @@ class FrameDataset:
         """An iterable over the frames, split by shard across distributed ranks and DataLoader workers."""
         return FrameStream(self, shuffle=shuffle, seed=seed, rank=rank, world_size=world_size, mix=mix)
 
-    def torch(self):
-        """This dataset as a ``torch.utils.data.Dataset`` (needs torch)."""
-        from catalog.torch_adapter import torch_dataset
-
+    def torch(self) -> Any:
+        """This dataset as a ``torch.utils.data.Dataset`` (needs torch; typed ``Any`` so that
+        nothing here names a torch type)."""
         return torch_dataset(self)
 
     def close(self) -> None:
@@ -528,84 +411,10 @@ class FrameDataset:
             f"history={self._options.history}, action_horizon={self._options.action_horizon})"
         )
 
-    def _shard_spans(self) -> dict[int, list[tuple[int, int]]]:
+    def shard_spans(self) -> dict[int, list[tuple[int, int]]]:
         """{shard key: [(first position, frames), ...]} of the selected frames, in dataset order."""
         units: dict[int, list[tuple[int, int]]] = {}
         for (key, _, n), start in zip(self._spans, self._starts):
             if n:
                 units.setdefault(key, []).append((start, n))
         return units
-
-
-def open_dataset(
-    paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
-    history: int = 0,
-    action_horizon: int | None = None,
-    *,
-    motion_type: str | Iterable[str] | None = None,
-    intercept_setting: str | Iterable[str] | None = None,
-    object: str | Iterable[str] | None = None,
-    episodes: range | Iterable[int] | int | None = None,
-    where: Callable[[Episode], bool] | None = None,
-    resize: int | tuple[int, int] | None = None,
-    resample: str = "area",
-    verify: str = "sha256",
-    cache_mb: float = 512,
-    keys: str = "dyana",
-    image_dtype: str = "float32",
-) -> FrameDataset:
-    """Open built slices or evaluated rollouts (folders with ``catalog.json``) as one dataset.
-
-    ``paths`` is a folder or a list of folders (concatenated in order; items then carry
-    ``source``). ``history=K`` stacks the K previous frames; ``action_horizon=H``
-    returns H actions. Filters select episodes (see :meth:`FrameDataset.select`).
-    ``resize=(height, width)`` (or one size) resizes images on load: ``resample="area"``
-    (the default) decodes in full and resizes with ``cv2.INTER_AREA``; ``resample="jpeg"``
-    lets the JPEG decoder scale by 1/2, 1/4 or 1/8 when the target is half the resolution
-    or less (~1.3x faster than ``"area"`` at half size; other sizes as ``"area"``): a different
-    resampling than ``"area"`` (pixels differ by a few levels), deterministic for a given
-    libjpeg build (:func:`decode_plan`).
-    ``verify`` is ``"sha256"`` or ``"checksums"`` (module docstring); ``cache_mb``
-    bounds each process's cache of loaded shards. ``keys="lerobot"`` names items as
-    LeRobot does (:mod:`catalog.lerobot_keys`), with images as ``image_dtype``
-    (``"float32"`` in [0, 1], or ``"uint8"``), channels first.
-    """
-    if isinstance(paths, (str, os.PathLike)):
-        roots = [as_location(paths)]
-    else:
-        roots = [as_location(p) for p in paths]
-    if not roots:
-        raise SpecError("catalog.open needs at least one folder")
-    if verify not in VERIFY_MODES:
-        raise SpecError(f"verify must be one of {list(VERIFY_MODES)}, got {verify!r}")
-    if isinstance(cache_mb, bool) or not isinstance(cache_mb, (int, float)) or not cache_mb > 0:
-        raise SpecError(f"cache_mb must be a positive number, got {cache_mb!r}")
-    if keys not in KEYS:
-        raise SpecError(f"keys must be one of {list(KEYS)}, got {keys!r}")
-    if image_dtype not in IMAGE_DTYPES:
-        raise SpecError(f"image_dtype must be one of {list(IMAGE_DTYPES)}, got {image_dtype!r}")
-    if resample not in RESAMPLE_MODES:
-        raise SpecError(f"resample must be one of {list(RESAMPLE_MODES)}, got {resample!r}")
-    options = Options(
-        resample=resample,
-        keys=keys,
-        image_dtype=image_dtype,
-        history=non_negative("history", history, 0),
-        action_horizon=None if action_horizon is None else non_negative("action_horizon", action_horizon, 1),
-        resize=_resize(resize),
-        verify=verify,
-        cache_bytes=int(cache_mb * (1 << 20)),
-    )
-    manifests, files, episodes_all, spans = [], [], [], []
-    for source, root in enumerate(roots):
-        manifest, source_episodes, source_spans = load_source(root, source, verify, files)
-        manifests.append(manifest)
-        episodes_all.extend(source_episodes)
-        spans.extend(source_spans)
-    dataset = FrameDataset(roots, manifests, files, episodes_all, spans, options)
-    filters = dict(
-        motion_type=motion_type, intercept_setting=intercept_setting, object=object, episodes=episodes, where=where
-    )
-    if any(value is not None for value in filters.values()):
-        dataset = dataset.select(**filters)
-    return dataset

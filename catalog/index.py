@@ -93,7 +93,7 @@ class Options:
     cache_bytes: int
     keys: str = "dyana"
     image_dtype: str = "float32"
-    resample: str = "area"  # how ``resize`` resamples: catalog.dataset.RESAMPLE_MODES
+    resample: str = "area"  # how ``resize`` resamples: catalog.decode.RESAMPLE_MODES
 
 
 def index_digest(episode: np.ndarray, frame: np.ndarray) -> str:

@@ -15,7 +15,7 @@ import numpy as np
 
 from catalog.atomic import find_stray_temps
 from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
-from catalog.mcap_io import check_mcap
+from catalog.mcap_reader import check_mcap
 from catalog.parquet_io import check_parquet, open_parquet, table_kind
 from catalog.reader import check_file
 from catalog.records import SHARD_DIRS, FileRecord, ShardRecord

@@ -16,7 +16,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from catalog.pages import _struct, _ThriftError
+from catalog.thrift import ThriftError, read_struct
 from schemas.errors import ShardError
 
 _FOOTER_TAIL = 8
@@ -34,8 +34,8 @@ class PageLocation:
 
 def _parse(path: str, data: bytes, what: str) -> dict:
     try:
-        fields, _ = _struct(data, 0)
-    except (IndexError, _ThriftError) as exc:
+        fields, _ = read_struct(data, 0)
+    except (IndexError, ThriftError) as exc:
         raise ShardError(f"{path}: corrupt Parquet {what} ({type(exc).__name__})") from None
     return fields
 

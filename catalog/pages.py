@@ -22,101 +22,17 @@ from dataclasses import dataclass
 
 import pyarrow.parquet as pq
 
+from catalog.thrift import ThriftError, read_struct
 from schemas.errors import ShardError
 
-_DATA_PAGE = 0
-_PLAIN = 0
+#: Parquet's ``PageType.DATA_PAGE`` and ``Encoding.PLAIN`` (parquet.thrift): a page header's field 1
+#: is its type, field 5 the data page v1 header, whose field 2 is the encoding.
+DATA_PAGE = 0
+PLAIN = 0
 _HEADER_READ = 256
 _MAX_HEADER = 1 << 16
 _LENGTH = struct.Struct("<I")
 _BLOCK = 1 << 20
-
-
-class _ThriftError(ValueError):
-    pass
-
-
-def _varint(buf: bytes, pos: int) -> tuple[int, int]:
-    shift = result = 0
-    while True:
-        byte = buf[pos]
-        pos += 1
-        result |= (byte & 0x7F) << shift
-        if not byte & 0x80:
-            return result, pos
-        shift += 7
-        if shift > 63:
-            raise _ThriftError("varint too long")
-
-
-def _zigzag(n: int) -> int:
-    return (n >> 1) ^ -(n & 1)
-
-
-def _value(buf: bytes, pos: int, kind: int):
-    """One Thrift compact-protocol value of type ``kind`` at ``pos``; (value, next pos)."""
-    if kind in (1, 2):
-        return kind == 1, pos
-    if kind == 3:
-        return buf[pos], pos + 1
-    if kind in (4, 5, 6):
-        raw, pos = _varint(buf, pos)
-        return _zigzag(raw), pos
-    if kind == 7:
-        return buf[pos : pos + 8], pos + 8
-    if kind == 8:
-        size, pos = _varint(buf, pos)
-        if pos + size > len(buf):
-            raise IndexError("binary past the buffer")
-        return buf[pos : pos + size], pos + size
-    if kind in (9, 10):
-        head = buf[pos]
-        pos += 1
-        size, element = head >> 4, head & 0x0F
-        if size == 15:
-            size, pos = _varint(buf, pos)
-        items = []
-        for _ in range(size):
-            if element in (1, 2):
-                items.append(buf[pos] == 1)
-                pos += 1
-            else:
-                item, pos = _value(buf, pos, element)
-                items.append(item)
-        return items, pos
-    if kind == 11:
-        size, pos = _varint(buf, pos)
-        if size == 0:
-            return {}, pos
-        types = buf[pos]
-        pos += 1
-        mapping = {}
-        for _ in range(size):
-            key, pos = _value(buf, pos, types >> 4)
-            mapping[key], pos = _value(buf, pos, types & 0x0F)
-        return mapping, pos
-    if kind == 12:
-        return _struct(buf, pos)
-    raise _ThriftError(f"unknown Thrift type {kind}")
-
-
-def _struct(buf: bytes, pos: int) -> tuple[dict[int, object], int]:
-    """A Thrift compact struct as {field id: value}."""
-    fields: dict[int, object] = {}
-    last = 0
-    while True:
-        head = buf[pos]
-        pos += 1
-        if head == 0:
-            return fields, pos
-        kind, delta = head & 0x0F, head >> 4
-        if delta:
-            field_id = last + delta
-        else:
-            raw, pos = _varint(buf, pos)
-            field_id = _zigzag(raw)
-        last = field_id
-        fields[field_id], pos = _value(buf, pos, kind)
 
 
 def _pread(source, length: int, offset: int) -> bytes:
@@ -143,13 +59,13 @@ def _page_header(fd: int, path: str, pos: int, end: int) -> tuple[dict[int, obje
     while True:
         buf = _pread(fd, min(want, end - pos), pos)
         try:
-            fields, size = _struct(buf, 0)
+            fields, size = read_struct(buf, 0)
             return fields, buf[:size]
         except IndexError:
             if want >= _MAX_HEADER or pos + len(buf) >= end:
                 raise ShardError(f"{path}: image page header at byte {pos} is cut off (truncated or corrupt)") from None
             want *= 4
-        except _ThriftError as exc:
+        except ThriftError as exc:
             raise ShardError(f"{path}: image page header at byte {pos} is corrupt: {exc}") from None
 
 
@@ -232,7 +148,7 @@ def image_pages(source, path: str, metadata: pq.FileMetaData) -> list[ImagePage]
         while pos < end:
             header, raw = _page_header(source, path, pos, end)
             kind, body_size, page = header.get(1), header.get(3), header.get(5)
-            if kind != _DATA_PAGE or not isinstance(page, dict) or page.get(2) != _PLAIN:
+            if kind != DATA_PAGE or not isinstance(page, dict) or page.get(2) != PLAIN:
                 raise ShardError(f"{path}: image page at byte {pos} is not a PLAIN data page v1")
             count, start = page.get(1), pos + len(raw)
             if not isinstance(body_size, int) or body_size < 0 or start + body_size > end:
@@ -296,7 +212,7 @@ def image_offsets(
         while pos < end:
             header, raw = _page_header(fd, path, pos, end)
             kind, body_size, page = header.get(1), header.get(3), header.get(5)
-            if kind != _DATA_PAGE or not isinstance(page, dict) or page.get(2) != _PLAIN:
+            if kind != DATA_PAGE or not isinstance(page, dict) or page.get(2) != PLAIN:
                 raise ShardError(f"{path}: image page at byte {pos} is not a PLAIN data page v1")
             count = page.get(1)
             start = pos + len(raw)

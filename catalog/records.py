@@ -1,7 +1,7 @@
 """The manifest's records of shards and their files, and the shard file names.
 
 A shard covers episodes ``[first, end)`` of its slice. Each table has a folder of its own
-(DESIGN.md, "Catalog manifest"), so any Parquet reader opens ``frames/`` or ``episodes/``
+(the data contract, ``docs/concepts/data-contract.md``), so any Parquet reader opens ``frames/`` or ``episodes/``
 as one dataset; a shard's files are named by its first and last (inclusive) episode:
 ``frames/000000-000127.parquet``, ``episodes/000000-000127.parquet`` and (unless the build
 left MCAP out) ``mcap/000000-000127.mcap``.

@@ -14,16 +14,15 @@ import pyarrow.parquet as pq
 
 from catalog.page_index import PageLocation, image_page_locations
 from catalog.pages import (
-    _DATA_PAGE,
-    _PLAIN,
-    _struct,
-    _ThriftError,
+    DATA_PAGE,
+    PLAIN,
     check_page_crc,
     image_column_index,
     image_pages,
     page_values,
 )
 from catalog.storage import RangeReader
+from catalog.thrift import ThriftError, read_struct
 from schemas.errors import ShardError
 
 #: Pages kept per open remote shard.
@@ -45,11 +44,11 @@ class RemoteImages:
         page = self.pages[index]
         data = self.reader.pread(page.size, page.offset)
         try:
-            header, start = _struct(data, 0)
-        except (IndexError, _ThriftError):
+            header, start = read_struct(data, 0)
+        except (IndexError, ThriftError):
             raise ShardError(f"{self.path}: image page at byte {page.offset} has a corrupt header") from None
         kind, body_size, values = header.get(1), header.get(3), header.get(5)
-        if kind != _DATA_PAGE or not isinstance(values, dict) or values.get(2) != _PLAIN:
+        if kind != DATA_PAGE or not isinstance(values, dict) or values.get(2) != PLAIN:
             raise ShardError(f"{self.path}: image page at byte {page.offset} is not a PLAIN data page v1")
         count = values.get(1)
         if not isinstance(body_size, int) or not isinstance(count, int) or start + body_size != len(data):

@@ -27,7 +27,7 @@ import numpy as np
 
 from catalog import atomic
 from catalog.hashing import canonical_json, sha256_file
-from catalog.mcap_io import McapShardWriter
+from catalog.mcap_writer import McapShardWriter
 from catalog.parquet_io import (
     TableWriter,
     episode_row,
@@ -148,7 +148,8 @@ class ShardWriter:
         ground truth, or be cut short by an error).
         """
         where = self.paths["frames"]
-        if self._state != "open":
+        frames_writer = self._frames_writer  # set while the shard is open
+        if self._state != "open" or frames_writer is None:
             raise ShardError(f"shard {where}: add_episode() on a writer that is {self._state}, not open")
         index = spec.episode_index
         if not self.first <= index < self.end:
@@ -185,7 +186,7 @@ class ShardWriter:
         try:
             if self._mcap is not None:
                 self._mcap.add_episode(index, frames, images, metadata, spec.obstacles)
-            self._frames_writer.write(table)
+            frames_writer.write(table)
         except BaseException:
             self._state = "failed"
             raise
@@ -222,11 +223,13 @@ class ShardWriter:
                     f"shard {self.paths['frames']}: {len(missing)} episode(s) of [{self.first}, {self.end}) "
                     f"were not added: {shown}"
                 )
-            self._frames_writer.close()
+            frames_writer, mcap, stream = self._frames_writer, self._mcap, self._mcap_stream
+            if frames_writer is not None:  # set while the shard is open
+                frames_writer.close()
             self._frames_writer = None
-            if self._mcap is not None:
-                self._mcap.close()
-                self._mcap_stream.close()
+            if mcap is not None and stream is not None:
+                mcap.close()
+                stream.close()
             self._mcap, self._mcap_stream = None, None
             write_table(self._temps["episodes"], episodes_table(self._rows, self.rollout), self._kind)
             files = {}

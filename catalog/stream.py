@@ -5,15 +5,25 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from catalog.index import non_negative
+from catalog.torch_adapter import torch_stream
 from schemas.errors import SpecError
 
-if TYPE_CHECKING:
-    from catalog.dataset import FrameDataset
+
+class ShardedFrames(Protocol):
+    """What a stream reads: items by position, and which positions each shard holds
+    (:class:`catalog.dataset.FrameDataset` is one)."""
+
+    def __getitem__(self, index: int) -> dict[str, Any]: ...
+
+    def shard_spans(self) -> dict[int, list[tuple[int, int]]]:
+        """{shard key: [(first position, frames), ...]} in dataset order."""
+        ...
+
 
 def _distributed() -> tuple[int, int]:
     dist = sys.modules.get("torch.distributed")
@@ -46,7 +56,9 @@ class FrameStream:
     before each epoch (with non-persistent DataLoader workers) to reshuffle.
     """
 
-    def __init__(self, dataset: FrameDataset, shuffle: bool, seed: int, rank, world_size, mix: int) -> None:
+    def __init__(
+        self, dataset: ShardedFrames, shuffle: bool, seed: int, rank: int | None, world_size: int | None, mix: int
+    ) -> None:
         if rank is None and world_size is None:
             rank, world_size = _distributed()
         elif rank is None or world_size is None:
@@ -60,7 +72,7 @@ class FrameStream:
         self.shuffle = bool(shuffle)
         self.dataset = dataset
         self.epoch = 0
-        units = dataset._shard_spans()
+        units = dataset.shard_spans()
         self._keys = sorted(units)
         self._units = [units[key] for key in self._keys]
         self._sizes = [sum(n for _, n in spans) for spans in self._units]
@@ -101,9 +113,8 @@ class FrameStream:
         for position in self.positions(worker, workers):
             yield dataset[position]
 
-    def torch(self):
-        """This stream as a ``torch.utils.data.IterableDataset`` (needs torch)."""
-        from catalog.torch_adapter import torch_stream
-
+    def torch(self) -> Any:
+        """This stream as a ``torch.utils.data.IterableDataset`` (needs torch; typed ``Any``
+        so that nothing here names a torch type)."""
         return torch_stream(self)
 

@@ -49,7 +49,7 @@ def _define() -> None:
             return torch_loader(self.frames, batch_size, shuffle, num_workers, seed, drop_last, **kwargs)
 
     class TorchFrameStream(IterableDataset):
-        """A :class:`catalog.dataset.FrameStream` as a torch IterableDataset (split by worker and rank)."""
+        """A :class:`catalog.stream.FrameStream` as a torch IterableDataset (split by worker and rank)."""
 
         def __init__(self, stream: Any) -> None:
             self.stream = stream

@@ -4,7 +4,9 @@
 ``catalog export DIR --format lerobot|lerobot-v2.1 --out OUT`` writes a LeRobot dataset;
 ``catalog stats SLICE [--json]`` enumerates a slice's recipe (Figure 4's numbers for
 ``dyana-12m``); ``catalog specs SLICE [--episodes N]`` prints its specs as JSONL, to
-inspect, edit and build with ``pipeline build --specs``.
+inspect, edit and build with ``pipeline build --specs``; ``catalog info DIR|URL [--json]``
+says which code and dataset version wrote a folder, what it holds, and whether this code
+rebuilds it byte for byte.
 
 It lives in ``pipeline`` because it needs the recipe (``generators``), which the
 ``catalog`` package may not import. Each subcommand is a :class:`schemas.cli.Command`;
@@ -19,8 +21,9 @@ import sys
 from collections.abc import Sequence
 
 from schemas import cli
+from schemas.errors import SpecError
 from schemas.slices import get_slice
-from schemas.versions import FPS
+from schemas.versions import DATASET_VERSION, FPS
 
 
 def _print_json(data) -> None:
@@ -185,6 +188,55 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
     cli.add_quiet(p)
 
 
+def _setting(value: object) -> str:
+    """A setting's value on one line: lists joined by commas, objects as compact JSON."""
+    if isinstance(value, list):
+        return ",".join(str(v) for v in value)
+    if isinstance(value, dict):
+        return json.dumps(value, sort_keys=True, separators=(",", ":"))
+    return str(value)
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    # lazy, as the other commands: the job modules load numpy, pyarrow and the env
+    from catalog.info import folder_info
+    from catalog.storage import as_location, is_remote
+    from pipeline.jobs.repeats import REPEATS_FILE, repeat_folders
+
+    root = as_location(args.dir)
+    if not is_remote(root) and (root / REPEATS_FILE).is_file():
+        first = repeat_folders(root)[:1]
+        hint = f": run `catalog info {first[0]}` for one of them" if first else ""
+        raise SpecError(f"{args.dir}: a run of repeats ({REPEATS_FILE}), not one folder{hint}")
+    info = folder_info(args.dir)
+    if args.json:
+        _print_json(info.to_dict())
+        return 0
+    kind = f"rollouts of policy {info.policy}" if info.kind == "rollouts" else "built slice (ground truth)"
+    settings = " ".join(f"{k}={_setting(v)}" for k, v in sorted(info.settings.items()) if k != "dataset_version")
+    rows = [
+        ("folder", info.path),
+        ("kind", kind),
+        ("dataset", f"{info.dataset_version} (this code writes {DATASET_VERSION})"),
+        ("code", f"{info.code_version}, commit {info.commit or 'unknown (not written from a git checkout)'}"),
+        ("slice", f"{info.slice}, seed {'none (specs file)' if info.seed is None else info.seed}"),
+        ("settings", settings),
+        ("episodes", f"{info.episodes:,} in {info.shards:,} shard{'s' if info.shards != 1 else ''}"),
+        ("frames", f"{info.frames:,}"),
+        ("size", f"{_size(info.size)} in {info.files} files"),
+        ("hash", info.hash[:16]),
+        ("rebuild", f"{'yes' if info.rebuild.possible else 'no'}: {info.rebuild.reason}"),
+    ]
+    for name, value in rows:
+        print(f"{name:<9} {value}")
+    return 0
+
+
+def _info_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dir", metavar="DIR|URL", help="a built slice or run folder (holding catalog.json), or its URL")
+    cli.add_json(p, "print one JSON object")
+
+
 COMMANDS = (
     cli.Command("list", "list the slices with their episode and frame counts", _list_arguments, cmd_list),
     cli.Command("stats", "enumerate a slice's recipe and print its statistics", _stats_arguments, cmd_stats),
@@ -196,6 +248,8 @@ COMMANDS = (
                 cmd_migrate),
     cli.Command("export", "export a slice or run as a LeRobot dataset (v3.0, or v2.1 for GR00T)", _export_arguments,
                 cmd_export),
+    cli.Command("info", "what a folder holds, which code and dataset version wrote it, and whether this code "
+                "rebuilds it byte for byte", _info_arguments, cmd_info),
 )
 
 

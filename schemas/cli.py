@@ -12,7 +12,8 @@ layer guarantees what users and scripts rely on:
   away (``catalog specs ... | head``), 0 otherwise;
 - a full or closed stdout is reported once, cleanly, even when only the final flush
   finds it;
-- ``--version`` on the program and on every command;
+- ``--version`` on the program and on every command: the code version and the dataset
+  version it writes (:data:`VERSION`);
 - progress lines (:class:`ProgressMeter`) go to stderr, at most one per
   :data:`PROGRESS_INTERVAL_S` plus the last, and ``--quiet`` turns them off.
 
@@ -34,8 +35,10 @@ from typing import Any
 
 from schemas.errors import DyanaError, ReplayMismatch
 from schemas.names import shorten
-from schemas.versions import CODE_VERSION
+from schemas.versions import CODE_VERSION, DATASET_VERSION
 
+#: What ``--version`` says after the program's name: a folder's ``catalog info`` names the same two.
+VERSION = f"dyana {CODE_VERSION}, writes dataset {DATASET_VERSION}"
 #: The longest error line printed (values inside it are cut shorter, see schemas.names).
 MESSAGE_LIMIT = 600
 EXIT_OK, EXIT_DIFFERENT, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 0, 1, 2, 130, 141
@@ -260,7 +263,7 @@ def add_json(parser: argparse.ArgumentParser, what: str = "print JSON instead of
 
 
 def _version(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--version", action="version", version=f"%(prog)s (dyana {CODE_VERSION})")
+    parser.add_argument("--version", action="version", version=f"%(prog)s ({VERSION})")
 
 
 def make_parser(prog: str, description: str, commands: Sequence[Command]) -> OneLineParser:

@@ -1,6 +1,8 @@
 """The one exception hierarchy every Dyana package raises from.
 
-CLIs catch :class:`DyanaError`, print its one-line message and exit with code 2.
+CLIs catch :class:`DyanaError`, print its one-line message and exit with a code from
+:data:`schemas.cli.EXIT_CODES`: 1 for :class:`ReplayMismatch` (a replay or verify whose
+bytes differ), 2 for every other DyanaError (bad input or an unusable file).
 """
 
 

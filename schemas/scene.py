@@ -1,4 +1,4 @@
-"""Scene conventions shared by every stage (DESIGN.md, "Scene conventions").
+"""Scene conventions shared by every stage (the data contract, ``docs/concepts/data-contract.md``).
 
 World frame: X right, Y up, Z forward (away from the camera); the table top is Y = 0.
 1 unit = 10 cm. Episodes run at :data:`schemas.versions.FPS` frames per second.

@@ -1,4 +1,5 @@
-"""The slice registry (DESIGN.md, "Commands"): which episodes each slice name denotes.
+"""The slice registry: which episodes each slice name denotes (the data contract,
+``docs/concepts/data-contract.md``, lists the slices).
 
 Nine atomic slices ``{linear,circular,harmonic}-{fast,medium,slow}`` split each motion
 type's Figure-4(a) episode count over its three interception settings as evenly as

@@ -1,4 +1,4 @@
-"""Arrow schemas of the shard tables (DESIGN.md, "Shard tables", contract)."""
+"""Arrow schemas of the shard tables: the columns of the data contract (``docs/concepts/data-contract.md``)."""
 
 from __future__ import annotations
 

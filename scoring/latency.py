@@ -33,11 +33,6 @@ def latency_points(reports: Sequence[RunReport]) -> dict[str, list[tuple[int, Ru
     return {k: sorted(v, key=lambda p: p[0]) for k, v in out.items()}
 
 
-def wants_latency_plot(reports: Sequence[RunReport]) -> bool:
-    """Whether the runs span more than one latency for some policy."""
-    return any(len({n for n, _ in points}) > 1 for points in latency_points(reports).values())
-
-
 def plot_latency(reports: Sequence[RunReport], path: str | os.PathLike[str]) -> None:
     """Write the S_loc / E_loc vs latency figure (PNG) for the runs given."""
     series = latency_points(reports)

@@ -21,7 +21,8 @@ from schemas.obstacles import CONTACT_CLEARANCE
 STEP_MIN = 1e-4
 #: Segments (and chords) no longer than this have no direction.
 SEGMENT_MIN = 1e-8
-#: The seven metrics of the paper's Table 3, in its column order.
+#: The eight metrics: the seven of the paper's Table 3 in its column order, then Dyana's own
+#: ``S_grasp_contact`` (success of the contact-grounded grasp, :func:`schemas.events.contact_grasp`).
 METRIC_NAMES = ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time", "S_grasp_contact")
 #: The success rates among them (percent, with Wilson intervals).
 SUCCESS_RATE_NAMES = ("S_loc", "S_gra", "S_grasp_contact")
@@ -238,7 +239,7 @@ def mean_interval(values: np.ndarray, z: float = Z95) -> tuple[float, float] | N
 
 @dataclass(frozen=True)
 class Summary:
-    """The seven metrics over a set of episodes, with counts and 95% intervals.
+    """The eight metrics (:data:`METRIC_NAMES`) over a set of episodes, with counts and 95% intervals.
 
     ``metrics`` maps :data:`METRIC_NAMES` to a float or None (success rates in
     percent); ``intervals`` maps each to ``(low, high)`` or None, success rates by

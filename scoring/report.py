@@ -1,7 +1,8 @@
 """Score loaded runs and present the results: JSON dict, terminal table, Markdown, CSV.
 
-The JSON keys follow DESIGN.md (``episodes``, ``errors``, ``metrics`` with the seven
-metrics, ``by_motion``, ``by_speed``) and add ``intervals``, ``by_object`` and counts.
+The JSON keys follow the data contract (``docs/concepts/data-contract.md``): ``episodes``, ``errors``, the eight
+metrics of :data:`scoring.metrics.METRIC_NAMES` (the paper's seven of Table 3 and
+``S_grasp_contact``), ``by_motion``, ``by_speed``; plus ``intervals``, ``by_object`` and counts.
 Success rates are percentages; a metric with nothing to average over is ``null``.
 """
 
@@ -165,7 +166,7 @@ def _interval(value: tuple[float, float] | None) -> list[float] | None:
 
 
 def summary_dict(summary: Summary, failures: dict[str, int] | None = None) -> dict[str, Any]:
-    """A group's entry: counts, the seven metrics (flat) and their intervals (and with
+    """A group's entry: counts, the eight metrics (flat) and their intervals (and with
     ``failures``, the episodes per failure class)."""
     out: dict[str, Any] = {
         "episodes": summary.episodes,

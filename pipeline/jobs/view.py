@@ -6,7 +6,7 @@ timelines (``frame`` and ``time``), read from the shards alone.
 
 Axes: Dyana's world is left-handed (X right, Y up, Z forward) and rerun's 3D view is
 right-handed, so every 3D thing is logged in the MCAP shard's ``world`` frame
-(:mod:`catalog.mcap_io`): ``x = Dyana x`` (right), ``y = Dyana z`` (forward), ``z = Dyana y``
+(:mod:`catalog.mcap_layout`): ``x = Dyana x`` (right), ``y = Dyana z`` (forward), ``z = Dyana y``
 (up), declared as ``rr.ViewCoordinates.RFU``; positions swap y and z, rotation quaternions
 ``(qx, qy, qz, qw)`` become ``(-qx, -qz, -qy, qw)``. Logged as is, the scene would be the
 mirror image of what the camera shows. The camera is logged at ``world/camera`` (its pose
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from catalog.atomic import commit, discard, temp_path
-from catalog.mcap_io import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
+from catalog.mcap_layout import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
 from catalog.storage import as_location

@@ -216,13 +216,13 @@ def test_resample_jpeg_decodes_at_reduced_size(built):
 def test_sequential_windows_decode_each_frame_once(built, monkeypatch):
     """A sequential pass reuses the previous window's frames (one decode per item) and returns
     what random access returns; items never alias the frames kept for the next window."""
-    import catalog.dataset as dataset_module
+    import simplejpeg
 
     ds = catalog.open(built, history=2, action_horizon=3)
     expected = {i: ds[i] for i in np.random.default_rng(2).permutation(len(ds)).tolist()}
     decodes = []
-    real = dataset_module.simplejpeg.decode_jpeg
-    monkeypatch.setattr(dataset_module.simplejpeg, "decode_jpeg", lambda *a, **k: decodes.append(1) or real(*a, **k))
+    real = simplejpeg.decode_jpeg
+    monkeypatch.setattr(simplejpeg, "decode_jpeg", lambda *a, **k: decodes.append(1) or real(*a, **k))
     fresh = catalog.open(built, history=2, action_horizon=3)
     for i in range(len(fresh)):
         item = fresh[i]
@@ -233,7 +233,8 @@ def test_sequential_windows_decode_each_frame_once(built, monkeypatch):
 
 
 def test_bad_options_are_refused(built, tmp_path):
-    for kwargs in ({"history": -1}, {"action_horizon": 0}, {"verify": "md5"}, {"cache_mb": 0}, {"history": 1.5}):
+    for kwargs in ({"history": -1}, {"action_horizon": 0}, {"verify": "md5"}, {"cache_mb": 0}, {"history": 1.5},
+                   {"resize": True}, {"episodes": True}, {"episodes": [1, "2"]}, {"object": "anvil"}):
         with pytest.raises(SpecError):
             catalog.open(built, **kwargs)
     with pytest.raises(ShardError, match="catalog.json"):

@@ -11,7 +11,7 @@ import pytest
 from catalog.atomic import temp_path
 from catalog.integrity import check_files, verify_files
 from catalog.manifest import load_manifest
-from catalog.mcap_io import iter_messages, mcap_summary
+from catalog.mcap_reader import iter_messages, mcap_summary
 from catalog.parquet_io import check_parquet, read_frames
 from catalog.reader import open_folder
 from schemas.errors import ShardError

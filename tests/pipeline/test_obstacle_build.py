@@ -14,7 +14,8 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 
-from catalog.mcap_io import OBSTACLE_TOPIC, count_messages, iter_messages, read_timeline
+from catalog.mcap_layout import OBSTACLE_TOPIC
+from catalog.mcap_reader import count_messages, iter_messages, read_timeline
 from catalog.reader import open_folder
 from schemas.obstacles import OBSTACLE_MARGIN
 from schemas.spec import EpisodeSpec

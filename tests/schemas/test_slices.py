@@ -55,7 +55,7 @@ def test_seeds_are_distinct_and_test_seed_is_its_own():
     assert len(set(seeds)) == 9
     assert get_slice("test-1k").seed == TEST_SEED
     assert TEST_SEED not in seeds
-    assert get_slice("linear-fast").seed == 1  # the DESIGN.md manifest example
+    assert get_slice("linear-fast").seed == 1  # what every linear-fast catalog.json records
 
 
 def test_unknown_slice_names_value_and_known_slices():

@@ -15,29 +15,25 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from catalog import mcap_io
+from catalog import mcap_layout
 from catalog.mcap_hand import HAND_FRAMES, SKELETON_ENTITY, SKELETON_LINKS, SKELETON_TOPIC
-from catalog.mcap_io import (
+from catalog.mcap_layout import (
     IMAGE_SCHEMA,
     IMAGE_TOPIC,
-    McapShardWriter,
     camera_calibration,
     camera_pose,
     episode_metadata_name,
-    euler_to_quaternion,
-    iter_messages,
     log_time_ns,
-    mcap_summary,
-    read_episode_metadata,
-    read_metadata,
-    read_timeline,
     to_foxglove_position,
     to_foxglove_quaternion,
 )
+from catalog.mcap_reader import iter_messages, mcap_summary, read_episode_metadata, read_metadata, read_timeline
+from catalog.mcap_writer import McapShardWriter
 from catalog.parquet_io import column_to_numpy
 from catalog.shard import ShardWriter
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
+from schemas.rotations import euler_to_quaternion
 from schemas.scene import CAMERA_TARGET
 
 from .conftest import SETTINGS, make_episode
@@ -138,7 +134,7 @@ def test_one_compressed_image_per_frame(shard):
         assert message.log_time_ns == message.publish_time_ns == t and message.sequence == frame
         assert message.message.timestamp.seconds * 10**9 + message.message.timestamp.nanos == t
     counts = Counter(m.topic for m in iter_messages(shard, decode=False))
-    assert set(counts.values()) == {total} and len(counts) == len(mcap_io.CHANNELS)
+    assert set(counts.values()) == {total} and len(counts) == len(mcap_layout.CHANNELS)
 
 
 def test_log_times_are_continuous_across_episodes(shard):
@@ -149,7 +145,7 @@ def test_log_times_are_continuous_across_episodes(shard):
         times.setdefault(m.topic, []).append(m.log_time_ns)
         assert m.publish_time_ns == m.log_time_ns
     total = sum(make_episode(i)[1].num_frames for i in EPISODES)
-    assert set(times) == set(mcap_io.CHANNELS)
+    assert set(times) == set(mcap_layout.CHANNELS)
     for topic, ts in times.items():
         assert ts[0] == 0, topic
         assert set(np.diff(ts).tolist()) == {PERIOD_NS}, topic
@@ -372,7 +368,7 @@ def test_the_typescript_reader_sees_continuous_times_named_episodes_and_the_hand
     frames, episodes = tables
     assert [m["name"] for m in seen["metadata"][1:]] == [episode_metadata_name(i) for i in EPISODES]
     assert [m["data"]["episode_id"] for m in seen["metadata"][1:]] == episodes.column("episode_id").to_pylist()
-    assert set(seen["topics"]) == set(mcap_io.CHANNELS)
+    assert set(seen["topics"]) == set(mcap_layout.CHANNELS)
     assert sum(len(t["log_times"]) for t in seen["topics"].values()) == int(seen["message_count"])
     for topic, times in seen["topics"].items():
         log = [int(t) for t in times["log_times"]]
@@ -380,7 +376,7 @@ def test_the_typescript_reader_sees_continuous_times_named_episodes_and_the_hand
     position, rotation = _expected_hand(frames)
     assert len(seen["tf"]) == len(seen["skeleton"]) == frames.num_rows
     for k, (transforms, (entity,)) in enumerate(zip(seen["tf"], seen["skeleton"])):
-        assert [(t["parent"], t["child"]) for t in transforms] == [("world", c) for c in mcap_io.TF_FRAMES]
+        assert [(t["parent"], t["child"]) for t in transforms] == [("world", c) for c in mcap_layout.TF_FRAMES]
         hand = transforms[3:]
         assert {t["stamp"] for t in transforms} == {entity["stamp"]} == {str(k * PERIOD_NS)}
         assert np.allclose([t["translation"] for t in hand], position[k], atol=1e-9)

@@ -1,0 +1,174 @@
+"""`catalog info DIR|URL` through the real CLI: a folder's versions, contents and size, whether
+this code rebuilds it byte for byte, and one clear line for what is no Dyana folder."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from catalog.manifest import Manifest, write_manifest
+from catalog.shard import ShardWriter
+from pipeline.cli_catalog import main
+from schemas.versions import DATASET_VERSION
+
+from .conftest import CODE, SETTINGS, make_frames, make_images, make_spec, write_slice
+
+
+def info(capsys, *args: str) -> tuple[int, str, str]:
+    code = main(["info", *args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def disk_bytes(root: Path) -> tuple[int, int]:
+    """Files and bytes under ``root``, counted on disk."""
+    sizes = [os.path.getsize(os.path.join(d, f)) for d, _, files in os.walk(root) for f in files]
+    return len(sizes), sum(sizes)
+
+
+def rollout_folder(root: Path, settings: dict) -> Manifest:
+    """Two rollouts of policy ``p`` (one cut short by an error) and their catalog.json."""
+    with ShardWriter(root, 0, 2, settings, rollout=True) as writer:
+        for i, (status, keep) in enumerate((("ok", None), ("error", 7))):
+            spec = make_spec(i, slice_name="test-1k")
+            rng = np.random.default_rng([5, i])
+            frames = make_frames(spec, rng, num_frames=keep)
+            writer.add_episode(spec, frames, make_images(frames.num_frames, rng), policy="p", status=status,
+                               error="policy raised" if status == "error" else None)
+    manifest = Manifest.create("test-1k", 1000, settings, [writer.record], code=CODE, extra={"policy": "p"})
+    write_manifest(root, manifest)
+    return manifest
+
+
+def test_a_built_slice_as_text(slice_dir, capsys):
+    code, out, err = info(capsys, str(slice_dir))
+    assert code == 0 and err == ""
+    rows = dict(line.split(None, 1) for line in out.splitlines())
+    assert list(rows) == ["folder", "kind", "dataset", "code", "slice", "settings", "episodes", "frames", "size",
+                          "hash", "rebuild"]
+    manifest = Manifest.from_dict(json.loads((slice_dir / "catalog.json").read_text()))
+    assert rows["folder"] == str(slice_dir)
+    assert rows["kind"] == "built slice (ground truth)"
+    assert rows["dataset"] == f"{DATASET_VERSION} (this code writes {DATASET_VERSION})"
+    assert rows["code"] == f"0.1.0, commit {CODE.commit}"
+    assert rows["slice"] == "linear-fast, seed 7"
+    assert rows["settings"] == "fps=20 image_format=jpeg jpeg_quality=90 resolution=32"
+    assert rows["episodes"] == "5 in 3 shards"
+    assert rows["frames"] == f"{manifest.frames:,}"
+    assert rows["size"].endswith(f"in {disk_bytes(slice_dir)[0]} files")
+    assert rows["hash"] == manifest.hash[:16]
+    assert rows["rebuild"] == f"yes: this code writes dataset {DATASET_VERSION}, as the folder records"
+
+
+def test_json_matches_the_manifest_and_the_disk(slice_dir, capsys):
+    code, out, _ = info(capsys, str(slice_dir), "--json")
+    assert code == 0
+    data = json.loads(out)
+    manifest = Manifest.from_dict(json.loads((slice_dir / "catalog.json").read_text()))
+    files, size = disk_bytes(slice_dir)
+    assert data == {
+        "path": str(slice_dir), "kind": "slice", "policy": None, "slice": "linear-fast", "seed": 7,
+        "dataset_version": DATASET_VERSION, "code": CODE.to_dict(), "settings": SETTINGS,
+        "episodes": 5, "frames": manifest.frames, "shards": 3, "files": files, "bytes": size,
+        "hash": manifest.hash,
+        "rebuild": {"possible": True, "reason": f"this code writes dataset {DATASET_VERSION}, as the folder records"},
+    }
+    code, again, _ = info(capsys, str(slice_dir / "catalog.json"), "--json")  # the manifest's own path works too
+    assert code == 0 and json.loads(again) == {**data, "path": str(slice_dir / "catalog.json")}
+
+
+def test_rollouts_name_their_policy(tmp_path, capsys):
+    rollout_folder(tmp_path / "run", SETTINGS)
+    code, out, _ = info(capsys, str(tmp_path / "run"), "--json")
+    assert code == 0
+    data = json.loads(out)
+    assert (data["kind"], data["policy"], data["slice"], data["seed"], data["episodes"]) == (
+        "rollouts", "p", "test-1k", 1000, 2)
+    assert data["rebuild"]["possible"] is True
+    _, text, _ = info(capsys, str(tmp_path / "run"))
+    assert "kind      rollouts of policy p\n" in text
+
+
+def test_an_older_dataset_version_is_readable_but_not_rebuilt(tmp_path, capsys):
+    write_slice(tmp_path / "old", settings={**SETTINGS, "dataset_version": "2.0.0"})
+    code, out, _ = info(capsys, str(tmp_path / "old"))
+    assert code == 0
+    assert "dataset   2.0.0 (this code writes 3.0.0)\n" in out
+    assert out.splitlines()[-1] == (
+        f"rebuild   no: written by dataset 2.0.0; this code writes {DATASET_VERSION}: readable, not re-executable; "
+        f"check out commit {CODE.commit} to rebuild it"
+    )
+
+
+def test_a_real_time_run_is_not_rebuilt(tmp_path, capsys):
+    rollout_folder(tmp_path / "run", {**SETTINGS, "protocol": {"realtime": True, "latency_frames": 0}})
+    code, out, _ = info(capsys, str(tmp_path / "run"), "--json")
+    assert code == 0
+    assert json.loads(out)["rebuild"] == {
+        "possible": False, "reason": "a real-time run (settings.protocol.realtime) depends on the machine's timing"
+    }
+    _, text, _ = info(capsys, str(tmp_path / "run"))
+    assert 'protocol={"latency_frames":0,"realtime":true}' in text
+
+
+def _repeats(root: Path) -> None:
+    rollout_folder(root / "repeat-00", SETTINGS)
+    (root / "repeats.json").write_text(json.dumps({"runs": [{"path": "repeat-00", "hash": "x"}]}))
+
+
+def _edited(root: Path) -> None:
+    write_slice(root)
+    data = json.loads((root / "catalog.json").read_text())
+    data["seed"] = 8
+    (root / "catalog.json").write_text(json.dumps(data))
+
+
+@pytest.mark.parametrize(
+    "make, target, needle",
+    [
+        (None, "missing", "missing: no such folder"),
+        (lambda root: root.mkdir(), "empty", "no catalog.json (not a built slice or run folder"),
+        (_repeats, "repeats", "a run of repeats (repeats.json), not one folder: run `catalog info "),
+        (lambda root: write_slice(root / "linear-fast"), "out",
+         "no catalog.json here; it holds Dyana folders (linear-fast): run `catalog info "),
+        (_edited, "edited", "does not match the slice, seed, settings"),
+    ],
+    ids=["missing", "not-dyana", "repeats", "build-output", "edited"],
+)
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, make, target, needle):
+    root = tmp_path / target
+    if make is not None:
+        make(root)
+    code, out, err = info(capsys, str(root))
+    assert code == 2 and out == ""
+    assert len(err.splitlines()) == 1 and err.startswith("catalog info: error: ")
+    assert needle in err
+
+
+def test_the_console_script_gives_no_traceback(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "pipeline.cli_catalog", "info", str(tmp_path / "nowhere")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr == f"catalog info: error: {tmp_path / 'nowhere'}: no such folder\n"
+
+
+def test_a_folder_in_object_storage(slice_dir, capsys):
+    """``catalog info s3://...`` reads the manifest there and says what it says locally."""
+    from tests.s3_server import s3_server
+
+    with s3_server("dyana-info"):
+        import fsspec
+
+        fsspec.filesystem("s3").put(str(slice_dir), "dyana-info/linear-fast", recursive=True)
+        code, out, err = info(capsys, "s3://dyana-info/linear-fast", "--json")
+        missing, _, gone = info(capsys, "s3://dyana-info/nothing")
+    assert code == 0, err
+    _, local, _ = info(capsys, str(slice_dir), "--json")
+    assert json.loads(out) == {**json.loads(local), "path": "s3://dyana-info/linear-fast"}
+    assert missing == 2 and "no catalog.json (not a built slice or run folder" in gone
