@@ -46,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from generators import motion
     from generators.recipe import slice_specs
-    from pipeline.stages.episode import episode, frame_times
+    from generators.ground_truth import frame_times
+    from pipeline.stages.episode import episode
     from schemas.slices import SLICES, get_slice
 
     parts = get_slice("dyana-12m").parts

@@ -21,7 +21,7 @@ from generators.visibility import (
     rest_shadow_z,
     visible_fraction,
 )
-from pipeline.stages.episode import object_trajectory
+from generators.ground_truth import object_trajectory
 from schemas.errors import SpecError
 from schemas.objects import OBJECTS
 from schemas.obstacles import Obstacle
