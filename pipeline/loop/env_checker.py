@@ -11,14 +11,18 @@ AssertionError naming the first broken promise.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 
 from generators.encode import decode_jpeg
 from generators.hand import REST_JOINTS, REST_PALM
+from generators.recipe import spec_for
+from pipeline.loop.env import horizon
+from pipeline.loop.spaces import INFO_KEYS, OBSERVATION_KEYS, Observation
+from pipeline.loop.wrappers import RecordEpisode
 from schemas.errors import DyanaError, PolicyError
-from schemas.frames import FRAME_ARRAYS
+from schemas.frames import FRAME_ARRAYS, EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -32,13 +36,11 @@ _BAD_ACTIONS = (
 )
 
 
-def _hold(obs: dict) -> np.ndarray:
+def _hold(obs: Observation) -> np.ndarray:
     return np.concatenate([obs["palm_pose"][:3], obs["joint_angles"]]).astype(np.float32)
 
 
-def _check_observation(env: Any, obs: dict, frame: int, window: int) -> None:
-    from pipeline.loop.env import OBSERVATION_KEYS
-
+def _check_observation(env: RecordEpisode, obs: Observation, frame: int, window: int) -> None:
     assert set(obs) == set(OBSERVATION_KEYS), f"observation keys {sorted(obs)} != {sorted(OBSERVATION_KEYS)}"
     res = env.resolution
     image = obs["image"]
@@ -69,16 +71,14 @@ def _check_observation(env: Any, obs: dict, frame: int, window: int) -> None:
             assert sub.contains(obs[key]), f"observation {key!r} is outside its space {sub}"
 
 
-def _check_info(info: dict) -> None:
-    from pipeline.loop.env import INFO_KEYS
-
+def _check_info(info: Mapping[str, object]) -> None:
     assert set(info) == set(INFO_KEYS), f"info keys {sorted(info)} != {sorted(INFO_KEYS)}"
     assert info["localized"] == (info["t_loc"] >= 0) and info["grasped"] == (info["t_gra"] >= 0), (
         f"events and their times disagree: {info}"
     )
 
 
-def _check_recording(env: Any, last_obs: dict, frames_expected: int) -> tuple:
+def _check_recording(env: RecordEpisode, last_obs: Observation, frames_expected: int) -> tuple[EpisodeFrames, list[bytes]]:
     frames, images = env.recording()
     assert frames.num_frames == frames_expected == len(images), (
         f"recording has {frames.num_frames} frames and {len(images)} images, expected {frames_expected}"
@@ -93,19 +93,16 @@ def _check_recording(env: Any, last_obs: dict, frames_expected: int) -> tuple:
     return frames, images
 
 
-def check_env(env: Any, spec: EpisodeSpec | None = None, steps: int | None = None) -> None:
-    """Check ``env`` on ``spec`` (default: test-1k episode 4, which has an observe window).
+def check_env(env: RecordEpisode, spec: EpisodeSpec | None = None, steps: int | None = None) -> None:
+    """Check a recorded environment (:func:`pipeline.loop.wrappers.loop_env`) on ``spec``
+    (default: test-1k episode 4, which has an observe window).
 
     Runs the episode twice with a fixed sequence of actions (the hand moving toward
     the table centre, fingers half closed, then held) until the horizon or grasp,
     or ``steps`` steps.
     """
     if spec is None:
-        from generators.recipe import spec_for
-
         spec = spec_for("test-1k", 4)
-    from pipeline.loop.env import horizon
-
     a = spec.observe_frames
     obs, info = env.reset(options={"spec": spec})
     _check_observation(env, obs, a, a)
@@ -128,7 +125,7 @@ def check_env(env: Any, spec: EpisodeSpec | None = None, steps: int | None = Non
             raise AssertionError(f"a {label} action was accepted")
         assert env.recording()[0].num_frames == a + 1, f"a refused {label} action advanced the episode"
 
-    def actions(first_obs: dict, count: int) -> list[np.ndarray]:
+    def actions(first_obs: Observation, count: int) -> list[np.ndarray]:
         start = _hold(first_obs)
         goal = np.concatenate([[0.0, 2.0, 4.5], np.full(15, 0.3)]).astype(np.float32)
         return [(start + (goal - start) * min(1.0, (j + 1) / 10)).astype(np.float32) for j in range(count)]

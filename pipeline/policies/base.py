@@ -24,7 +24,7 @@ from __future__ import annotations
 import importlib
 import inspect
 from collections.abc import Callable
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, NotRequired, Protocol, TypedDict, runtime_checkable
 
 import numpy as np
 
@@ -43,6 +43,43 @@ TASK_KEYS = ("text", "fps", "observe_frames", "horizon", "resolution", "hand")
 DEFAULT_INTERCEPT_TIME_S = 1.0
 
 
+class Observation(TypedDict):
+    """What ``act`` receives every step (:mod:`pipeline.loop.env` says what each is)."""
+
+    #: (H, W, 3) uint8 RGB, the JPEG-decoded frame.
+    image: np.ndarray
+    #: (6,) float32 palm x, y, z, roll, pitch, yaw.
+    palm_pose: np.ndarray
+    #: (15,) float32 joint angles (radians).
+    joint_angles: np.ndarray
+    #: (90,) float32: 15 joint frames, each x, y, z, roll, pitch, yaw.
+    joint_poses: np.ndarray
+    #: (36,) float32: 5 fingertips then the wrist, each x, y, z, roll, pitch, yaw.
+    keypoints: np.ndarray
+    #: The episode's instruction.
+    text: str
+    frame_index: int
+    #: 0-d float64 array, ``frame_index / 20``.
+    timestamp: np.ndarray
+    #: (K, H, W, 3) uint8: the observe window in the first observation, (0, H, W, 3) after.
+    observe_images: np.ndarray
+
+
+class Task(TypedDict):
+    """What ``reset`` receives before each episode (module docstring)."""
+
+    text: str
+    fps: int
+    observe_frames: int
+    horizon: int
+    resolution: int
+    hand: str
+    episode_id: NotRequired[str]
+    intercept_time_s: NotRequired[float]
+    #: The spec's JSON, for privileged policies only.
+    spec: NotRequired[str]
+
+
 @runtime_checkable
 class Policy(Protocol):
     """What the closed loop calls (module docstring)."""
@@ -51,12 +88,12 @@ class Policy(Protocol):
     action_horizon: int
     privileged: bool
 
-    def reset(self, task: dict) -> None: ...
+    def reset(self, task: Task) -> None: ...
 
-    def act(self, obs: dict) -> np.ndarray: ...
+    def act(self, obs: Observation) -> np.ndarray: ...
 
 
-def state_action(obs: dict) -> np.ndarray:
+def state_action(obs: Observation) -> np.ndarray:
     """(18,) float32 action that keeps the hand where the observation shows it."""
     return np.concatenate([np.asarray(obs["palm_pose"], dtype=np.float32)[:3],
                            np.asarray(obs["joint_angles"], dtype=np.float32)]).astype(np.float32)
@@ -69,14 +106,14 @@ class FunctionPolicy:
     privileged = False
     action_horizon = 1
 
-    def __init__(self, fn: Callable[[dict], Any], name: str):
+    def __init__(self, fn: Callable[[Observation], Any], name: str):
         self.fn = fn
         self.name = name
 
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         return None
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         return np.asarray(self.fn(obs), dtype=np.float32)
 
 

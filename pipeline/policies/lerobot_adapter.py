@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from catalog.lerobot_keys import IMAGE_KEY, observation_features
+from pipeline.policies.base import Observation, Task
 from schemas.errors import PolicyError
 
 
@@ -67,7 +68,7 @@ class LeRobotAdapter:
         self._frames: deque[dict[str, np.ndarray]] = deque(maxlen=history + 1)
         self._pads: deque[bool] = deque(maxlen=history + 1)
 
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         self.policy.reset()
         self._text = str(task.get("text", ""))
         self._frames.clear()
@@ -110,7 +111,7 @@ class LeRobotAdapter:
             out[f"{key}_is_pad"] = torch.tensor([list(self._pads)], dtype=torch.bool, device=self.device)
         return out
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         batch = self.batch(obs)
         with self.torch.inference_mode():
             action = self.policy.select_action(batch)

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from generators.hand import REST_JOINTS
-from pipeline.policies.base import DEFAULT_INTERCEPT_TIME_S
+from pipeline.policies.base import DEFAULT_INTERCEPT_TIME_S, Observation, Task
 from pipeline.policies.fitting import KINDS, MIN_SAMPLES, MotionFit, fit_motion
 from pipeline.policies.grip import closing_joints, grip_angles
 from pipeline.policies.perception import Detection, ObjectLocator
@@ -111,7 +111,7 @@ class PredictivePolicy:
         self.text_hint = bool(text_hint)
         self._locator: ObjectLocator | None = None
 
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         self._fps = float(task["fps"])
         self._locator = ObjectLocator(str(task["text"]), int(task["resolution"]))
         self._hand = str(task["hand"])
@@ -150,7 +150,7 @@ class PredictivePolicy:
         return np.array([xz[0], self._locator.top_height + PALM_HOVER, xz[1]])
 
     # acting ------------------------------------------------------------------
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         if self._locator is None:
             raise PolicyError("act() before reset()")
         k = int(obs["frame_index"])

@@ -18,6 +18,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
+from pipeline.policies.base import Observation, Task
 from pipeline.remote import protocol
 from schemas.errors import PolicyError, SpecError
 
@@ -70,11 +71,11 @@ class RemotePolicy:
 
     # --- Policy protocol --------------------------------------------------------------
 
-    def reset(self, task: dict[str, Any]) -> None:
+    def reset(self, task: Task) -> None:
         self._send(protocol.reset_message(task))
         self._receive(("ready",), self.timeout_s)
 
-    def act(self, obs: dict[str, Any]) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         start = time.perf_counter()
         self._send(protocol.act_message(obs))
         reply = self._receive(("action",), self.timeout_s)

@@ -12,6 +12,8 @@ turns the states its policy produced into the same arrays with the same function
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from generators.clearance import hand_clearance
@@ -21,6 +23,38 @@ from generators.hand import forward_kinematics
 from schemas.events import palm_distance, spec_hover_offset
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
+
+
+@dataclass(frozen=True)
+class HandMeasures:
+    """What the hand's states imply, per frame (float32): forward kinematics and the two
+    event distances."""
+
+    #: (n, 90) the 15 joint frames.
+    joint_poses: np.ndarray
+    #: (n, 36) the 5 fingertips and the wrist.
+    keypoints: np.ndarray
+    #: (n,) the closest fingertip's distance to the object's surface.
+    fingertip_distance: np.ndarray
+    #: (n,) the localization distance (:func:`schemas.events.palm_distance`).
+    palm_distance: np.ndarray
+
+
+def measure_hand(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: np.ndarray, object_pose: np.ndarray) -> HandMeasures:
+    """Forward kinematics and distances of ``n`` frames, computed in float64 from the
+    states as given (the ground truth's float64 plan, the environment's float32 states)
+    and kept as float32."""
+    joint_poses, keypoints = forward_kinematics(palm_pose, joint_angles, spec.hand)
+    n = len(joint_poses)
+    tips = keypoints.reshape(n, 6, 6)[:, :5, :3]
+    obj = np.asarray(object_pose, dtype=np.float64)
+    f32 = np.float32
+    return HandMeasures(
+        joint_poses=joint_poses.astype(f32),
+        keypoints=keypoints.astype(f32),
+        fingertip_distance=fingertip_distance(tips, spec.object, spec.object_size, obj).astype(f32),
+        palm_distance=palm_distance(np.asarray(palm_pose)[:, :3], obj[:, :3], spec_hover_offset(spec)).astype(f32),
+    )
 
 
 def assemble_frames(
@@ -33,11 +67,10 @@ def assemble_frames(
     action: np.ndarray,
     grasp_angles: np.ndarray,
 ) -> EpisodeFrames:
-    """Complete per-frame states with FK (joint poses, keypoints), the two distances and,
-    with obstacles, the hand's clearance from them."""
-    joint_poses, keypoints = forward_kinematics(palm_pose, joint_angles, spec.hand)
-    n = len(phase)
-    tips = keypoints.reshape(n, 6, 6)[:, :5, :3]
+    """The recorded frames of an episode from its states: :func:`measure_hand` of every
+    frame and, with obstacles, the hand's clearance from them. The ground truth passes its
+    float64 plan, the closed loop's recorder the float32 states the environment reached."""
+    measures = measure_hand(spec, palm_pose, joint_angles, object_pose)
     f32 = np.float32
     return EpisodeFrames(
         phase=np.asarray(phase, dtype=np.int8),
@@ -45,11 +78,11 @@ def assemble_frames(
         object_velocity=np.asarray(object_velocity, dtype=f32),
         palm_pose=np.asarray(palm_pose, dtype=f32),
         joint_angles=np.asarray(joint_angles, dtype=f32),
-        joint_poses=joint_poses.astype(f32),
-        keypoints=keypoints.astype(f32),
+        joint_poses=measures.joint_poses,
+        keypoints=measures.keypoints,
         action=np.asarray(action, dtype=f32),
-        fingertip_distance=fingertip_distance(tips, spec.object, spec.object_size, object_pose).astype(f32),
-        palm_distance=palm_distance(palm_pose[:, :3], object_pose[:, :3], spec_hover_offset(spec)).astype(f32),
+        fingertip_distance=measures.fingertip_distance,
+        palm_distance=measures.palm_distance,
         grasp_angles=np.asarray(grasp_angles, dtype=f32),
         obstacle_clearance=obstacle_clearance(spec, palm_pose, joint_angles),
     )
