@@ -12,7 +12,8 @@ from generators import motion
 from generators.encode import decode_jpeg, encode_jpeg
 from generators.hand import REST_JOINTS, REST_PALM, forward_kinematics
 from generators.recipe import spec_for
-from pipeline.loop.env import DyanaEnv, horizon
+from pipeline.loop.env import horizon
+from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import BUILTIN, FunctionPolicy, Policy, make_policy
 from pipeline.policies.chase import ChasePolicy
 from pipeline.policies.fitting import fit_line, fit_motion
@@ -240,7 +241,7 @@ def _task(spec, policy, resolution):
 
 
 def rollout(policy, spec, resolution=RES):
-    env = DyanaEnv(resolution)
+    env = loop_env(resolution)
     obs, info = env.reset(options={"spec": spec})
     policy.reset(_task(spec, policy, resolution))
     done = False
