@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -172,17 +172,18 @@ class AuditedReplay:
         return run_episode(env, policy, spec, None)
 
 
-def audited_replay(root: Path, extra: dict[str, Any]) -> AuditedReplay | None:
+def audited_replay(root: Path, extra: Mapping[str, Any]) -> AuditedReplay | None:
     """The audited replay of a run whose manifest names an audited kind's configuration
     (after checking its trail's hashes), else None."""
     for kind in KINDS:
-        if kind.manifest_key in extra and kind.audit_dir is not None and kind.replay is not None:
+        key = kind.manifest_key
+        if key is not None and key in extra and kind.audit_dir is not None and kind.replay is not None:
             folder = root / kind.audit_dir
             check_audit_index(folder)
             records: dict[str, list[dict[str, Any]]] = {}
             for record in read_audit(folder):
                 records.setdefault(record["episode_id"], []).append(record)
-            return AuditedReplay(kind, dict(extra[kind.manifest_key]), records)
+            return AuditedReplay(kind, dict(extra[key]), records)
     return None
 
 

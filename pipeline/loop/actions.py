@@ -21,7 +21,7 @@ def float32_copy(action: object) -> np.ndarray:
     Values too large for float32 become inf, which the callers refuse. Always a copy, so
     a policy that refills the array it returned cannot rewrite recorded actions."""
     try:
-        if np.iscomplexobj(action):
+        if np.iscomplexobj(action):  # type: ignore[arg-type]  # numpy's stub wants array-likes; any object is checked here
             raise PolicyError(f"action is not a real array (complex values: {np.asarray(action).dtype})")
         with np.errstate(over="ignore", invalid="ignore"):  # a copy: the policy may reuse its buffer
             return np.array(action, dtype=np.float32, copy=True)
@@ -76,7 +76,6 @@ def run_chunk(env: gymnasium.Env[Observation, np.ndarray], action: object) -> Ch
     before any row runs: an invalid chunk raises PolicyError and changes nothing."""
     chunk = as_chunk(action)
     reward, steps = 0.0, 0
-    obs: Observation | None = None
     for row in chunk:
         obs, r, terminated, truncated, info = env.step(row)
         reward += float(r)

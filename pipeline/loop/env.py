@@ -104,10 +104,11 @@ Deterministic: the same spec and the same actions give identical arrays and byte
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import gymnasium
 import numpy as np
+from gymnasium import spaces
 
 from generators.encode import JPEG_QUALITY, decode_jpeg, encode_jpeg
 from generators.grasp import grasp_angles
@@ -229,7 +230,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         self.jpeg_quality = int(jpeg_quality)
         self.render_mode = render_mode
         self.episodes = episodes
-        self.observation_space = observation_space(self.resolution)  # type: ignore[assignment]  # a Dict space of Observation
+        # a Dict space whose samples are Observation dicts (Gymnasium types it Space[dict])
+        self.observation_space = cast("spaces.Space[Observation]", observation_space(self.resolution))
         self.action_space = action_space()
         self.episode_spec: EpisodeSpec | None = None
         #: The frames the last ``reset`` (the observe window and the first acting frame)
@@ -342,7 +344,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         """Whether the episode has ended (or none was started)."""
         return self._done
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]  # Gymnasium types it per render mode
+    def render(self) -> np.ndarray | None:
         """The latest frame as the camera gave it (``render_mode="rgb_array"``), else None."""
         if self.render_mode != "rgb_array" or self._last_jpeg is None:
             return None

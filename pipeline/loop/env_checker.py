@@ -11,7 +11,8 @@ AssertionError naming the first broken promise.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -27,7 +28,8 @@ from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
 _VECTORS = {"palm_pose": 6, "joint_angles": 15, "joint_poses": 90, "keypoints": 36}
-_BAD_ACTIONS = (
+#: Actions the environment must refuse (some are not even arrays, hence ``Any``).
+_BAD_ACTIONS: tuple[tuple[str, Callable[[np.ndarray], Any]], ...] = (
     ("NaN", lambda a: np.where(np.arange(18) == 4, np.nan, a)),
     ("inf", lambda a: np.where(np.arange(18) == 0, np.inf, a)),
     ("short", lambda a: a[:17]),
@@ -47,8 +49,9 @@ def _check_observation(env: RecordEpisode, obs: Observation, frame: int, window:
     assert isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.shape == (res, res, 3), (
         f"image must be ({res}, {res}, 3) uint8, got {getattr(image, 'dtype', type(image))} {getattr(image, 'shape', '')}"
     )
+    values: Mapping[str, Any] = obs
     for key, width in _VECTORS.items():
-        value = obs[key]
+        value = values[key]
         assert isinstance(value, np.ndarray) and value.dtype == np.float32 and value.shape == (width,), (
             f"{key} must be ({width},) float32, got {getattr(value, 'dtype', type(value))} {getattr(value, 'shape', '')}"
         )
@@ -68,10 +71,10 @@ def _check_observation(env: RecordEpisode, obs: Observation, frame: int, window:
     if space is not None:  # exactly: no casting (Gymnasium's passive checker warns on a cast)
         assert set(space.spaces) == set(OBSERVATION_KEYS), f"observation space keys {sorted(space.spaces)}"
         for key, sub in space.spaces.items():
-            assert sub.contains(obs[key]), f"observation {key!r} is outside its space {sub}"
+            assert sub.contains(values[key]), f"observation {key!r} is outside its space {sub}"
 
 
-def _check_info(info: Mapping[str, object]) -> None:
+def _check_info(info: dict[str, Any]) -> None:
     assert set(info) == set(INFO_KEYS), f"info keys {sorted(info)} != {sorted(INFO_KEYS)}"
     assert info["localized"] == (info["t_loc"] >= 0) and info["grasped"] == (info["t_gra"] >= 0), (
         f"events and their times disagree: {info}"
@@ -86,8 +89,9 @@ def _check_recording(env: RecordEpisode, last_obs: Observation, frames_expected:
     for name in FRAME_ARRAYS + ("fingertip_distance", "palm_distance", "grasp_angles"):
         assert getattr(frames, name).dtype == np.float32, f"recorded {name} is not float32"
     assert np.array_equal(decode_jpeg(images[-1]), last_obs["image"]), "the last image differs from what the policy saw"
+    shown: Mapping[str, Any] = last_obs
     for key in _VECTORS:
-        assert np.array_equal(getattr(frames, key)[-1], last_obs[key]), f"recorded {key} differs from the observation"
+        assert np.array_equal(getattr(frames, key)[-1], shown[key]), f"recorded {key} differs from the observation"
     state = np.concatenate([frames.palm_pose[-1, :3], frames.joint_angles[-1]])
     assert np.array_equal(frames.action[-1], state), "the last frame's action must repeat its own state"
     return frames, images

@@ -119,13 +119,13 @@ def flatten_space_window(space: ObserveWindow) -> spaces.Box:
 
 
 @space_utils.flatten.register(ObserveWindow)
-def flatten_window(space: ObserveWindow, x: object) -> np.ndarray:
+def flatten_window(space: ObserveWindow, x: object) -> np.ndarray:  # type: ignore[misc]  # mypy cannot match a generic Space[T] fallback
     return np.zeros(0, dtype=np.uint8)
 
 
 @space_utils.unflatten.register(ObserveWindow)
-def unflatten_window(space: ObserveWindow, x: object) -> np.ndarray:
-    return np.zeros((0, *space.feature_space.shape), dtype=np.uint8)
+def unflatten_window(space: ObserveWindow, x: object) -> np.ndarray:  # type: ignore[misc]  # mypy cannot match a generic Space[T] fallback
+    return np.zeros((0, *(space.feature_space.shape or ())), dtype=np.uint8)
 
 
 def box(low: np.ndarray, high: np.ndarray) -> spaces.Box:

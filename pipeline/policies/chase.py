@@ -75,5 +75,8 @@ class ChasePolicy:
             self._close_start = k
             category = self._locator.category.name if self._locator.category else None
             self._grip = grip_angles(category, self._locator.size, self._hand)
-        joints = REST_JOINTS if self._close_start is None else closing_joints(self._grip, k + 1 - self._close_start)
+        if self._close_start is None or self._grip is None:
+            joints = REST_JOINTS
+        else:
+            joints = closing_joints(self._grip, k + 1 - self._close_start)
         return np.concatenate([palm + step, joints]).astype(np.float32)

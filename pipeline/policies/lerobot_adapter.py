@@ -74,7 +74,7 @@ class LeRobotAdapter:
         self._frames.clear()
         self._pads.clear()
 
-    def _features(self, image: np.ndarray, obs: dict) -> dict[str, np.ndarray]:
+    def _features(self, image: np.ndarray, obs: Observation) -> dict[str, np.ndarray]:
         if self.image_size is not None:
             height, width = self.image_size
             if image.shape[:2] != (height, width):
@@ -82,7 +82,7 @@ class LeRobotAdapter:
         return observation_features(image, np.asarray(obs["palm_pose"], np.float32),
                                     np.asarray(obs["joint_angles"], np.float32))
 
-    def _push(self, obs: dict) -> None:
+    def _push(self, obs: Observation) -> None:
         if not self._frames:
             earlier = list(obs.get("observe_images", []))[-self.history:] if self.history else []
             first = earlier[0] if earlier else obs["image"]
@@ -95,7 +95,7 @@ class LeRobotAdapter:
         self._frames.append(self._features(obs["image"], obs))
         self._pads.append(False)
 
-    def batch(self, obs: dict) -> dict[str, Any]:
+    def batch(self, obs: Observation) -> dict[str, Any]:
         """The observation as a batch of one, on the adapter's device."""
         torch = self.torch
         self._push(obs)

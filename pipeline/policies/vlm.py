@@ -185,7 +185,7 @@ class VLMPolicy:
         return np.concatenate([palm, joints])
 
     # asking -----------------------------------------------------------------------------
-    def _prompt(self, obs: dict, palm: np.ndarray, joints: np.ndarray, frames: list[int]) -> str:
+    def _prompt(self, obs: Observation, palm: np.ndarray, joints: np.ndarray, frames: list[int]) -> str:
         closed = float(np.clip(np.dot(joints, self._grip) / max(np.dot(self._grip, self._grip), 1e-9), 0.0, 1.0))
         names = [f"frame {k}" for k in frames]
         values = {
@@ -203,7 +203,7 @@ class VLMPolicy:
         except (KeyError, IndexError, ValueError) as exc:
             raise PolicyError(f"the prompt template {self.config.template!r} does not fill: {exc}") from None
 
-    def _request(self, obs: dict, palm: np.ndarray, joints: np.ndarray) -> tuple[dict[str, Any], list[int]]:
+    def _request(self, obs: Observation, palm: np.ndarray, joints: np.ndarray) -> tuple[dict[str, Any], list[int]]:
         current = int(obs["frame_index"])
         first = self._step == 0
         observed = self._observe if first else []
@@ -225,7 +225,7 @@ class VLMPolicy:
             }
         return request, frames
 
-    def _ask(self, obs: dict, palm: np.ndarray, joints: np.ndarray) -> Answer | None:
+    def _ask(self, obs: Observation, palm: np.ndarray, joints: np.ndarray) -> Answer | None:
         request, frames = self._request(obs, palm, joints)
         self._query += 1
         reply: Reply = self.transport.complete(request)
