@@ -5,18 +5,20 @@ A policy has three attributes and two methods:
 * ``name`` (str); ``action_horizon`` (int: 1 returns single actions, H > 1 returns
   (H, 18) chunks executed open loop); ``privileged`` (bool: True only for the
   oracle, whose task carries the spec);
-* ``reset(task)`` before each episode. ``task`` = ``{"text", "fps",
+* ``reset(task)`` before each episode. ``task`` (:class:`Task`) = ``{"text", "fps",
   "observe_frames", "horizon", "resolution", "hand"}``, plus ``"episode_id"`` and ``"intercept_time_s"``
   (the interception setting's time, part of the public task description) when the
   runner provides it, plus ``"spec"`` (the spec's JSON) for privileged policies;
 * ``act(obs) -> ndarray`` (18,) or (H, 18) float32, from the observation
-  (:mod:`pipeline.loop.env`). Policies are deterministic given the same observations.
+  (:class:`Observation`, described in :mod:`pipeline.loop.env`). Policies are
+  deterministic given the same observations.
 
 :func:`make_policy` resolves a reference: a built-in name (:data:`BUILTIN`) or
 ``module:attribute`` (dots in the attribute walk into it). The attribute may be a
 Policy class or factory (called without arguments, it must return a policy), or a
 plain function ``obs -> action`` (a callable with one required argument), which is
-wrapped by :class:`FunctionPolicy`.
+wrapped by :class:`FunctionPolicy`. The other kinds of reference (``ws://``, ``vlm:``)
+and the choice between them are :mod:`pipeline.policy_registry`'s.
 """
 
 from __future__ import annotations

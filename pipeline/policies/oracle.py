@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.policies.base import Observation, Task
+from pipeline.stages.episode import episode
 from schemas.errors import PolicyError
 from schemas.spec import EpisodeSpec
 
@@ -23,8 +24,6 @@ class OraclePolicy:
         self._actions: np.ndarray | None = None
 
     def reset(self, task: Task) -> None:
-        from pipeline.stages.episode import episode
-
         if "spec" not in task:
             raise PolicyError("the oracle needs the spec in its task (it is privileged)")
         self._actions = episode(EpisodeSpec.from_json(task["spec"])).action

@@ -52,7 +52,7 @@ class RemotePolicy:
         self._broken: str | None = None
         self._ws: ClientConnection | None = None
         self._stack = contextlib.ExitStack()
-        from websockets.sync.client import connect
+        from websockets.sync.client import connect  # lazy: websockets loads when a connection is made
 
         host = urlsplit(url).hostname or ""
         try:

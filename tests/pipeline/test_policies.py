@@ -15,14 +15,11 @@ from generators.recipe import spec_for
 from pipeline.loop.env import horizon
 from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import BUILTIN, FunctionPolicy, Policy, make_policy
+from pipeline.policies.camera_model import table_colour
 from pipeline.policies.chase import ChasePolicy
 from pipeline.policies.fitting import fit_line, fit_motion
-from pipeline.policies.perception import (
-    ObjectLocator,
-    hand_mask,
-    object_from_text,
-    table_colour,
-)
+from pipeline.policies.hand_shape import hand_mask
+from pipeline.policies.perception import ObjectLocator, object_from_text
 from pipeline.policies.predictive import PredictivePolicy, motion_hint
 from pipeline.policies.still import StillPolicy
 from pipeline.stages.episode import episode
