@@ -9,7 +9,15 @@ import pytest
 from pipeline import policy_registry
 from pipeline.policies.base import Observation, Task
 from pipeline.policies.chase import ChasePolicy
-from pipeline.policy_registry import OpenOptions, PolicyKind, describe_policy, kind_of, open_policy, public_url, register
+from pipeline.policy_registry import (
+    OpenOptions,
+    PolicyKind,
+    describe_policy,
+    kind_of,
+    open_policy,
+    public_url,
+    register,
+)
 from schemas.errors import PolicyError, SpecError
 
 
