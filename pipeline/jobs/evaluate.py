@@ -273,7 +273,9 @@ def evaluate(
     and tests. A folder holding another run is refused unless ``overwrite``. A user's
     ``module:callable`` runs in a child process per worker (``isolate``; same bytes), so
     that its crash or exit fails only its episode. ``protocol`` (latency, perturbation,
-    repeat; :mod:`pipeline.loop.conditions`) is recorded in ``settings.protocol``."""
+    repeat; :mod:`pipeline.loop.conditions`) is recorded in ``settings.protocol``. ``vlm``
+    holds the ``--model`` and ``--vlm-*`` settings of a ``vlm:URL`` policy (its kind's
+    configuration, :mod:`pipeline.policy_registry`); other kinds refuse it."""
     from generators.encode import JPEG_QUALITY
     from schemas.slices import get_slice
 
