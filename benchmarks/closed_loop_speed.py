@@ -57,11 +57,12 @@ def first_act(episodes: int, resolution: int, repeats: int) -> dict:
     episode, summarised over the first ``episodes`` test-1k episodes; ``actions_sha256``
     digests the first actions (the same code gives the same digest)."""
     from generators.recipe import spec_for
-    from pipeline.loop.env import DyanaEnv, horizon
+    from pipeline.loop.env import horizon
     from pipeline.loop.rollout import task_for
+    from pipeline.loop.wrappers import loop_env
     from pipeline.policies.predictive import PredictivePolicy
 
-    env = DyanaEnv(resolution)
+    env = loop_env(resolution)
     policy = PredictivePolicy()
     cpu, wall, window = [], [], []
     digest = hashlib.sha256()

@@ -45,8 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     print(bench_setup.pin_one_core(), file=sys.stderr)
 
     from generators import motion
+    from generators.ground_truth import frame_times
     from generators.recipe import slice_specs
-    from pipeline.stages.episode import episode, frame_times
+    from pipeline.stages.episode import episode
     from schemas.slices import SLICES, get_slice
 
     parts = get_slice("dyana-12m").parts

@@ -1,6 +1,6 @@
 """How well the built-in policies do in the closed loop, per (motion type, setting) cell.
 
-Runs each policy in :class:`pipeline.loop.env.DyanaEnv` on the first ``--per-cell`` test-1k
+Runs each policy in :func:`pipeline.loop.wrappers.loop_env` on the first ``--per-cell`` test-1k
 episodes of every one of the nine (motion type, interception setting) cells (test-1k
 episode ``i`` belongs to cell ``i mod 9``) at ``--resolution`` px, then scores the
 recordings with :func:`scoring.io.from_recordings` and :func:`scoring.report.score_run`
@@ -26,8 +26,9 @@ import bench_setup  # noqa: F401  (puts the repository first on sys.path)
 import numpy as np
 
 from generators.recipe import spec_for  # noqa: E402
-from pipeline.loop.env import DyanaEnv, horizon  # noqa: E402
+from pipeline.loop.env import horizon  # noqa: E402
 from pipeline.loop.rollout import task_for  # noqa: E402
+from pipeline.loop.wrappers import RecordEpisode, loop_env  # noqa: E402
 from pipeline.policies.base import make_policy  # noqa: E402
 from scoring.io import from_recordings  # noqa: E402
 from scoring.metrics import METRIC_NAMES  # noqa: E402
@@ -47,7 +48,7 @@ def _rates(summary) -> dict:
     return {"S_loc": summary.metrics["S_loc"], "S_gra": summary.metrics["S_gra"]}
 
 
-def rollout(env: DyanaEnv, policy, spec) -> tuple:
+def rollout(env: RecordEpisode, policy, spec) -> tuple:
     obs, _ = env.reset(options={"spec": spec})
     policy.reset(task_for(spec, env.resolution, policy.privileged, horizon(spec)))
     steps, spent = 0, 0.0
@@ -74,7 +75,7 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     indices = list(range(9 * args.per_cell))
     specs = [spec_for("test-1k", i) for i in indices]
-    env = DyanaEnv(args.resolution)
+    env = loop_env(args.resolution)
     results = {}
     for name in args.policies:
         policy = make_policy(name)

@@ -28,14 +28,15 @@ from pathlib import Path
 import numpy as np
 
 from generators.recipe import spec_for
-from pipeline.loop.env import DyanaEnv, horizon
+from pipeline.loop.env import horizon
 from pipeline.loop.rollout import task_for
+from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import make_policy
 from pipeline.remote.client import RemotePolicy
 
 
 def _observations(resolution: int, episodes: int) -> list[tuple[object, list[dict]]]:
-    env = DyanaEnv(resolution=resolution)
+    env = loop_env(resolution=resolution)
     still = make_policy("still")
     out = []
     for i in range(episodes):

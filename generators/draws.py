@@ -17,6 +17,7 @@ import numpy as np
 from generators.bounds import motion_bounds
 from generators.camera import in_view
 from generators.grids import OBJECT_NAMES, SIZE_FACTORS
+from generators.ground_truth import plan
 from generators.visibility import rest_shadow_z
 from schemas.errors import InfeasibleError
 from schemas.motion import Motion
@@ -87,10 +88,8 @@ def path_fits(motion: Motion, seconds: float, radius: float, top: float | None =
 
 
 def first_feasible(attempt: Callable[[], EpisodeSpec | None], attempts: int, slice_name: str, index: int) -> EpisodeSpec:
-    """The first spec ``attempt`` returns (None: it did not fit) that the episode stage
-    plans; InfeasibleError after ``attempts`` tries."""
-    from pipeline.stages.episode import plan  # the stage chain decides interceptability
-
+    """The first spec ``attempt`` returns (None: it did not fit) whose ground truth
+    plans (:func:`generators.ground_truth.plan`); InfeasibleError after ``attempts`` tries."""
     for _ in range(attempts):
         spec = attempt()
         if spec is None:

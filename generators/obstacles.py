@@ -32,6 +32,7 @@ from generators.camera import in_view
 from generators.clearance import object_clearance, obstacle_corners
 from generators.draws import SETTINGS, CommonChoices, common_choices, episode_rng, first_feasible, path_fits, uniform
 from generators.grids import OBJECT_NAMES, OBJECT_RADII, OBJECT_SIZES, OBJECT_TOPS
+from generators.ground_truth import frame_times
 from schemas.motion import ArcToken, LineToken, Motion
 from schemas.obstacles import OBSTACLE_CATEGORIES, OBSTACLE_MARGIN, Obstacle
 from schemas.scene import PALM_REST
@@ -153,7 +154,6 @@ def _fits(motion: Motion, obstacles: tuple[Obstacle, ...], seconds: float, radiu
 def obstacle_spec(slice_name: str, seed: int, setting: str | None, index: int, cycle: int | None = None) -> EpisodeSpec:
     """Episode ``index`` of an obstacle slice (module docstring)."""
     from generators.motion import object_pose
-    from pipeline.stages.episode import frame_times
 
     choice, rng = choices(seed, index, setting, cycle)
     c = choice.common

@@ -1,9 +1,12 @@
 """Composition and execution, grouped by job:
 
 - :mod:`pipeline.stages`: the episode stage chain (spec -> states and actions -> frames);
-- :mod:`pipeline.loop`: the closed loop (environment, checker, rollout with deadlines);
-- :mod:`pipeline.policies`: the built-in policies and the policy protocol;
+- :mod:`pipeline.loop`: the closed loop (the environment, its recorder and protocol
+  wrappers, checker, rollout with deadlines);
+- :mod:`pipeline.policies`: the built-in policies and the policy protocol (``Policy``,
+  ``Observation``, ``Task``);
 - :mod:`pipeline.remote`: policies over the network (protocol, server, client);
+- :mod:`pipeline.policy_registry`: every kind of ``--policy`` reference, one registration each;
 - :mod:`pipeline.jobs`: sharded jobs and their folders (runner, build, eval, replay, verify, view);
 - :mod:`pipeline.cli`, :mod:`pipeline.cli_catalog`: the ``pipeline`` and ``catalog`` commands.
 

@@ -6,6 +6,8 @@
   stored spec and stepped with the recorded actions (the action column of every
   acting frame but the last). No policy is needed: what the policy saw is the
   decoded JPEG of the recorded image bytes, which replay re-renders and compares.
+  A policy kind that keeps an audit trail (:mod:`pipeline.policy_registry`: the VLM's)
+  is run again instead, its answers read from the trail, after checking its hashes.
 
 Every column of every frame (state arrays bit for bit, the JPEG bytes) and of the
 episodes table is compared, then the shard is rewritten into a scratch folder and
@@ -16,10 +18,12 @@ naming the shard, episode, frame and column, with both values.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,6 +32,11 @@ import pyarrow as pa
 from catalog.parquet_io import episode_row, episodes_table, frames_table
 from catalog.reader import ShardReader, open_folder
 from catalog.records import ShardRecord, shard_stem
+from pipeline.jobs.audit import check_audit_index, read_audit
+from pipeline.loop.conditions import EvalProtocol
+from pipeline.loop.rollout import RolloutResult, run_episode
+from pipeline.loop.wrappers import RecordEpisode, loop_env
+from pipeline.policy_registry import KINDS, Config, PolicyKind
 from schemas.errors import PolicyError, ReplayMismatch, ShardError
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
@@ -116,7 +125,9 @@ def _first_difference(recorded: pa.Table, expected: pa.Table, columns: Sequence[
     return best[0], best[2], best[3]
 
 
-def _rollout_recording(env: Any, spec: EpisodeSpec, actions: np.ndarray, status: str, where: dict) -> tuple[EpisodeFrames, list[bytes]]:
+def _rollout_recording(
+    env: RecordEpisode, spec: EpisodeSpec, actions: np.ndarray, status: str, where: dict
+) -> tuple[EpisodeFrames, list[bytes]]:
     """Reset with the spec and step with the recorded actions of frames observe_frames .. n-2."""
     env.reset(options={"spec": spec})
     n = len(actions)
@@ -146,18 +157,37 @@ def _rollout_recording(env: Any, spec: EpisodeSpec, actions: np.ndarray, status:
     return frames, list(images)
 
 
-def _vlm_recording(env: Any, spec: EpisodeSpec, vlm: dict[str, Any], answers: list[dict[str, Any]]) -> Any:
-    """Run the VLM policy again on the re-rendered frames, its replies read from the trail."""
-    from pipeline.loop.rollout import run_episode
-    from pipeline.policies.vlm import VLMConfig, VLMPolicy
-    from pipeline.policies.vlm_transport import RecordedTransport
+@dataclass(frozen=True)
+class AuditedReplay:
+    """A run whose policy kind keeps an audit trail: the policy is run again on the
+    re-rendered frames, its answers read from the trail (:attr:`PolicyKind.replay`)."""
 
-    policy = VLMPolicy(VLMConfig(**vlm), transport=RecordedTransport(answers))
-    return run_episode(env, policy, spec, None)
+    kind: PolicyKind
+    config: Config
+    records: dict[str, list[dict[str, Any]]]
+
+    def recording(self, env: RecordEpisode, spec: EpisodeSpec) -> RolloutResult:
+        assert self.kind.replay is not None  # only kinds with a replay are chosen
+        policy = self.kind.replay(self.config, self.records.get(spec.episode_id, []))
+        return run_episode(env, policy, spec, None)
 
 
-def _replay_shard(reader: ShardReader, settings: dict, env: Any, vlm: dict[str, Any] | None = None,
-                  answers: dict[str, list[dict[str, Any]]] | None = None) -> int:
+def audited_replay(root: Path, extra: Mapping[str, Any]) -> AuditedReplay | None:
+    """The audited replay of a run whose manifest names an audited kind's configuration
+    (after checking its trail's hashes), else None."""
+    for kind in KINDS:
+        key = kind.manifest_key
+        if key is not None and key in extra and kind.audit_dir is not None and kind.replay is not None:
+            folder = root / kind.audit_dir
+            check_audit_index(folder)
+            records: dict[str, list[dict[str, Any]]] = {}
+            for record in read_audit(folder):
+                records.setdefault(record["episode_id"], []).append(record)
+            return AuditedReplay(kind, dict(extra[key]), records)
+    return None
+
+
+def _replay_shard(reader: ShardReader, settings: dict, env: RecordEpisode | None, audited: AuditedReplay | None = None) -> int:
     from catalog.shard import ShardWriter
 
     root, shard, rollout = reader.root, reader.record, reader.rollout
@@ -176,11 +206,11 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any, vlm: dict[str, 
         prefix = f"{root}: shard {stem}, episode {index} ({spec.episode_id})"
         recorded = frames.filter(pa.array(frame_episode == index))
         replayed_status: dict[str, Any] = {}
-        if rollout and vlm is not None:
-            result = _vlm_recording(env, spec, vlm, (answers or {}).get(spec.episode_id, []))
+        if rollout and audited is not None and env is not None:
+            result = audited.recording(env, spec)
             ep_frames, images = result.frames, list(result.images)
             replayed_status = {"status": result.status, "error": result.error or ""}
-        elif rollout:
+        elif rollout and env is not None:
             actions = _column_values(recorded.column("action"))
             ep_frames, images = _rollout_recording(env, spec, actions, row["status"], {"prefix": prefix, "ids": ids})
         else:
@@ -223,17 +253,6 @@ def _replay_shard(reader: ShardReader, settings: dict, env: Any, vlm: dict[str, 
     return sum(f.num_frames for _, f, _, _ in replayed)
 
 
-def _vlm_answers(root: Any) -> dict[str, list[dict[str, Any]]]:
-    """A VLM run's recorded exchanges by episode id, after checking the trail's hashes."""
-    from pipeline.jobs.evaluate import check_audit_index, read_audit
-
-    check_audit_index(root)
-    out: dict[str, list[dict[str, Any]]] = {}
-    for record in read_audit(root):
-        out.setdefault(record["episode_id"], []).append(record)
-    return out
-
-
 def replay(
     path: str | os.PathLike[str],
     shards: Sequence[int] | None = None,
@@ -252,31 +271,25 @@ def replay(
         chosen = [s for s in chosen if s.record.first in wanted]
     env = None
     if rollout:
-        from pipeline.loop.conditions import EvalProtocol
-        from pipeline.loop.env import DyanaEnv
-
         protocol = EvalProtocol.from_dict(settings.get("protocol"))
         if protocol.realtime:
             raise ShardError(
                 f"{folder.root}: a real-time run (settings.protocol.realtime) depends on the machine's timing "
                 "and cannot be replayed byte for byte"
             )
-        env = DyanaEnv(resolution=settings["resolution"], jpeg_quality=settings["jpeg_quality"], protocol=protocol)
-    vlm = manifest.extra.get("vlm") if rollout else None
-    answers = _vlm_answers(folder.root) if vlm is not None else None
-    if vlm is not None:
-        vlm = dict(vlm)
+        # the recorded specs are the disturbed ones already: no second disturbance
+        env = loop_env(settings["resolution"], settings["jpeg_quality"], dataclasses.replace(protocol, disturb=False))
+    audited = audited_replay(folder.root, manifest.extra) if rollout else None
     episodes = frames = 0
     try:
         for shard in chosen:
-            frames += _replay_shard(shard, settings, env, vlm, answers)
+            frames += _replay_shard(shard, settings, env, audited)
             episodes += shard.record.num_episodes
             if on_shard is not None:
                 on_shard(shard.record)
     finally:
-        close = getattr(env, "close", None)
-        if callable(close):
-            close()
+        if env is not None:
+            env.close()
     return ReplayReport(
         path=os.fspath(path),
         slice=manifest.slice,

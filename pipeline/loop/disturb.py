@@ -26,6 +26,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from generators.ground_truth import plan
 from generators.tracks import evaluate
 from schemas.errors import InfeasibleError
 from schemas.motion import LineToken, Motion, Track
@@ -61,8 +62,6 @@ def _cut(motion: Motion, at: float) -> tuple:
 def disturbed_spec(spec: EpisodeSpec) -> tuple[EpisodeSpec, Disturbance | None]:
     """``spec`` with its seeded disturbance (recorded in its ``disturbance`` field), and
     that disturbance (None: left undisturbed)."""
-    from pipeline.stages.episode import plan
-
     if spec.motion.overlays or spec.motion.airborne or spec.intercept_frame - spec.observe_frames <= EARLIEST + LATEST:
         return spec, None
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([DISTURB_SEED, int(spec.spec_hash[:16], 16)])))

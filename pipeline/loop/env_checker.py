@@ -11,19 +11,25 @@ AssertionError naming the first broken promise.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from generators.encode import decode_jpeg
 from generators.hand import REST_JOINTS, REST_PALM
+from generators.recipe import spec_for
+from pipeline.loop.env import horizon
+from pipeline.loop.spaces import INFO_KEYS, OBSERVATION_KEYS, Observation
+from pipeline.loop.wrappers import RecordEpisode
 from schemas.errors import DyanaError, PolicyError
-from schemas.frames import FRAME_ARRAYS
+from schemas.frames import FRAME_ARRAYS, EpisodeFrames
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
 _VECTORS = {"palm_pose": 6, "joint_angles": 15, "joint_poses": 90, "keypoints": 36}
-_BAD_ACTIONS = (
+#: Actions the environment must refuse (some are not even arrays, hence ``Any``).
+_BAD_ACTIONS: tuple[tuple[str, Callable[[np.ndarray], Any]], ...] = (
     ("NaN", lambda a: np.where(np.arange(18) == 4, np.nan, a)),
     ("inf", lambda a: np.where(np.arange(18) == 0, np.inf, a)),
     ("short", lambda a: a[:17]),
@@ -32,21 +38,20 @@ _BAD_ACTIONS = (
 )
 
 
-def _hold(obs: dict) -> np.ndarray:
+def _hold(obs: Observation) -> np.ndarray:
     return np.concatenate([obs["palm_pose"][:3], obs["joint_angles"]]).astype(np.float32)
 
 
-def _check_observation(env: Any, obs: dict, frame: int, window: int) -> None:
-    from pipeline.loop.env import OBSERVATION_KEYS
-
+def _check_observation(env: RecordEpisode, obs: Observation, frame: int, window: int) -> None:
     assert set(obs) == set(OBSERVATION_KEYS), f"observation keys {sorted(obs)} != {sorted(OBSERVATION_KEYS)}"
     res = env.resolution
     image = obs["image"]
     assert isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.shape == (res, res, 3), (
         f"image must be ({res}, {res}, 3) uint8, got {getattr(image, 'dtype', type(image))} {getattr(image, 'shape', '')}"
     )
+    values: Mapping[str, Any] = obs
     for key, width in _VECTORS.items():
-        value = obs[key]
+        value = values[key]
         assert isinstance(value, np.ndarray) and value.dtype == np.float32 and value.shape == (width,), (
             f"{key} must be ({width},) float32, got {getattr(value, 'dtype', type(value))} {getattr(value, 'shape', '')}"
         )
@@ -66,19 +71,17 @@ def _check_observation(env: Any, obs: dict, frame: int, window: int) -> None:
     if space is not None:  # exactly: no casting (Gymnasium's passive checker warns on a cast)
         assert set(space.spaces) == set(OBSERVATION_KEYS), f"observation space keys {sorted(space.spaces)}"
         for key, sub in space.spaces.items():
-            assert sub.contains(obs[key]), f"observation {key!r} is outside its space {sub}"
+            assert sub.contains(values[key]), f"observation {key!r} is outside its space {sub}"
 
 
-def _check_info(info: dict) -> None:
-    from pipeline.loop.env import INFO_KEYS
-
+def _check_info(info: dict[str, Any]) -> None:
     assert set(info) == set(INFO_KEYS), f"info keys {sorted(info)} != {sorted(INFO_KEYS)}"
     assert info["localized"] == (info["t_loc"] >= 0) and info["grasped"] == (info["t_gra"] >= 0), (
         f"events and their times disagree: {info}"
     )
 
 
-def _check_recording(env: Any, last_obs: dict, frames_expected: int) -> tuple:
+def _check_recording(env: RecordEpisode, last_obs: Observation, frames_expected: int) -> tuple[EpisodeFrames, list[bytes]]:
     frames, images = env.recording()
     assert frames.num_frames == frames_expected == len(images), (
         f"recording has {frames.num_frames} frames and {len(images)} images, expected {frames_expected}"
@@ -86,26 +89,24 @@ def _check_recording(env: Any, last_obs: dict, frames_expected: int) -> tuple:
     for name in FRAME_ARRAYS + ("fingertip_distance", "palm_distance", "grasp_angles"):
         assert getattr(frames, name).dtype == np.float32, f"recorded {name} is not float32"
     assert np.array_equal(decode_jpeg(images[-1]), last_obs["image"]), "the last image differs from what the policy saw"
+    shown: Mapping[str, Any] = last_obs
     for key in _VECTORS:
-        assert np.array_equal(getattr(frames, key)[-1], last_obs[key]), f"recorded {key} differs from the observation"
+        assert np.array_equal(getattr(frames, key)[-1], shown[key]), f"recorded {key} differs from the observation"
     state = np.concatenate([frames.palm_pose[-1, :3], frames.joint_angles[-1]])
     assert np.array_equal(frames.action[-1], state), "the last frame's action must repeat its own state"
     return frames, images
 
 
-def check_env(env: Any, spec: EpisodeSpec | None = None, steps: int | None = None) -> None:
-    """Check ``env`` on ``spec`` (default: test-1k episode 4, which has an observe window).
+def check_env(env: RecordEpisode, spec: EpisodeSpec | None = None, steps: int | None = None) -> None:
+    """Check a recorded environment (:func:`pipeline.loop.wrappers.loop_env`) on ``spec``
+    (default: test-1k episode 4, which has an observe window).
 
     Runs the episode twice with a fixed sequence of actions (the hand moving toward
     the table centre, fingers half closed, then held) until the horizon or grasp,
     or ``steps`` steps.
     """
     if spec is None:
-        from generators.recipe import spec_for
-
         spec = spec_for("test-1k", 4)
-    from pipeline.loop.env import horizon
-
     a = spec.observe_frames
     obs, info = env.reset(options={"spec": spec})
     _check_observation(env, obs, a, a)
@@ -128,7 +129,7 @@ def check_env(env: Any, spec: EpisodeSpec | None = None, steps: int | None = Non
             raise AssertionError(f"a {label} action was accepted")
         assert env.recording()[0].num_frames == a + 1, f"a refused {label} action advanced the episode"
 
-    def actions(first_obs: dict, count: int) -> list[np.ndarray]:
+    def actions(first_obs: Observation, count: int) -> list[np.ndarray]:
         start = _hold(first_obs)
         goal = np.concatenate([[0.0, 2.0, 4.5], np.full(15, 0.3)]).astype(np.float32)
         return [(start + (goal - start) * min(1.0, (j + 1) / 10)).astype(np.float32) for j in range(count)]

@@ -3,8 +3,11 @@
 :func:`run_episode` resets the environment with the spec (the observe window runs
 inside the reset), gives the policy its task, then asks it for actions until the
 episode terminates (grasp complete) or truncates (horizon). An action is one row
-(18,) or a chunk (H, 18), executed open loop one row per frame (:func:`pipeline.loop.env.run_chunk`,
-which checks the whole chunk first). The environment casts every action to float32,
+(18,) or a chunk (H, 18), executed open loop one row per frame (:func:`pipeline.loop.actions.run_chunk`,
+which checks the whole chunk first). The environment is a recorded one
+(:class:`pipeline.loop.wrappers.RecordEpisode`, e.g. from :func:`pipeline.loop.wrappers.loop_env`);
+its protocol wrappers apply latency, perturbation and disturbance, and the episode
+recorded is the one the environment ran (a disturbed spec under ``disturb``). The environment casts every action to float32,
 as a trip over the wire does, so in-process and remote runs see identical numbers.
 
 Faults fail the episode, never the run: an action that is not a finite (18,) or
@@ -24,10 +27,15 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TypeVar
 
+from pipeline.loop.actions import run_chunk
+from pipeline.loop.env import horizon
 from pipeline.loop.worker_thread import CallTimeout, WorkerThread
+from pipeline.loop.wrappers import RecordEpisode, note_policy_time
+from pipeline.policies.base import Policy, Task
 from schemas.errors import PolicyError
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
@@ -63,11 +71,11 @@ class RolloutResult:
         return self.status == "ok"
 
 
-def task_for(spec: EpisodeSpec, resolution: int, privileged: bool, horizon: int) -> dict[str, Any]:
+def task_for(spec: EpisodeSpec, resolution: int, privileged: bool, horizon: int) -> Task:
     """The task a policy's ``reset`` receives: the public conditions of the episode
     (its id, instruction, timing, the interception setting's time, image size, hand); the spec
     itself only for privileged policies."""
-    task: dict[str, Any] = {
+    task: Task = {
         "episode_id": spec.episode_id,
         "text": spec.text,
         "fps": FPS,
@@ -82,7 +90,14 @@ def task_for(spec: EpisodeSpec, resolution: int, privileged: bool, horizon: int)
     return task
 
 
-def _call(worker: WorkerThread, fn: Any, arg: Any, deadline_s: float | None, watchdog_s: float, what: str) -> Any:
+Arg = TypeVar("Arg")
+Out = TypeVar("Out")
+
+
+def call_policy(
+    worker: WorkerThread, fn: Callable[[Arg], Out], arg: Arg, deadline_s: float | None, watchdog_s: float, what: str
+) -> Out:
+    """``fn(arg)`` on the worker thread; any fault (a timeout, an exception) as PolicyError."""
     try:
         return worker.call(fn, arg, timeout=watchdog_s if deadline_s is None else deadline_s)
     except CallTimeout:
@@ -96,7 +111,7 @@ def _call(worker: WorkerThread, fn: Any, arg: Any, deadline_s: float | None, wat
         raise PolicyError(f"policy {what} raised {type(exc).__name__}" + (f": {text}" if text else "")) from None
 
 
-def check_seconds(name: str, value: Any) -> float:
+def check_seconds(name: str, value: object) -> float:
     """A finite number of seconds > 0, or PolicyError naming it."""
     if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
         raise PolicyError(f"{name} must be a finite number of seconds > 0, got {value!r}")
@@ -104,7 +119,7 @@ def check_seconds(name: str, value: Any) -> float:
 
 
 def run_episode(
-    env: Any, policy: Any, spec: EpisodeSpec, deadline_s: float | None = None, watchdog_s: float = WATCHDOG_S
+    env: RecordEpisode, policy: Policy, spec: EpisodeSpec, deadline_s: float | None = None, watchdog_s: float = WATCHDOG_S
 ) -> RolloutResult:
     """Run ``policy`` on ``spec`` in ``env`` and return the recording (see the module docstring).
 
@@ -116,29 +131,28 @@ def run_episode(
     if deadline_s is not None:
         deadline_s = check_seconds("deadline", deadline_s)
     watchdog_s = check_seconds("watchdog", watchdog_s)
-    from pipeline.loop.env import horizon, run_chunk
-
     obs, info = env.reset(options={"spec": spec})
+    ran_spec = env.episode_spec
+    assert ran_spec is not None  # set by reset
+    spec = ran_spec
     worker = WorkerThread()
     status, reason = "ok", ""
     steps = calls = 0
     frame = int(obs["frame_index"])
     waited = 0.0
     try:
-        task = task_for(spec, env.resolution, bool(getattr(policy, "privileged", False)), horizon(spec))
-        _call(worker, policy.reset, task, deadline_s, watchdog_s, "reset")
-        done = bool(getattr(env, "done", False))
+        task = task_for(spec, env.resolution, bool(policy.privileged), horizon(spec))
+        call_policy(worker, policy.reset, task, deadline_s, watchdog_s, "reset")
+        done = env.done
         while not done:
             calls += 1
             start = time.perf_counter()
             try:
-                raw = _call(worker, policy.act, obs, deadline_s, watchdog_s, "act")
+                raw = call_policy(worker, policy.act, obs, deadline_s, watchdog_s, "act")
             finally:
                 took = time.perf_counter() - start
                 waited += took
-            protocol = getattr(env, "protocol", None)
-            if protocol is not None and protocol.realtime:  # opt-in, recorded as not deterministic
-                env.delay_frames = protocol.latency_frames + math.ceil(took * FPS)
+            note_policy_time(env, took)  # a real-time protocol's latency (opt-in, recorded as not deterministic)
             ran = run_chunk(env, raw)
             obs, info, steps = ran.observation, ran.info, steps + ran.steps
             frame = int(obs["frame_index"])

@@ -22,7 +22,7 @@ class CallTimeout(Exception):
 class _Job:
     __slots__ = ("fn", "args", "done", "result", "error", "notify")
 
-    def __init__(self, fn: Callable[..., Any], args: tuple, notify: Callable[[_Job], None] | None = None) -> None:
+    def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...], notify: Callable[[_Job], object] | None = None) -> None:
         self.fn, self.args, self.notify = fn, args, notify
         self.done = threading.Event()
         self.result: Any = None

@@ -5,18 +5,20 @@ A policy has three attributes and two methods:
 * ``name`` (str); ``action_horizon`` (int: 1 returns single actions, H > 1 returns
   (H, 18) chunks executed open loop); ``privileged`` (bool: True only for the
   oracle, whose task carries the spec);
-* ``reset(task)`` before each episode. ``task`` = ``{"text", "fps",
+* ``reset(task)`` before each episode. ``task`` (:class:`Task`) = ``{"text", "fps",
   "observe_frames", "horizon", "resolution", "hand"}``, plus ``"episode_id"`` and ``"intercept_time_s"``
   (the interception setting's time, part of the public task description) when the
   runner provides it, plus ``"spec"`` (the spec's JSON) for privileged policies;
 * ``act(obs) -> ndarray`` (18,) or (H, 18) float32, from the observation
-  (:mod:`pipeline.loop.env`). Policies are deterministic given the same observations.
+  (:class:`Observation`, described in :mod:`pipeline.loop.env`). Policies are
+  deterministic given the same observations.
 
 :func:`make_policy` resolves a reference: a built-in name (:data:`BUILTIN`) or
 ``module:attribute`` (dots in the attribute walk into it). The attribute may be a
 Policy class or factory (called without arguments, it must return a policy), or a
 plain function ``obs -> action`` (a callable with one required argument), which is
-wrapped by :class:`FunctionPolicy`.
+wrapped by :class:`FunctionPolicy`. The other kinds of reference (``ws://``, ``vlm:``)
+and the choice between them are :mod:`pipeline.policy_registry`'s.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from __future__ import annotations
 import importlib
 import inspect
 from collections.abc import Callable
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, NotRequired, Protocol, TypedDict, runtime_checkable
 
 import numpy as np
 
@@ -43,6 +45,43 @@ TASK_KEYS = ("text", "fps", "observe_frames", "horizon", "resolution", "hand")
 DEFAULT_INTERCEPT_TIME_S = 1.0
 
 
+class Observation(TypedDict):
+    """What ``act`` receives every step (:mod:`pipeline.loop.env` says what each is)."""
+
+    #: (H, W, 3) uint8 RGB, the JPEG-decoded frame.
+    image: np.ndarray
+    #: (6,) float32 palm x, y, z, roll, pitch, yaw.
+    palm_pose: np.ndarray
+    #: (15,) float32 joint angles (radians).
+    joint_angles: np.ndarray
+    #: (90,) float32: 15 joint frames, each x, y, z, roll, pitch, yaw.
+    joint_poses: np.ndarray
+    #: (36,) float32: 5 fingertips then the wrist, each x, y, z, roll, pitch, yaw.
+    keypoints: np.ndarray
+    #: The episode's instruction.
+    text: str
+    frame_index: int
+    #: 0-d float64 array, ``frame_index / 20``.
+    timestamp: np.ndarray
+    #: (K, H, W, 3) uint8: the observe window in the first observation, (0, H, W, 3) after.
+    observe_images: np.ndarray
+
+
+class Task(TypedDict):
+    """What ``reset`` receives before each episode (module docstring)."""
+
+    text: str
+    fps: int
+    observe_frames: int
+    horizon: int
+    resolution: int
+    hand: str
+    episode_id: NotRequired[str]
+    intercept_time_s: NotRequired[float]
+    #: The spec's JSON, for privileged policies only.
+    spec: NotRequired[str]
+
+
 @runtime_checkable
 class Policy(Protocol):
     """What the closed loop calls (module docstring)."""
@@ -51,12 +90,12 @@ class Policy(Protocol):
     action_horizon: int
     privileged: bool
 
-    def reset(self, task: dict) -> None: ...
+    def reset(self, task: Task) -> None: ...
 
-    def act(self, obs: dict) -> np.ndarray: ...
+    def act(self, obs: Observation) -> np.ndarray: ...
 
 
-def state_action(obs: dict) -> np.ndarray:
+def state_action(obs: Observation) -> np.ndarray:
     """(18,) float32 action that keeps the hand where the observation shows it."""
     return np.concatenate([np.asarray(obs["palm_pose"], dtype=np.float32)[:3],
                            np.asarray(obs["joint_angles"], dtype=np.float32)]).astype(np.float32)
@@ -69,14 +108,14 @@ class FunctionPolicy:
     privileged = False
     action_horizon = 1
 
-    def __init__(self, fn: Callable[[dict], Any], name: str):
+    def __init__(self, fn: Callable[[Observation], Any], name: str):
         self.fn = fn
         self.name = name
 
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         return None
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         return np.asarray(self.fn(obs), dtype=np.float32)
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from generators.hand import REST_JOINTS
+from pipeline.policies.base import Observation, Task
 from pipeline.policies.grip import closing_joints, grip_angles
 from pipeline.policies.perception import ObjectLocator
 from schemas.errors import PolicyError
@@ -43,14 +44,14 @@ class ChasePolicy:
     def __init__(self) -> None:
         self._locator: ObjectLocator | None = None
 
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         self._locator = ObjectLocator(str(task["text"]), int(task["resolution"]))
         self._hand = str(task["hand"])
         self._target: np.ndarray | None = None
         self._close_start: int | None = None
         self._grip: np.ndarray | None = None
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         if self._locator is None:
             raise PolicyError("act() before reset()")
         k = int(obs["frame_index"])
@@ -74,5 +75,8 @@ class ChasePolicy:
             self._close_start = k
             category = self._locator.category.name if self._locator.category else None
             self._grip = grip_angles(category, self._locator.size, self._hand)
-        joints = REST_JOINTS if self._close_start is None else closing_joints(self._grip, k + 1 - self._close_start)
+        if self._close_start is None or self._grip is None:
+            joints = REST_JOINTS
+        else:
+            joints = closing_joints(self._grip, k + 1 - self._close_start)
         return np.concatenate([palm + step, joints]).astype(np.float32)

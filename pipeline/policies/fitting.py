@@ -79,10 +79,6 @@ class MotionFit:
     def acceleration(self, t) -> np.ndarray:
         return self._basis(t, 2) @ self.coef.T
 
-    @property
-    def rms(self) -> float:
-        return float(np.sqrt(self.rss / max(2 * self.samples, 1)))
-
 
 def basis(kind: str, omega: float, t: np.ndarray, order: int = 0) -> np.ndarray:
     """(m, k) basis of a family at times ``t``, or its ``order``-th time derivative."""
@@ -231,11 +227,13 @@ def residuals(fit: MotionFit, t: np.ndarray, xz: np.ndarray) -> np.ndarray:
     return np.linalg.norm(fit.position(t) - xz, axis=1)
 
 
-def fit_motion(t: Sequence[float], xz: Sequence[Sequence[float]], kinds: Sequence[str] = KINDS) -> MotionFit | None:
-    """The best model of ``kinds`` for samples at times ``t`` (n,) with positions ``xz``
+def fit_motion(
+    times: Sequence[float] | np.ndarray, positions: Sequence[Sequence[float]] | np.ndarray, kinds: Sequence[str] = KINDS
+) -> MotionFit | None:
+    """The best model of ``kinds`` for samples at ``times`` (n,) with XZ ``positions``
     (n, 2), by :func:`selection_score` after one pass of outlier rejection; None with too few samples."""
-    t = np.asarray(t, dtype=np.float64)
-    xz = np.asarray(xz, dtype=np.float64).reshape(-1, 2)
+    t = np.asarray(times, dtype=np.float64)
+    xz = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
     if len(t) != len(xz):
         raise ValueError(f"need as many times as positions, got {len(t)} and {len(xz)}")
     unknown = [k for k in kinds if k not in KINDS]

@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from catalog.lerobot_keys import IMAGE_KEY, observation_features
+from pipeline.policies.base import Observation, Task
 from schemas.errors import PolicyError
 
 
@@ -67,13 +68,13 @@ class LeRobotAdapter:
         self._frames: deque[dict[str, np.ndarray]] = deque(maxlen=history + 1)
         self._pads: deque[bool] = deque(maxlen=history + 1)
 
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         self.policy.reset()
         self._text = str(task.get("text", ""))
         self._frames.clear()
         self._pads.clear()
 
-    def _features(self, image: np.ndarray, obs: dict) -> dict[str, np.ndarray]:
+    def _features(self, image: np.ndarray, obs: Observation) -> dict[str, np.ndarray]:
         if self.image_size is not None:
             height, width = self.image_size
             if image.shape[:2] != (height, width):
@@ -81,7 +82,7 @@ class LeRobotAdapter:
         return observation_features(image, np.asarray(obs["palm_pose"], np.float32),
                                     np.asarray(obs["joint_angles"], np.float32))
 
-    def _push(self, obs: dict) -> None:
+    def _push(self, obs: Observation) -> None:
         if not self._frames:
             earlier = list(obs.get("observe_images", []))[-self.history:] if self.history else []
             first = earlier[0] if earlier else obs["image"]
@@ -94,7 +95,7 @@ class LeRobotAdapter:
         self._frames.append(self._features(obs["image"], obs))
         self._pads.append(False)
 
-    def batch(self, obs: dict) -> dict[str, Any]:
+    def batch(self, obs: Observation) -> dict[str, Any]:
         """The observation as a batch of one, on the adapter's device."""
         torch = self.torch
         self._push(obs)
@@ -110,7 +111,7 @@ class LeRobotAdapter:
             out[f"{key}_is_pad"] = torch.tensor([list(self._pads)], dtype=torch.bool, device=self.device)
         return out
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         batch = self.batch(obs)
         with self.torch.inference_mode():
             action = self.policy.select_action(batch)

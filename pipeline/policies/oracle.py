@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.policies.base import Observation, Task
+from pipeline.stages.episode import episode
 from schemas.errors import PolicyError
 from schemas.spec import EpisodeSpec
 
@@ -21,14 +23,12 @@ class OraclePolicy:
     def __init__(self) -> None:
         self._actions: np.ndarray | None = None
 
-    def reset(self, task: dict) -> None:
-        from pipeline.stages.episode import episode
-
+    def reset(self, task: Task) -> None:
         if "spec" not in task:
             raise PolicyError("the oracle needs the spec in its task (it is privileged)")
         self._actions = episode(EpisodeSpec.from_json(task["spec"])).action
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         if self._actions is None:
             raise PolicyError("act() before reset()")
         k = min(int(obs["frame_index"]), len(self._actions) - 1)

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from generators.hand import REST_JOINTS
-from pipeline.policies.base import DEFAULT_INTERCEPT_TIME_S
+from pipeline.policies.base import DEFAULT_INTERCEPT_TIME_S, Observation, Task
 from pipeline.policies.fitting import KINDS, MIN_SAMPLES, MotionFit, fit_motion
 from pipeline.policies.grip import closing_joints, grip_angles
 from pipeline.policies.perception import Detection, ObjectLocator
@@ -111,7 +111,7 @@ class PredictivePolicy:
         self.text_hint = bool(text_hint)
         self._locator: ObjectLocator | None = None
 
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         self._fps = float(task["fps"])
         self._locator = ObjectLocator(str(task["text"]), int(task["resolution"]))
         self._hand = str(task["hand"])
@@ -127,11 +127,17 @@ class PredictivePolicy:
         self._started = False
 
     # sensing -------------------------------------------------------------------
-    def _sight(self, image, obs: dict, t: float) -> bool:
-        seen = self._locator.locate(image, obs["palm_pose"], obs["joint_poses"], obs["keypoints"])
+    @property
+    def locator(self) -> ObjectLocator:
+        if self._locator is None:
+            raise PolicyError("act() before reset()")
+        return self._locator
+
+    def _sight(self, image: np.ndarray, obs: Observation, t: float) -> bool:
+        seen = self.locator.locate(image, obs["palm_pose"], obs["joint_poses"], obs["keypoints"])
         if seen is not None and seen.coverage >= STAGING_COVERAGE:
             self._latest = seen.position[[0, 2]]
-        if reliable(seen):
+        if seen is not None and reliable(seen):
             self._times.append(t)
             self._points.append(seen.position[[0, 2]])
             return True
@@ -147,10 +153,10 @@ class PredictivePolicy:
             self._fit = fit
 
     def _hover(self, xz: np.ndarray) -> np.ndarray:
-        return np.array([xz[0], self._locator.top_height + PALM_HOVER, xz[1]])
+        return np.array([xz[0], self.locator.top_height + PALM_HOVER, xz[1]])
 
     # acting ------------------------------------------------------------------
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         if self._locator is None:
             raise PolicyError("act() before reset()")
         k = int(obs["frame_index"])

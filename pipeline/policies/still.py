@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.policies.base import state_action
+from pipeline.policies.base import Observation, Task, state_action
 
 
 class StillPolicy:
@@ -14,8 +14,8 @@ class StillPolicy:
     action_horizon = 1
     privileged = False
 
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         return None
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         return state_action(obs)

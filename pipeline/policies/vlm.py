@@ -35,6 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from pipeline.policies.base import Observation, Task
 from pipeline.policies.grip import grip_angles
 from pipeline.policies.vlm_answer import OUTPUT_SCHEMA, Answer, AnswerError, parse_answer
 from pipeline.policies.vlm_transport import HttpTransport, Reply, request_prompt
@@ -131,7 +132,7 @@ class VLMPolicy:
         self._task: dict[str, Any] = {}
 
     # protocol ---------------------------------------------------------------------------
-    def reset(self, task: dict) -> None:
+    def reset(self, task: Task) -> None:
         self._task = dict(task)
         self._step = 0
         self._pending: list[tuple[int, Answer | None]] = []
@@ -144,7 +145,7 @@ class VLMPolicy:
         size = None if category is None else OBJECTS[category].nominal_size
         self._grip = grip_angles(category, size, str(task.get("hand", "right")))
 
-    def act(self, obs: dict) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         palm = np.asarray(obs["palm_pose"], np.float64)[:3]
         joints = np.asarray(obs["joint_angles"], np.float64)
         if self._step == 0:
@@ -184,7 +185,7 @@ class VLMPolicy:
         return np.concatenate([palm, joints])
 
     # asking -----------------------------------------------------------------------------
-    def _prompt(self, obs: dict, palm: np.ndarray, joints: np.ndarray, frames: list[int]) -> str:
+    def _prompt(self, obs: Observation, palm: np.ndarray, joints: np.ndarray, frames: list[int]) -> str:
         closed = float(np.clip(np.dot(joints, self._grip) / max(np.dot(self._grip, self._grip), 1e-9), 0.0, 1.0))
         names = [f"frame {k}" for k in frames]
         values = {
@@ -202,7 +203,7 @@ class VLMPolicy:
         except (KeyError, IndexError, ValueError) as exc:
             raise PolicyError(f"the prompt template {self.config.template!r} does not fill: {exc}") from None
 
-    def _request(self, obs: dict, palm: np.ndarray, joints: np.ndarray) -> tuple[dict[str, Any], list[int]]:
+    def _request(self, obs: Observation, palm: np.ndarray, joints: np.ndarray) -> tuple[dict[str, Any], list[int]]:
         current = int(obs["frame_index"])
         first = self._step == 0
         observed = self._observe if first else []
@@ -224,7 +225,7 @@ class VLMPolicy:
             }
         return request, frames
 
-    def _ask(self, obs: dict, palm: np.ndarray, joints: np.ndarray) -> Answer | None:
+    def _ask(self, obs: Observation, palm: np.ndarray, joints: np.ndarray) -> Answer | None:
         request, frames = self._request(obs, palm, joints)
         self._query += 1
         reply: Reply = self.transport.complete(request)
@@ -250,3 +251,15 @@ class VLMPolicy:
         if answer is None and self.config.on_fault == "error":
             raise PolicyError(f"vlm {outcome} at frame {int(obs['frame_index'])}: {detail}")
         return answer
+
+
+def audit_summary(records: list[dict[str, Any]]) -> str:
+    """Counts of each exchange outcome, tokens and latency, from a run's audit records."""
+    counts = {k: sum(1 for r in records if r["outcome"] == k) for k in OUTCOMES}
+    prompt = sum(r["reply"]["usage"]["prompt_tokens"] or 0 for r in records)
+    completion = sum(r["reply"]["usage"]["completion_tokens"] or 0 for r in records)
+    latency = sorted(r["reply"]["latency_ms"] for r in records)
+    median = latency[len(latency) // 2] if latency else 0.0
+    faults = ", ".join(f"{k} {v}" for k, v in counts.items() if k != "ok")
+    return (f"{len(records)} queries, {counts['ok']} answered ({faults}); {prompt} prompt + {completion} completion "
+            f"tokens; median latency {median:.0f} ms")

@@ -13,13 +13,17 @@ from __future__ import annotations
 
 import contextlib
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
 import numpy as np
 
+from pipeline.policies.base import Observation, Task
 from pipeline.remote import protocol
 from schemas.errors import PolicyError, SpecError
+
+if TYPE_CHECKING:  # websockets is imported when a connection is made
+    from websockets.sync.client import ClientConnection
 
 DEFAULT_TIMEOUT_S = 30.0
 OPEN_TIMEOUT_S = 10.0
@@ -46,9 +50,9 @@ class RemotePolicy:
         self.server_ms = 0.0
         self.max_round_trip_ms = 0.0
         self._broken: str | None = None
-        self._ws = None
+        self._ws: ClientConnection | None = None
         self._stack = contextlib.ExitStack()
-        from websockets.sync.client import connect
+        from websockets.sync.client import connect  # lazy: websockets loads when a connection is made
 
         host = urlsplit(url).hostname or ""
         try:
@@ -70,11 +74,11 @@ class RemotePolicy:
 
     # --- Policy protocol --------------------------------------------------------------
 
-    def reset(self, task: dict[str, Any]) -> None:
+    def reset(self, task: Task) -> None:
         self._send(protocol.reset_message(task))
         self._receive(("ready",), self.timeout_s)
 
-    def act(self, obs: dict[str, Any]) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         start = time.perf_counter()
         self._send(protocol.act_message(obs))
         reply = self._receive(("action",), self.timeout_s)
@@ -115,28 +119,32 @@ class RemotePolicy:
             pass
         return PolicyError(reason)
 
-    def _check_usable(self) -> None:
+    def _usable(self) -> ClientConnection:
+        """The open connection, or PolicyError when an earlier failure closed it."""
         if self._broken is not None:
             raise PolicyError(f"remote policy unusable after an earlier failure ({self._broken})")
+        if self._ws is None:
+            raise PolicyError("remote policy: not connected")
+        return self._ws
 
     def _send(self, message: dict[str, Any]) -> None:
-        self._check_usable()
+        ws = self._usable()
         data = protocol.encode(message)
         from websockets.exceptions import ConnectionClosed
 
         try:
-            self._ws.send(data)
+            ws.send(data)
         except ConnectionClosed as exc:
             raise self._fail(f"remote policy: connection closed ({_closed(exc)})") from None
         except OSError as exc:
             raise self._fail(f"remote policy: cannot send ({_describe(exc)})") from None
 
     def _receive(self, expected: tuple[str, ...], timeout: float) -> dict[str, Any]:
-        self._check_usable()
+        ws = self._usable()
         from websockets.exceptions import ConnectionClosed
 
         try:
-            data = self._ws.recv(timeout=timeout)
+            data = ws.recv(timeout=timeout)
         except TimeoutError:
             raise self._fail(f"remote policy: no {' or '.join(expected)} reply within {timeout:g} s") from None
         except ConnectionClosed as exc:

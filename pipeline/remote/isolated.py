@@ -17,10 +17,10 @@ import subprocess
 import sys
 import threading
 from collections import deque
-from typing import Any
 
 import numpy as np
 
+from pipeline.policies.base import Observation, Task
 from pipeline.remote.client import RemotePolicy
 from schemas.errors import PolicyError
 
@@ -92,13 +92,13 @@ class IsolatedPolicy:
             return exc
         return PolicyError(f"policy process {_ended(code)} ({exc})")
 
-    def reset(self, task: dict[str, Any]) -> None:
+    def reset(self, task: Task) -> None:
         try:
             self._remote.reset(task)
         except PolicyError as exc:
             raise self._failure(exc) from None
 
-    def act(self, obs: dict[str, Any]) -> np.ndarray:
+    def act(self, obs: Observation) -> np.ndarray:
         try:
             return self._remote.act(obs)
         except PolicyError as exc:

@@ -1,8 +1,8 @@
-"""A loopback stand-in for a VLM server: the OpenAI chat-completions API on 127.0.0.1, whose
-"model" reads the current image with the predictive baseline's perception.
+"""A deterministic stand-in VLM server, for trying ``pipeline eval --policy vlm:...`` offline
+and for the tests: the OpenAI chat-completions API on 127.0.0.1, whose "model" reads the
+current image with the predictive baseline's perception (no model weights needed).
 
-No model weights can be downloaded here, so tests and the README's loopback row talk to
-this server instead: a real HTTP server implementing ``POST /v1/chat/completions`` (and
+It is a real HTTP server implementing ``POST /v1/chat/completions`` (and
 ``GET /v1/models``) that answers ``{"palm_target": [...], "closure": c}`` for the object
 it sees in the last image of the request, with the hand state read back from the prompt
 (it aims over the object and closes once the palm is within reach). ``--mode`` makes it

@@ -153,8 +153,9 @@ def _refuse_extensions(value: Any) -> None:
             _refuse_extensions(item)
 
 
-def decode(data: bytes) -> dict[str, Any]:
-    """msgpack bytes -> a message dict with arrays rebuilt (writable, native byte order)."""
+def decode(data: bytes | str) -> dict[str, Any]:
+    """msgpack bytes -> a message dict with arrays rebuilt (writable, native byte order); a
+    text frame is a ProtocolError."""
     if isinstance(data, str):
         raise ProtocolError(f"{PROTOCOL} messages are binary frames of msgpack, got a text frame: {data[:80]!r}")
     try:
@@ -199,7 +200,7 @@ def check(message: dict[str, Any], expected: tuple[str, ...] | None = None) -> d
     return message
 
 
-def parse(data: bytes, expected: tuple[str, ...] | None = None) -> dict[str, Any]:
+def parse(data: bytes | str, expected: tuple[str, ...] | None = None) -> dict[str, Any]:
     """:func:`decode` then :func:`check`."""
     return check(decode(data), expected)
 

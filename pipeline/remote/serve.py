@@ -20,6 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from pipeline.loop.worker_thread import WorkerThread
+from pipeline.policies.base import make_policy
 from pipeline.remote import protocol
 from schemas.errors import DyanaError
 
@@ -35,8 +36,6 @@ def policy_factory(policy: str | PolicyFactory) -> PolicyFactory:
     action horizon, privileged flag), so that a bad one fails before listening.
     """
     if isinstance(policy, str):
-        from pipeline.policies.base import make_policy
-
         sample = make_policy(policy)
         try:
             protocol.check(protocol.metadata_message(sample.name, sample.action_horizon, sample.privileged))
@@ -73,7 +72,7 @@ async def _send(websocket, message: dict[str, Any]) -> None:
 
 async def _session(websocket, factory: PolicyFactory) -> None:
     """One connection: metadata, then reset/act requests until the client closes."""
-    from websockets.exceptions import ConnectionClosed
+    from websockets.exceptions import ConnectionClosed  # lazy, as the server below
 
     worker = WorkerThread("dyana-serve-policy")
     try:
@@ -139,7 +138,7 @@ async def serve_async(
     A request over ``max_message_bytes`` closes its connection (code 1009); a connection
     beyond ``max_connections`` open at once is told the server is busy and closed (1013),
     so memory stays bounded by about their product."""
-    from websockets.asyncio.server import serve as ws_serve
+    from websockets.asyncio.server import serve as ws_serve  # lazy: importing pipeline.remote stays light
 
     for name, value in (("max_message_bytes", max_message_bytes), ("max_connections", max_connections)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -203,10 +202,15 @@ def serve(
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
-        stop = loop.create_future()
+        stop: asyncio.Future[None] = loop.create_future()
+
+        def request_stop() -> None:
+            if not stop.done():
+                stop.set_result(None)
+
         for sig in (signal.SIGINT, signal.SIGTERM):
             try:
-                loop.add_signal_handler(sig, lambda: stop.done() or stop.set_result(None))
+                loop.add_signal_handler(sig, request_stop)
             except (NotImplementedError, RuntimeError):
                 pass
         await serve_async(

@@ -1,45 +1,60 @@
 """The episode stage: ``EpisodeSpec`` -> per-frame states and actions, no rendering.
 
-``episode(spec)`` samples the object's motion at the frame times ``k / FPS``, solves
-the interception (:func:`generators.interception.plan_episode`), runs the hand's
-forward kinematics and measures the events (palm XZ distance to the object's centre,
-fingertip distance to its surface). The build records its output; the closed loop
-uses :func:`assemble_frames` to turn the states its policy produced into the same
-arrays.
+``episode(spec)`` takes the ground-truth plan (:func:`generators.ground_truth.plan`:
+the object's motion at the frame times ``k / FPS`` and the interception), runs the
+hand's forward kinematics and measures the events (palm XZ distance to the object's
+centre, fingertip distance to its surface): :func:`assemble_frames`. The build records
+its output; the closed loop's recorder (:class:`pipeline.loop.record.RecordEpisode`)
+turns the states its policy produced into the same arrays with the same function.
 
 ``pipeline.episode(spec)`` is this module's :func:`episode`, loaded on first call.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from generators import motion
-from generators.ballistics import elevation
 from generators.clearance import hand_clearance
 from generators.contact import fingertip_distance
+from generators.ground_truth import plan
 from generators.hand import forward_kinematics
-from generators.interception import HandPlan, plan_episode
-from generators.visibility import first_hidden_frame
-from schemas.errors import InfeasibleError
 from schemas.events import palm_distance, spec_hover_offset
 from schemas.frames import EpisodeFrames
-from schemas.objects import object_category
-from schemas.scene import MIN_OBSERVE_VISIBLE
 from schemas.spec import EpisodeSpec
-from schemas.versions import FPS
 
 
-def frame_times(num_frames: int) -> np.ndarray:
-    """Timestamps ``k / FPS`` of frames ``0 .. num_frames - 1``, computed, never summed."""
-    return np.arange(num_frames, dtype=np.float64) / FPS
+@dataclass(frozen=True)
+class HandMeasures:
+    """What the hand's states imply, per frame (float32): forward kinematics and the two
+    event distances."""
+
+    #: (n, 90) the 15 joint frames.
+    joint_poses: np.ndarray
+    #: (n, 36) the 5 fingertips and the wrist.
+    keypoints: np.ndarray
+    #: (n,) the closest fingertip's distance to the object's surface.
+    fingertip_distance: np.ndarray
+    #: (n,) the localization distance (:func:`schemas.events.palm_distance`).
+    palm_distance: np.ndarray
 
 
-def object_trajectory(spec: EpisodeSpec) -> tuple[np.ndarray, np.ndarray, motion.MotionSample]:
-    """The object's poses (n, 7), world velocities (n, 3) and XZ motion sample at the frame times."""
-    t = frame_times(spec.num_frames)
-    poses, velocity = motion.object_pose(spec.motion, object_category(spec.object), spec.object_size, t)
-    return poses, velocity, motion.evaluate(spec.motion, t)
+def measure_hand(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: np.ndarray, object_pose: np.ndarray) -> HandMeasures:
+    """Forward kinematics and distances of ``n`` frames, computed in float64 from the
+    states as given (the ground truth's float64 plan, the environment's float32 states)
+    and kept as float32."""
+    joint_poses, keypoints = forward_kinematics(palm_pose, joint_angles, spec.hand)
+    n = len(joint_poses)
+    tips = keypoints.reshape(n, 6, 6)[:, :5, :3]
+    obj = np.asarray(object_pose, dtype=np.float64)
+    f32 = np.float32
+    return HandMeasures(
+        joint_poses=joint_poses.astype(f32),
+        keypoints=keypoints.astype(f32),
+        fingertip_distance=fingertip_distance(tips, spec.object, spec.object_size, obj).astype(f32),
+        palm_distance=palm_distance(np.asarray(palm_pose)[:, :3], obj[:, :3], spec_hover_offset(spec)).astype(f32),
+    )
 
 
 def assemble_frames(
@@ -52,11 +67,10 @@ def assemble_frames(
     action: np.ndarray,
     grasp_angles: np.ndarray,
 ) -> EpisodeFrames:
-    """Complete per-frame states with FK (joint poses, keypoints), the two distances and,
-    with obstacles, the hand's clearance from them."""
-    joint_poses, keypoints = forward_kinematics(palm_pose, joint_angles, spec.hand)
-    n = len(phase)
-    tips = keypoints.reshape(n, 6, 6)[:, :5, :3]
+    """The recorded frames of an episode from its states: :func:`measure_hand` of every
+    frame and, with obstacles, the hand's clearance from them. The ground truth passes its
+    float64 plan, the closed loop's recorder the float32 states the environment reached."""
+    measures = measure_hand(spec, palm_pose, joint_angles, object_pose)
     f32 = np.float32
     return EpisodeFrames(
         phase=np.asarray(phase, dtype=np.int8),
@@ -64,11 +78,11 @@ def assemble_frames(
         object_velocity=np.asarray(object_velocity, dtype=f32),
         palm_pose=np.asarray(palm_pose, dtype=f32),
         joint_angles=np.asarray(joint_angles, dtype=f32),
-        joint_poses=joint_poses.astype(f32),
-        keypoints=keypoints.astype(f32),
+        joint_poses=measures.joint_poses,
+        keypoints=measures.keypoints,
         action=np.asarray(action, dtype=f32),
-        fingertip_distance=fingertip_distance(tips, spec.object, spec.object_size, object_pose).astype(f32),
-        palm_distance=palm_distance(palm_pose[:, :3], object_pose[:, :3], spec_hover_offset(spec)).astype(f32),
+        fingertip_distance=measures.fingertip_distance,
+        palm_distance=measures.palm_distance,
         grasp_angles=np.asarray(grasp_angles, dtype=f32),
         obstacle_clearance=obstacle_clearance(spec, palm_pose, joint_angles),
     )
@@ -83,32 +97,6 @@ def obstacle_clearance(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: n
     palm = np.asarray(palm_pose, dtype=np.float32).astype(np.float64)
     joints = np.asarray(joint_angles, dtype=np.float32).astype(np.float64)
     return hand_clearance(palm, joints, spec.hand, spec.obstacles).astype(np.float32)
-
-
-def check_observable(spec: EpisodeSpec, poses: np.ndarray) -> None:
-    """Refuse an episode whose object is not shown enough (in the image and unhidden by the
-    resting hand) in some observe frame: the protocol promises the model sees the motion."""
-    hidden = first_hidden_frame(spec.object, spec.object_size, spec.hand, poses[: spec.observe_frames], spec.obstacles)
-    if hidden is not None:
-        frame, fraction = hidden
-        raise InfeasibleError(
-            f"the object is only {fraction:.0%} visible at observe frame {frame} (the resting hand, an "
-            f"obstacle or the image edge hides the rest; at least {MIN_OBSERVE_VISIBLE:.0%} must show)"
-        )
-
-
-def plan(spec: EpisodeSpec) -> tuple[HandPlan, np.ndarray, np.ndarray]:
-    """The ground-truth hand plan of ``spec`` with the object's poses and velocities.
-
-    Raises :class:`InfeasibleError` when the object would be hidden while observed or the
-    interception cannot be planned."""
-    poses, velocity, sample = object_trajectory(spec)
-    check_observable(spec, poses)
-    lift = None
-    if spec.motion.airborne:
-        e = elevation(spec.motion, frame_times(spec.num_frames))
-        lift = (e.height, e.velocity, e.acceleration)
-    return plan_episode(spec, sample.position, sample.velocity, sample.acceleration, lift), poses, velocity
 
 
 def episode(spec: EpisodeSpec) -> EpisodeFrames:

@@ -14,6 +14,7 @@ from catalog.records import ShardRecord
 from catalog.shard import ShardWriter
 from generators.encode import encode_bgr_jpeg
 from generators.render import Renderer
+from pipeline.stages.episode import episode
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
 
@@ -49,8 +50,6 @@ def write_ground_truth_shard(
     specs: Sequence[EpisodeSpec], first: int, end: int, settings, slice_dir: Path
 ) -> ShardRecord:
     """Episodes ``[first, end)`` of a slice, ground truth, as one atomic shard."""
-    from pipeline.stages.episode import episode
-
     with ShardWriter(slice_dir, first, end, settings.as_dict()) as writer:
         for _index, spec in zip(range(first, end), specs):
             frames = episode(spec)

@@ -9,6 +9,7 @@ import pytest
 
 from generators.camera import unproject_to_plane
 from generators.grids import OBJECT_NAMES, SIZE_FACTORS
+from generators.ground_truth import object_trajectory
 from generators.hand import REST_JOINTS, REST_PALM
 from generators.recipe import slice_specs
 from generators.render import Renderer
@@ -21,7 +22,6 @@ from generators.visibility import (
     rest_shadow_z,
     visible_fraction,
 )
-from pipeline.stages.episode import object_trajectory
 from schemas.errors import SpecError
 from schemas.objects import OBJECTS
 from schemas.obstacles import Obstacle

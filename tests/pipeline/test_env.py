@@ -17,8 +17,11 @@ from generators.encode import JPEG_QUALITY, decode_jpeg
 from generators.grasp import grasp_angles
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
 from generators.recipe import spec_for
-from pipeline.loop.env import ENV_ID, PALM_BOX, DyanaEnv, as_chunk, horizon, run_chunk
+from pipeline.loop.actions import as_chunk, run_chunk
+from pipeline.loop.env import ENV_ID, DyanaEnv, SliceEpisodes, horizon
 from pipeline.loop.env_checker import check_env
+from pipeline.loop.spaces import PALM_BOX
+from pipeline.loop.wrappers import RecordEpisode, loop_env
 from pipeline.stages.episode import episode
 from pipeline.stages.record import encoded_frames
 from schemas.errors import DyanaError, PolicyError, SpecError
@@ -31,15 +34,15 @@ EPISODES = (0, 2, 4, 7)
 
 
 @pytest.fixture(scope="module")
-def env() -> DyanaEnv:
-    return DyanaEnv(RES)
+def env() -> RecordEpisode:
+    return loop_env(RES, episodes=SliceEpisodes("test-1k"))
 
 
 def hold(obs: dict) -> np.ndarray:
     return np.concatenate([obs["palm_pose"][:3], obs["joint_angles"]]).astype(np.float32)
 
 
-def run(env: DyanaEnv, spec, actions) -> tuple:
+def run(env: RecordEpisode, spec, actions) -> tuple:
     obs, info = env.reset(options={"spec": spec})
     out = (obs, 0.0, False, False, info)
     for action in actions:
@@ -60,14 +63,14 @@ def test_check_env_passes_direct_act(env):
 
 
 def test_check_env_catches_a_broken_environment(env):
-    class Leaky(DyanaEnv):
+    class Leaky(RecordEpisode):
         def step(self, action):  # repairs NaN/inf instead of refusing them
             if isinstance(action, np.ndarray) and action.shape == (18,):
                 action = np.nan_to_num(action, posinf=0.0, neginf=0.0)
             return super().step(action)
 
     with pytest.raises(AssertionError, match="accepted"):
-        check_env(Leaky(RES), spec_for("test-1k", 2), steps=2)
+        check_env(Leaky(DyanaEnv(RES)), spec_for("test-1k", 2), steps=2)
 
 
 @pytest.mark.parametrize("index", EPISODES)
@@ -107,7 +110,7 @@ def test_same_actions_give_identical_recordings(env):
     high = np.concatenate([[3.0, 4.0, 8.0], JOINT_UPPER * 0.5])
     actions = rng.uniform(low, high, size=(12, 18))
     _, (f1, i1) = run(env, spec, actions)
-    _, (f2, i2) = run(DyanaEnv(RES), spec, actions)
+    _, (f2, i2) = run(loop_env(RES), spec, actions)
     for name in ("phase", "object_pose", "palm_pose", "joint_angles", "joint_poses", "keypoints", "action",
                  "fingertip_distance", "palm_distance"):
         assert getattr(f1, name).tobytes() == getattr(f2, name).tobytes(), name
@@ -235,10 +238,20 @@ def test_reset_accepts_specs_dicts_json_and_seeds(env):
         env.reset(options={"spec": "{not json"})
     with pytest.raises(DyanaError, match="before reset"):
         DyanaEnv(RES).step(np.zeros(18))
+    # where a spec-less reset takes its episode is the env's argument, never a hidden default
+    with pytest.raises(SpecError, match="episodes source"):
+        DyanaEnv(RES).reset(seed=3)
+    custom = DyanaEnv(RES, episodes=[spec_for("test-1k", 9), spec])
+    custom.reset(seed=3)
+    assert custom.episode_spec == spec
+    custom.reset()
+    assert custom.episode_spec == spec_for("test-1k", 9)  # the one after the last picked, wrapping
+    custom.close()
 
 
 def test_bad_constructor_arguments():
-    for kwargs in ({"resolution": 4}, {"resolution": True}, {"jpeg_quality": 0}, {"render_mode": "human"}):
+    for kwargs in ({"resolution": 4}, {"resolution": True}, {"jpeg_quality": 0}, {"render_mode": "human"},
+                   {"renderer": "tiny"}):
         with pytest.raises(SpecError):
             DyanaEnv(**kwargs)
 

@@ -10,9 +10,10 @@ from hypothesis import HealthCheck, assume, given, settings
 import pipeline
 from generators import motion
 from generators.contact import fingertip_distance
+from generators.ground_truth import frame_times
 from generators.hand import REST_JOINTS, REST_PALM
 from generators.recipe import spec_for
-from pipeline.stages.episode import assemble_frames, episode, frame_times
+from pipeline.stages.episode import assemble_frames, episode
 from schemas.errors import InfeasibleError
 from schemas.frames import FRAME_ARRAYS
 from schemas.objects import object_category

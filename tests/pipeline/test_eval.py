@@ -19,8 +19,9 @@ from catalog.manifest import load_manifest
 from catalog.shard import ShardWriter, rollout_frame_limit
 from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate
-from pipeline.loop.env import DyanaEnv, horizon
+from pipeline.loop.env import horizon
 from pipeline.loop.rollout import run_episode
+from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import make_policy
 from schemas.errors import ShardError, SpecError
 from schemas.frames import EpisodeFrames
@@ -127,7 +128,7 @@ def test_an_evaluation_resumes_after_an_interruption(tmp_path, monkeypatch):
 
 
 def test_rollout_shards_take_up_to_observe_plus_horizon_frames(tmp_path):
-    env = DyanaEnv(resolution=RESOLUTION)
+    env = loop_env(resolution=RESOLUTION)
     spec = spec_for("test-1k", 2)
     result = run_episode(env, make_policy("still"), spec, 5.0)
     limit = rollout_frame_limit(spec)

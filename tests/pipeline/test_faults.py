@@ -23,8 +23,8 @@ from catalog.shard import ShardWriter
 from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate, summarize
 from pipeline.jobs.replay import replay
-from pipeline.loop.env import DyanaEnv
 from pipeline.loop.rollout import run_episode
+from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import state_action
 from pipeline.remote import protocol
 
@@ -50,7 +50,7 @@ REASONS = {
 
 @pytest.fixture(scope="module")
 def env():
-    return DyanaEnv(resolution=RESOLUTION)
+    return loop_env(resolution=RESOLUTION)
 
 
 @pytest.mark.parametrize("fault", sorted(REASONS))

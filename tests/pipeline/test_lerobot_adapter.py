@@ -14,8 +14,9 @@ torch = pytest.importorskip("torch")
 import catalog  # noqa: E402
 from generators.recipe import spec_for  # noqa: E402
 from pipeline.jobs.evaluate import evaluate  # noqa: E402
-from pipeline.loop.env import DyanaEnv, horizon  # noqa: E402
+from pipeline.loop.env import horizon  # noqa: E402
 from pipeline.loop.rollout import task_for  # noqa: E402
+from pipeline.loop.wrappers import loop_env  # noqa: E402
 from pipeline.policies.lerobot_adapter import LeRobotAdapter  # noqa: E402
 from tests.pipeline.lerobot_like import TARGET, PointPolicy  # noqa: E402
 
@@ -23,7 +24,7 @@ RESOLUTION = 64
 
 
 def _first_act(adapter: LeRobotAdapter, spec) -> dict:
-    env = DyanaEnv(resolution=RESOLUTION)
+    env = loop_env(resolution=RESOLUTION)
     try:
         obs, _ = env.reset(options={"spec": spec})
         adapter.reset(task_for(spec, RESOLUTION, False, horizon(spec)))

@@ -12,8 +12,10 @@ from scipy.spatial import ConvexHull, QhullError
 
 from generators.camera import unproject_to_plane
 from generators.hand import REST_JOINTS, REST_PALM, forward_kinematics
-from pipeline.policies import perception
-from pipeline.policies.perception import HandShape, ObjectLocator, hand_mask, match_template, template
+from pipeline.policies import camera_model, hand_shape, silhouette
+from pipeline.policies.hand_shape import HandShape, hand_mask
+from pipeline.policies.perception import ObjectLocator
+from pipeline.policies.silhouette import match_template, template
 from schemas.objects import OBJECTS
 from tests.pipeline.test_policies import _scene
 
@@ -38,24 +40,24 @@ def _point_sets(rng: np.random.Generator):
         yield np.round(points)  # repeated and collinear points
     for name in sorted(OBJECTS):
         category = OBJECTS[name]
-        for heading in perception.headings(category):
+        for heading in silhouette.headings(category):
             centre = np.array([rng.uniform(-3, 3), category.half_height(category.nominal_size), rng.uniform(1.5, 7.5)])
-            body = perception._surface_points(category, category.nominal_size, heading)
-            yield perception._project(centre + body, RES, RES)[0]
+            body = silhouette.surface_points(category, category.nominal_size, heading)
+            yield camera_model.project(centre + body, RES, RES)[0]
 
 
 def test_convex_hull_is_qhulls_counterclockwise_vertices():
     rng = np.random.default_rng(7)
     for points in _point_sets(rng):
-        ours = perception._convex_hull(points)
+        ours = hand_shape.convex_hull(points)
         assert _same_cycle(ours, _qhull(points)), points.tolist()
         if len(ours):
-            assert perception._signed_area(ours) > 0
+            assert hand_shape.signed_area(ours) > 0
 
 
 @pytest.mark.parametrize("points", [np.zeros((5, 2)), np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])])
 def test_degenerate_hulls_are_empty_as_qhull_refuses_them(points):
-    assert perception._convex_hull(points).shape == (0, 2) == _qhull(points).shape
+    assert hand_shape.convex_hull(points).shape == (0, 2) == _qhull(points).shape
 
 
 def _per_pixel_depth(xs: np.ndarray, ys: np.ndarray, hull: np.ndarray) -> np.ndarray:
@@ -66,20 +68,20 @@ def _per_pixel_depth(xs: np.ndarray, ys: np.ndarray, hull: np.ndarray) -> np.nda
     length = np.maximum(np.linalg.norm(edge, axis=1), 1e-12)
     rel = px[..., None, :] - a
     cross = (edge[:, 0] * rel[..., 1] - edge[:, 1] * rel[..., 0]) / length
-    sign = 1.0 if perception._signed_area(hull) > 0 else -1.0
+    sign = 1.0 if hand_shape.signed_area(hull) > 0 else -1.0
     return (sign * cross).min(axis=-1)
 
 
 def test_separable_edge_test_equals_the_per_pixel_one():
     rng = np.random.default_rng(3)
     for points in _point_sets(rng):
-        hull = perception._convex_hull(points)
+        hull = hand_shape.convex_hull(points)
         if len(hull) < 3:
             continue
         xs = np.arange(np.floor(points[:, 0].min()) - 2, np.ceil(points[:, 0].max()) + 3) + 0.5
         ys = np.arange(np.floor(points[:, 1].min()) - 2, np.ceil(points[:, 1].max()) + 3) + 0.5
-        np.testing.assert_array_equal(perception._hull_depth(xs, ys, hull), _per_pixel_depth(xs, ys, hull))
-        np.testing.assert_array_equal(perception._hull_depth(xs, ys, hull[::-1]), _per_pixel_depth(xs, ys, hull[::-1]))
+        np.testing.assert_array_equal(hand_shape.hull_depth(xs, ys, hull), _per_pixel_depth(xs, ys, hull))
+        np.testing.assert_array_equal(hand_shape.hull_depth(xs, ys, hull[::-1]), _per_pixel_depth(xs, ys, hull[::-1]))
 
 
 def _hand(palm=REST_PALM, joints=REST_JOINTS, hand: str = "right"):
@@ -123,9 +125,9 @@ def test_cropped_template_matching_equals_full_frame_matching():
 def test_cached_unprojection_is_the_cameras():
     pixels = np.random.default_rng(2).uniform(0, RES, (50, 2))
     for plane in (0.0, 0.21, 0.4):
-        np.testing.assert_array_equal(perception._unproject(pixels, RES, RES, plane),
+        np.testing.assert_array_equal(camera_model.unproject(pixels, RES, RES, plane),
                                       unproject_to_plane(pixels, RES, RES, plane))
-        np.testing.assert_array_equal(perception._unproject(pixels[7], RES, RES, plane),
+        np.testing.assert_array_equal(camera_model.unproject(pixels[7], RES, RES, plane),
                                       unproject_to_plane(pixels[7], RES, RES, plane))
 
 

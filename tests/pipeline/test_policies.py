@@ -12,16 +12,14 @@ from generators import motion
 from generators.encode import decode_jpeg, encode_jpeg
 from generators.hand import REST_JOINTS, REST_PALM, forward_kinematics
 from generators.recipe import spec_for
-from pipeline.loop.env import DyanaEnv, horizon
+from pipeline.loop.env import horizon
+from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import BUILTIN, FunctionPolicy, Policy, make_policy
+from pipeline.policies.camera_model import table_colour
 from pipeline.policies.chase import ChasePolicy
 from pipeline.policies.fitting import fit_line, fit_motion
-from pipeline.policies.perception import (
-    ObjectLocator,
-    hand_mask,
-    object_from_text,
-    table_colour,
-)
+from pipeline.policies.hand_shape import hand_mask
+from pipeline.policies.perception import ObjectLocator, object_from_text
 from pipeline.policies.predictive import PredictivePolicy, motion_hint
 from pipeline.policies.still import StillPolicy
 from pipeline.stages.episode import episode
@@ -240,7 +238,7 @@ def _task(spec, policy, resolution):
 
 
 def rollout(policy, spec, resolution=RES):
-    env = DyanaEnv(resolution)
+    env = loop_env(resolution)
     obs, info = env.reset(options={"spec": spec})
     policy.reset(_task(spec, policy, resolution))
     done = False

@@ -19,9 +19,9 @@ from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.replay import replay
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.disturb import EARLIEST, LATEST, disturbance_time, disturbed_spec
-from pipeline.loop.env import DyanaEnv
 from pipeline.loop.perturb import PERTURBATIONS, Perturbation, perturbation_rng, psnr
 from pipeline.loop.rollout import run_episode
+from pipeline.loop.wrappers import loop_env
 from pipeline.stages.episode import episode
 from schemas.errors import ShardError, SpecError
 from schemas.spec import EpisodeSpec
@@ -52,7 +52,7 @@ def test_latency_delays_every_action_by_n_frames_and_the_hand_holds_meanwhile():
     spec = spec_for("test-1k", 3)
     xs = {}
     for n in (0, 3):
-        env = DyanaEnv(resolution=RES, protocol=EvalProtocol(latency_frames=n))
+        env = loop_env(resolution=RES, protocol=EvalProtocol(latency_frames=n))
         result = run_episode(env, Ramp(), spec)
         xs[n] = result.frames.palm_pose[:, 0].astype(np.float64)
         np.testing.assert_array_equal(result.frames.action[spec.observe_frames:-1, 0],
@@ -72,10 +72,10 @@ class Slow(Ramp):
 
 def test_realtime_mode_turns_inference_time_into_frames():
     spec = spec_for("test-1k", 3)
-    env = DyanaEnv(resolution=RES, protocol=EvalProtocol(realtime=True))
+    env = loop_env(resolution=RES, protocol=EvalProtocol(realtime=True))
     xs = run_episode(env, Slow(), spec).frames.palm_pose[:, 0].astype(np.float64)
     a = spec.observe_frames
-    assert env.delay_frames >= 3 and np.all(xs[a : a + 4] == xs[a])  # 0.12 s >= 3 frames of 50 ms
+    assert env.get_wrapper_attr("delay_frames") >= 3 and np.all(xs[a : a + 4] == xs[a])  # 0.12 s >= 3 frames of 50 ms
 
 
 @pytest.mark.parametrize("name", sorted(PERTURBATIONS))
@@ -111,7 +111,7 @@ def test_the_policy_sees_the_perturbation_but_the_recording_stays_clean():
             seen.append(obs["image"].copy())
             return super().act(obs)
 
-    clean_env, noisy_env = DyanaEnv(resolution=RES), DyanaEnv(resolution=RES, protocol=EvalProtocol(perturb=Perturbation("noise")))
+    clean_env, noisy_env = loop_env(resolution=RES), loop_env(resolution=RES, protocol=EvalProtocol(perturb=Perturbation("noise")))
     clean = run_episode(clean_env, Watch(), spec)
     first_clean = seen[0]
     seen.clear()

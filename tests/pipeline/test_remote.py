@@ -18,8 +18,9 @@ from websockets.sync.client import connect
 
 from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate
-from pipeline.loop.env import DyanaEnv, horizon
+from pipeline.loop.env import horizon
 from pipeline.loop.rollout import task_for
+from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import make_policy
 from pipeline.remote import protocol
 from pipeline.remote.client import RemotePolicy
@@ -85,7 +86,7 @@ def test_remote_rollouts_are_byte_identical_to_in_process(server, tmp_path):
 
 def test_remote_policy_speaks_like_the_local_one(server):
     spec = spec_for("test-1k", 2)
-    env = DyanaEnv(resolution=RESOLUTION)
+    env = loop_env(resolution=RESOLUTION)
     obs, _ = env.reset(options={"spec": spec})
     local = make_policy(POLICY)
     task = task_for(spec, RESOLUTION, False, horizon(spec))
@@ -149,7 +150,7 @@ def test_serve_refuses_an_unknown_policy():
 def test_latency_over_loopback_is_small(server):
     """One act round trip with a 48 px image: the protocol adds little to the policy's own time."""
     spec = spec_for("test-1k", 0)
-    env = DyanaEnv(resolution=RESOLUTION)
+    env = loop_env(resolution=RESOLUTION)
     obs, _ = env.reset(options={"spec": spec})
     with RemotePolicy(server) as remote:
         remote.reset(task_for(spec, RESOLUTION, False, horizon(spec)))

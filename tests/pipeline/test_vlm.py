@@ -14,7 +14,8 @@ import pytest
 
 import catalog
 from pipeline.cli import main as pipeline_main
-from pipeline.jobs.evaluate import evaluate, read_audit
+from pipeline.jobs.audit import read_audit
+from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.replay import replay
 from pipeline.policies.vlm_answer import AnswerError, parse_answer
 from schemas.errors import ShardError
@@ -83,7 +84,7 @@ def test_a_vlm_run_keeps_its_trail_scores_and_replays_without_the_endpoint(serve
     manifest = json.loads((run / "catalog.json").read_text())
     assert manifest["policy"] == "vlm:loopback-perception"
     assert manifest["vlm"]["template"] == "v1" and len(manifest["vlm"]["template_sha256"]) == 64
-    records = read_audit(run)
+    records = read_audit(run / "vlm")
     assert records and {r["outcome"] for r in records} == {"ok"}
     assert {r["episode_id"] for r in records} == {f"test-1k:{i:06d}" for i in range(4)}
     first = [r for r in records if r["query"] == 1]
@@ -116,7 +117,7 @@ def test_each_fault_fails_only_its_episode_with_the_reason(serve, tmp_path, mode
     _eval(serve(mode, delay=3.0), run, episodes=2, timeout_s=1.0)
     with catalog.open(run) as ds:
         assert [e.status for e in ds.episodes] == ["error", "error"]
-    assert [r["outcome"] for r in read_audit(run)] == [kind, kind]
+    assert [r["outcome"] for r in read_audit(run / "vlm")] == [kind, kind]
     from catalog.reader import open_folder
 
     errors = open_folder(run).episodes(["error"]).column("error").to_pylist()
@@ -128,7 +129,7 @@ def test_hold_keeps_going_through_faults_and_counts_them(serve, tmp_path):
     _eval(serve("flaky"), run, episodes=2, on_fault="hold")
     with catalog.open(run) as ds:
         assert [e.status for e in ds.episodes] == ["ok", "ok"]
-    outcomes = [r["outcome"] for r in read_audit(run)]
+    outcomes = [r["outcome"] for r in read_audit(run / "vlm")]
     assert outcomes.count("http_error") == len(outcomes) // 3 and outcomes.count("ok") > 0
     assert replay(run).episodes == 2
 

@@ -380,7 +380,7 @@ def test_the_ground_truth_grasps_with_contact_and_a_blind_fist_does_not():
     scores on the joint-only S_gra but 0 on the contact grasp."""
     from generators.recipe import spec_for
     from pipeline import episode
-    from pipeline.loop.env import DyanaEnv
+    from pipeline.loop.wrappers import loop_env
     from scoring.io import from_recordings
     from scoring.report import score_run
 
@@ -388,7 +388,7 @@ def test_the_ground_truth_grasps_with_contact_and_a_blind_fist_does_not():
     truth = score_run(from_recordings("gt", "test-1k", specs, [episode(s) for s in specs])).overall
     assert truth.metrics["S_grasp_contact"] == 100.0 and truth.metrics["S_gra"] == 100.0
 
-    env = DyanaEnv(resolution=32)
+    env = loop_env(resolution=32)
     recordings = []
     for spec in specs:
         obs, _ = env.reset(options={"spec": spec})
