@@ -1,0 +1,44 @@
+"""MkDocs hook: adds the generated pages to the site at build time (nothing is committed).
+
+- ``reference/cli.md`` from the console scripts' argparse parsers (cli_reference.py);
+- ``results/*.md`` and ``benchmarks.md`` from ``benchmarks/results/`` (results_pages.py),
+  with the raw result files published under ``results/files/``;
+- ``changelog.md`` from ``CHANGELOG.md``.
+
+Registered in mkdocs.yml under ``hooks:``; tests/docs imports :data:`GENERATED` to know
+which pages exist only in the built site.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import cli_reference
+import results_pages
+from mkdocs.config.defaults import MkDocsConfig
+from mkdocs.structure.files import File, Files
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def changelog_page(root: Path) -> str:
+    return (root / "CHANGELOG.md").read_text(encoding="utf-8")
+
+
+#: Page path relative to docs/ -> renderer(repository root) -> Markdown.
+GENERATED: dict[str, Callable[[Path], str]] = {
+    "reference/cli.md": cli_reference.render,
+    **results_pages.PAGES,
+    "changelog.md": changelog_page,
+}
+
+
+def on_files(files: Files, config: MkDocsConfig) -> Files:
+    for uri, render in GENERATED.items():
+        if files.get_file_from_path(uri) is not None:
+            raise ValueError(f"docs/{uri} is generated at build time: delete the committed copy")
+        files.append(File.generated(config, uri, content=render(ROOT)))
+    for uri, path in results_pages.published_files(ROOT).items():
+        files.append(File.generated(config, uri, abs_src_path=str(path)))
+    return files

@@ -1,0 +1,208 @@
+"""The results and benchmark pages, generated from the files in ``benchmarks/results/``.
+
+No figure on these pages is typed by hand: each section shows one result file as its
+script wrote it, names the script that writes it, and gives the load average the file
+records (or says that it records none). Rerun the script, rebuild the site, and the page
+follows.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+RESULTS = Path("benchmarks") / "results"
+#: Where the raw result files are published inside the site (linked from the pages).
+FILES_URI = "results/files"
+#: Not published: Markdown would become a page of its own, a checkpoint is no reading.
+UNPUBLISHED = (".md", ".pt")
+
+
+@dataclass(frozen=True)
+class Source:
+    """One result file: its name under benchmarks/results/, the script that writes it, a title."""
+
+    name: str
+    script: str
+    title: str
+
+
+TEST_1K = (
+    Source("table.md", "closed_loop_results.py", "Scores"),
+    Source("radar.png", "closed_loop_results.py", "Radar and per-motion success rates"),
+    Source("latency.png", "scoring eval RUN ... --latency-plot", "S_loc and E_loc against latency (predictive)"),
+)
+TEST_COMPLEX = (
+    Source("test_complex_table.md", "scoring eval ... --markdown", "Scores"),
+    Source("projectile_strip.png", "frame_strip.py", "projectile-medium episode 1"),
+    Source("obstacle_strip.png", "frame_strip.py", "obstacle-medium episode 2"),
+    Source("irregular_strip.png", "frame_strip.py", "irregular-medium episode 4"),
+)
+BASELINE = Source("chunk_cnn/config.json", "train_chunk_cnn.py", "Training record of chunk_cnn")
+TIMINGS = (
+    Source("first_screen.json", "first_screen.py", "The first screen: command 1 and the tests"),
+    Source("speed_targets.txt", "speed_targets.py", "Speed targets"),
+    Source("closed_loop_speed.txt", "closed_loop_speed.py", "Closed-loop speed"),
+    Source("window_render.txt", "window_render.py", "Window rendering (not used)"),
+    Source("visibility.txt", "visibility.py", "Visibility of the object"),
+)
+
+
+def json_records(text: str) -> list[dict]:
+    """Every line of ``text`` that is a JSON object (the scripts print their record last)."""
+    out = []
+    for line in text.splitlines():
+        if line.startswith("{"):
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(record, dict):
+                out.append(record)
+    return out
+
+
+def _load_values(record: object, path: str = "") -> Iterator[tuple[str, object]]:
+    if isinstance(record, dict):
+        for key, value in record.items():
+            where = f"{path}.{key}" if path else key
+            if "load" in key.lower() and not isinstance(value, dict):
+                yield where, value
+            else:
+                yield from _load_values(value, where)
+
+
+def load_note(text: str) -> str:
+    """The load averages a result file records, as one sentence."""
+    found = [f"`{key}` {value}" for record in json_records(text) for key, value in _load_values(record)]
+    if not found:
+        return "This file records no load average: its times were taken on a shared machine at an unknown load."
+    return "Load average (1, 5, 15 min) recorded in the file, one per run in file order: " + "; ".join(found) + "."
+
+
+def _script_link(script: str) -> str:
+    return f"`python benchmarks/{script}`" if script.endswith(".py") else f"`{script}`"
+
+
+def _source_line(source: Source) -> str:
+    name = f"`benchmarks/results/{source.name}`"
+    shown = name if Path(source.name).suffix in UNPUBLISHED else f"[{name}]({_file_url(source.name)})"
+    return f"Source: {shown}, written by {_script_link(source.script)}."
+
+
+def _file_url(name: str) -> str:
+    return f"files/{name}"
+
+
+def _demote(markdown: str) -> str:
+    """Headings one level down, so a results file's ``##`` sits under the page's sections."""
+    return re.sub(r"^(#+) ", lambda m: "#" * min(len(m.group(1)) + 1, 6) + " ", markdown, flags=re.M)
+
+
+def _section(root: Path, source: Source) -> list[str]:
+    path = root / RESULTS / source.name
+    lines = [f"## {source.title}", ""]
+    if not path.exists():
+        return lines + [f"Not measured yet: run {_script_link(source.script)} to write "
+                        f"`benchmarks/results/{source.name}`.", ""]
+    lines += [_source_line(source), ""]
+    if path.suffix == ".png":
+        return lines + [f"![{source.title}]({_file_url(source.name)})", ""]
+    text = path.read_text(encoding="utf-8")
+    if path.suffix == ".md":
+        return lines + [_demote(text).strip(), ""]
+    if path.suffix == ".json":
+        return lines + _json_section(text)
+    return lines + [load_note(text), "", "```text", text.rstrip(), "```", ""]
+
+
+def _json_section(text: str) -> list[str]:
+    record = json.loads(text)
+    rows = [f"| `{key}` | {json.dumps(value)} |" for key, value in _flatten(record)]
+    return [load_note(json.dumps(record)), "", "| field | value |", "|---|---|", *rows, ""]
+
+
+def _flatten(record: object, path: str = "") -> Iterator[tuple[str, object]]:
+    if isinstance(record, dict):
+        for key, value in record.items():
+            yield from _flatten(value, f"{path}.{key}" if path else key)
+    else:
+        yield path, record
+
+
+def test_1k_page(root: Path) -> str:
+    lines = [
+        "# Results on test-1k",
+        "",
+        "The built-in policies and the learned baseline in the closed loop on test-1k, scored by "
+        "`scoring eval --paper`, beside the paper's published rows (measured on its Unity suite: a "
+        "reference for scale, not a comparison on equal terms). Generated from the files in "
+        "`benchmarks/results/` when the site is built; see [metrics](../reference/metrics.md) for "
+        "the definitions.",
+        "",
+    ]
+    for source in (*TEST_1K, BASELINE):
+        lines += _section(root, source)
+    return "\n".join(lines)
+
+
+def test_complex_page(root: Path) -> str:
+    lines = [
+        "# Results on test-complex",
+        "",
+        "The harder scenes (projectile, obstacle, irregular; paper A.11) in the closed loop, and one "
+        "frame strip of each. Generated from the files in `benchmarks/results/` when the site is built; "
+        "see [harder scenes](../guides/harder-scenes.md).",
+        "",
+    ]
+    for source in TEST_COMPLEX:
+        lines += _section(root, source)
+    return "\n".join(lines)
+
+
+def script_summary(path: Path) -> str:
+    """The first paragraph of a benchmark script's docstring, on one line."""
+    doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+    return " ".join(doc.split("\n\n")[0].split())
+
+
+def benchmarks_page(root: Path) -> str:
+    scripts = sorted(p for p in (root / "benchmarks").glob("*.py") if p.name != "bench_setup.py")
+    lines = [
+        "# Benchmarks",
+        "",
+        "Each script in `benchmarks/` measures against a bare baseline in the same run and prints "
+        "JSON as its last line; the ones below keep their last result in `benchmarks/results/`. "
+        "Times depend on the machine and its load: each section gives the load average its file "
+        "records. Generated when the site is built.",
+        "",
+        "| script | what it measures |",
+        "|---|---|",
+        *[f"| `{p.name}` | {script_summary(p).replace('|', chr(92) + '|')} |" for p in scripts],
+        "",
+    ]
+    for source in TIMINGS:
+        lines += _section(root, source)
+    return "\n".join(lines)
+
+
+#: Generated page (relative to docs/) -> its renderer.
+PAGES = {
+    "results/test-1k.md": test_1k_page,
+    "results/test-complex.md": test_complex_page,
+    "benchmarks.md": benchmarks_page,
+}
+
+
+def published_files(root: Path) -> dict[str, Path]:
+    """Result files copied into the site (the pages link to them): site path -> file."""
+    out = {}
+    for path in sorted((root / RESULTS).rglob("*")):
+        rel = path.relative_to(root / RESULTS)
+        if path.is_file() and path.suffix not in UNPUBLISHED and rel.parts[0] != "runs":
+            out[f"{FILES_URI}/{rel.as_posix()}"] = path
+    return out
