@@ -84,11 +84,15 @@ def _help(action: argparse.Action, prog: str) -> str:
     return text
 
 
+def arguments(parser: argparse.ArgumentParser) -> list[argparse.Action]:
+    """The arguments ``--help`` lists (the subcommand choice excluded)."""
+    return [a for a in parser._actions
+            if a.help != argparse.SUPPRESS and not isinstance(a, argparse._SubParsersAction)]
+
+
 def _option_rows(parser: argparse.ArgumentParser) -> list[str]:
     rows = []
-    for action in parser._actions:
-        if action.help == argparse.SUPPRESS or isinstance(action, argparse._SubParsersAction):
-            continue
+    for action in arguments(parser):
         if action.option_strings:
             takes_value = action.nargs != 0
             metavar = action.metavar or action.dest.upper()

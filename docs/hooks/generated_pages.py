@@ -5,33 +5,16 @@
   with the raw result files published under ``results/files/``;
 - ``changelog.md`` from ``CHANGELOG.md``.
 
-Registered in mkdocs.yml under ``hooks:``; tests/docs imports :data:`GENERATED` to know
-which pages exist only in the built site.
+Registered in mkdocs.yml under ``hooks:``. The list of generated pages is site_pages.py
+(which tests/docs imports without needing MkDocs).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from pathlib import Path
-
-import cli_reference
 import results_pages
 from mkdocs.config.defaults import MkDocsConfig
 from mkdocs.structure.files import File, Files
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def changelog_page(root: Path) -> str:
-    return (root / "CHANGELOG.md").read_text(encoding="utf-8")
-
-
-#: Page path relative to docs/ -> renderer(repository root) -> Markdown.
-GENERATED: dict[str, Callable[[Path], str]] = {
-    "reference/cli.md": cli_reference.render,
-    **results_pages.PAGES,
-    "changelog.md": changelog_page,
-}
+from site_pages import GENERATED, ROOT
 
 
 def on_files(files: Files, config: MkDocsConfig) -> Files:

@@ -66,19 +66,19 @@ def json_records(text: str) -> list[dict]:
     return out
 
 
-def _load_values(record: object, path: str = "") -> Iterator[tuple[str, object]]:
+def load_values(record: object, path: str = "") -> Iterator[tuple[str, object]]:
     if isinstance(record, dict):
         for key, value in record.items():
             where = f"{path}.{key}" if path else key
             if "load" in key.lower() and not isinstance(value, dict):
                 yield where, value
             else:
-                yield from _load_values(value, where)
+                yield from load_values(value, where)
 
 
 def load_note(text: str) -> str:
     """The load averages a result file records, as one sentence."""
-    found = [f"`{key}` {value}" for record in json_records(text) for key, value in _load_values(record)]
+    found = [f"`{key}` {value}" for record in json_records(text) for key, value in load_values(record)]
     if not found:
         return "This file records no load average: its times were taken on a shared machine at an unknown load."
     return "Load average (1, 5, 15 min) recorded in the file, one per run in file order: " + "; ".join(found) + "."
@@ -88,14 +88,10 @@ def _script_link(script: str) -> str:
     return f"`python benchmarks/{script}`" if script.endswith(".py") else f"`{script}`"
 
 
-def _source_line(source: Source) -> str:
+def _source_line(source: Source, files: str) -> str:
     name = f"`benchmarks/results/{source.name}`"
-    shown = name if Path(source.name).suffix in UNPUBLISHED else f"[{name}]({_file_url(source.name)})"
+    shown = name if Path(source.name).suffix in UNPUBLISHED else f"[{name}]({files}/{source.name})"
     return f"Source: {shown}, written by {_script_link(source.script)}."
-
-
-def _file_url(name: str) -> str:
-    return f"files/{name}"
 
 
 def _demote(markdown: str) -> str:
@@ -103,21 +99,25 @@ def _demote(markdown: str) -> str:
     return re.sub(r"^(#+) ", lambda m: "#" * min(len(m.group(1)) + 1, 6) + " ", markdown, flags=re.M)
 
 
-def _section(root: Path, source: Source) -> list[str]:
+def _section(root: Path, source: Source, files: str) -> list[str]:
+    """One result file's section; ``files`` is the published files' folder relative to the page."""
     path = root / RESULTS / source.name
     lines = [f"## {source.title}", ""]
     if not path.exists():
         return lines + [f"Not measured yet: run {_script_link(source.script)} to write "
                         f"`benchmarks/results/{source.name}`.", ""]
-    lines += [_source_line(source), ""]
+    lines += [_source_line(source, files), ""]
     if path.suffix == ".png":
-        return lines + [f"![{source.title}]({_file_url(source.name)})", ""]
+        return lines + [f"![{source.title}]({files}/{source.name})", ""]
     text = path.read_text(encoding="utf-8")
     if path.suffix == ".md":
         return lines + [_demote(text).strip(), ""]
     if path.suffix == ".json":
         return lines + _json_section(text)
-    return lines + [load_note(text), "", "```text", text.rstrip(), "```", ""]
+    shown = "\n".join(line for line in text.rstrip().splitlines() if not line.startswith("{"))
+    records = len(json_records(text))
+    also = f" Its {records} JSON record(s), every figure at full precision, are in the file." if records else ""
+    return lines + [load_note(text) + also, "", "```text", shown, "```", ""]
 
 
 def _json_section(text: str) -> list[str]:
@@ -146,7 +146,7 @@ def test_1k_page(root: Path) -> str:
         "",
     ]
     for source in (*TEST_1K, BASELINE):
-        lines += _section(root, source)
+        lines += _section(root, source, "files")
     return "\n".join(lines)
 
 
@@ -160,7 +160,7 @@ def test_complex_page(root: Path) -> str:
         "",
     ]
     for source in TEST_COMPLEX:
-        lines += _section(root, source)
+        lines += _section(root, source, "files")
     return "\n".join(lines)
 
 
@@ -186,7 +186,7 @@ def benchmarks_page(root: Path) -> str:
         "",
     ]
     for source in TIMINGS:
-        lines += _section(root, source)
+        lines += _section(root, source, FILES_URI)
     return "\n".join(lines)
 
 
@@ -206,3 +206,28 @@ def published_files(root: Path) -> dict[str, Path]:
         if path.is_file() and path.suffix not in UNPUBLISHED and rel.parts[0] != "runs":
             out[f"{FILES_URI}/{rel.as_posix()}"] = path
     return out
+
+
+FIRST_SCREEN = RESULTS / "first_screen.json"
+
+
+def _duration(seconds: float) -> str:
+    whole = round(seconds)
+    return f"{whole} s" if whole < 60 else f"{whole // 60} min {whole % 60:02d} s"
+
+
+def first_screen_sentence(root: Path) -> str:
+    """The README's sentence on how long its two commands take, from first_screen.json only."""
+    path = root / FIRST_SCREEN
+    if not path.exists():
+        return ("Timings: not measured yet. `python benchmarks/first_screen.py` times both commands "
+                "in a fresh clone and writes `benchmarks/results/first_screen.json`.")
+    record = json.loads(path.read_text(encoding="utf-8"))
+    one, two = record["command_1"], record["command_2"]
+    tests = two.get("phases", {}).get("tests")
+    of_which = f", of which the tests {_duration(tests)}" if tests is not None else ""
+    return (f"Timings (`benchmarks/results/first_screen.json`, {record['date_utc']}, commit "
+            f"{record['commit'][:7]}, {record['cores']} cores, load average {record['load_average_start'][0]} "
+            f"at the start and {record['load_average_end'][0]} at the end, pip's cache "
+            f"{record['pip_cache']}): command 1 took {_duration(one['seconds'])} with the install, "
+            f"command 2 {_duration(two['seconds'])}{of_which}.")
