@@ -58,22 +58,23 @@ class PagePool:
             if case not in self.running:  # every slot is busy with pages ahead of this one
                 self._wait_any()
                 continue
-            process = self.running[case]
-            out, err = process.communicate()
-            lines = out.strip().splitlines()
-            skipped = json.loads(lines[-1]) if process.returncode == 0 and lines else []
-            self.done[case] = PageResult(process.returncode, skipped, err)
+            self._collect(case)
         self._start_more()
         return self.done[case]
 
     def _wait_any(self) -> None:
+        """Wait for the oldest page still running (a slot frees up)."""
         for case, process in list(self.running.items()):
             if case not in self.done and process.poll() is None:
-                out, err = process.communicate()
-                lines = out.strip().splitlines()
-                skipped = json.loads(lines[-1]) if process.returncode == 0 and lines else []
-                self.done[case] = PageResult(process.returncode, skipped, err)
+                self._collect(case)
                 return
+
+    def _collect(self, case: tuple[str, bool]) -> None:
+        process = self.running[case]
+        out, err = process.communicate()
+        lines = out.strip().splitlines()
+        skipped = json.loads(lines[-1]) if process.returncode == 0 and lines else []
+        self.done[case] = PageResult(process.returncode, skipped, err)
 
     def close(self) -> None:
         for process in self.running.values():

@@ -72,19 +72,23 @@ class PageRun:
         env0, cwd = self.state / "env0", self.state / "cwd"
         script = (f"trap 'env -0 > {_quote(env0)}; pwd > {_quote(cwd)}' EXIT\n"
                   f"cd {_quote(self.cwd)}\n{code}")
-        process = subprocess.Popen(
-            ["bash", "-euo", "pipefail", "-c", script], cwd=self.cwd, env=self.env, stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
-        )
+        log = self.state / "output"
+        # Output goes to a file, not a pipe: a process the block leaves in the background
+        # (a server) keeps its copy open, and a pipe would not end until that process does.
+        with open(log, "wb") as sink:
+            process = subprocess.Popen(
+                ["bash", "-euo", "pipefail", "-c", script], cwd=self.cwd, env=self.env, stdin=subprocess.DEVNULL,
+                stdout=sink, stderr=subprocess.STDOUT, start_new_session=True,
+            )
         self.groups.append(process.pid)
         try:
-            output, _ = process.communicate(timeout=BLOCK_TIMEOUT_S)
+            process.wait(timeout=BLOCK_TIMEOUT_S)
         except subprocess.TimeoutExpired:
             self._kill(process.pid)
-            output, _ = process.communicate()
-            raise BlockFailed(f"{where}: bash block still running after {BLOCK_TIMEOUT_S} s\n{_tail(output)}") from None
+            process.wait()
+            raise BlockFailed(f"{where}: bash block still running after {BLOCK_TIMEOUT_S} s\n{_tail(log.read_bytes())}") from None
         if process.returncode != 0:
-            raise BlockFailed(f"{where}: bash block failed (exit {process.returncode})\n{_tail(output)}")
+            raise BlockFailed(f"{where}: bash block failed (exit {process.returncode})\n{_tail(log.read_bytes())}")
         if env0.exists():
             pairs = (item.partition("=") for item in env0.read_bytes().decode(errors="replace").split("\0") if item)
             self.env = {key: value for key, _, value in pairs if key not in ("PWD", "OLDPWD", "SHLVL", "_")}
