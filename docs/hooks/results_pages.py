@@ -190,8 +190,48 @@ def benchmarks_page(root: Path) -> str:
     return "\n".join(lines)
 
 
+def _headline(root: Path, name: str) -> list[str]:
+    """The first table of a scores file (its ``## Scores`` section), without the breakdowns."""
+    path = root / RESULTS / name
+    if not path.exists():
+        return [f"`benchmarks/results/{name}` is not written yet.", ""]
+    text = path.read_text(encoding="utf-8")
+    first = text.split("\n### ")[0]
+    return [re.sub(r"^## .*\n", "", first).strip(), ""]
+
+
+def results_index_page(root: Path) -> str:
+    lines = [
+        "# Results",
+        "",
+        "How the built-in policies, the learned baseline and the ground truth score in Dyana's closed "
+        "loop, beside the paper's published rows. Every table is generated from the files in "
+        "`benchmarks/results/` when the site is built (nothing here is typed by hand); the pages below "
+        "add the breakdowns by motion type, interception setting and object, the plots, and the "
+        "scripts that wrote them. The metrics are defined in [metrics](../reference/metrics.md); how to "
+        "produce such a run yourself: [evaluate a policy](../guides/evaluate.md).",
+        "",
+        "## test-1k",
+        "",
+        "Breakdowns, radar and latency plots, the learned baseline's training record: "
+        "[results on test-1k](test-1k.md).",
+        "",
+        *_headline(root, "table.md"),
+        "## test-complex",
+        "",
+        "The harder scenes (projectile, obstacle, irregular), with frame strips: "
+        "[results on test-complex](test-complex.md).",
+        "",
+        *_headline(root, "test_complex_table.md"),
+        "How fast the pipeline, the loader and the closed loop are: [benchmarks](../benchmarks.md).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
 #: Generated page (relative to docs/) -> its renderer.
 PAGES = {
+    "results/index.md": results_index_page,
     "results/test-1k.md": test_1k_page,
     "results/test-complex.md": test_complex_page,
     "benchmarks.md": benchmarks_page,
