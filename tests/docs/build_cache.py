@@ -54,12 +54,12 @@ def main(argv: list[str]) -> int:
     real = os.environ[REAL_ENV]
     found = cache_key(argv)
     cache = os.environ.get(CACHE_ENV)
-    if found is None or cache is None:
-        return subprocess.call([real, *argv])
-    key, slice_name, out = found
-    target, entry = Path(out) / slice_name, Path(cache) / key
-    if target.exists():
-        return subprocess.call([real, *argv])
+    key, slice_name, out = found if found is not None else ("", "", "")
+    target = Path(out) / slice_name
+    if found is None or cache is None or target.exists():
+        # Become the real command (same process id): `pipeline serve ... & kill $!` must reach it.
+        os.execv(real, [real, *argv])
+    entry = Path(cache) / key
     if entry.exists():
         shutil.copytree(entry / "folder", target)
         sys.stdout.write((entry / "stdout").read_text())

@@ -77,10 +77,15 @@ class PagePool:
         self.done[case] = PageResult(process.returncode, skipped, err)
 
     def close(self) -> None:
+        """Stop the pages still running (SIGTERM: each ends the processes its blocks started)."""
         for process in self.running.values():
             if process.poll() is None:
-                process.kill()
-                process.wait()
+                process.terminate()
+                try:
+                    process.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
 
 
 @pytest.fixture(scope="session")

@@ -167,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--with-slow", action="store_true", help="run the blocks marked slow too")
     args = parser.parse_args(argv)
     run = PageRun(load(args.page), Path(args.folder).resolve(), dict(os.environ))
+    # Stopped (pytest interrupted, a timeout): still end the processes the page started.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(f"{args.page}: stopped"))
     try:
         skipped = run.run(args.with_slow)
     except BlockFailed as failed:

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
+from tests.docs import build_cache
 from tests.docs.build_cache import cache_key
-from tests.docs.pages import Marker, parse
+from tests.docs.pages import ROOT, Marker, parse
 from tests.docs.runner import BlockFailed, PageRun
 
 PAGE = """# A page
@@ -120,3 +122,14 @@ def test_build_cache_key_ignores_the_output_folder_only() -> None:
     base = ["build", "--slice", "linear-fast", "--episodes", "32"]
     assert cache_key([*base, "--out", "a"])[0] == cache_key([*base, "--out", "b"])[0]
     assert cache_key([*base, "--out", "a"])[0] != cache_key([*base, "--shard-size", "8", "--out", "a"])[0]
+
+
+def test_the_shim_becomes_the_real_command(tmp_path: Path) -> None:
+    """Anything but a cacheable build execs the real `pipeline` (same pid, so `kill $!` reaches it)."""
+    real = tmp_path / "real"
+    real.write_text("#!/bin/sh\necho real $$ \"$@\"\n")
+    real.chmod(0o755)
+    env = build_cache.install(tmp_path, tmp_path, str(real), ROOT)
+    out = subprocess.run(["bash", "-c", f"{tmp_path / 'pipeline'} serve --port 0 & echo shim $!; wait"],
+                         env={**os.environ, **env}, capture_output=True, text=True, check=True).stdout.split()
+    assert out[0] == "shim" and out[2] == "real" and out[1] == out[3] and out[4:] == ["serve", "--port", "0"]
