@@ -2,7 +2,9 @@
 
 Builds are deterministic (same command, same bytes), so the runner puts this shim first on
 PATH: ``pipeline build --slice S ...`` whose flags (all but ``--out``) match an earlier one
-gets a copy of that build's ``OUT/S`` folder and its output, instead of building again.
+gets a copy of that build's ``OUT/S`` folder and its output, instead of building again
+(``--quiet`` aside: it changes only the progress lines, and a cached build replays them
+unless asked to be quiet).
 Anything else (another command, ``--specs``, ``--scheduler``, an object-store ``--out``,
 an existing ``OUT/S``) runs the real ``pipeline``. The cache lives for one pytest session
 (``DYANA_DOCS_BUILD_CACHE``).
@@ -43,6 +45,7 @@ def cache_key(argv: list[str]) -> tuple[str, str, str] | None:
                 value = "true"
         flags[name] = value
         i += 1
+    flags.pop("--quiet", None)  # progress lines only: the folder is the same
     out, slice_name = flags.pop("--out", "out"), flags.get("--slice")
     if slice_name is None or "://" in out:
         return None
@@ -63,7 +66,8 @@ def main(argv: list[str]) -> int:
     if entry.exists():
         shutil.copytree(entry / "folder", target)
         sys.stdout.write((entry / "stdout").read_text())
-        sys.stderr.write((entry / "stderr").read_text())
+        if "--quiet" not in argv:
+            sys.stderr.write((entry / "stderr").read_text())
         return 0
     result = subprocess.run([real, *argv], capture_output=True, text=True)
     sys.stdout.write(result.stdout)
