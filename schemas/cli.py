@@ -34,7 +34,7 @@ from typing import Any
 
 from schemas.errors import DyanaError, ReplayMismatch
 from schemas.names import shorten
-from schemas.versions import CODE_VERSION, DATASET_VERSION
+from schemas.versions import CODE_VERSION
 
 #: The longest error line printed (values inside it are cut shorter, see schemas.names).
 MESSAGE_LIMIT = 600
@@ -260,9 +260,7 @@ def add_json(parser: argparse.ArgumentParser, what: str = "print JSON instead of
 
 
 def _version(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--version", action="version", version=f"%(prog)s (dyana {CODE_VERSION}, writes dataset {DATASET_VERSION})"
-    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s (dyana {CODE_VERSION})")
 
 
 def make_parser(prog: str, description: str, commands: Sequence[Command]) -> OneLineParser:
