@@ -170,6 +170,19 @@ def script_summary(path: Path) -> str:
     return " ".join(doc.split("\n\n")[0].split())
 
 
+def _kept(root: Path, script: str) -> str:
+    """Where a script's last result is shown (sections of this page or the results pages)."""
+    pages = {**{s.name: "results/test-1k.md" for s in (*TEST_1K, BASELINE)},
+             **{s.name: "results/test-complex.md" for s in TEST_COMPLEX}}
+    shown = []
+    for source in (*TIMINGS, *TEST_1K, BASELINE, *TEST_COMPLEX):
+        if source.script == script and (root / RESULTS / source.name).exists():
+            page = pages.get(source.name, "")
+            anchor = re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", source.title.lower()).strip())  # as toc's slugify
+            shown.append(f"[`{source.name}`]({page}#{anchor})")
+    return ", ".join(dict.fromkeys(shown)) or "none"
+
+
 def benchmarks_page(root: Path) -> str:
     scripts = sorted(p for p in (root / "benchmarks").glob("*.py") if p.name != "bench_setup.py")
     lines = [
@@ -180,9 +193,13 @@ def benchmarks_page(root: Path) -> str:
         "Times depend on the machine and its load: each section gives the load average its file "
         "records. Generated when the site is built.",
         "",
-        "| script | what it measures |",
-        "|---|---|",
-        *[f"| `{p.name}` | {script_summary(p).replace('|', chr(92) + '|')} |" for p in scripts],
+        "| script | what it measures | last result kept |",
+        "|---|---|---|",
+        *[f"| `{p.name}` | {script_summary(p).replace('|', chr(92) + '|')} | {_kept(root, p.name)} |"
+          for p in scripts],
+        "",
+        "A script with no result kept prints its figures when run; none are quoted here, since a "
+        "figure is only shown with the file (and the load average) it comes from.",
         "",
     ]
     for source in TIMINGS:
