@@ -11,6 +11,7 @@ from __future__ import annotations
 import ast
 import json
 import re
+import subprocess
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,10 +89,20 @@ def _script_link(script: str) -> str:
     return f"`python benchmarks/{script}`" if script.endswith(".py") else f"`{script}`"
 
 
-def _source_line(source: Source, files: str) -> str:
+def last_change(root: Path, relative: Path) -> str:
+    """``, last changed in commit abc1234 (DATE)`` from git, or nothing outside a git checkout."""
+    try:
+        found = subprocess.run(["git", "log", "-1", "--format=%h %ad", "--date=short", "--", str(relative)],
+                               cwd=root, capture_output=True, text=True, timeout=30).stdout.split()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return f", last changed in commit {found[0]} ({found[1]})" if len(found) == 2 else ""
+
+
+def _source_line(root: Path, source: Source, files: str) -> str:
     name = f"`benchmarks/results/{source.name}`"
     shown = name if Path(source.name).suffix in UNPUBLISHED else f"[{name}]({files}/{source.name})"
-    return f"Source: {shown}, written by {_script_link(source.script)}."
+    return f"Source: {shown}, written by {_script_link(source.script)}{last_change(root, RESULTS / source.name)}."
 
 
 def _demote(markdown: str) -> str:
@@ -106,12 +117,12 @@ def _section(root: Path, source: Source, files: str) -> list[str]:
     if not path.exists():
         return lines + [f"Not measured yet: run {_script_link(source.script)} to write "
                         f"`benchmarks/results/{source.name}`.", ""]
-    lines += [_source_line(source, files), ""]
+    lines += [_source_line(root, source, files), ""]
     if path.suffix == ".png":
         return lines + [f"![{source.title}]({files}/{source.name})", ""]
     text = path.read_text(encoding="utf-8")
-    if path.suffix == ".md":
-        return lines + [_demote(text).strip(), ""]
+    if path.suffix == ".md":  # its first heading is this section's
+        return lines + [_demote(re.sub(r"\A## [^\n]*\n", "", text.lstrip())).strip(), ""]
     if path.suffix == ".json":
         return lines + _json_section(text)
     shown = "\n".join(line for line in text.rstrip().splitlines() if not line.startswith("{"))
