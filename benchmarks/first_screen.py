@@ -43,7 +43,8 @@ def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[st
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     assert process.stdout is not None
     phases: dict[str, float] = {}
-    phase, phase_start, tail = "install", start, []
+    phase, phase_start = "install", start
+    tail: list[str] = []
     for line in process.stdout:
         tail = (tail + [line.rstrip()])[-20:]
         if line.startswith("== "):

@@ -98,9 +98,10 @@ def page_pool(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathF
     shim_dir = tmp_path_factory.mktemp("docs-bin")
     extra = build_cache.install(shim_dir, tmp_path_factory.mktemp("docs-build-cache"), real, ROOT)
     env = {**os.environ, **extra, "PATH": os.pathsep.join([str(shim_dir), str(venv_bin), os.environ.get("PATH", "")])}
-    order = [(item.callspec.params["path"], item.callspec.params["with_slow"])
+    order = [(str(item.callspec.params["path"]), bool(item.callspec.params["with_slow"]))
              for item in request.session.items
-             if item.originalname == "test_page_runs" and hasattr(item, "callspec")]
+             if isinstance(item, pytest.Function) and item.originalname == "test_page_runs"
+             and hasattr(item, "callspec")]
     pool = PagePool(order, tmp_path_factory.mktemp("docs-pages"), env)
     yield pool
     pool.close()
