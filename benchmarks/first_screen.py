@@ -1,0 +1,104 @@
+"""How long the README's two first-screen commands take on a fresh clone of this commit.
+
+Clones the repository's HEAD into a temporary folder, runs README command 1 (make a venv,
+install, build 32 linear-fast episodes) and command 2 (``.ci/run``: install the extras,
+lint, type-check, build the docs, run the tests), timing each and each ``== phase`` of
+``.ci/run``, with the load average (``uptime``) at the start and the end. Writes
+``benchmarks/results/first_screen.json`` (the README's timing sentence and the benchmarks
+page are generated from it) and, with ``--update-readme``, rewrites that sentence.
+
+    python benchmarks/first_screen.py --update-readme
+
+Several minutes on 2 cores, and it uses the network unless pip's cache holds everything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+COMMAND_1 = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
+             ".venv/bin/pipeline build --slice linear-fast --episodes 32 --shard-size 16 --out out")
+COMMAND_2 = ".ci/run"
+README_MARK = re.compile(r"(<!-- first-screen -->\n).*?(\n<!-- /first-screen -->)", re.S)
+
+
+def _uptime() -> str:
+    return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+
+
+def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[str, float], str]:
+    """Seconds, seconds per ``== phase`` line printed, and the output's last lines."""
+    start = time.monotonic()
+    process = subprocess.Popen(["bash", "-euo", "pipefail", "-c", command], cwd=cwd, env=env, text=True,
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    assert process.stdout is not None
+    phases: dict[str, float] = {}
+    phase, phase_start = "install", start
+    tail: list[str] = []
+    for line in process.stdout:
+        tail = (tail + [line.rstrip()])[-20:]
+        if line.startswith("== "):
+            now = time.monotonic()
+            phases[phase] = round(now - phase_start, 1)
+            phase, phase_start = line[3:].strip().split(" ")[0], now
+    if process.wait() != 0:
+        sys.exit(f"{command!r} failed in {cwd}:\n" + "\n".join(tail))
+    end = time.monotonic()
+    phases[phase] = round(end - phase_start, 1)
+    return round(end - start, 1), phases, "\n".join(tail)
+
+
+def measure(python: str) -> dict:
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                            check=True).stdout.strip()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env["PATH"] = f"{Path(python).parent}{os.pathsep}{env.get('PATH', '')}"
+    record: dict = {"benchmark": "first_screen", "commit": commit,
+                    "date_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+                    "cores": len(os.sched_getaffinity(0)), "pip_cache": "as found on this machine",
+                    "load_average_start": [round(x, 2) for x in os.getloadavg()], "uptime_start": _uptime()}
+    with tempfile.TemporaryDirectory(prefix="dyana-first-screen-") as tmp:
+        clone = Path(tmp) / "dyana"
+        subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
+        seconds, _, tail = _timed(COMMAND_1, clone, env)
+        found = re.search(r"hash ([0-9a-f]{16})", tail)
+        record["command_1"] = {"command": COMMAND_1, "seconds": seconds, "hash": found.group(1) if found else None}
+        seconds, phases, tail = _timed(COMMAND_2, clone, env)
+        summary = [line for line in tail.splitlines() if re.search(r"\d+ passed", line)]
+        record["command_2"] = {"command": COMMAND_2, "seconds": seconds, "phases": phases,
+                               "tests_summary": summary[-1] if summary else None}
+    record["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
+    record["uptime_end"] = _uptime()
+    return record
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--python", default=sys.executable, help="the python3 that makes the venvs (3.11+)")
+    parser.add_argument("--update-readme", action="store_true", help="rewrite README.md's timing sentence")
+    args = parser.parse_args()
+    record = measure(args.python)
+    out = ROOT / "benchmarks" / "results" / "first_screen.json"
+    out.write_text(json.dumps(record, indent=1) + "\n")
+    if args.update_readme:
+        sys.path.insert(0, str(ROOT / "docs" / "hooks"))
+        from results_pages import first_screen_sentence  # docs/hooks is no package: found by path
+
+        readme = ROOT / "README.md"
+        text = readme.read_text(encoding="utf-8")
+        readme.write_text(README_MARK.sub(lambda m: m.group(1) + first_screen_sentence(ROOT) + m.group(2), text))
+    print(json.dumps(record))
+
+
+if __name__ == "__main__":
+    main()
