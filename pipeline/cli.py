@@ -229,7 +229,7 @@ COMMANDS = (
     cli.Command("build", "build a slice's shards (Parquet + MCAP) and its catalog.json", _build_arguments, cmd_build),
     cli.Command("view", "write one episode of a slice or run as a rerun recording (.rrd)", _view_arguments, cmd_view),
     cli.Command("eval", "run a policy in the loop on a slice's episodes and record the rollouts", _eval_arguments, cmd_eval),
-    cli.Command("serve", "serve a policy over WebSocket (protocol dyana/1, see the README)", _serve_arguments, cmd_serve),
+    cli.Command("serve", "serve a policy over WebSocket (protocol dyana/1: docs/reference/wire-protocol.md)", _serve_arguments, cmd_serve),
     cli.Command("replay", "re-execute a built slice or a run and check it byte for byte", _replay_arguments, cmd_replay),
 )
 

@@ -4,7 +4,7 @@ Every function works on the *acting* frames of many episodes concatenated in
 episode order, delimited by ``offsets`` (``n + 1`` non-decreasing integers,
 ``offsets[0] == 0``): episode ``i`` owns rows ``offsets[i]:offsets[i + 1]``.
 Reductions use ``numpy.ufunc.reduceat`` and ``numpy.bincount``, never a Python
-loop over frames or episodes. The definitions are written out in the README.
+loop over frames or episodes. The definitions are written out in docs/reference/metrics.md.
 """
 
 from __future__ import annotations

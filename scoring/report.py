@@ -316,7 +316,7 @@ FAILURE_NOTE = (
     "Failures: one class per episode, the first that holds: success (contact grasp), policy_error, "
     "obstacle_contact (--obstacle-contact fail only), no_motion (palm moved <= 0.1), grasp_only (localized), "
     "timing (within 0.3 of the object's path 1-10 frames early or late), near_miss (within 0.6), "
-    "perception_prediction (elsewhere). README: \"Why did it fail?\"."
+    "perception_prediction (elsewhere). docs/reference/metrics.md, \"Why did it fail?\"."
 )
 
 

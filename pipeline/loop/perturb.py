@@ -18,7 +18,7 @@ jitter     0.5 (pixels)        a sub-pixel shift of the whole image, each axis u
 light      2 (percent)         every intensity scaled by 1 + u s/100, u uniform in [-1, 1]
 =========  ==================  ===============================================================
 
-Their PSNR against the clean frame is in the README (``benchmarks/perturbations.py``).
+Their PSNR against the clean frame is measured by ``benchmarks/perturbations.py``.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ makes such an object a Dyana policy:
   as float32 numpy. Inference runs under ``torch.inference_mode``.
 
 To evaluate a checkpoint: write a factory returning ``LeRobotAdapter(policy, ...)`` and
-run ``pipeline eval --policy mymodule:factory`` (see the README, "Your trained policy").
+run ``pipeline eval --policy mymodule:factory`` (docs/guides/your-policy.md).
 """
 
 from __future__ import annotations

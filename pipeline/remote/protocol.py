@@ -4,7 +4,7 @@ Every message is one binary WebSocket frame holding a msgpack map with a ``type`
 Numpy arrays travel as typed buffers, a map
 ``{"__ndarray__": true, "dtype": "<f4", "shape": [H, 18], "data": <bin>}`` with the
 raw little-endian, C-order bytes; nothing is ever pickled, and msgpack extension
-types are refused. Messages (README, "Remote policies: the wire protocol"):
+types are refused. Messages (docs/reference/wire-protocol.md):
 
 - server -> client on connect: ``metadata`` {protocol, policy, action_horizon, privileged}
 - client -> server ``reset`` {task} -> server ``ready``

@@ -1,9 +1,9 @@
 """The v2.1 export loaded by the real ``LeRobotDataset`` (slow; needs a Python with lerobot).
 
-LeRobot 0.3.2 is the release that installs beside torch on Python 3.11; it cannot share
+LeRobot 0.3.2 is the release this test pins (0.4.x installs on Python 3.11 too); it cannot share
 Dyana's test environment (it needs torchvision, whose PyPI build wants its own torch),
 so the test runs it in the interpreter named by ``DYANA_LEROBOT_PYTHON`` and compares
-what it loads with the source. Set up as in the README ("LeRobot"): a venv with
+what it loads with the source. Set up as in docs/guides/export-lerobot.md: a venv with
 ``pip install lerobot==0.3.2`` and the system's FFmpeg libraries for torchcodec.
 """
 
