@@ -112,8 +112,8 @@ def open_output(
     if _in_place(text, _mode(text)):
         sys.stdout.flush()  # what was printed before comes first on a shared terminal or pipe
         fd = os.open(text, os.O_WRONLY | os.O_APPEND)
-        kwargs = {"encoding": "utf-8", "newline": "\n"} if mode == "w" else {}
-        with open(fd, mode, **kwargs) as handle:
+        handle: IO = open(fd, "w", encoding="utf-8", newline="\n") if mode == "w" else open(fd, "wb")
+        with handle:
             yield handle
         return
     with atomic_open(os.path.realpath(text), mode) as handle:
