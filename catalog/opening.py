@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -15,7 +16,7 @@ from catalog.index import VERIFY_MODES, Episode, Options, ShardFile, load_source
 from catalog.lerobot_keys import IMAGE_DTYPES, KEYS
 from catalog.manifest import Manifest
 from catalog.selection import Selection
-from catalog.storage import as_location, is_url
+from catalog.storage import as_location, is_remote, is_url
 from schemas.errors import SpecError
 from schemas.names import shorten
 
@@ -53,10 +54,15 @@ def _resize(value: int | tuple[int, int] | None) -> tuple[int, int] | None:
     return _size(value[0], value), _size(value[1], value)
 
 
+def _is_folder(value: object) -> bool:
+    """A string, a path-like or a UPath (which is not always an ``os.PathLike``)."""
+    return isinstance(value, (str, os.PathLike, Path)) or is_remote(value)
+
+
 def _roots(paths: object) -> list[Path]:
     """The folders of ``paths`` (one, or a list or tuple of them): strings or path-likes; a URL
     needs a bucket (``s3://`` alone names none)."""
-    if isinstance(paths, (str, os.PathLike)):
+    if _is_folder(paths):
         items: list[object] = [paths]
     elif isinstance(paths, (list, tuple)):
         items = list(paths)
@@ -64,11 +70,11 @@ def _roots(paths: object) -> list[Path]:
         raise SpecError(f"paths must be a folder or a list of folders, got {shorten(repr(paths))}")
     roots = []
     for item in items:
-        if not isinstance(item, (str, os.PathLike)) or isinstance(os.fspath(item), bytes):
+        if not _is_folder(item):
             raise SpecError(f"paths must be folders (str or path-like), got {shorten(repr(item))}")
         if isinstance(item, str) and is_url(item) and not item.split("://", 1)[1].strip("/"):
             raise SpecError(f"paths: {shorten(repr(item))} names no bucket (expected e.g. s3://bucket/folder)")
-        roots.append(as_location(item))
+        roots.append(as_location(cast("str | os.PathLike[str]", item)))  # a UPath is handled as one
     if not roots:
         raise SpecError("catalog.open needs at least one folder")
     return roots
