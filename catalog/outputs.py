@@ -15,7 +15,9 @@ What the path is decides how it is written (symlinks followed):
   ``run``): refused, naming both.
 
 Refusals are :class:`~schemas.errors.OutputError` and come from :func:`check_output`,
-which a command calls for every output before any work.
+which a command calls for every output before any work. :func:`open_output` writes
+through a handle; :func:`staged_output` gives a library that wants a file name (rerun) a
+temp name and puts the result in place by the same rule.
 """
 
 from __future__ import annotations
@@ -25,10 +27,12 @@ import os
 import shutil
 import stat
 import sys
+import tempfile
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 from typing import IO
 
-from catalog.atomic import atomic_open, discard
+from catalog.atomic import atomic_open, commit, discard, temp_path
 from catalog.storage import is_remote
 from schemas.errors import OutputError
 from schemas.names import shorten
@@ -120,12 +124,45 @@ def open_output(
         yield handle
 
 
+@contextlib.contextmanager
+def staged_output(
+    path: str | os.PathLike[str],
+    inputs: Iterable[str | os.PathLike[str]] = (),
+    flag: str | None = None,
+) -> Iterator[Path]:
+    """A temp file name for a library that writes to a name (rerun's ``save``); when the block
+    ends without error its content is put at ``path`` by :func:`place`, else it is deleted.
+    The temp lies beside the file ``path`` resolves to, or in the system's temp folder for
+    a device or FIFO (never in ``/dev``)."""
+    check_output(path, inputs, flag)
+    text = os.fspath(path)
+    if _in_place(text, _mode(text)):
+        handle, name = tempfile.mkstemp(prefix="dyana-output-")
+        os.close(handle)
+        temp = Path(name)
+    else:
+        temp = temp_path(os.path.realpath(text))
+        temp.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        yield temp
+    except BaseException:
+        discard(temp)
+        raise
+    place(temp, path, flag)
+
+
 def place(temp: str | os.PathLike[str], path: str | os.PathLike[str], flag: str | None = None) -> None:
     """Put a finished ``temp`` file (written by a library that wants a file name, e.g. rerun)
-    at ``path`` by the rule of this module: renamed over a file, copied into a device or
-    FIFO (then deleted)."""
+    at ``path`` by the rule of this module: renamed over the file ``path`` resolves to (the
+    temp must be in its folder, as :func:`staged_output` makes it), or copied into a device
+    or FIFO and deleted."""
+    check_output(path, flag=flag)
+    text = os.fspath(path)
     try:
-        with open(temp, "rb") as source, open_output(path, "wb", flag=flag) as handle:
-            shutil.copyfileobj(source, handle)
+        if _in_place(text, _mode(text)):
+            with open(temp, "rb") as source, open_output(path, "wb", flag=flag) as handle:
+                shutil.copyfileobj(source, handle)
+        else:
+            commit(temp, os.path.realpath(text))
     finally:
         discard(temp)

@@ -10,7 +10,7 @@ import stat
 
 import pytest
 
-from catalog.outputs import check_output, open_output, place
+from catalog.outputs import check_output, open_output, place, staged_output
 from schemas.errors import OutputError
 
 
@@ -114,8 +114,25 @@ def test_an_empty_or_missing_device_path_is_refused():
 def test_place_moves_a_finished_file_by_the_same_rule(tmp_path):
     temp = tmp_path / ".out.rrd.tmp-1"
     temp.write_bytes(b"recording")
-    place(temp, tmp_path / "out.rrd")
+    place(temp, tmp_path / "out.rrd")  # renamed: the temp is in the file's folder
     assert (tmp_path / "out.rrd").read_bytes() == b"recording" and not temp.exists()
     temp.write_bytes(b"recording")
     place(temp, "/dev/null")
     assert stat.S_ISCHR(os.lstat("/dev/null").st_mode) and not temp.exists()
+
+
+def test_a_staged_output_lands_by_the_same_rule_and_never_stages_in_dev(tmp_path):
+    with staged_output(tmp_path / "rec.rrd") as temp:
+        assert temp.parent == tmp_path
+        temp.write_bytes(b"rrd")
+    assert (tmp_path / "rec.rrd").read_bytes() == b"rrd" and sorted(tmp_path.iterdir()) == [tmp_path / "rec.rrd"]
+    with staged_output("/dev/null", flag="--out") as temp:
+        assert not str(temp).startswith("/dev/")
+        temp.write_bytes(b"rrd")
+    assert not temp.exists() and stat.S_ISCHR(os.lstat("/dev/null").st_mode)
+    with pytest.raises(RuntimeError), staged_output(tmp_path / "other.rrd") as temp:
+        temp.write_bytes(b"half")
+        raise RuntimeError("rerun failed")
+    assert sorted(tmp_path.iterdir()) == [tmp_path / "rec.rrd"]
+    with pytest.raises(OutputError, match="being read"), staged_output(tmp_path / "x.rrd", [tmp_path], "--out"):
+        pass
