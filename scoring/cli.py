@@ -2,7 +2,11 @@
 [--markdown FILE.md] [--csv FILE.csv] [--episodes FILE.parquet|.csv] [--paper]``.
 
 Reads recorded shards only (never the simulator). Bad input (not a run folder, a
-missing column, an empty run) prints one line on stderr and exits with code 2.
+missing column, an empty run, a run missing some of its episodes 0..N-1) prints one line
+on stderr and exits with code 2. Every output is checked before scoring and written by
+:mod:`catalog.outputs`' rule: a file is replaced whole, a device or FIFO (``/dev/null``,
+``/dev/stdout``) is written as such, and an empty path, a folder, a socket or a path inside
+a run being read is refused.
 """
 
 from __future__ import annotations
