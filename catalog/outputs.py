@@ -8,8 +8,9 @@ What the path is decides how it is written (symlinks followed):
   (:func:`catalog.atomic.atomic_open`), so a reader sees the old file or the new one; a
   symlink is kept and the file it points to is replaced;
 - a character device or a FIFO (``/dev/null``, a terminal, a named pipe, ``/dev/stdout``):
-  opened and written as such, never renamed over (``/dev/null`` stays a device); so is any
-  path under ``/dev/`` or ``/proc/`` (``/dev/stdout`` redirected to a file is appended to);
+  opened and written as such, never renamed over (``/dev/null`` stays a device); so is an
+  alias of an open descriptor (``/dev/stdout`` redirected to a file is appended to); a
+  missing name directly in ``/dev`` (a typo of a device) is refused;
 - a folder, socket or block device (or a symlink to one): refused, one line naming it;
 - a path that resolves inside a folder being read (``run/catalog.json`` while scoring
   ``run``): refused, naming both.
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import stat
 import sys
@@ -37,9 +39,9 @@ from catalog.storage import is_remote
 from schemas.errors import OutputError
 from schemas.names import shorten
 
-#: Folders whose entries are devices or aliases of open descriptors (``/dev/stdout``,
-#: ``/proc/self/fd/1``): written in place whatever they resolve to.
-DESCRIPTOR_FOLDERS = ("/dev/", "/proc/")
+#: Aliases of open descriptors (``/dev/stdout``, ``/dev/fd/3``, ``/proc/self/fd/1``): written
+#: in place (appended to) whatever they resolve to, as a shell redirect expects.
+DESCRIPTOR_ALIAS = re.compile(r"^(/dev/(stdout|stderr|tty|fd/\d+)|/proc/(self|\d+)/fd/\d+)$")
 #: File types refused as an output, by name for the message.
 REFUSED = {stat.S_IFDIR: "a folder", stat.S_IFSOCK: "a socket", stat.S_IFBLK: "a block device"}
 
@@ -50,10 +52,10 @@ def _named(path: str | os.PathLike[str], flag: str | None) -> str:
 
 
 def _in_place(path: str, mode: int | None) -> bool:
-    """True for a device or FIFO, or a descriptor alias (a path under /dev or /proc)."""
+    """True for a device or FIFO, or a descriptor alias (:data:`DESCRIPTOR_ALIAS`)."""
     if mode is not None and (stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)):
         return True
-    return os.path.abspath(path).startswith(DESCRIPTOR_FOLDERS)
+    return DESCRIPTOR_ALIAS.match(os.path.abspath(path)) is not None
 
 
 def _mode(path: str) -> int | None:
@@ -84,7 +86,7 @@ def check_output(
     kind = _mode(text)
     if kind is not None and stat.S_IFMT(kind) in REFUSED:
         raise OutputError(f"{_named(text, flag)} is {REFUSED[stat.S_IFMT(kind)]}, not a file: give a file name")
-    if kind is None and os.path.abspath(text).startswith(DESCRIPTOR_FOLDERS):
+    if kind is None and (os.path.dirname(os.path.abspath(text)) == "/dev" or _in_place(text, kind)):
         raise OutputError(f"{_named(text, flag)}: no such device or descriptor")
     if _in_place(text, kind):
         return

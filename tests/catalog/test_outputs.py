@@ -136,3 +136,17 @@ def test_a_staged_output_lands_by_the_same_rule_and_never_stages_in_dev(tmp_path
     assert sorted(tmp_path.iterdir()) == [tmp_path / "rec.rrd"]
     with pytest.raises(OutputError, match="being read"), staged_output(tmp_path / "x.rrd", [tmp_path], "--out"):
         pass
+
+
+def test_stdout_redirected_to_a_file_is_appended_to_and_dev_shm_is_a_folder_of_files(tmp_path):
+    import subprocess
+    import sys
+
+    target = tmp_path / "log.txt"
+    code = ("import sys; print('table', flush=True); from catalog.outputs import open_output\n"
+            "with open_output('/dev/stdout') as h: h.write('csv\\n')")
+    with open(target, "w") as out:
+        subprocess.run([sys.executable, "-c", code], stdout=out, check=True)
+    assert target.read_text() == "table\ncsv\n"
+    if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK):
+        check_output(f"/dev/shm/dyana-test-{os.getpid()}.csv")  # a file system under /dev, not a device
