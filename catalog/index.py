@@ -17,6 +17,7 @@ import numpy as np
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import check_file, open_folder
 from schemas.errors import SpecError
+from schemas.names import shorten
 from schemas.tables import ARRAY_WIDTHS, STATE_COLUMNS
 
 VERIFY_MODES = ("sha256", "checksums")
@@ -137,8 +138,11 @@ def load_source(root: Path, source: int, verify: str, files: list[ShardFile]):
             spans.append((key, start, count))
     return folder.manifest, episodes, spans
 
-def non_negative(name: str, value: Any, minimum: int) -> int:
+def non_negative(name: str, value: Any, minimum: int, maximum: int | None = None) -> int:
+    """``value`` as an int in [minimum, maximum]; SpecError naming ``name`` otherwise."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise SpecError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        raise SpecError(f"{name} must be an integer >= {minimum}, got {shorten(repr(value))}")
+    if maximum is not None and value > maximum:
+        raise SpecError(f"{name} must be at most {maximum}, got {shorten(repr(value))}")
     return int(value)
 

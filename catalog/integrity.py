@@ -17,7 +17,7 @@ from catalog.atomic import find_stray_temps
 from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.mcap_reader import check_mcap
 from catalog.parquet_io import check_parquet, open_parquet, table_kind
-from catalog.reader import check_file
+from catalog.reader import check_file, check_settings
 from catalog.records import SHARD_DIRS, FileRecord, ShardRecord
 from catalog.storage import as_location, is_remote
 from schemas.errors import (
@@ -131,9 +131,12 @@ def verify_files(
 ) -> Manifest:
     """Load the manifest and check the files; ShardError naming the first bad file.
 
+    The settings are checked first (:func:`catalog.reader.check_settings`: SettingsMismatch
+    naming ``catalog.json``), so a folder written with another fps is not rebuilt.
     Returns the manifest when everything is intact.
     """
     manifest = load_manifest(directory)
+    check_settings(as_location(directory), manifest.settings)  # fps, image format: named in catalog.json
     problems = check_files(directory, manifest, sample, rng, full=full)
     if problems:
         first = problems[0]

@@ -49,7 +49,9 @@ from schemas.errors import (
     ShardHashMismatch,
     ShardMissing,
     ShardSizeMismatch,
+    SpecError,
 )
+from schemas.names import shorten
 from schemas.versions import FPS, READABLE_DATASET_VERSIONS
 
 VERIFY_MODES = ("size", "sha256")
@@ -57,10 +59,15 @@ VERIFY_MODES = ("size", "sha256")
 REQUIRED_SETTINGS = {"fps": FPS, "image_format": "jpeg"}
 
 
+def check_verify(verify: object) -> None:
+    """SpecError (a ValueError too) unless ``verify`` is one of :data:`VERIFY_MODES`."""
+    if not isinstance(verify, str) or verify not in VERIFY_MODES:
+        raise SpecError(f"verify must be one of {list(VERIFY_MODES)}, got {shorten(repr(verify))}")
+
+
 def check_file(root: Path, record: FileRecord, verify: str = "size") -> Path:
     """The file's path once it exists with its recorded size (and sha256 with ``verify="sha256"``)."""
-    if verify not in VERIFY_MODES:
-        raise ValueError(f"verify must be one of {VERIFY_MODES}, got {verify!r}")
+    check_verify(verify)
     path = root / record.path
     try:
         size = path.stat().st_size
@@ -224,11 +231,10 @@ def open_folder(
 ) -> FolderReader:
     """Open a built slice or a rollout folder: manifest, settings and shard kinds checked;
     each table is checked as it is read (sizes always, sha256 with ``verify="sha256"``)."""
+    check_verify(verify)
     root = as_location(directory)
     if not root.is_dir():
         raise ShardError(f"{directory}: no such folder (expected a built slice or run holding catalog.json)")
-    if verify not in VERIFY_MODES:
-        raise ValueError(f"verify must be one of {VERIFY_MODES}, got {verify!r}")
     manifest = load_manifest(root)
     check_settings(root, manifest.settings, expect)
     rollout = "policy" in manifest.extra

@@ -3,13 +3,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from catalog.index import Episode
 from schemas.errors import SpecError
+from schemas.names import shorten
 from schemas.objects import OBJECTS
 from schemas.scene import COMPLEX_MOTION_TYPES, INTERCEPT_SECONDS, MOTION_TYPES
 
@@ -20,11 +21,20 @@ FILTER_MOTION_TYPES = (*MOTION_TYPES, *COMPLEX_MOTION_TYPES, "custom")
 def _choices(name: str, value: str | Iterable[str] | None, allowed: Iterable[str]) -> frozenset[str] | None:
     if value is None:
         return None
-    values = {value} if isinstance(value, str) else set(value)
+    if isinstance(value, str):
+        values = {value}
+    elif isinstance(value, Iterable) and not isinstance(value, (bytes, Mapping)):
+        values = set()
+        for v in value:
+            if not isinstance(v, str):
+                raise SpecError(f"{name} must be a string or several, got {shorten(repr(v))} in {shorten(repr(value))}")
+            values.add(v)
+    else:
+        raise SpecError(f"{name} must be a string or several, got {shorten(repr(value))}")
     known = set(allowed)
     unknown = sorted(v for v in values if v not in known)
     if unknown:
-        raise SpecError(f"{name} {unknown} unknown (expected some of {sorted(known)})")
+        raise SpecError(f"{name} {shorten(repr(unknown))} unknown (expected some of {sorted(known)})")
     return frozenset(values)
 
 
@@ -35,10 +45,12 @@ def _episode_set(value: range | Iterable[int] | int | None) -> frozenset[int] | 
         if isinstance(value, bool):
             raise SpecError(f"episodes must be integers (or a range), got {value!r}")
         return frozenset([int(value)])
+    if not isinstance(value, Iterable) or isinstance(value, (str, bytes, Mapping)):
+        raise SpecError(f"episodes must be integers (or a range), got {shorten(repr(value))}")
     values = set()
     for v in value:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-            raise SpecError(f"episodes must be integers (or a range), got {v!r}")
+            raise SpecError(f"episodes must be integers (or a range), got {shorten(repr(v))}")
         values.add(int(v))
     return frozenset(values)
 
@@ -62,7 +74,10 @@ class Selection:
         episodes: range | Iterable[int] | int | None = None,
         where: Callable[[Episode], bool] | None = None,
     ) -> Selection:
-        """Filters from one value or several each; SpecError naming an unknown value."""
+        """Filters from one value or several each; SpecError naming an unknown value or a
+        value of the wrong type (``where`` must be callable)."""
+        if where is not None and not callable(where):
+            raise SpecError(f"where must be a function of an Episode, got {shorten(repr(where))}")
         return cls(
             _choices("motion_type", motion_type, FILTER_MOTION_TYPES),
             _choices("intercept_setting", intercept_setting, INTERCEPT_SECONDS),

@@ -30,6 +30,11 @@ class ShardError(DyanaError):
     """A shard or manifest is missing, truncated, corrupt or does not match its hash."""
 
 
+class OutputError(DyanaError):
+    """A user-named output path that cannot be written as asked: a folder, socket or block
+    device, or a file inside a folder being read."""
+
+
 class PolicyError(DyanaError):
     """A policy returned an invalid action, raised, timed out or disconnected."""
 

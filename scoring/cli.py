@@ -2,7 +2,11 @@
 [--markdown FILE.md] [--csv FILE.csv] [--episodes FILE.parquet|.csv] [--paper]``.
 
 Reads recorded shards only (never the simulator). Bad input (not a run folder, a
-missing column, an empty run) prints one line on stderr and exits with code 2.
+missing column, an empty run, a run missing some of its episodes 0..N-1) prints one line
+on stderr and exits with code 2. Every output is checked before scoring and written by
+:mod:`catalog.outputs`' rule: a file is replaced whole, a device or FIFO (``/dev/null``,
+``/dev/stdout``) is written as such, and an empty path, a folder, a socket or a path inside
+a run being read is refused.
 """
 
 from __future__ import annotations
@@ -12,9 +16,10 @@ import json
 import sys
 from collections.abc import Sequence
 
-from catalog.atomic import atomic_open
+from catalog.outputs import check_output, open_output
 from schemas import cli
 from schemas.errors import DyanaError
+from schemas.names import shorten
 from scoring.episodes import check_episodes_path, write_episodes
 from scoring.io import RunData, load_run
 from scoring.report import (
@@ -69,17 +74,32 @@ def evaluate(runs: Sequence[str], obstacle_contact: str = "report") -> list[RunR
     return [score_run(d, label, obstacle_contact) for d, label in zip(data, labels)]
 
 
+#: The output flags of ``scoring eval`` (attribute, flag).
+OUTPUTS = (("markdown", "--markdown"), ("csv", "--csv"), ("episodes", "--episodes"),
+           ("latency_plot", "--latency-plot"), ("plot", "--plot"))
+
+
 def _write(path: str, text: str) -> None:
     try:
-        with atomic_open(path, "w") as handle:
+        with open_output(path, "w") as handle:
             handle.write(text)
     except OSError as exc:
-        raise DyanaError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        raise DyanaError(f"{shorten(path)}: cannot write: {exc.strerror or exc}") from None
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Before any scoring: every output flag given names a file that may be written
+    (:func:`catalog.outputs.check_output`: not empty, not a folder, not inside a run read)."""
+    for name, flag in OUTPUTS:
+        path = getattr(args, name)
+        if path is not None:
+            check_output(path, args.runs, flag)
+    if args.episodes is not None:
+        check_episodes_path(args.episodes)
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    if args.episodes:
-        check_episodes_path(args.episodes)
+    check_outputs(args)
     reports = evaluate(args.runs, args.obstacle_contact)
     robust = [robustness(load_repeats(run)) for run in args.runs if is_repeats_folder(run)]
     if args.json:
@@ -92,20 +112,20 @@ def cmd_eval(args: argparse.Namespace) -> int:
         sys.stdout.write(format_table(reports, paper=args.paper))
         for report in robust:
             sys.stdout.write("\n" + "\n".join(robustness_lines(report)) + "\n")
-    if args.markdown:
+    if args.markdown is not None:
         _write(args.markdown, markdown(reports, paper=args.paper))
-    if args.csv:
+    if args.csv is not None:
         _write(args.csv, csv_text(reports))
-    if args.episodes:
+    if args.episodes is not None:
         write_episodes(reports, args.episodes)
-    if args.latency_plot:
+    if args.latency_plot is not None:
         from scoring.latency import plot_latency
 
         try:
             plot_latency(reports, args.latency_plot)
         except OSError as exc:
             raise DyanaError(f"{args.latency_plot}: cannot write: {exc.strerror or exc}") from None
-    if args.plot:
+    if args.plot is not None:
         from scoring.plot import plot_runs
 
         try:

@@ -33,7 +33,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from catalog.atomic import atomic_open
+from catalog.outputs import open_output
 from schemas.errors import DyanaError
 from schemas.names import shorten
 from schemas.obstacles import CONTACT_CLEARANCE
@@ -156,7 +156,7 @@ def write_episodes(reports: Sequence[RunReport], path: str | os.PathLike[str]) -
     suffix = check_episodes_path(path)
     table = episodes_table(reports)
     try:
-        with atomic_open(path, "wb") as handle:
+        with open_output(path, "wb") as handle:
             if suffix == ".parquet":
                 pq.write_table(table, handle, compression="zstd")
             else:

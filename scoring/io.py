@@ -101,6 +101,7 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
     reader = open_folder(folder)
     if not reader.shards or reader.manifest.episodes == 0:
         raise ShardError(f"{folder}: the run is empty (no episodes)")
+    check_complete(folder, [shard.record.episodes for shard in reader], reader.manifest.episodes)
     protocol = reader.manifest.settings.get("protocol")
     disturb = bool(protocol and protocol.get("disturb"))
     columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if reader.rollout else ()) + (("spec",) if disturb else ())
@@ -120,6 +121,27 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
         disturbed = np.array([disturbance_time(text, fps) for text in episodes.column("spec").to_pylist()],
                              dtype=np.float64)
     return dataclasses.replace(data, protocol=dict(protocol), disturbance_time_s=disturbed)
+
+
+def check_complete(folder: str | os.PathLike[str], ranges: Sequence[tuple[int, int]], episodes: int) -> None:
+    """ShardError naming what is missing unless the shards' episode ranges ``[first, end)``
+    hold episodes 0..``episodes``-1 each exactly once: a run or slice always starts at
+    episode 0, so a removed shard (its manifest re-hashed to match) is found, not scored
+    as if the run were whole."""
+    expected = 0
+    for first, end in sorted(ranges):
+        if first > expected:
+            raise ShardError(f"{folder}: episodes {_span(expected, first)} are missing (no shard holds them; "
+                             "a run holds episodes 0 to N-1)")
+        if first < expected:
+            raise ShardError(f"{folder}: episodes {_span(first, min(end, expected))} are listed twice")
+        expected = end
+    if expected != episodes:
+        raise ShardError(f"{folder}: the shards hold episodes {_span(0, expected)}, catalog.json says {episodes}")
+
+
+def _span(first: int, end: int) -> str:
+    return f"{first}" if end - first == 1 else f"{first}-{end - 1}"
 
 
 def disturbance_time(spec_json: str, fps: int) -> float:

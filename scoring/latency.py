@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
 
-from catalog.atomic import atomic_open  # noqa: E402
+from catalog.outputs import open_output  # noqa: E402
 from scoring.plot import COLOURS, COLUMN_WIDTH_IN, FONT_PT, MARKERS, STYLES  # noqa: E402
 from scoring.report import RunReport  # noqa: E402
 
@@ -56,6 +56,6 @@ def plot_latency(reports: Sequence[RunReport], path: str | os.PathLike[str]) -> 
             ax.set_xticks(ticks)
         left.legend(frameon=False, loc="lower left")
         figure.tight_layout(pad=0.3)
-        with atomic_open(path, "wb") as handle:
+        with open_output(path, "wb") as handle:
             figure.savefig(handle, format="png", metadata={"Software": None})
         plt.close(figure)

@@ -23,7 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from catalog.atomic import atomic_open  # noqa: E402
+from catalog.outputs import open_output  # noqa: E402
 from scoring.metrics import SUCCESS_RATE_NAMES  # noqa: E402
 from scoring.paper import PAPER_ROWS, paper_label  # noqa: E402
 from scoring.report import RunReport  # noqa: E402
@@ -174,7 +174,7 @@ def plot_runs(reports: Sequence[RunReport], path: str | os.PathLike[str], paper:
                 ax.set_title("Success by motion type (95% Wilson intervals)", fontsize=FONT_PT + 1, pad=4 + 9 * rows)
                 ax.legend(fontsize=FONT_PT - 1, ncol=columns, frameon=False, loc="lower center",
                           bbox_to_anchor=(0.5, 0.98), handlelength=1.2, columnspacing=0.8, borderaxespad=0.2)
-        with atomic_open(path, "wb") as handle:
+        with open_output(path, "wb") as handle:
             figure.savefig(handle, format="png", metadata={"Software": None}, bbox_inches="tight")
     finally:
         plt.close(figure)

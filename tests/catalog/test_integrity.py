@@ -10,11 +10,11 @@ import pytest
 
 from catalog.atomic import temp_path
 from catalog.integrity import check_files, verify_files
-from catalog.manifest import load_manifest
+from catalog.manifest import Manifest, load_manifest, write_manifest
 from catalog.mcap_reader import iter_messages, mcap_summary
 from catalog.parquet_io import check_parquet, read_frames
 from catalog.reader import open_folder
-from schemas.errors import ShardError
+from schemas.errors import SettingsMismatch, ShardError
 from schemas.tables import EPISODES_SCHEMA, FRAMES_SCHEMA
 
 
@@ -197,3 +197,14 @@ def test_manifest_over_wrong_files_is_caught_by_the_structural_check(slice_dir):
     problems = check_files(slice_dir, load_manifest(slice_dir))
     assert [(p.path, p.kind) for p in problems] == [("frames/000000-000001.parquet", "unreadable")]
     assert "table kind is 'episodes', expected 'frames'" in problems[0].detail
+
+
+def test_a_re_hashed_other_fps_is_refused_naming_catalog_json(slice_dir):
+    """fps 30 written into catalog.json and re-hashed: the files still match their records,
+    so only the settings check can refuse it, naming the manifest (before any rebuild)."""
+    manifest = load_manifest(slice_dir)
+    edited = Manifest.create(manifest.slice, manifest.seed, {**manifest.settings, "fps": 30}, manifest.shards,
+                             code=manifest.code, stats=manifest.stats)
+    write_manifest(slice_dir, edited)
+    with pytest.raises(SettingsMismatch, match=r"catalog\.json: settings fps is 30"):
+        verify_files(slice_dir)

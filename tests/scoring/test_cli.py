@@ -309,3 +309,84 @@ def test_null_values_in_a_column_are_refused_in_one_line(tmp_path, capsys):
     assert code == 2 and out == ""
     assert "frames/000000-000000.parquet" in err and "'palm_pose'" in err and "null" in err
     assert len(err.strip().splitlines()) == 1
+
+
+# --- outputs and completeness (issue 26) ---------------------------------------------
+
+
+def _drop_shard(folder, index):
+    """Remove shard ``index``'s files and re-hash catalog.json without it (a consistent manifest)."""
+    from catalog.manifest import Manifest, load_manifest, write_manifest
+
+    manifest = load_manifest(folder)
+    for record in manifest.shards[index].files.values():
+        (folder / record.path).unlink()
+    shards = [s for i, s in enumerate(manifest.shards) if i != index]
+    write_manifest(folder, Manifest.create(manifest.slice, manifest.seed, manifest.settings, shards,
+                                           code=manifest.code, extra=manifest.extra))
+
+
+@pytest.mark.parametrize(("dropped", "missing"), [(0, "episodes 0-1 are missing"), (1, "episodes 2-3 are missing")])
+def test_a_run_with_a_removed_shard_is_refused_naming_the_missing_episodes(tmp_path, capsys, dropped, missing):
+    folder = write_run(tmp_path / "run", [Ep(**GOOD), Ep(**MISS), Ep(**GOOD), Ep(**MISS), Ep(**GOOD)], shard_size=2)
+    _drop_shard(folder, dropped)
+    code, out, err = run_main(capsys, "eval", str(folder))
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and missing in err and str(folder) in err
+
+
+@pytest.mark.parametrize("flag", ["--episodes", "--csv", "--markdown", "--plot"])
+def test_an_empty_output_path_is_refused_naming_the_flag(capsys, run, flag):
+    code, out, err = run_main(capsys, "eval", str(run), flag, "")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and f"{flag}: the path is empty" in err
+
+
+@pytest.mark.parametrize(("flag", "inside"), [
+    ("--markdown", "catalog.json"),
+    ("--csv", "stats.json"),
+    ("--episodes", "frames/000000-000001.parquet"),
+    ("--plot", "frames/new.png"),
+])
+def test_an_output_inside_the_run_being_scored_is_refused(capsys, run, flag, inside):
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    code, out, err = run_main(capsys, "eval", str(run), flag, str(run / inside))
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and str(run / inside) in err and "being read" in err
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+
+
+def test_an_output_that_is_a_folder_is_refused(tmp_path, capsys, run):
+    code, out, err = run_main(capsys, "eval", str(run), "--csv", str(tmp_path))
+    assert code == 2 and out == "" and err.count("\n") == 1 and "a folder" in err
+    assert tmp_path.is_dir()
+
+
+def test_outputs_to_a_device_and_a_fifo_are_written_as_such(tmp_path, capsys, run):
+    import os
+    import stat
+
+    device = tmp_path / "null"
+    try:
+        os.mknod(device, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+    except OSError as exc:
+        pytest.skip(f"cannot make a device node here: {exc}")
+    fifo = tmp_path / "rows.csv"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        code, _, err = run_main(capsys, "eval", str(run), "--markdown", str(device), "--csv", str(fifo))
+        assert code == 0, err
+        assert os.read(reader, 1 << 16).startswith(b"label,run,slice,policy,breakdown")
+    finally:
+        os.close(reader)
+    assert stat.S_ISCHR(device.lstat().st_mode) and stat.S_ISFIFO(fifo.lstat().st_mode)
+
+
+def test_csv_to_dev_null_leaves_dev_null_a_device(capsys, run):
+    import os
+    import stat
+
+    code, _, err = run_main(capsys, "eval", str(run), "--csv", "/dev/null", "--markdown", "/dev/null")
+    assert code == 0, err
+    assert stat.S_ISCHR(os.lstat("/dev/null").st_mode)
