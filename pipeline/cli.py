@@ -38,8 +38,9 @@ def cmd_build(args: argparse.Namespace) -> int:
             names = list(definition.parts)
             print(f"{args.slice} is built as its {len(names)} parts: {', '.join(names)}", file=sys.stderr)
     for name in names:
-        manifest, up_to_date = build_job(name, args.out, specs_path=args.specs, **cli.job_options(args))
-        verb = "up to date" if up_to_date else "built"
+        result = build_job(name, args.out, specs_path=args.specs, **cli.job_options(args))
+        manifest = result.manifest
+        verb = "up to date" if result.up_to_date else "built"
         print(
             f"{verb} {manifest.slice}: {manifest.episodes} episodes, {manifest.frames} frames, "
             f"{len(manifest.shards)} shards -> {str(args.out).rstrip('/')}/{manifest.slice}/catalog.json "

@@ -33,7 +33,9 @@ from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
 from catalog.records import ShardRecord
 from catalog.stats import STATS_NAME
 from catalog.storage import as_location, is_url
-from pipeline.jobs.runner import STATE_FILE, Job, _manifest_identity, describe_difference, run_job
+from pipeline.jobs.runner import Job, JobResult, run_job
+from pipeline.jobs.state import STATE_FILE, Identity, describe_difference, manifest_identity
+from pipeline.jobs.tasks import Payload
 from schemas.errors import ShardError, SpecError
 from schemas.versions import CODE_VERSION
 
@@ -77,7 +79,7 @@ def _download(remote: Any, local: Path, rel: str) -> None:
     os.replace(partial, target)
 
 
-def _clear_foreign_staging(staging: Path, wanted: dict) -> None:
+def _clear_foreign_staging(staging: Path, wanted: Identity) -> None:
     """Empty the staging folder if it holds another job's work (or unreadable state): it is
     this tool's cache, whose finished shards went to the URL as they were done, never a
     user's folder."""
@@ -86,7 +88,7 @@ def _clear_foreign_staging(staging: Path, wanted: dict) -> None:
         held = state["identity"]
     except FileNotFoundError:
         try:
-            held = _manifest_identity(Manifest.from_dict(json.loads((staging / MANIFEST_NAME).read_text())))
+            held = manifest_identity(Manifest.from_dict(json.loads((staging / MANIFEST_NAME).read_text())))
         except FileNotFoundError:
             return
         except (OSError, ValueError, ShardError):
@@ -104,14 +106,14 @@ def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
         raise ShardError(f"remote {key}: {exc}") from None
 
 
-def run_job_at(job: Job, out: str | os.PathLike[str], **options: Any) -> tuple[Manifest, bool]:
+def run_job_at(job: Job[Payload], out: str | os.PathLike[str], **options: Any) -> JobResult:
     """:func:`run_job` into ``job.folder``, or :func:`run_remote_job` into ``out`` when it is a URL."""
     if is_url(out):
         return run_remote_job(job, str(out), **options)
     return run_job(job, **options)
 
 
-def run_remote_job(job: Job, url: str, **options: Any) -> tuple[Manifest, bool]:
+def run_remote_job(job: Job[Payload], url: str, **options: Any) -> JobResult:
     """Run ``job`` (whose folder is ignored) into ``url``; the manifest and whether it was up to date."""
     try:
         return _run_remote_job(job, url, **options)
@@ -119,7 +121,7 @@ def run_remote_job(job: Job, url: str, **options: Any) -> tuple[Manifest, bool]:
         raise ShardError(f"{url}: {exc}") from None
 
 
-def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: Any) -> tuple[Manifest, bool]:
+def _run_remote_job(job: Job[Payload], url: str, *, overwrite: bool = False, **options: Any) -> JobResult:
     remote: Any = as_location(url)
     staging = staging_folder(url)
     local_job = dataclasses.replace(job, folder=staging)
@@ -134,7 +136,7 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
             if not overwrite:
                 raise ShardError(f"{url}/{MANIFEST_NAME}: {exc} (pass --overwrite to replace it)") from None
     if held is not None:
-        identity = _manifest_identity(held)
+        identity = manifest_identity(held)
         if identity != wanted and not overwrite:
             raise SpecError(f"{url} holds another job ({describe_difference(identity, wanted)}): "
                             "choose another --out, or pass --overwrite to replace it")
@@ -142,7 +144,7 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
         if identity == wanted and (held.code.version, held.code.commit) == (CODE_VERSION, git_commit()) and all(
             sizes.get(path) == size for path, size in listed
         ):
-            return held, True
+            return JobResult(held, True)
     state = _remote_json(remote, STATE_FILE)
     if state is not None and state.get("identity") not in (None, wanted) and not overwrite:
         raise SpecError(f"{url} holds an unfinished run of another job "
@@ -166,7 +168,8 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
         if user_result is not None:
             user_result(result)
 
-    manifest, _ = run_job(local_job, overwrite=overwrite, on_result=publish, **options)
+    result = run_job(local_job, overwrite=overwrite, on_result=publish, **options)
+    manifest = result.manifest
     sizes = _remote_sizes(remote)
     for path, _, size in manifest.files():
         if sizes.get(path) != size:
@@ -180,5 +183,5 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
         if stale:
             remote.fs.rm_file(f"{remote.path.rstrip('/')}/{path}")
     shutil.rmtree(staging, ignore_errors=True)
-    return manifest, False
+    return result
 
