@@ -8,17 +8,35 @@ the terminal alone and never reach a file, and a failing reporter never fails a 
 from __future__ import annotations
 
 import contextlib
+import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from typing import TextIO
+from typing import Protocol, TextIO
 
-from catalog.records import ShardRecord
 from schemas.cli import ProgressMeter
 from schemas.spec import EpisodeSpec
 
 #: ``(first, end, done, frames)``: ``done`` episodes (``frames`` frames) of the shard
 #: [first, end) are finished.
 EpisodeReport = Callable[[int, int, int, int], None]
+
+
+class Unit(Protocol):
+    """A finished unit of a job as progress counts it: episodes [first, end), frames."""
+
+    @property
+    def first(self) -> int: ...
+
+    @property
+    def end(self) -> int: ...
+
+    @property
+    def frames(self) -> int: ...
+
+
+def to_stderr(line: str) -> None:
+    """A progress line to the terminal (stderr), at once."""
+    print(line, file=sys.stderr, flush=True)
 
 
 def report_quietly(report: EpisodeReport | None, first: int, end: int, done: int, frames: int) -> None:
@@ -75,7 +93,7 @@ class Progress:
             last=len(self._finished) == self.total_shards,
         )
 
-    def resumed(self, records: Sequence[ShardRecord]) -> None:
+    def resumed(self, records: Sequence[Unit]) -> None:
         """Shards finished before this run: done, but not part of the rates."""
         with self._lock:
             for record in records:
@@ -91,7 +109,7 @@ class Progress:
             self._running[key] = (done, frames)
             self._show()
 
-    def update(self, record: ShardRecord) -> None:
+    def update(self, record: Unit) -> None:
         """A shard finished: its episodes and (recorded) frames."""
         with self._lock:
             key = (record.first, record.end)

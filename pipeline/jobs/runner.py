@@ -4,6 +4,9 @@ A :class:`Job` names an output folder, what it will hold (slice, seed, settings,
 manifest keys such as a specs file's hash, shard ranges) and a worker function that writes one
 shard. :func:`run_job` owns everything around the shards:
 
+It is the job engine's (:func:`pipeline.jobs.engine.run_folder_job`) product for
+``catalog.json`` folders:
+
 - the folder holds one job (:mod:`pipeline.jobs.state`): a ``catalog.json`` (or a killed
   run's ``.build-state.json``) describing anything else is refused with a message naming
   what differs, unless ``overwrite``; a second process on the folder is refused by the
@@ -24,21 +27,18 @@ hashes, so the worker count, the scheduler and interruptions cannot change it.
 
 from __future__ import annotations
 
-import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic
 
-from catalog.atomic import remove_stray_temps
-from catalog.manifest import CodeInfo, Manifest, git_commit, load_manifest, write_manifest
+from catalog.manifest import CodeInfo, Manifest, load_manifest, write_manifest
 from catalog.records import ShardRecord, shard_like_files
 from catalog.stats import compute_stats, write_stats
-from pipeline.jobs.lock import folder_lock
-from pipeline.jobs.progress import Progress
+from pipeline.jobs.engine import Execution, Previous, run_folder_job
+from pipeline.jobs.progress import to_stderr
 from pipeline.jobs.state import STATE_FILE, Identity, Range, identity_of, previous_work, save_state
-from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, check_workers, default_workers, run_tasks, shard_ranges
-from schemas.errors import SpecError
+from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, default_workers, shard_ranges
 from schemas.versions import CODE_VERSION
 
 __all__ = ["Job", "JobResult", "ShardTask", "default_workers", "remove_unlisted_shards", "run_job", "shard_ranges"]
@@ -103,6 +103,34 @@ def remove_unlisted_shards(folder: Path, manifest: Manifest) -> list[Path]:
     return removed
 
 
+@dataclass(frozen=True)
+class ManifestProduct:
+    """A ``catalog.json`` folder (a built slice or a run) as the engine's product."""
+
+    job: Job[Any]
+
+    def previous(self, folder: Path, commit: str | None, overwrite: bool) -> Previous[ShardRecord, Manifest]:
+        work = previous_work(folder, self.job.identity(), self.job.with_stats, commit, overwrite)
+        return Previous(work.done, load_manifest(folder) if work.complete else None)
+
+    def unit(self, result: dict[str, Any]) -> ShardRecord:
+        return ShardRecord.from_dict(result["record"])
+
+    def save(self, folder: Path, commit: str | None, done: Mapping[Range, ShardRecord]) -> None:
+        save_state(folder, self.job.identity(), commit, done)
+
+    def finish(self, folder: Path, commit: str | None, units: Sequence[ShardRecord]) -> Manifest:
+        """``stats.json``, then ``catalog.json``, then the files of a replaced job go."""
+        job = self.job
+        stats = write_stats(folder, compute_stats(folder, units)) if job.with_stats else None
+        manifest = Manifest.create(job.slice_name, job.seed, job.settings, list(units),
+                                   code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats)
+        write_manifest(folder, manifest)
+        remove_unlisted_shards(folder, manifest)
+        (folder / STATE_FILE).unlink(missing_ok=True)
+        return manifest
+
+
 def run_job(
     job: Job[Payload],
     *,
@@ -112,56 +140,8 @@ def run_job(
     overwrite: bool = False,
     on_result: Callable[[dict[str, Any]], None] | None = None,
 ) -> JobResult:
-    """Run ``job`` into its folder (see the module docstring)."""
-    check_workers(workers, scheduler)
-    folder = job.folder
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SpecError(f"{folder}: cannot create the output folder ({exc.strerror or exc})") from None
-    with folder_lock(folder):
-        remove_stray_temps(folder)
-        commit = git_commit()
-        wanted = job.identity()
-        previous = previous_work(folder, wanted, job.with_stats, commit, overwrite)
-        if previous.complete:
-            return JobResult(load_manifest(folder), True, 0, len(previous.done))
-        done = {key: record for key, record in previous.done.items() if key in set(job.ranges)}
-        resumed = len(done)
-        todo = [task for task in job.tasks if (task.first, task.end) not in done]
-
-        meter = Progress(len(job.ranges), job.episodes) if progress else None
-        if meter is not None and done:
-            print(f"resuming: {len(done)} of {len(job.ranges)} shards already {job.verb}", file=sys.stderr)
-            meter.resumed([done[key] for key in sorted(done)])
-
-        def on_done(result: dict[str, Any]) -> None:
-            record = ShardRecord.from_dict(result["record"])
-            done[(record.first, record.end)] = record
-            save_state(folder, wanted, commit, done)
-            if on_result is not None:
-                on_result(result)
-            if meter is not None:
-                meter.update(record)
-
-        try:
-            run_tasks(todo, job.task_fn, job.payload, folder, workers, scheduler, on_done, job.key_prefix,
-                      on_episode=meter.episode if meter is not None else None)
-        finally:
-            remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
-
-        shards = [done[key] for key in job.ranges]
-        stats = write_stats(folder, compute_stats(folder, shards)) if job.with_stats else None
-        manifest = Manifest.create(
-            job.slice_name,
-            job.seed,
-            job.settings,
-            shards,
-            code=CodeInfo(CODE_VERSION, commit),
-            extra=job.extra,
-            stats=stats,
-        )
-        write_manifest(folder, manifest)
-        remove_unlisted_shards(folder, manifest)
-        (folder / STATE_FILE).unlink(missing_ok=True)
-    return JobResult(manifest, False, len(todo), resumed)
+    """Run ``job`` into its folder (see the module docstring); progress lines on stderr."""
+    execution = Execution(workers, scheduler, to_stderr if progress else None)
+    outcome = run_folder_job(job.folder, ManifestProduct(job), job.tasks, job.task_fn, job.payload, execution,
+                             overwrite=overwrite, verb=job.verb, key_prefix=job.key_prefix, on_result=on_result)
+    return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed)
