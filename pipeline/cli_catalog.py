@@ -152,12 +152,14 @@ def _migrate_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from catalog.export.lerobot import ExportSettings, export, print_progress
+    from catalog.export.lerobot import ExportSettings
+    from pipeline.jobs.export import export
+    from pipeline.jobs.progress import to_stderr
 
     settings = ExportSettings(args.format, args.codec)
     workers = args.workers or cli.default_worker_count()
     report = export(args.dir, args.out, settings, workers=workers, overwrite=args.overwrite,
-                    progress=None if args.quiet else print_progress)
+                    progress=None if args.quiet else to_stderr)
     if report.up_to_date:
         print(f"{report.out}: up to date ({settings.format}, {report.episodes} episodes, {report.frames} frames)")
         return 0

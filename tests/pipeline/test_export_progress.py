@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from catalog.export.lerobot import ExportSettings, export
+from catalog.export.lerobot import ExportSettings
+from pipeline.jobs.export import export
 
 EPISODES, SHARD_SIZE, RESOLUTION = 6, 3, 32
 
