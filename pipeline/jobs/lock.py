@@ -25,15 +25,20 @@ class FolderBusy(DyanaError):
 
 
 @contextlib.contextmanager
-def folder_lock(folder: Path) -> Iterator[None]:
-    """Hold ``folder/.lock`` for the duration (FolderBusy at once if another holder has it)."""
-    path = folder / LOCK_FILE
+def held(path: Path, what: str) -> Iterator[None]:
+    """Hold the lock file ``path`` for the duration; FolderBusy at once, naming ``what``
+    (the folder or URL being written), if another holder has it."""
     lock = FileLock(path, timeout=0)
     try:
         lock.acquire()
     except Timeout:
-        raise FolderBusy(f"{folder}: another process is writing this folder (lock {path} is held)") from None
+        raise FolderBusy(f"{what}: another process is writing this folder (lock {path} is held)") from None
     try:
         yield
     finally:
         lock.release()
+
+
+def folder_lock(folder: Path) -> contextlib.AbstractContextManager[None]:
+    """Hold ``folder/.lock`` for the duration (FolderBusy at once if another holder has it)."""
+    return held(folder / LOCK_FILE, str(folder))

@@ -9,13 +9,17 @@ published to the URL as it goes:
   so the remote state only ever lists shards whose objects are complete (an object
   appears whole or not at all);
 - at the end ``stats.json``, then ``catalog.json`` last, then objects of a replaced job
-  are deleted and the remote state removed; the staging folder is deleted.
+  are deleted and the remote state removed; the staging folder is emptied (its lock file
+  stays, as every lock file does: :mod:`pipeline.jobs.lock`).
 
 Before starting, a remote ``catalog.json`` describing this job with every listed object
 present at its size means "up to date" (nothing is downloaded); one describing another job
 is refused unless ``overwrite``, as locally; otherwise the shards the remote state or
 manifest lists are downloaded into staging (on any machine), so a killed job resumes there.
-Two processes writing one URL at once are not prevented (object stores have no locks).
+Two processes of one machine writing one URL are refused (FolderBusy) by a lock beside
+the staging folder (``<staging>.lock``), held for the whole job; two machines writing
+one URL at once are not prevented (object stores have no locks). "Up to date" checks the
+objects' sizes (an object store gives no sha256 without downloading every byte).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
 from catalog.records import ShardRecord
 from catalog.stats import STATS_NAME
 from catalog.storage import as_location, is_url
+from pipeline.jobs.lock import LOCK_FILE, held
 from pipeline.jobs.runner import Job, JobResult, run_job
 from pipeline.jobs.state import STATE_FILE, Identity, describe_difference, manifest_identity
 from pipeline.jobs.tasks import Payload
@@ -79,6 +84,13 @@ def _download(remote: Any, local: Path, rel: str) -> None:
     os.replace(partial, target)
 
 
+def _empty(staging: Path) -> None:
+    """Remove what a staging folder holds, except its lock file."""
+    for child in staging.iterdir() if staging.is_dir() else ():
+        if child.name != LOCK_FILE:
+            shutil.rmtree(child) if child.is_dir() else child.unlink()
+
+
 def _clear_foreign_staging(staging: Path, wanted: Identity) -> None:
     """Empty the staging folder if it holds another job's work (or unreadable state): it is
     this tool's cache, whose finished shards went to the URL as they were done, never a
@@ -96,7 +108,7 @@ def _clear_foreign_staging(staging: Path, wanted: Identity) -> None:
     except (OSError, ValueError, KeyError, TypeError):
         held = None
     if held != wanted:
-        shutil.rmtree(staging, ignore_errors=True)
+        _empty(staging)
 
 
 def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
@@ -106,24 +118,49 @@ def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
         raise ShardError(f"remote {key}: {exc}") from None
 
 
-def run_job_at(job: Job[Payload], out: str | os.PathLike[str], **options: Any) -> JobResult:
+def run_job_at(
+    job: Job[Payload],
+    out: str | os.PathLike[str],
+    *,
+    workers: int,
+    scheduler: str | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+    on_result: Callable[[dict[str, Any]], None] | None = None,
+) -> JobResult:
     """:func:`run_job` into ``job.folder``, or :func:`run_remote_job` into ``out`` when it is a URL."""
+    options = RunOptions(workers, scheduler, progress, overwrite, on_result)
     if is_url(out):
-        return run_remote_job(job, str(out), **options)
-    return run_job(job, **options)
+        return run_remote_job(job, str(out), options)
+    return run_job(job, workers=workers, scheduler=scheduler, progress=progress, overwrite=overwrite,
+                   on_result=on_result)
 
 
-def run_remote_job(job: Job[Payload], url: str, **options: Any) -> JobResult:
-    """Run ``job`` (whose folder is ignored) into ``url``; the manifest and whether it was up to date."""
+@dataclasses.dataclass(frozen=True)
+class RunOptions:
+    """:func:`run_job`'s options, carried through the remote job."""
+
+    workers: int
+    scheduler: str | None = None
+    progress: bool = True
+    overwrite: bool = False
+    on_result: Callable[[dict[str, Any]], None] | None = None
+
+
+def run_remote_job(job: Job[Payload], url: str, options: RunOptions) -> JobResult:
+    """Run ``job`` (whose folder is ignored) into ``url``, holding this machine's lock for the URL."""
+    staging = staging_folder(url)
+    staging.parent.mkdir(parents=True, exist_ok=True)
     try:
-        return _run_remote_job(job, url, **options)
+        with held(staging.with_name(staging.name + ".lock"), url):
+            return _run_remote_job(job, url, staging, options)
     except FileNotFoundError as exc:  # s3fs: a missing bucket
         raise ShardError(f"{url}: {exc}") from None
 
 
-def _run_remote_job(job: Job[Payload], url: str, *, overwrite: bool = False, **options: Any) -> JobResult:
+def _run_remote_job(job: Job[Payload], url: str, staging: Path, options: RunOptions) -> JobResult:
+    overwrite = options.overwrite
     remote: Any = as_location(url)
-    staging = staging_folder(url)
     local_job = dataclasses.replace(job, folder=staging)
     wanted = local_job.identity()
     manifest_data = _remote_json(remote, MANIFEST_NAME)
@@ -158,9 +195,9 @@ def _run_remote_job(job: Job[Payload], url: str, *, overwrite: bool = False, **o
                     _download(remote, staging, file.path)
         (staging / STATE_FILE).write_text(json.dumps(state, sort_keys=True, indent=2) + "\n")
 
-    user_result: Callable[[dict], None] | None = options.pop("on_result", None)
+    user_result = options.on_result
 
-    def publish(result: dict) -> None:
+    def publish(result: dict[str, Any]) -> None:
         record = ShardRecord.from_dict(result["record"])
         for file in record.files.values():
             _upload(staging, remote, file.path)
@@ -168,7 +205,8 @@ def _run_remote_job(job: Job[Payload], url: str, *, overwrite: bool = False, **o
         if user_result is not None:
             user_result(result)
 
-    result = run_job(local_job, overwrite=overwrite, on_result=publish, **options)
+    result = run_job(local_job, workers=options.workers, scheduler=options.scheduler, progress=options.progress,
+                     overwrite=overwrite, on_result=publish)
     manifest = result.manifest
     sizes = _remote_sizes(remote)
     for path, _, size in manifest.files():
@@ -182,6 +220,6 @@ def _run_remote_job(job: Job[Payload], url: str, *, overwrite: bool = False, **o
         stale = path == STATE_FILE or (path not in keep and path.split("/")[0] in ("frames", "episodes", "mcap"))
         if stale:
             remote.fs.rm_file(f"{remote.path.rstrip('/')}/{path}")
-    shutil.rmtree(staging, ignore_errors=True)
+    _empty(staging)
     return result
 
