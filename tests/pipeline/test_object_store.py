@@ -177,8 +177,9 @@ def test_a_second_job_on_one_url_from_this_machine_is_busy(tmp_path, monkeypatch
     from pipeline.jobs.object_store import staging_folder
 
     monkeypatch.setenv("DYANA_STAGING", str(tmp_path))
-    url = f"s3://{BUCKET}/busy"
+    url = f"s3://{BUCKET}/busy/linear-fast"  # the build writes OUT/<slice>
     staging = staging_folder(url)
     with held(staging.with_name(staging.name + ".lock"), url):
         with pytest.raises(FolderBusy, match=f"{url}: another process"):
-            build("linear-fast", url, episodes=2, shard_size=2, resolution=32, workers=0, progress=False)
+            build("linear-fast", f"s3://{BUCKET}/busy", episodes=2, shard_size=2, resolution=32, workers=0,
+                  progress=False)
