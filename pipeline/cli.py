@@ -6,9 +6,14 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from schemas import cli
 from schemas.errors import DyanaError, SpecError
+
+if TYPE_CHECKING:  # the commands import their modules when run, so --help stays fast
+    from catalog.records import ShardRecord
+    from pipeline.loop.conditions import EvalProtocol
 
 
 def _build_arguments(p: argparse.ArgumentParser) -> None:
@@ -141,7 +146,7 @@ def _vlm_options(args: argparse.Namespace) -> dict | None:
     }
 
 
-def _protocol(args: argparse.Namespace):
+def _protocol(args: argparse.Namespace) -> EvalProtocol:
     from pipeline.loop.conditions import EvalProtocol
     from pipeline.loop.perturb import Perturbation
 
@@ -199,7 +204,7 @@ def _replay_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_replay(args: argparse.Namespace) -> int:
     from pipeline.jobs.replay import replay
 
-    def progress(shard) -> None:
+    def progress(shard: ShardRecord) -> None:
         if not args.quiet:
             print(f"shard {shard.first}-{shard.end - 1}: identical", file=sys.stderr, flush=True)
 

@@ -17,13 +17,17 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from schemas import cli
 from schemas.slices import get_slice
 from schemas.versions import FPS
 
+if TYPE_CHECKING:  # imported by the commands when run
+    from catalog.records import ShardRecord
 
-def _print_json(data) -> None:
+
+def _print_json(data: object) -> None:
     print(json.dumps(data, sort_keys=False))
 
 
@@ -118,7 +122,7 @@ def _specs_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_verify(args: argparse.Namespace) -> int:
     from pipeline.jobs.verify import verify
 
-    def progress(shard) -> None:
+    def progress(shard: ShardRecord) -> None:
         print(f"rebuilt shard episodes [{shard.first}, {shard.end}): identical", file=sys.stderr, flush=True)
 
     report = verify(args.dir, sample=args.sample, on_shard=None if args.quiet else progress)

@@ -20,10 +20,13 @@ import contextlib
 import os
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import pyarrow as pa
 
 from catalog.atomic import commit, discard, temp_path
+from catalog.manifest import Manifest
 from catalog.mcap_io import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
@@ -34,12 +37,15 @@ from schemas.scene import LOC_TOLERANCE, PHASES
 from schemas.spec import EpisodeSpec
 from schemas.tables import OBSTACLE_CLEARANCE
 
+if TYPE_CHECKING:  # rerun is imported when a recording is written (it starts a Rust runtime)
+    from rerun import RecordingStream
+
 #: Phase colours (observe, approach, grasp, hold) for the palm trail and text log.
 PHASE_COLOURS = {"observe": (150, 150, 150), "approach": (40, 120, 255), "grasp": (255, 140, 0), "hold": (40, 200, 80)}
 OBJECT_COLOUR = (230, 60, 60)
 
 
-def _episode_rows(directory: Path, episode: int):
+def _episode_rows(directory: Path, episode: int) -> tuple[Manifest, pa.Table, dict[str, Any]]:
     """The folder's manifest, one episode's frames and its row, read through the checked
     reader (sizes and sha256 of the shard read, settings, numbering)."""
     folder = open_folder(directory, verify="sha256")
@@ -120,7 +126,7 @@ def to_view(xyz: np.ndarray) -> np.ndarray:
     return to_foxglove_position(xyz).astype(np.float32)
 
 
-def _log_camera(rec, resolution: int) -> None:
+def _log_camera(rec: RecordingStream, resolution: int) -> None:
     """The fixed camera: its optical frame (x right, y down, z forward) in the world and its
     pinhole for a ``resolution``-pixel square image."""
     import rerun as rr
@@ -132,8 +138,9 @@ def _log_camera(rec, resolution: int) -> None:
                                       camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0), static=True)
 
 
-def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz,
-                 settings: dict) -> None:
+def _log_episode(rec: RecordingStream, rows: pa.Table, meta: dict[str, Any], images: list[bytes], phases: list[str],
+                 timestamps: np.ndarray, frame_index: np.ndarray, state: dict[str, np.ndarray], fingertip: np.ndarray,
+                 palm_xz: np.ndarray, settings: dict[str, Any]) -> None:
     import rerun as rr
 
     rec.log("world", rr.ViewCoordinates.RFU, static=True)
