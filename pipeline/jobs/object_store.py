@@ -31,7 +31,7 @@ import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
 from catalog.records import ShardRecord
@@ -118,48 +118,35 @@ def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
         raise ShardError(f"remote {key}: {exc}") from None
 
 
-def run_job_at(
-    job: Job[Payload],
-    out: str | os.PathLike[str],
-    *,
-    workers: int,
-    scheduler: str | None = None,
-    progress: bool = True,
-    overwrite: bool = False,
-    on_result: Callable[[dict[str, Any]], None] | None = None,
-) -> JobResult:
+class RunOptions(TypedDict, total=False):
+    """:func:`run_job`'s options besides ``workers``, carried through to it."""
+
+    scheduler: str | None
+    progress: bool
+    overwrite: bool
+    on_result: Callable[[dict[str, Any]], None] | None
+
+
+def run_job_at(job: Job[Payload], out: str | os.PathLike[str], *, workers: int, **options: Unpack[RunOptions]) -> JobResult:
     """:func:`run_job` into ``job.folder``, or :func:`run_remote_job` into ``out`` when it is a URL."""
-    options = RunOptions(workers, scheduler, progress, overwrite, on_result)
     if is_url(out):
-        return run_remote_job(job, str(out), options)
-    return run_job(job, workers=workers, scheduler=scheduler, progress=progress, overwrite=overwrite,
-                   on_result=on_result)
+        return run_remote_job(job, str(out), workers, options)
+    return run_job(job, workers=workers, **options)
 
 
-@dataclasses.dataclass(frozen=True)
-class RunOptions:
-    """:func:`run_job`'s options, carried through the remote job."""
-
-    workers: int
-    scheduler: str | None = None
-    progress: bool = True
-    overwrite: bool = False
-    on_result: Callable[[dict[str, Any]], None] | None = None
-
-
-def run_remote_job(job: Job[Payload], url: str, options: RunOptions) -> JobResult:
+def run_remote_job(job: Job[Payload], url: str, workers: int, options: RunOptions) -> JobResult:
     """Run ``job`` (whose folder is ignored) into ``url``, holding this machine's lock for the URL."""
     staging = staging_folder(url)
     staging.parent.mkdir(parents=True, exist_ok=True)
     try:
         with held(staging.with_name(staging.name + ".lock"), url):
-            return _run_remote_job(job, url, staging, options)
+            return _run_remote_job(job, url, staging, workers, options)
     except FileNotFoundError as exc:  # s3fs: a missing bucket
         raise ShardError(f"{url}: {exc}") from None
 
 
-def _run_remote_job(job: Job[Payload], url: str, staging: Path, options: RunOptions) -> JobResult:
-    overwrite = options.overwrite
+def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, options: RunOptions) -> JobResult:
+    overwrite = options.get("overwrite", False)
     remote: Any = as_location(url)
     local_job = dataclasses.replace(job, folder=staging)
     wanted = local_job.identity()
@@ -195,7 +182,7 @@ def _run_remote_job(job: Job[Payload], url: str, staging: Path, options: RunOpti
                     _download(remote, staging, file.path)
         (staging / STATE_FILE).write_text(json.dumps(state, sort_keys=True, indent=2) + "\n")
 
-    user_result = options.on_result
+    user_result = options.get("on_result")
 
     def publish(result: dict[str, Any]) -> None:
         record = ShardRecord.from_dict(result["record"])
@@ -205,8 +192,8 @@ def _run_remote_job(job: Job[Payload], url: str, staging: Path, options: RunOpti
         if user_result is not None:
             user_result(result)
 
-    result = run_job(local_job, workers=options.workers, scheduler=options.scheduler, progress=options.progress,
-                     overwrite=overwrite, on_result=publish)
+    result = run_job(local_job, workers=workers, scheduler=options.get("scheduler"),
+                     progress=options.get("progress", True), overwrite=overwrite, on_result=publish)
     manifest = result.manifest
     sizes = _remote_sizes(remote)
     for path, _, size in manifest.files():
