@@ -18,7 +18,7 @@ import pytest
 from catalog.integrity import verify_files
 from catalog.manifest import load_manifest
 from pipeline.jobs.build import build
-from pipeline.jobs.runner import STATE_FILE
+from pipeline.jobs.state import STATE_FILE
 from schemas.errors import SpecError
 from tests.shard_files import shard_bytes
 
