@@ -1,11 +1,9 @@
-"""One driver for sharded jobs: `pipeline build`, `pipeline eval` and anything after them.
+"""Sharded jobs that leave a ``catalog.json`` folder: `pipeline build` and `pipeline eval`.
 
 A :class:`Job` names an output folder, what it will hold (slice, seed, settings, extra
 manifest keys such as a specs file's hash, shard ranges) and a worker function that writes one
-shard. :func:`run_job` owns everything around the shards:
-
-It is the job engine's (:func:`pipeline.jobs.engine.run_folder_job`) product for
-``catalog.json`` folders:
+shard. :func:`run_job` runs it on the job engine (:func:`pipeline.jobs.engine.run_folder_job`,
+with :class:`ManifestProduct` saying what such a folder holds):
 
 - the folder holds one job (:mod:`pipeline.jobs.state`): a ``catalog.json`` (or a killed
   run's ``.build-state.json``) describing anything else is refused with a message naming
