@@ -1,5 +1,10 @@
 """The job engine: everything around the shard tasks of a job that writes a folder.
 
+Where the folder ends up is a :class:`Destination`: a local folder written in place
+(:class:`LocalFolder`), or a local staging folder published as it goes (an object store:
+:mod:`pipeline.jobs.object_store`); the engine writes into ``destination.folder`` and tells
+the destination which files each finished unit and the finished job left there.
+
 Build and eval (:mod:`pipeline.jobs.runner`) and the LeRobot export
 (:mod:`pipeline.jobs.export`) differ only in what their folder holds when finished, a
 :class:`Product`: how a finished or interrupted job is read back (its identity, the units
@@ -65,6 +70,44 @@ class Product(Protocol[UnitT, Result]):
         """Write what marks the folder finished (last), from every unit in order."""
         ...
 
+    def unit_files(self, unit: UnitT) -> list[str]:
+        """The folder-relative files a finished unit leaves, its resume state last."""
+        ...
+
+    def result_files(self, result: Result) -> list[str]:
+        """Every folder-relative file of the finished folder, what marks it finished last."""
+        ...
+
+
+class Destination(Protocol):
+    """Where a job's folder ends up (see the module docstring)."""
+
+    @property
+    def folder(self) -> Path:
+        """The local folder the job writes."""
+        ...
+
+    def unit_done(self, paths: Sequence[str]) -> None:
+        """A unit finished: these files of ``folder`` are complete (its resume state last)."""
+        ...
+
+    def job_done(self, paths: Sequence[str]) -> None:
+        """The job finished (or was up to date): these are every file of the folder."""
+        ...
+
+
+@dataclass(frozen=True)
+class LocalFolder:
+    """A local folder, written in place: nothing to publish."""
+
+    folder: Path
+
+    def unit_done(self, paths: Sequence[str]) -> None:
+        """Nothing: the files are where they belong."""
+
+    def job_done(self, paths: Sequence[str]) -> None:
+        """Nothing: the files are where they belong."""
+
 
 @dataclass(frozen=True)
 class Outcome(Generic[Result]):
@@ -99,7 +142,7 @@ def prepare_folder(folder: Path) -> None:
 
 
 def run_folder_job(
-    folder: Path,
+    destination: Destination,
     product: Product[UnitT, Result],
     tasks: Sequence[ShardTask],
     task_fn: TaskFn[Payload],
@@ -112,7 +155,8 @@ def run_folder_job(
     total_frames: int | None = None,
     on_result: Callable[[dict[str, Any]], None] | None = None,
 ) -> Outcome[Result]:
-    """Run the units of ``tasks`` not already done into ``folder`` and finish it (module docstring)."""
+    """Run the units of ``tasks`` not already done into the destination's folder and finish it (module docstring)."""
+    folder = destination.folder
     prepare_folder(folder)
     ranges = [(task.first, task.end) for task in tasks]
     with folder_lock(folder):
@@ -120,6 +164,7 @@ def run_folder_job(
         commit = git_commit()
         previous = product.previous(folder, commit, overwrite)
         if previous.finished is not None:
+            destination.job_done(product.result_files(previous.finished))
             return Outcome(previous.finished, True, 0, len(previous.done))
         done = {key: unit for key, unit in previous.done.items() if key in set(ranges)}
         resumed = len(done)
@@ -135,6 +180,7 @@ def run_folder_job(
             unit = product.unit(result)
             done[(unit.first, unit.end)] = unit
             product.save(folder, commit, done)
+            destination.unit_done(product.unit_files(unit))
             if on_result is not None:
                 on_result(result)
             if meter is not None:
@@ -146,4 +192,5 @@ def run_folder_job(
         finally:
             remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
         result = product.finish(folder, commit, [done[key] for key in ranges])
+        destination.job_done(product.result_files(result))
     return Outcome(result, False, len(todo), resumed)

@@ -44,7 +44,7 @@ from catalog.export.meta import assemble, tasks_of
 from catalog.export.unit import export_unit
 from catalog.reader import FolderReader, open_folder
 from catalog.records import FileRecord
-from pipeline.jobs.engine import Execution, Previous, Range, run_folder_job
+from pipeline.jobs.engine import Execution, LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
 from pipeline.jobs.state import file_intact
 from pipeline.jobs.tasks import ShardTask
@@ -153,6 +153,14 @@ class LeRobotProduct:
     def save(self, folder: Path, commit: str | None, done: Mapping[Range, Part]) -> None:
         """Nothing: each unit's part record, written by the unit itself, is the resume state."""
 
+    def unit_files(self, unit: Part) -> list[str]:
+        return [f.path for f in unit.files] + [part_path(Path(), unit.shard).as_posix()]
+
+    def result_files(self, result: Exported) -> list[str]:
+        meta = _read_json(Path(self.plan.out) / DYANA_META)
+        files = meta.get("files", {}) if isinstance(meta, dict) else {}
+        return [*sorted(files), DYANA_META]
+
     def finish(self, folder: Path, commit: str | None, units: Sequence[Part]) -> Exported:
         assemble(folder, self.reader, self.settings, units, self.plan.tasks, self.identity, self.plan.height,
                  self.plan.width)
@@ -195,7 +203,7 @@ def export(
     product = LeRobotProduct(reader, settings, plan, job_identity(reader, settings))
     tasks = [ShardTask(manifest.slice, s.first, s.end) for s in manifest.shards]
     execution = Execution(0 if workers <= 1 else workers, None, progress)
-    outcome = run_folder_job(target, product, tasks, export_shard, plan, execution, overwrite=overwrite,
+    outcome = run_folder_job(LocalFolder(target), product, tasks, export_shard, plan, execution, overwrite=overwrite,
                              verb="exported", key_prefix="export", total_frames=int(firsts[-1]))
     return ExportReport(target, outcome.result.episodes, outcome.result.frames, outcome.units_run,
                         outcome.units_resumed, outcome.up_to_date, time.perf_counter() - start)

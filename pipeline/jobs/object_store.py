@@ -29,7 +29,7 @@ import hashlib
 import json
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypedDict, Unpack
 
@@ -182,31 +182,36 @@ def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, op
                     _download(remote, staging, file.path)
         (staging / STATE_FILE).write_text(json.dumps(state, sort_keys=True, indent=2) + "\n")
 
-    user_result = options.get("on_result")
-
-    def publish(result: dict[str, Any]) -> None:
-        record = ShardRecord.from_dict(result["record"])
-        for file in record.files.values():
-            _upload(staging, remote, file.path)
-        _upload(staging, remote, STATE_FILE)
-        if user_result is not None:
-            user_result(result)
-
     result = run_job(local_job, workers=workers, scheduler=options.get("scheduler"),
-                     progress=options.get("progress", True), overwrite=overwrite, on_result=publish)
-    manifest = result.manifest
-    sizes = _remote_sizes(remote)
-    for path, _, size in manifest.files():
-        if sizes.get(path) != size:
-            _upload(staging, remote, path)
-    if manifest.stats is not None:
-        _upload(staging, remote, STATS_NAME)
-    _upload(staging, remote, MANIFEST_NAME)
-    keep = {path for path, _, _ in manifest.files()} | {MANIFEST_NAME, STATS_NAME}
-    for path in sizes:
-        stale = path == STATE_FILE or (path not in keep and path.split("/")[0] in ("frames", "episodes", "mcap"))
-        if stale:
-            remote.fs.rm_file(f"{remote.path.rstrip('/')}/{path}")
-    _empty(staging)
-    return result
+                     progress=options.get("progress", True), overwrite=overwrite, on_result=options.get("on_result"),
+                     destination=ObjectStore(staging, remote))
+    return dataclasses.replace(result, up_to_date=False)  # the URL did not hold it: it was published now
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectStore:
+    """The engine's destination for a URL: the job writes ``folder`` (the staging folder),
+    each finished shard's files are uploaded, then the job's state; at the end every file
+    the remote lacks (by size), the statistics, then ``catalog.json`` last; then objects of
+    a replaced job and the remote state are deleted and the staging folder is emptied."""
+
+    folder: Path
+    remote: Any
+
+    def unit_done(self, paths: Sequence[str]) -> None:
+        for path in paths:
+            _upload(self.folder, self.remote, path)
+
+    def job_done(self, paths: Sequence[str]) -> None:
+        *files, last = paths
+        sizes = _remote_sizes(self.remote)
+        for path in files:
+            if path == STATS_NAME or sizes.get(path) != (self.folder / path).stat().st_size:
+                _upload(self.folder, self.remote, path)
+        _upload(self.folder, self.remote, last)
+        keep = set(paths)
+        for path in sizes:
+            if path == STATE_FILE or (path not in keep and path.split("/")[0] in ("frames", "episodes", "mcap")):
+                self.remote.fs.rm_file(f"{self.remote.path.rstrip('/')}/{path}")
+        _empty(self.folder)
 

@@ -25,15 +25,16 @@ hashes, so the worker count, the scheduler and interruptions cannot change it.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic
 
-from catalog.manifest import CodeInfo, Manifest, load_manifest, write_manifest
+from catalog.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
 from catalog.records import ShardRecord, shard_like_files
 from catalog.stats import compute_stats, write_stats
-from pipeline.jobs.engine import Execution, Previous, run_folder_job
+from pipeline.jobs.engine import Destination, Execution, LocalFolder, Previous, run_folder_job
 from pipeline.jobs.progress import to_stderr
 from pipeline.jobs.state import STATE_FILE, Identity, Range, identity_of, previous_work, save_state
 from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, default_workers, shard_ranges
@@ -117,6 +118,13 @@ class ManifestProduct:
     def save(self, folder: Path, commit: str | None, done: Mapping[Range, ShardRecord]) -> None:
         save_state(folder, self.job.identity(), commit, done)
 
+    def unit_files(self, unit: ShardRecord) -> list[str]:
+        return [f.path for f in unit.files.values()] + [STATE_FILE]
+
+    def result_files(self, result: Manifest) -> list[str]:
+        stats = [] if result.stats is None else [result.stats.path]
+        return [path for path, _, _ in result.files()] + stats + [MANIFEST_NAME]
+
     def finish(self, folder: Path, commit: str | None, units: Sequence[ShardRecord]) -> Manifest:
         """``stats.json``, then ``catalog.json``, then the files of a replaced job go."""
         job = self.job
@@ -137,9 +145,15 @@ def run_job(
     progress: bool = True,
     overwrite: bool = False,
     on_result: Callable[[dict[str, Any]], None] | None = None,
+    destination: Destination | None = None,
 ) -> JobResult:
-    """Run ``job`` into its folder (see the module docstring); progress lines on stderr."""
+    """Run ``job`` into its folder (see the module docstring), or into ``destination`` (whose
+    folder replaces the job's); progress lines on stderr."""
     execution = Execution(workers, scheduler, to_stderr if progress else None)
-    outcome = run_folder_job(job.folder, ManifestProduct(job), job.tasks, job.task_fn, job.payload, execution,
+    if destination is None:
+        destination = LocalFolder(job.folder)
+    elif destination.folder != job.folder:
+        job = dataclasses.replace(job, folder=destination.folder)
+    outcome = run_folder_job(destination, ManifestProduct(job), job.tasks, job.task_fn, job.payload, execution,
                              overwrite=overwrite, verb=job.verb, key_prefix=job.key_prefix, on_result=on_result)
     return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed)
