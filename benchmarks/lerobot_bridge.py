@@ -33,8 +33,9 @@ import numpy as np
 
 import catalog  # noqa: E402
 from catalog.export.layout import VIDEO_KEY  # noqa: E402
-from catalog.export.lerobot import ExportSettings, export  # noqa: E402
+from catalog.export.lerobot import ExportSettings  # noqa: E402
 from catalog.export.video import VideoWriter, decode_frames, psnr  # noqa: E402
+from pipeline.jobs.export import export  # noqa: E402
 
 LEROBOT_TIMER = r'''
 import json, sys, time

@@ -12,9 +12,9 @@ from __future__ import annotations
 import contextlib
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import IO
+from typing import BinaryIO, Literal, TextIO, TypeVar, overload
 
 TEMP_PATTERN = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)$")
 
@@ -53,17 +53,16 @@ def discard(temp: str | os.PathLike[str]) -> None:
         os.unlink(temp)
 
 
+Handle = TypeVar("Handle", BinaryIO, TextIO)
+
+
 @contextlib.contextmanager
-def atomic_open(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO]:
-    """Open ``path``'s temp name for writing; on success commit it, on error delete it."""
-    if mode not in ("wb", "w"):
-        raise ValueError(f"atomic_open writes only, mode must be 'wb' or 'w', got {mode!r}")
+def _write_then_rename(path: str | os.PathLike[str], open_temp: Callable[[Path], Handle]) -> Iterator[Handle]:
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
     temp = temp_path(final)
-    kwargs = {"encoding": "utf-8", "newline": "\n"} if mode == "w" else {}
     try:
-        with open(temp, mode, **kwargs) as handle:
+        with open_temp(temp) as handle:
             yield handle
             handle.flush()
         commit(temp, final)
@@ -72,11 +71,24 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO]:
         raise
 
 
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically; returns the path."""
-    with atomic_open(path, "wb") as handle:
-        handle.write(data)
-    return Path(path)
+@overload
+def atomic_open(path: str | os.PathLike[str], mode: Literal["wb"] = "wb") -> contextlib.AbstractContextManager[BinaryIO]: ...
+
+
+@overload
+def atomic_open(path: str | os.PathLike[str], mode: Literal["w"]) -> contextlib.AbstractContextManager[TextIO]: ...
+
+
+def atomic_open(
+    path: str | os.PathLike[str], mode: str = "wb"
+) -> contextlib.AbstractContextManager[BinaryIO] | contextlib.AbstractContextManager[TextIO]:
+    """Open ``path``'s temp name for writing (``wb``, or ``w``: UTF-8 with ``\\n`` line ends);
+    on success commit it, on error delete it."""
+    if mode == "wb":
+        return _write_then_rename(path, lambda temp: open(temp, "wb"))
+    if mode == "w":
+        return _write_then_rename(path, lambda temp: open(temp, "w", encoding="utf-8", newline="\n"))
+    raise ValueError(f"atomic_open writes only, mode must be 'wb' or 'w', got {mode!r}")
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
@@ -128,7 +140,10 @@ def remove_stray_temps(directory: str | os.PathLike[str], *, only_dead: bool = T
     """
     removed = []
     for path in find_stray_temps(directory):
-        pid = int(TEMP_PATTERN.match(path.name)["pid"])
+        match = TEMP_PATTERN.match(path.name)
+        if match is None:  # find_stray_temps lists only matching names
+            continue
+        pid = int(match["pid"])
         if only_dead and _pid_alive(pid):
             continue
         discard(path)

@@ -122,8 +122,13 @@ def open_output(
         with handle:
             yield handle
         return
-    with atomic_open(os.path.realpath(text), mode) as handle:
-        yield handle
+    target = os.path.realpath(text)
+    if mode == "w":
+        with atomic_open(target, "w") as text_handle:
+            yield text_handle
+    else:
+        with atomic_open(target, "wb") as binary_handle:
+            yield binary_handle
 
 
 @contextlib.contextmanager

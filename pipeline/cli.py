@@ -6,9 +6,14 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from schemas import cli
 from schemas.errors import DyanaError, SpecError
+
+if TYPE_CHECKING:  # the commands import their modules when run, so --help stays fast
+    from catalog.records import ShardRecord
+    from pipeline.loop.conditions import EvalProtocol
 
 
 def _build_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,8 +43,9 @@ def cmd_build(args: argparse.Namespace) -> int:
             names = list(definition.parts)
             print(f"{args.slice} is built as its {len(names)} parts: {', '.join(names)}", file=sys.stderr)
     for name in names:
-        manifest, up_to_date = build_job(name, args.out, specs_path=args.specs, **cli.job_options(args))
-        verb = "up to date" if up_to_date else "built"
+        result = build_job(name, args.out, specs_path=args.specs, **cli.job_options(args))
+        manifest = result.manifest
+        verb = "up to date" if result.up_to_date else "built"
         print(
             f"{verb} {manifest.slice}: {manifest.episodes} episodes, {manifest.frames} frames, "
             f"{len(manifest.shards)} shards -> {str(args.out).rstrip('/')}/{manifest.slice}/catalog.json "
@@ -140,7 +146,7 @@ def _vlm_options(args: argparse.Namespace) -> dict | None:
     }
 
 
-def _protocol(args: argparse.Namespace):
+def _protocol(args: argparse.Namespace) -> EvalProtocol:
     from pipeline.loop.conditions import EvalProtocol
     from pipeline.loop.perturb import Perturbation
 
@@ -198,7 +204,7 @@ def _replay_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_replay(args: argparse.Namespace) -> int:
     from pipeline.jobs.replay import replay
 
-    def progress(shard) -> None:
+    def progress(shard: ShardRecord) -> None:
         if not args.quiet:
             print(f"shard {shard.first}-{shard.end - 1}: identical", file=sys.stderr, flush=True)
 

@@ -19,14 +19,18 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from schemas import cli
 from schemas.errors import SpecError
 from schemas.slices import get_slice
 from schemas.versions import DATASET_VERSION, FPS
 
+if TYPE_CHECKING:  # imported by the commands when run
+    from catalog.records import ShardRecord
 
-def _print_json(data) -> None:
+
+def _print_json(data: object) -> None:
     print(json.dumps(data, sort_keys=False))
 
 
@@ -121,7 +125,7 @@ def _specs_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_verify(args: argparse.Namespace) -> int:
     from pipeline.jobs.verify import verify
 
-    def progress(shard) -> None:
+    def progress(shard: ShardRecord) -> None:
         print(f"rebuilt shard episodes [{shard.first}, {shard.end}): identical", file=sys.stderr, flush=True)
 
     report = verify(args.dir, sample=args.sample, on_shard=None if args.quiet else progress)
@@ -155,12 +159,14 @@ def _migrate_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from catalog.export.lerobot import ExportSettings, export, print_progress
+    from catalog.export.lerobot import ExportSettings
+    from pipeline.jobs.export import export
+    from pipeline.jobs.progress import to_stderr
 
     settings = ExportSettings(args.format, args.codec)
     workers = args.workers or cli.default_worker_count()
     report = export(args.dir, args.out, settings, workers=workers, overwrite=args.overwrite,
-                    progress=None if args.quiet else print_progress)
+                    progress=None if args.quiet else to_stderr)
     if report.up_to_date:
         print(f"{report.out}: up to date ({settings.format}, {report.episodes} episodes, {report.frames} frames)")
         return 0

@@ -23,6 +23,7 @@ import functools
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from types import ModuleType, TracebackType
 
 import numpy as np
 
@@ -49,7 +50,7 @@ class _X264CpuName(ctypes.Structure):
     _fields_ = [("name", ctypes.c_char_p), ("flags", ctypes.c_uint32)]
 
 
-def _x264_library(av) -> ctypes.CDLL | None:
+def _x264_library(av: ModuleType) -> ctypes.CDLL | None:
     """The libx264 this process's libavcodec uses, opened through ctypes (None if not found).
 
     Looked for among the libraries mapped into the process (Linux), then beside PyAV's
@@ -63,8 +64,11 @@ def _x264_library(av) -> ctypes.CDLL | None:
         fields = line.split(maxsplit=5)
         if len(fields) == 6 and "x264" in os.path.basename(fields[5]):
             candidates.append(fields[5])
-    package = Path(av.__file__).parent
-    for folder in (package.parent / "av.libs", package / ".dylibs", package):
+    folders: list[Path] = []
+    if av.__file__ is not None:  # (a namespace package has no bundled copies beside it)
+        package = Path(av.__file__).parent
+        folders = [package.parent / "av.libs", package / ".dylibs", package]
+    for folder in folders:
         candidates += sorted(str(p) for p in folder.glob("*x264*") if p.is_file())
     for path in dict.fromkeys(candidates):
         try:
@@ -115,7 +119,7 @@ def encoder_options(codec: str) -> dict[str, str]:
     return options
 
 
-def _av():
+def _av() -> ModuleType:
     try:
         import av
     except ImportError:  # pragma: no cover - av is a dependency
@@ -186,7 +190,8 @@ class VideoWriter:
     def __enter__(self) -> VideoWriter:
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
         if exc_type is None:
             self.finish()
         else:

@@ -16,7 +16,8 @@ from typing import Any
 from catalog.manifest import Manifest
 from catalog.storage import is_url
 from pipeline.jobs.object_store import run_job_at
-from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
+from pipeline.jobs.runner import Job, JobResult
+from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.spec import EpisodeSpec
@@ -72,7 +73,7 @@ def build_shard(task: ShardTask, settings: BuildSettings, slice_dir: str) -> dic
 def build(slice_name: str | None, out: Path, **options: Any) -> Manifest:
     """Build a slice (or a specs file) into ``out/<slice>/`` and return its manifest;
     the options are :func:`build_job`'s."""
-    return build_job(slice_name, out, **options)[0]
+    return build_job(slice_name, out, **options).manifest
 
 
 def build_job(
@@ -88,7 +89,7 @@ def build_job(
     progress: bool = True,
     overwrite: bool = False,
     formats: str | tuple[str, ...] = ALL_FORMATS,
-) -> tuple[Manifest, bool]:
+) -> JobResult:
     """Build a slice (or a specs file) into ``out/<slice>/``: its manifest, and whether
     the folder already held this complete build (then nothing is redone).
 
@@ -147,11 +148,10 @@ def build_job(
         verb="built",
         key_prefix="shard",
     )
-    manifest, up_to_date = run_job_at(
+    return run_job_at(
         job, destination, workers=default_workers() if workers is None else workers, scheduler=scheduler,
         progress=progress, overwrite=overwrite,
     )
-    return manifest, up_to_date
 
 
 def _load_user_specs(path: str, slice_name: str | None) -> list[EpisodeSpec]:

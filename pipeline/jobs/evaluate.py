@@ -327,7 +327,7 @@ def evaluate(
             timing["remote"] = _merge_timing(timing["remote"], stats["remote"])
 
     start = time.monotonic()
-    manifest, up_to_date = run_job_at(
+    result = run_job_at(
         job,
         out,
         workers=default_workers() if workers is None else workers,
@@ -336,6 +336,7 @@ def evaluate(
         overwrite=overwrite,
         on_result=on_result,
     )
+    manifest, up_to_date = result.manifest, result.up_to_date
     elapsed = time.monotonic() - start
     if kind.audit_dir is not None:
         write_audit_index(run_dir / kind.audit_dir)

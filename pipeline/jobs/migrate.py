@@ -17,7 +17,7 @@ from pathlib import Path
 
 from catalog.manifest import Manifest, load_manifest, write_manifest
 from catalog.records import TABLE_LAYOUT, FileRecord, ShardRecord, is_legacy, shard_paths
-from pipeline.jobs.runner import folder_lock
+from pipeline.jobs.lock import folder_lock
 from schemas.errors import ShardError
 
 

@@ -9,13 +9,17 @@ published to the URL as it goes:
   so the remote state only ever lists shards whose objects are complete (an object
   appears whole or not at all);
 - at the end ``stats.json``, then ``catalog.json`` last, then objects of a replaced job
-  are deleted and the remote state removed; the staging folder is deleted.
+  are deleted and the remote state removed; the staging folder is emptied (its lock file
+  stays, as every lock file does: :mod:`pipeline.jobs.lock`).
 
 Before starting, a remote ``catalog.json`` describing this job with every listed object
 present at its size means "up to date" (nothing is downloaded); one describing another job
 is refused unless ``overwrite``, as locally; otherwise the shards the remote state or
 manifest lists are downloaded into staging (on any machine), so a killed job resumes there.
-Two processes writing one URL at once are not prevented (object stores have no locks).
+Two processes of one machine writing one URL are refused (FolderBusy) by a lock beside
+the staging folder (``<staging>.lock``), held for the whole job; two machines writing
+one URL at once are not prevented (object stores have no locks). "Up to date" checks the
+objects' sizes (an object store gives no sha256 without downloading every byte).
 """
 
 from __future__ import annotations
@@ -25,15 +29,18 @@ import hashlib
 import json
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
 from catalog.records import ShardRecord
 from catalog.stats import STATS_NAME
 from catalog.storage import as_location, is_url
-from pipeline.jobs.runner import STATE_FILE, Job, _manifest_identity, describe_difference, run_job
+from pipeline.jobs.lock import LOCK_FILE, held
+from pipeline.jobs.runner import Job, JobResult, run_job
+from pipeline.jobs.state import STATE_FILE, Identity, describe_difference, manifest_identity
+from pipeline.jobs.tasks import Payload
 from schemas.errors import ShardError, SpecError
 from schemas.versions import CODE_VERSION
 
@@ -77,7 +84,14 @@ def _download(remote: Any, local: Path, rel: str) -> None:
     os.replace(partial, target)
 
 
-def _clear_foreign_staging(staging: Path, wanted: dict) -> None:
+def _empty(staging: Path) -> None:
+    """Remove what a staging folder holds, except its lock file."""
+    for child in staging.iterdir() if staging.is_dir() else ():
+        if child.name != LOCK_FILE:
+            shutil.rmtree(child) if child.is_dir() else child.unlink()
+
+
+def _clear_foreign_staging(staging: Path, wanted: Identity) -> None:
     """Empty the staging folder if it holds another job's work (or unreadable state): it is
     this tool's cache, whose finished shards went to the URL as they were done, never a
     user's folder."""
@@ -86,7 +100,7 @@ def _clear_foreign_staging(staging: Path, wanted: dict) -> None:
         held = state["identity"]
     except FileNotFoundError:
         try:
-            held = _manifest_identity(Manifest.from_dict(json.loads((staging / MANIFEST_NAME).read_text())))
+            held = manifest_identity(Manifest.from_dict(json.loads((staging / MANIFEST_NAME).read_text())))
         except FileNotFoundError:
             return
         except (OSError, ValueError, ShardError):
@@ -94,7 +108,7 @@ def _clear_foreign_staging(staging: Path, wanted: dict) -> None:
     except (OSError, ValueError, KeyError, TypeError):
         held = None
     if held != wanted:
-        shutil.rmtree(staging, ignore_errors=True)
+        _empty(staging)
 
 
 def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
@@ -104,24 +118,36 @@ def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
         raise ShardError(f"remote {key}: {exc}") from None
 
 
-def run_job_at(job: Job, out: str | os.PathLike[str], **options: Any) -> tuple[Manifest, bool]:
+class RunOptions(TypedDict, total=False):
+    """:func:`run_job`'s options besides ``workers``, carried through to it."""
+
+    scheduler: str | None
+    progress: bool
+    overwrite: bool
+    on_result: Callable[[dict[str, Any]], None] | None
+
+
+def run_job_at(job: Job[Payload], out: str | os.PathLike[str], *, workers: int, **options: Unpack[RunOptions]) -> JobResult:
     """:func:`run_job` into ``job.folder``, or :func:`run_remote_job` into ``out`` when it is a URL."""
     if is_url(out):
-        return run_remote_job(job, str(out), **options)
-    return run_job(job, **options)
+        return run_remote_job(job, str(out), workers, options)
+    return run_job(job, workers=workers, **options)
 
 
-def run_remote_job(job: Job, url: str, **options: Any) -> tuple[Manifest, bool]:
-    """Run ``job`` (whose folder is ignored) into ``url``; the manifest and whether it was up to date."""
+def run_remote_job(job: Job[Payload], url: str, workers: int, options: RunOptions) -> JobResult:
+    """Run ``job`` (whose folder is ignored) into ``url``, holding this machine's lock for the URL."""
+    staging = staging_folder(url)
+    staging.parent.mkdir(parents=True, exist_ok=True)
     try:
-        return _run_remote_job(job, url, **options)
+        with held(staging.with_name(staging.name + ".lock"), url):
+            return _run_remote_job(job, url, staging, workers, options)
     except FileNotFoundError as exc:  # s3fs: a missing bucket
         raise ShardError(f"{url}: {exc}") from None
 
 
-def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: Any) -> tuple[Manifest, bool]:
+def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, options: RunOptions) -> JobResult:
+    overwrite = options.get("overwrite", False)
     remote: Any = as_location(url)
-    staging = staging_folder(url)
     local_job = dataclasses.replace(job, folder=staging)
     wanted = local_job.identity()
     manifest_data = _remote_json(remote, MANIFEST_NAME)
@@ -134,7 +160,7 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
             if not overwrite:
                 raise ShardError(f"{url}/{MANIFEST_NAME}: {exc} (pass --overwrite to replace it)") from None
     if held is not None:
-        identity = _manifest_identity(held)
+        identity = manifest_identity(held)
         if identity != wanted and not overwrite:
             raise SpecError(f"{url} holds another job ({describe_difference(identity, wanted)}): "
                             "choose another --out, or pass --overwrite to replace it")
@@ -142,7 +168,7 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
         if identity == wanted and (held.code.version, held.code.commit) == (CODE_VERSION, git_commit()) and all(
             sizes.get(path) == size for path, size in listed
         ):
-            return held, True
+            return JobResult(held, True)
     state = _remote_json(remote, STATE_FILE)
     if state is not None and state.get("identity") not in (None, wanted) and not overwrite:
         raise SpecError(f"{url} holds an unfinished run of another job "
@@ -156,29 +182,36 @@ def _run_remote_job(job: Job, url: str, *, overwrite: bool = False, **options: A
                     _download(remote, staging, file.path)
         (staging / STATE_FILE).write_text(json.dumps(state, sort_keys=True, indent=2) + "\n")
 
-    user_result: Callable[[dict], None] | None = options.pop("on_result", None)
+    result = run_job(local_job, workers=workers, scheduler=options.get("scheduler"),
+                     progress=options.get("progress", True), overwrite=overwrite, on_result=options.get("on_result"),
+                     destination=ObjectStore(staging, remote))
+    return dataclasses.replace(result, up_to_date=False)  # the URL did not hold it: it was published now
 
-    def publish(result: dict) -> None:
-        record = ShardRecord.from_dict(result["record"])
-        for file in record.files.values():
-            _upload(staging, remote, file.path)
-        _upload(staging, remote, STATE_FILE)
-        if user_result is not None:
-            user_result(result)
 
-    manifest, _ = run_job(local_job, overwrite=overwrite, on_result=publish, **options)
-    sizes = _remote_sizes(remote)
-    for path, _, size in manifest.files():
-        if sizes.get(path) != size:
-            _upload(staging, remote, path)
-    if manifest.stats is not None:
-        _upload(staging, remote, STATS_NAME)
-    _upload(staging, remote, MANIFEST_NAME)
-    keep = {path for path, _, _ in manifest.files()} | {MANIFEST_NAME, STATS_NAME}
-    for path in sizes:
-        stale = path == STATE_FILE or (path not in keep and path.split("/")[0] in ("frames", "episodes", "mcap"))
-        if stale:
-            remote.fs.rm_file(f"{remote.path.rstrip('/')}/{path}")
-    shutil.rmtree(staging, ignore_errors=True)
-    return manifest, False
+@dataclasses.dataclass(frozen=True)
+class ObjectStore:
+    """The engine's destination for a URL: the job writes ``folder`` (the staging folder),
+    each finished shard's files are uploaded, then the job's state; at the end every file
+    the remote lacks (by size), the statistics, then ``catalog.json`` last; then objects of
+    a replaced job and the remote state are deleted and the staging folder is emptied."""
+
+    folder: Path
+    remote: Any
+
+    def unit_done(self, paths: Sequence[str]) -> None:
+        for path in paths:
+            _upload(self.folder, self.remote, path)
+
+    def job_done(self, paths: Sequence[str]) -> None:
+        *files, last = paths
+        sizes = _remote_sizes(self.remote)
+        for path in files:
+            if path == STATS_NAME or sizes.get(path) != (self.folder / path).stat().st_size:
+                _upload(self.folder, self.remote, path)
+        _upload(self.folder, self.remote, last)
+        keep = set(paths)
+        for path in sizes:
+            if path == STATE_FILE or (path not in keep and path.split("/")[0] in ("frames", "episodes", "mcap")):
+                self.remote.fs.rm_file(f"{self.remote.path.rstrip('/')}/{path}")
+        _empty(self.folder)
 

@@ -14,6 +14,9 @@ episodes table is compared, then the shard is rewritten into a scratch folder an
 its three files' sha256 are compared with the manifest (which also covers the MCAP
 and the Parquet metadata). The first difference raises :class:`ReplayMismatch`
 naming the shard, episode, frame and column, with both values.
+
+:func:`replay_shard` is the one place a recorded shard is re-executed: ``catalog verify``
+(:mod:`pipeline.jobs.verify`) rebuilds its sampled shards through it too.
 """
 
 from __future__ import annotations
@@ -29,10 +32,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from catalog.manifest import Manifest
 from catalog.parquet_io import episode_row, episodes_table, frames_table
 from catalog.reader import ShardReader, open_folder
 from catalog.records import ShardRecord, shard_stem
 from pipeline.jobs.audit import check_audit_index, read_audit
+from pipeline.jobs.progress import EpisodeReport, report_quietly
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.rollout import RolloutResult, run_episode
 from pipeline.loop.wrappers import RecordEpisode, loop_env
@@ -40,7 +45,7 @@ from pipeline.policy_registry import KINDS, Config, PolicyKind
 from schemas.errors import PolicyError, ReplayMismatch, ShardError
 from schemas.frames import EpisodeFrames
 from schemas.spec import EpisodeSpec
-from schemas.versions import FPS
+from schemas.versions import DATASET_VERSION, FPS
 
 ROLLOUT_COLUMNS = ("policy", "privileged", "status", "error")
 
@@ -57,10 +62,23 @@ class ReplayReport:
     frames: int
 
 
+def check_rebuildable(directory: object, manifest: Manifest) -> None:
+    """ShardError unless this code writes ``manifest``'s dataset version (rebuilds and replays
+    compare bytes, so an older version's folder can be read and scored but not re-executed)."""
+    built_with = manifest.settings.get("dataset_version")
+    if built_with != DATASET_VERSION:
+        raise ShardError(
+            f"{directory}/catalog.json: written as dataset version {built_with!r}; this code writes "
+            f"{DATASET_VERSION!r}, so its shards cannot be re-executed byte for byte (check out the commit "
+            f"{manifest.code.commit or 'that wrote it'})"
+        )
+
+
 def _mismatch(message: str, **where: Any) -> ReplayMismatch:
-    """A ReplayMismatch carrying ``shard``, ``episode``, ``frame``, ``column`` attributes."""
+    """A ReplayMismatch carrying ``shard``, ``episode``, ``frame``, ``column`` attributes and
+    ``file``, the folder-relative path of the file that differs."""
     exc = ReplayMismatch(message)
-    for key in ("shard", "episode", "frame", "column"):
+    for key in ("shard", "episode", "frame", "column", "file"):
         setattr(exc, key, where.get(key))
     return exc
 
@@ -187,7 +205,16 @@ def audited_replay(root: Path, extra: Mapping[str, Any]) -> AuditedReplay | None
     return None
 
 
-def _replay_shard(reader: ShardReader, settings: dict, env: RecordEpisode | None, audited: AuditedReplay | None = None) -> int:
+def replay_shard(
+    reader: ShardReader,
+    settings: dict,
+    env: RecordEpisode | None,
+    audited: AuditedReplay | None = None,
+    report: EpisodeReport | None = None,
+) -> int:
+    """Re-execute one shard (``env``: the environment for rollouts, None for ground truth),
+    compare every column and the rewritten files' sha256, and return its frame count;
+    ``report`` hears each episode re-executed. The first difference is a ReplayMismatch."""
     from catalog.shard import ShardWriter
 
     root, shard, rollout = reader.root, reader.record, reader.rollout
@@ -202,7 +229,7 @@ def _replay_shard(reader: ShardReader, settings: dict, env: RecordEpisode | None
     for row in episodes.to_pylist():
         index = row["episode_index"]
         spec = EpisodeSpec.from_json(row["spec"])
-        ids = {"shard": stem, "episode": index}
+        ids = {"shard": stem, "episode": index, "file": shard.files["frames"].path}
         prefix = f"{root}: shard {stem}, episode {index} ({spec.episode_id})"
         recorded = frames.filter(pa.array(frame_episode == index))
         replayed_status: dict[str, Any] = {}
@@ -234,8 +261,10 @@ def _replay_shard(reader: ShardReader, settings: dict, env: RecordEpisode | None
         found = _first_difference(recorded_row, expected_row, expected_row.column_names)
         if found is not None:
             _, column, detail = found
-            raise _mismatch(f"{prefix}, episodes table, column {column}{detail}", frame=None, column=column, **ids)
+            raise _mismatch(f"{prefix}, episodes table, column {column}{detail}", frame=None, column=column,
+                            **{**ids, "file": shard.files["episodes"].path})
         replayed.append((spec, ep_frames, images, extra))
+        report_quietly(report, shard.first, shard.end, len(replayed), sum(f.num_frames for _, f, _, _ in replayed))
 
     with tempfile.TemporaryDirectory(prefix="dyana-replay-") as scratch:
         with ShardWriter(scratch, shard.first, shard.end, settings, rollout=rollout) as writer:
@@ -248,7 +277,7 @@ def _replay_shard(reader: ShardReader, settings: dict, env: RecordEpisode | None
                 raise _mismatch(
                     f"{root}: shard {stem}: {record.path} differs from the replayed shard's "
                     f"(sha256 {again.sha256[:12]}… instead of {record.sha256[:12]}…) although every column matches",
-                    shard=stem, column=kind,
+                    shard=stem, column=kind, file=record.path,
                 )
     return sum(f.num_frames for _, f, _, _ in replayed)
 
@@ -259,8 +288,6 @@ def replay(
     on_shard: Callable[[ShardRecord], None] | None = None,
 ) -> ReplayReport:
     """Re-execute a built slice or a run (``shards``: only those first-episode indices)."""
-    from pipeline.jobs.verify import check_rebuildable
-
     folder = open_folder(path, verify="sha256")
     manifest, rollout = folder.manifest, folder.rollout
     check_rebuildable(folder.root, manifest)
@@ -283,7 +310,7 @@ def replay(
     episodes = frames = 0
     try:
         for shard in chosen:
-            frames += _replay_shard(shard, settings, env, audited)
+            frames += replay_shard(shard, settings, env, audited)
             episodes += shard.record.num_episodes
             if on_shard is not None:
                 on_shard(shard.record)

@@ -1,10 +1,12 @@
 """`catalog verify`: every listed file intact, and sampled shards rebuilt byte for byte.
 
 Integrity (sha256, sizes, readable Parquet/MCAP, no stray temps) comes from
-``catalog.integrity``. Rebuilding re-runs the episode stage, the renderer and the writers
-on the specs stored in each shard's episodes table (so slices built from a user's
-``--specs`` file verify too) into a temporary folder, and compares the bytes.
-Rollout sets are re-executed through ``pipeline.jobs.replay`` instead.
+``catalog.integrity``. Rebuilding re-executes each sampled shard through
+:func:`pipeline.jobs.replay.replay_shard` (the one re-execution of a recording): the
+episode stage, the renderer and the writers run again on the specs stored in the shard's
+episodes table (so slices built from a user's ``--specs`` file verify too), and every
+column and file's bytes are compared. Rollout sets are re-executed through
+:func:`pipeline.jobs.replay.replay` (with their environment) instead.
 
 Progress (with ``on_shard``, or ``progress=True``): a line per rebuilt episode on stderr,
 at most one per 2 s plus the last (:class:`schemas.cli.ProgressMeter`).
@@ -12,7 +14,6 @@ at most one per 2 s plus the last (:class:`schemas.cli.ProgressMeter`).
 
 from __future__ import annotations
 
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -21,14 +22,13 @@ import numpy as np
 
 from catalog.integrity import verify_files
 from catalog.manifest import Manifest
-from catalog.parquet_io import read_episodes
+from catalog.reader import open_folder
 from catalog.records import ShardRecord
 from catalog.storage import as_location
-from pipeline.jobs.runner import ReportingSpecs, reporting_episodes
+from pipeline.jobs.build import BuildSettings
+from pipeline.jobs.replay import check_rebuildable, replay, replay_shard
 from schemas.cli import ProgressMeter
-from schemas.errors import ShardError
-from schemas.spec import EpisodeSpec
-from schemas.versions import DATASET_VERSION
+from schemas.errors import ReplayMismatch, ShardError
 
 
 @dataclass(frozen=True)
@@ -47,45 +47,14 @@ def _sample_shards(manifest: Manifest, sample: int | None, rng: np.random.Genera
     return [shards[i] for i in sorted(picks)]
 
 
-def _stored_specs(directory: Path, shard: ShardRecord) -> list[EpisodeSpec]:
-    path = directory / shard.files["episodes"].path
-    table = read_episodes(path, columns=["episode_index", "spec"])
-    return [EpisodeSpec.from_json(text) for text in table.column("spec").to_pylist()]
-
-
-def check_rebuildable(directory: Path, manifest: Manifest) -> None:
-    """ShardError unless this code writes ``manifest``'s dataset version (rebuilds and replays
-    compare bytes, so an older version's folder can be read and scored but not re-executed)."""
-    built_with = manifest.settings.get("dataset_version")
-    if built_with != DATASET_VERSION:
-        raise ShardError(
-            f"{directory}/catalog.json: written as dataset version {built_with!r}; this code writes "
-            f"{DATASET_VERSION!r}, so its shards cannot be re-executed byte for byte (check out the commit "
-            f"{manifest.code.commit or 'that wrote it'})"
-        )
-
-
-def rebuild_shard(directory: Path, manifest: Manifest, shard: ShardRecord, scratch: Path) -> int:
-    """Rebuild one ground-truth shard into ``scratch`` and compare its files' bytes."""
-    from pipeline.jobs.build import BuildSettings
-    from pipeline.stages.record import write_ground_truth_shard
-
+def check_build_settings(directory: Path, manifest: Manifest) -> None:
+    """ShardError unless this code can rebuild ``manifest``'s ground truth: its dataset
+    version, and settings that are all :class:`BuildSettings`' (and valid)."""
     check_rebuildable(directory, manifest)
-    known = {f.name for f in fields(BuildSettings)}
-    unknown = sorted(set(manifest.settings) - known)
+    unknown = sorted(set(manifest.settings) - {f.name for f in fields(BuildSettings)})
     if unknown:
         raise ShardError(f"{directory / 'catalog.json'}: unknown settings {unknown}: written by another version of Dyana?")
-    settings = BuildSettings(**manifest.settings)
-    specs = ReportingSpecs(_stored_specs(directory, shard), shard.first, shard.end)  # episode progress
-    rebuilt = write_ground_truth_shard(specs, shard.first, shard.end, settings, scratch)
-    for kind, record in shard.files.items():
-        again = rebuilt.files[kind]
-        if again.sha256 != record.sha256:
-            raise ShardError(
-                f"{directory / record.path}: rebuilding gives different bytes "
-                f"(sha256 {again.sha256[:12]}… instead of {record.sha256[:12]}…)"
-            )
-    return len(shard.files)
+    BuildSettings(**manifest.settings)
 
 
 def verify(
@@ -104,11 +73,10 @@ def verify(
     manifest = verify_files(directory)
     shards = _sample_shards(manifest, sample, rng)
     if "policy" in manifest.extra:
-        from pipeline.jobs.replay import replay
-
         replay(directory, shards=[s.first for s in shards])
         return VerifyReport(manifest.slice, len(manifest.shards), len(shards), 0)
-    compared = 0
+    check_build_settings(directory, manifest)
+    readers = {reader.record.first: reader for reader in open_folder(directory).shards}  # hashes checked above
     show = on_shard is not None if progress is None else progress
     meter = ProgressMeter(sum(s.end - s.first for s in shards)) if show else None
     finished = [0, 0]  # episodes, frames of the shards rebuilt
@@ -117,13 +85,17 @@ def verify(
         if meter is not None and done < end - first:  # a shard's last episode is counted when it is compared
             meter.update(finished[0] + done, finished[1] + frames, prefix=f"[rebuilding {first}-{end - 1}]")
 
-    with tempfile.TemporaryDirectory(prefix="dyana-verify-") as scratch, reporting_episodes(report):
-        for shard in shards:
-            compared += rebuild_shard(directory, manifest, shard, Path(scratch))
-            finished[0] += shard.end - shard.first
-            finished[1] += shard.frames
-            if meter is not None:
-                meter.update(finished[0], finished[1], prefix=f"[{shards.index(shard) + 1}/{len(shards)} shards rebuilt]")
-            if on_shard is not None:
-                on_shard(shard)
+    compared = 0
+    for number, shard in enumerate(shards, 1):
+        try:
+            replay_shard(readers[shard.first], dict(manifest.settings), None, report=report)
+        except ReplayMismatch as exc:
+            raise ShardError(f"{directory / str(getattr(exc, 'file', ''))}: rebuilding gives different bytes ({exc})") from None
+        compared += len(shard.files)
+        finished[0] += shard.end - shard.first
+        finished[1] += shard.frames
+        if meter is not None:
+            meter.update(finished[0], finished[1], prefix=f"[{number}/{len(shards)} shards rebuilt]")
+        if on_shard is not None:
+            on_shard(shard)
     return VerifyReport(manifest.slice, len(manifest.shards), len(shards), compared)

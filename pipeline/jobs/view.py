@@ -20,11 +20,14 @@ import contextlib
 import os
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import pyarrow as pa
 
-from catalog.atomic import commit, discard, temp_path
+from catalog.manifest import Manifest
 from catalog.mcap_layout import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
+from catalog.outputs import check_output, staged_output
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
 from catalog.storage import as_location
@@ -34,12 +37,15 @@ from schemas.scene import LOC_TOLERANCE, PHASES
 from schemas.spec import EpisodeSpec
 from schemas.tables import OBSTACLE_CLEARANCE
 
+if TYPE_CHECKING:  # rerun is imported when a recording is written (it starts a Rust runtime)
+    from rerun import RecordingStream
+
 #: Phase colours (observe, approach, grasp, hold) for the palm trail and text log.
 PHASE_COLOURS = {"observe": (150, 150, 150), "approach": (40, 120, 255), "grasp": (255, 140, 0), "hold": (40, 200, 80)}
 OBJECT_COLOUR = (230, 60, 60)
 
 
-def _episode_rows(directory: Path, episode: int):
+def _episode_rows(directory: Path, episode: int) -> tuple[Manifest, pa.Table, dict[str, Any]]:
     """The folder's manifest, one episode's frames and its row, read through the checked
     reader (sizes and sha256 of the shard read, settings, numbering)."""
     folder = open_folder(directory, verify="sha256")
@@ -72,6 +78,7 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     directory, out = as_location(directory), Path(out)
     if out.suffix != ".rrd":
         raise SpecError(f"--out must end in .rrd, got {str(out)!r}")
+    check_output(out, [directory], "--out")  # never over a device or a file of the folder read
     manifest, rows, meta = _episode_rows(directory, episode)
     images = rows.column("image").to_pylist()
     phases = rows.column("phase").to_pylist()
@@ -89,24 +96,21 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     free = shutil.disk_usage(out.parent).free
     if free < needed:  # rerun's writer can stall on a full disk, so refuse before writing
         raise DyanaError(f"{out}: not enough free space for the recording (about {needed:,} bytes, {free:,} free)")
-    temp = temp_path(out)
-    rec = rr.RecordingStream("dyana", recording_id=meta["spec_hash"])
-    try:
-        rec.save(str(temp))
-        _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz,
-                     dict(manifest.settings))
-    except BaseException:
-        with contextlib.suppress(RuntimeError):
+    with staged_output(out, [directory], "--out") as temp:
+        rec = rr.RecordingStream("dyana", recording_id=meta["spec_hash"])
+        try:
+            rec.save(str(temp))
+            _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz,
+                         dict(manifest.settings))
+        except BaseException:
+            with contextlib.suppress(RuntimeError):
+                rec.disconnect()
+            raise
+        try:
+            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
             rec.disconnect()
-        discard(temp)
-        raise
-    try:
-        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        rec.disconnect()
-    except RuntimeError as exc:  # rerun's file writer failed or stalled (a full disk, an unwritable folder)
-        discard(temp)
-        raise DyanaError(f"{out}: cannot write the recording ({shorten(str(exc), 200)})") from None
-    commit(temp, out)
+        except RuntimeError as exc:  # rerun's file writer failed or stalled (a full disk, an unwritable folder)
+            raise DyanaError(f"{out}: cannot write the recording ({shorten(str(exc), 200)})") from None
     return out
 
 
@@ -120,7 +124,7 @@ def to_view(xyz: np.ndarray) -> np.ndarray:
     return to_foxglove_position(xyz).astype(np.float32)
 
 
-def _log_camera(rec, resolution: int) -> None:
+def _log_camera(rec: RecordingStream, resolution: int) -> None:
     """The fixed camera: its optical frame (x right, y down, z forward) in the world and its
     pinhole for a ``resolution``-pixel square image."""
     import rerun as rr
@@ -132,8 +136,9 @@ def _log_camera(rec, resolution: int) -> None:
                                       camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0), static=True)
 
 
-def _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz,
-                 settings: dict) -> None:
+def _log_episode(rec: RecordingStream, rows: pa.Table, meta: dict[str, Any], images: list[bytes], phases: list[str],
+                 timestamps: np.ndarray, frame_index: np.ndarray, state: dict[str, np.ndarray], fingertip: np.ndarray,
+                 palm_xz: np.ndarray, settings: dict[str, Any]) -> None:
     import rerun as rr
 
     rec.log("world", rr.ViewCoordinates.RFU, static=True)

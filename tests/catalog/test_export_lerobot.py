@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 import catalog
-from catalog.export.lerobot import ExportSettings, export
+from catalog.export.lerobot import ExportSettings
 from catalog.export.video import psnr
+from pipeline.jobs.export import export
 
 LEROBOT_PYTHON = os.environ.get("DYANA_LEROBOT_PYTHON")
 pytestmark = [

@@ -18,7 +18,7 @@ import pytest
 from catalog.integrity import verify_files
 from catalog.manifest import load_manifest
 from pipeline.jobs.build import build
-from pipeline.jobs.runner import STATE_FILE
+from pipeline.jobs.state import STATE_FILE
 from schemas.errors import SpecError
 from tests.shard_files import shard_bytes
 
@@ -51,7 +51,7 @@ def test_build_writes_a_verifiable_catalog(reference):
     assert load_manifest(slice_dir).hash == manifest.hash
     verify_files(slice_dir)
     assert not (slice_dir / STATE_FILE).exists()
-    assert sorted(p.name for p in slice_dir.iterdir()) == ["catalog.json", "episodes", "frames", "mcap", "stats.json"]
+    assert sorted(p.name for p in slice_dir.iterdir()) == [".lock", "catalog.json", "episodes", "frames", "mcap", "stats.json"]
 
 
 def test_two_workers_give_the_same_bytes(reference, tmp_path):
@@ -125,7 +125,7 @@ def test_killed_build_resumes_to_the_same_bytes(reference, tmp_path):
     assert load_manifest(tmp_path / SLICE).hash == fresh.hash
     assert _files(tmp_path / SLICE) == _files(fresh_out / SLICE)
     leftovers = [p.name for p in (tmp_path / SLICE).rglob("*") if p.name.startswith(".")]
-    assert leftovers == []
+    assert leftovers == [".lock"]  # no temporary or state; the lock file stays
 
 
 def test_specs_file_builds_the_same_episodes(reference, tmp_path):

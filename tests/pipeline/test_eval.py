@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import pipeline.jobs.engine as engine_module
 import pipeline.jobs.evaluate as evaluate_module
-import pipeline.jobs.runner as runner_module
 from catalog.integrity import verify_files
 from catalog.manifest import load_manifest
 from catalog.shard import ShardWriter, rollout_frame_limit
@@ -78,7 +78,7 @@ def test_a_run_is_a_verifiable_rollout_folder(runs):
     assert manifest.extra == {"policy": "oracle", "privileged": True, "deadline_s": None}
     assert manifest.slice == "test-1k" and manifest.settings["resolution"] == RESOLUTION
     assert [tuple(s.episodes) for s in manifest.shards] == [(0, 3), (3, 6)]
-    assert sorted(p.name for p in run.iterdir()) == ["catalog.json", "episodes", "frames", "mcap", "stats.json"]
+    assert sorted(p.name for p in run.iterdir()) == [".lock", "catalog.json", "episodes", "frames", "mcap", "stats.json"]
 
 
 def test_the_oracle_reproduces_the_ground_truth_states(runs):
@@ -207,7 +207,7 @@ def test_a_complete_run_by_other_code_is_not_reused(tmp_path, monkeypatch):
     monkeypatch.setattr(evaluate_module, "eval_shard", counted)
     evaluate("still", "test-1k", tmp_path / "run", **settings)
     assert calls == []
-    monkeypatch.setattr(runner_module, "git_commit", lambda: "0123456789abcdef0123456789abcdef01234567")
+    monkeypatch.setattr(engine_module, "git_commit", lambda: "0123456789abcdef0123456789abcdef01234567")
     manifest = evaluate("still", "test-1k", tmp_path / "run", **settings)
     assert calls == [0]
     assert manifest.code.commit == "0123456789abcdef0123456789abcdef01234567"

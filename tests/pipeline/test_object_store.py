@@ -167,4 +167,20 @@ def test_staging_left_by_another_job_is_cleared_not_refused(server, tmp_path):
     (stale / ".build-state.json").write_text(json.dumps({"identity": {"slice": "other"}, "shards": []}))
     result = _cli("pipeline", "build", *ARGS[:3], "2", *ARGS[4:], "--out", url, "--quiet", env=server, staging=tmp_path)
     assert result.returncode == 0, result.stderr
-    assert not stale.exists() and "catalog.json" in _objects("fresh/linear-fast")
+    # emptied (the other job's state gone); only its lock file stays, as lock files do
+    assert [p.name for p in stale.iterdir()] == [".lock"] and "catalog.json" in _objects("fresh/linear-fast")
+
+
+def test_a_second_job_on_one_url_from_this_machine_is_busy(tmp_path, monkeypatch):
+    """The URL's lock (beside its staging folder) is taken before the store is touched, so no
+    server is needed to see the refusal."""
+    from pipeline.jobs.lock import FolderBusy, held
+    from pipeline.jobs.object_store import staging_folder
+
+    monkeypatch.setenv("DYANA_STAGING", str(tmp_path))
+    url = f"s3://{BUCKET}/busy/linear-fast"  # the build writes OUT/<slice>
+    staging = staging_folder(url)
+    with held(staging.with_name(staging.name + ".lock"), url):
+        with pytest.raises(FolderBusy, match=f"{url}: another process"):
+            build("linear-fast", f"s3://{BUCKET}/busy", episodes=2, shard_size=2, resolution=32, workers=0,
+                  progress=False)

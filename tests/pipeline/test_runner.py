@@ -14,16 +14,11 @@ import pytest
 
 from catalog.manifest import load_manifest
 from catalog.records import shard_paths
-from pipeline.jobs import runner
-from pipeline.jobs.runner import (
-    FolderBusy,
-    Job,
-    ShardTask,
-    default_workers,
-    folder_lock,
-    run_job,
-    shard_ranges,
-)
+from pipeline.jobs import tasks as task_module
+from pipeline.jobs.lock import FolderBusy, folder_lock
+from pipeline.jobs.runner import Job, run_job
+from pipeline.jobs.state import STATE_FILE
+from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import SpecError
 from tests.shard_files import shard_names
 
@@ -52,20 +47,22 @@ def _calls():
 
 
 def test_a_complete_identical_job_is_up_to_date(tmp_path):
-    first, fresh = run_job(job(tmp_path), workers=0, progress=False)
-    assert not fresh and CALLS == [0, 2]
+    first = run_job(job(tmp_path), workers=0, progress=False)
+    assert not first.up_to_date and (first.shards_run, first.shards_resumed) == (2, 0) and CALLS == [0, 2]
     CALLS.clear()
-    again, up_to_date = run_job(job(tmp_path), workers=0, progress=False)
-    assert up_to_date and CALLS == [] and again == first
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["catalog.json", "episodes", "frames", "mcap"]  # no lock or state left
+    again = run_job(job(tmp_path), workers=0, progress=False)
+    assert again.up_to_date and CALLS == [] and again.manifest == first.manifest
+    # no state left; the lock file stays (never unlinked) and is nothing a manifest lists
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "catalog.json", "episodes", "frames", "mcap"]
 
 
 def test_a_damaged_shard_alone_is_redone(tmp_path):
-    manifest, _ = run_job(job(tmp_path), workers=0, progress=False)
+    manifest = run_job(job(tmp_path), workers=0, progress=False).manifest
     (tmp_path / manifest.shards[1].files["mcap"].path).write_bytes(b"tampered")
     CALLS.clear()
-    again, up_to_date = run_job(job(tmp_path), workers=0, progress=False)
-    assert not up_to_date and CALLS == [2] and again.hash == manifest.hash
+    again = run_job(job(tmp_path), workers=0, progress=False)
+    assert not again.up_to_date and CALLS == [2] and again.manifest.hash == manifest.hash
+    assert (again.shards_run, again.shards_resumed) == (1, 1)
 
 
 @pytest.mark.parametrize(
@@ -77,13 +74,13 @@ def test_a_damaged_shard_alone_is_redone(tmp_path):
     ],
 )
 def test_another_job_is_refused_naming_the_difference_and_nothing_is_lost(tmp_path, other, named):
-    manifest, _ = run_job(job(tmp_path), workers=0, progress=False)
+    run_job(job(tmp_path), workers=0, progress=False)
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     with pytest.raises(SpecError, match="another job") as caught:
         run_job(job(tmp_path, **other), workers=0, progress=False)
     assert named in str(caught.value) and "--overwrite" in str(caught.value)
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
-    replaced, _ = run_job(job(tmp_path, **other), workers=0, progress=False, overwrite=True)
+    replaced = run_job(job(tmp_path, **other), workers=0, progress=False, overwrite=True).manifest
     listed = {f.path for s in replaced.shards for f in s.files.values()}
     assert set(shard_names(tmp_path)) == listed
 
@@ -97,7 +94,7 @@ def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, job(tmp_path).tasks, dies, "a", with_stats=False),
                 workers=0, progress=False)
-    assert (tmp_path / runner.STATE_FILE).exists() and not (tmp_path / "catalog.json").exists()
+    assert (tmp_path / STATE_FILE).exists() and not (tmp_path / "catalog.json").exists()
     with pytest.raises(SpecError, match="unfinished run of another job"):
         run_job(job(tmp_path, episodes=2), workers=0, progress=False)
     CALLS.clear()
@@ -114,7 +111,7 @@ def test_a_second_process_on_the_folder_is_refused(tmp_path):
 
 def test_workers_default_to_one_per_core_and_are_bounded(tmp_path):
     assert default_workers() == len(os.sched_getaffinity(0))
-    with pytest.raises(SpecError, match="--workers"):
+    with pytest.raises(SpecError, match=r"--workers must be an integer in \[0, 64\] \(0: in this process"):
         run_job(job(tmp_path), workers=1000, progress=False)
 
 
@@ -127,13 +124,13 @@ def test_a_scheduler_address_that_is_not_a_scheduler_is_one_error(monkeypatch):
 
     from schemas.errors import DyanaError
 
-    monkeypatch.setattr(runner, "CONNECT_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(task_module, "CONNECT_TIMEOUT_S", 1.0)
     with socket.socket() as silent:
         silent.bind(("127.0.0.1", 0))
         silent.listen()
         address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
         with pytest.raises(DyanaError, match=r"cannot connect to the Dask scheduler: no Dask handshake within 1 s"):
-            runner._connect(Client, address)
+            task_module.connect(Client, address)
 
 
 # --- progress ------------------------------------------------------------------------------
@@ -156,14 +153,15 @@ def test_progress_is_per_episode_in_process(tmp_path, capsys):
     assert len(lines) == 2  # the rest came within 2 s of the first
 
 
-def test_specs_report_only_inside_a_reporting_block():
+def test_specs_report_only_to_the_tasks_reporter():
     heard = []
-    specs = ShardTask("linear-fast", 4, 7).specs()
-    assert [s.episode_index for s in specs] == [4, 5, 6] and heard == []
-    with runner.reporting_episodes(lambda *report: heard.append(report)):
-        for spec in specs:
-            assert len(heard) == spec.episode_index - 4  # the previous episode is reported done
-    frames = list(itertools.accumulate(s.num_frames for s in specs))
+    task = ShardTask("linear-fast", 4, 7)
+    assert [s.episode_index for s in task.specs()] == [4, 5, 6] and heard == []
+    specs = task.reporting_to(lambda *report: heard.append(report)).specs()
+    assert task.reporting_to(print) == task  # the reporter is not part of what the task is
+    for spec in specs:
+        assert len(heard) == spec.episode_index - 4  # the previous episode is reported done
+    frames = list(itertools.accumulate(s.num_frames for s in task.specs()))
     assert heard == [(4, 7, k + 1, frames[k]) for k in range(3)]
 
 
@@ -205,7 +203,7 @@ def test_a_dask_build_reports_episodes_before_its_shard_finishes_and_quiet_is_si
     quiet = _build(tmp_path / "quiet", "--quiet")
     assert quiet.returncode == 0 and quiet.stderr == ""  # no progress, no Dask log lines
     hashes = [load_manifest(tmp_path / name / "linear-fast").hash for name in ("shown", "quiet")]
-    in_process, _ = run_job_build(tmp_path / "in-process")
+    in_process = run_job_build(tmp_path / "in-process").manifest
     assert hashes == [in_process.hash] * 2  # progress changes no byte
 
 

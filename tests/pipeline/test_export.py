@@ -1,9 +1,11 @@
 """`catalog export`: LeRobot v3.0 and v2.1 exports read back with the HF `datasets` Parquet
-loader and PyAV, compared frame by frame with the source; determinism, resume, refusals."""
+loader and PyAV, compared frame by frame with the source; determinism, resume, up to date
+(only when every file is intact), refusals."""
 
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -12,12 +14,13 @@ import pyarrow.parquet as pq
 import pytest
 
 import catalog
-from catalog.export import lerobot as export_module
 from catalog.export.layout import VIDEO_KEY
-from catalog.export.lerobot import ExportError, ExportSettings, export
+from catalog.export.lerobot import ExportError, ExportSettings
 from catalog.export.video import decode_frames, psnr
 from catalog.stats import load_stats
 from pipeline.cli_catalog import main as catalog_main
+from pipeline.jobs import export as export_module
+from pipeline.jobs.export import export
 
 datasets = pytest.importorskip("datasets")
 
@@ -157,7 +160,7 @@ def test_an_export_is_the_same_bytes_again_and_its_manifest_hashes_every_file(bu
     first, second = _tree(exports[fmt]), _tree(again)
     assert first == second
     meta = json.loads(second["meta/dyana.json"])
-    assert set(meta["files"]) == set(second) - {"meta/dyana.json"}
+    assert set(meta["files"]) == set(second) - {"meta/dyana.json", ".lock"}  # the folder lock is no part of it
     assert meta["source"]["slice_hash"] == json.loads((built / "catalog.json").read_text())["hash"]
     assert meta["job"]["codec"]["encoder"] == "libx264" and meta["job"]["codec"]["pyav"]
 
@@ -167,11 +170,11 @@ def test_an_interrupted_export_resumes_and_ends_byte_identical(built, exports, t
     real = export_module.export_unit
     calls = []
 
-    def failing(unit):
-        calls.append(unit.shard)
-        if unit.shard == 1:
+    def failing(plan, first, report=None):
+        calls.append(first)
+        if first == SHARD_SIZE:  # the second shard
             raise KeyboardInterrupt
-        return real(unit)
+        return real(plan, first, report)
 
     monkeypatch.setattr(export_module, "export_unit", failing)
     with pytest.raises(KeyboardInterrupt):
@@ -194,6 +197,23 @@ def test_a_finished_export_is_up_to_date_and_another_is_refused_without_overwrit
     export(built, target, ExportSettings("lerobot-v2.1"), overwrite=True)
     assert json.loads((target / "meta/info.json").read_text())["codebase_version"] == "v2.1"
     assert not (target / "data/chunk-000/file-000.parquet").exists()
+
+
+@pytest.mark.parametrize("damage", ["flip", "truncate"])
+def test_a_damaged_export_is_not_up_to_date_and_is_exported_again(built, exports, tmp_path, damage):
+    target = tmp_path / "damaged"
+    shutil.copytree(exports["lerobot"], target)
+    victim = target / "data/chunk-000/file-001.parquet"
+    data = bytearray(victim.read_bytes())
+    if damage == "flip":
+        data[len(data) // 2] ^= 0xFF  # same size: only the sha256 tells
+    else:
+        data = data[:-10]
+    victim.write_bytes(bytes(data))
+    report = export(built, target, ExportSettings("lerobot"))
+    assert not report.up_to_date and report.units_done == 3
+    assert _tree(target) == _tree(exports["lerobot"])
+    assert export(built, target, ExportSettings("lerobot")).up_to_date
 
 
 def test_a_folder_that_is_not_an_export_is_never_touched(built, tmp_path, capsys):
@@ -245,3 +265,22 @@ def test_the_av1_codec_is_deterministic_and_decodes(built, tmp_path):
     decoded = [f for path in sorted((tmp_path / "a" / "videos").rglob("*.mp4")) for _, f in decode_frames(path)]
     assert len(decoded) == len(source)
     assert min(psnr(a, s["image"]) for a, s in zip(decoded, source)) >= 28.0
+
+
+# --- progress --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_export_reports_episodes_before_their_shard_is_done(built, exports, tmp_path, workers):
+    """Progress per exported episode, from worker processes too; its bytes do not depend on it."""
+    lines: list[str] = []
+    export(built, tmp_path / "shown", ExportSettings("lerobot"), workers=workers, progress=lines.append)
+    assert re.fullmatch(r"\[0/3 shards\] 1/5 episodes, \d+/\d+ frames, [\d.]+ frames/s, eta \?", lines[0]), lines
+    assert lines[-1].startswith("[3/3 shards] 5/5 episodes, ") and lines[-1].endswith("eta 0s"), lines
+    shown, quiet = (json.loads((folder / "meta" / "dyana.json").read_text())
+                    for folder in (tmp_path / "shown", exports["lerobot"]))
+    # The videos are left out: under load, libx264 here rarely encodes a shard's MP4 with other
+    # bytes whether or not progress is shown (seen in 2 of 60 quiet and shown exports alike).
+    for meta in (shown, quiet):
+        meta["files"] = {k: v for k, v in meta["files"].items() if not k.endswith(".mp4")}
+    assert shown == quiet

@@ -1,0 +1,209 @@
+"""One unit of a LeRobot export: one source shard's episodes as data and video files,
+and its part record (:class:`catalog.export.lerobot.Part`).
+
+In v3.0 the shard becomes one data file and one video file (``file-<shard>``), in v2.1
+one data and one video file per episode. The part record is written last, so a unit
+whose part record is there (and whose files still match it) is finished.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from catalog.atomic import atomic_open, atomic_write_text
+from catalog.export.episode_stats import Moments
+from catalog.export.layout import (
+    EPISODE_FACTS,
+    INDEX_FEATURES,
+    ROLLOUT_FACTS,
+    V21_DATA_PATH,
+    V21_VIDEO_PATH,
+    V30_DATA_PATH,
+    V30_VIDEO_PATH,
+    VECTOR_NAMES,
+    VECTOR_SOURCES,
+    VIDEO_KEY,
+    chunk_of,
+)
+from catalog.export.lerobot import ExportError, ExportPlan, Json, Part, json_int, part_path
+from catalog.export.video import VideoWriter
+from catalog.hashing import sha256_file
+from catalog.parquet_io import column_to_numpy
+from catalog.reader import ShardReader, open_folder
+from catalog.records import FileRecord
+from schemas.versions import FPS
+
+_IMREAD = getattr(cv2, "IMREAD_COLOR_RGB", None)
+
+#: ``(first, end, done, frames)``: ``done`` episodes (``frames`` frames) of the unit of
+#: source episodes [first, end) are exported (progress only).
+EpisodeReport = Callable[[int, int, int, int], None]
+
+
+def _decode(jpeg: bytes) -> np.ndarray:
+    data = np.frombuffer(jpeg, dtype=np.uint8)
+    if _IMREAD is not None:
+        image = cv2.imdecode(data, _IMREAD)
+    else:  # pragma: no cover - older OpenCV
+        image = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        image = None if image is None else image[:, :, ::-1]
+    if image is None:
+        raise ExportError("a frame's JPEG does not decode")
+    return np.ascontiguousarray(image)
+
+
+def _hf_features() -> dict[str, Json]:
+    """The ``huggingface`` schema metadata `datasets` reads the data files' features from."""
+    out: dict[str, Json] = {}
+    for key, names in VECTOR_NAMES.items():
+        out[key] = {"feature": {"dtype": "float32", "_type": "Value"}, "length": len(names), "_type": "Sequence"}
+    out["timestamp"] = {"dtype": "float32", "_type": "Value"}
+    for key in INDEX_FEATURES[1:]:
+        out[key] = {"dtype": "int64", "_type": "Value"}
+    return {"info": {"features": out}}
+
+
+DATA_SCHEMA = pa.schema(
+    [pa.field(key, pa.list_(pa.float32(), len(names))) for key, names in VECTOR_NAMES.items()]
+    + [pa.field("timestamp", pa.float32())]
+    + [pa.field(key, pa.int64()) for key in INDEX_FEATURES[1:]],
+    metadata={"huggingface": json.dumps(_hf_features(), sort_keys=True)},
+)
+
+
+def _vector(columns: dict[str, np.ndarray], key: str, rows: slice) -> np.ndarray:
+    return np.concatenate([columns[name][rows] for name in VECTOR_SOURCES[key]], axis=1).astype(np.float32)
+
+
+def _data_table(columns: dict[str, np.ndarray], rows: slice, episode: int, first_index: int, task: int) -> pa.Table:
+    n = rows.stop - rows.start
+    frame_index = columns["frame_index"][rows].astype(np.int64)
+    arrays = []
+    for key, names in VECTOR_NAMES.items():
+        values = _vector(columns, key, rows)
+        arrays.append(pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1), pa.float32()), len(names)))
+    arrays.append(pa.array((frame_index / FPS).astype(np.float32), pa.float32()))
+    arrays.append(pa.array(frame_index, pa.int64()))
+    arrays.append(pa.array(np.full(n, episode, dtype=np.int64), pa.int64()))
+    arrays.append(pa.array(np.arange(first_index, first_index + n, dtype=np.int64), pa.int64()))
+    arrays.append(pa.array(np.full(n, task, dtype=np.int64), pa.int64()))
+    return pa.Table.from_arrays(arrays, schema=DATA_SCHEMA)
+
+
+def _write_parquet(path: Path, tables: list[pa.Table]) -> None:
+    with atomic_open(path, "wb") as handle:
+        with pq.ParquetWriter(handle, DATA_SCHEMA, compression="zstd", write_statistics=True) as writer:
+            for table in tables:
+                writer.write_table(table, row_group_size=max(table.num_rows, 1))
+
+
+def _episode_stats(columns: dict[str, np.ndarray], rows: slice, images: np.ndarray, index: np.ndarray,
+                   episode: int, task: int) -> dict[str, Moments]:
+    n = rows.stop - rows.start
+    frame_index = columns["frame_index"][rows].astype(np.float64)
+    stats = {key: Moments.of(_vector(columns, key, rows)) for key in VECTOR_NAMES}
+    stats[VIDEO_KEY] = Moments.of_images(images)
+    stats["timestamp"] = Moments.of((frame_index / FPS)[:, None])
+    stats["frame_index"] = Moments.of(frame_index[:, None])
+    stats["episode_index"] = Moments.of(np.full((n, 1), float(episode)))
+    stats["index"] = Moments.of(index.astype(np.float64)[:, None])
+    stats["task_index"] = Moments.of(np.full((n, 1), float(task)))
+    return stats
+
+
+def _facts(row: dict[str, Json]) -> dict[str, Json]:
+    return {f"dyana/{name}": row[name] for name in EPISODE_FACTS + ROLLOUT_FACTS if name in row}
+
+
+def export_unit(plan: ExportPlan, first: int, report: EpisodeReport | None = None) -> Part:
+    """Export the source shard whose episodes start at ``first``; its part record, written
+    last. ``report`` hears each exported episode (progress only: its failure is ignored)."""
+    reader = open_folder(plan.source, verify="sha256")
+    number, shard = next((k, s) for k, s in enumerate(reader.shards) if s.record.first == first)
+    episodes = shard.episodes()
+    names = ("image", "frame_index", "palm_pose", "joint_angles", "object_pose", "action")
+    table, runs = shard.indexed_frames(names, episodes)
+    columns = {name: column_to_numpy(table.column(name)) for name in names if name != "image"}
+    out = Path(plan.out)
+    records, files = _write_episodes(plan, number, shard, episodes.to_pylist(), table.column("image"), runs, columns,
+                                     out, report)
+    part = Part(number, tuple(records),
+                tuple(FileRecord(p.relative_to(out).as_posix(), sha256_file(p), p.stat().st_size) for p in files))
+    text = json.dumps(part.to_dict(), sort_keys=True)
+    atomic_write_text(part_path(out, number), text + "\n")
+    return Part.from_dict(json.loads(text))  # the same canonical form a resumed export reads back
+
+
+def _write_episodes(plan: ExportPlan, number: int, shard: ShardReader, rows: list[dict[str, Json]],
+                    jpegs: pa.ChunkedArray, runs: dict[int, tuple[int, int]], columns: dict[str, np.ndarray], out: Path,
+                    report: EpisodeReport | None) -> tuple[list[dict[str, Json]], list[Path]]:
+    """The unit's data and video files; each episode's record and the files written."""
+    v30 = plan.settings.version == "v3.0"
+    chunk, file_index = chunk_of(number)
+    first_index = next_index = plan.first_index[shard.record.first]
+    records: list[dict[str, Json]] = []
+    files: list[Path] = []
+    data_tables: list[pa.Table] = []
+    video: VideoWriter | None = None
+    if v30:
+        video_path = out / V30_VIDEO_PATH.format(video_key=VIDEO_KEY, chunk_index=chunk, file_index=file_index)
+        video = VideoWriter(video_path, plan.width, plan.height, FPS, plan.settings.codec)
+    try:
+        for row in rows:
+            episode = json_int(row["episode_index"])
+            start, count = runs[episode]
+            span = slice(start, start + count)
+            images = np.stack([_decode(jpegs[k].as_py()) for k in range(start, start + count)])
+            task = plan.tasks[str(row["text"])]
+            index = np.arange(next_index, next_index + count, dtype=np.int64)
+            data = _data_table(columns, span, episode, next_index, task)
+            record: dict[str, Json] = {
+                "episode_index": episode,
+                "tasks": [row["text"]],
+                "length": count,
+                "dataset_from_index": next_index,
+                "dataset_to_index": next_index + count,
+                "stats": {k: m.to_state() for k, m in _episode_stats(columns, span, images, index, episode, task).items()},
+                **_facts(row),
+            }
+            if video is not None:
+                record["from_timestamp"] = video.frames / FPS
+                for image in images:
+                    video.add(image)
+                record["to_timestamp"] = video.frames / FPS
+                record["chunk_index"], record["file_index"] = chunk, file_index
+                data_tables.append(data)
+            else:
+                episode_chunk = episode // 1000
+                data_path = out / V21_DATA_PATH.format(episode_chunk=episode_chunk, episode_index=episode)
+                _write_parquet(data_path, [data])
+                video_path = out / V21_VIDEO_PATH.format(episode_chunk=episode_chunk, video_key=VIDEO_KEY,
+                                                         episode_index=episode)
+                with VideoWriter(video_path, plan.width, plan.height, FPS, plan.settings.codec) as writer:
+                    for image in images:
+                        writer.add(image)
+                files += [data_path, video_path]
+            records.append(record)
+            next_index += count
+            if report is not None:
+                try:  # progress never fails an export
+                    report(shard.record.first, shard.record.end, len(records), next_index - first_index)
+                except Exception:
+                    pass
+        if video is not None:
+            video.finish()
+            video = None
+            data_path = out / V30_DATA_PATH.format(chunk_index=chunk, file_index=file_index)
+            _write_parquet(data_path, data_tables)
+            files += [data_path, out / V30_VIDEO_PATH.format(video_key=VIDEO_KEY, chunk_index=chunk, file_index=file_index)]
+    finally:
+        if video is not None:
+            video.__exit__(RuntimeError, None, None)
+    return records, files

@@ -1,0 +1,196 @@
+"""The job engine: everything around the shard tasks of a job that writes a folder.
+
+Where the folder ends up is a :class:`Destination`: a local folder written in place
+(:class:`LocalFolder`), or a local staging folder published as it goes (an object store:
+:mod:`pipeline.jobs.object_store`); the engine writes into ``destination.folder`` and tells
+the destination which files each finished unit and the finished job left there.
+
+Build and eval (:mod:`pipeline.jobs.runner`) and the LeRobot export
+(:mod:`pipeline.jobs.export`) differ only in what their folder holds when finished, a
+:class:`Product`: how a finished or interrupted job is read back (its identity, the units
+it may keep because their files still have their sizes and sha256, or the finished
+result when the folder is complete and intact: "up to date"), how a finished unit is
+recorded for resuming, and how the folder is finished (metadata written last).
+:func:`run_folder_job` owns the rest, the same for every job:
+
+- the folder lock (:mod:`pipeline.jobs.lock`), held from the first look at the folder
+  to the last file written; stray temporaries of dead writers are removed;
+- the units still to do run as Dask tasks or in this process (:mod:`pipeline.jobs.tasks`);
+- progress, passed as an argument (``say``: where lines go, or None for none): a line
+  per finished episode, at most one per 2 s plus the last (:mod:`pipeline.jobs.progress`);
+- the typed outcome: the product's result, whether it was up to date, units run and kept.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Generic, Protocol, TypeVar
+
+from catalog.atomic import remove_stray_temps
+from catalog.manifest import git_commit
+from pipeline.jobs.lock import folder_lock
+from pipeline.jobs.progress import Progress, Unit
+from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, check_workers, run_tasks
+from schemas.errors import SpecError
+
+Range = tuple[int, int]
+
+
+UnitT = TypeVar("UnitT", bound=Unit)
+Result = TypeVar("Result")
+
+
+@dataclass(frozen=True)
+class Previous(Generic[UnitT, Result]):
+    """What the folder already holds of this job: units it may keep (by episode range), and
+    the finished result when the folder is complete and intact (then nothing is run)."""
+
+    done: Mapping[Range, UnitT] = field(default_factory=dict)
+    finished: Result | None = None
+
+
+class Product(Protocol[UnitT, Result]):
+    """What a job's folder holds apart from running its units."""
+
+    def previous(self, folder: Path, commit: str | None, overwrite: bool) -> Previous[UnitT, Result]:
+        """Read the folder (refusing another job's unless ``overwrite``)."""
+        ...
+
+    def unit(self, result: dict[str, Any]) -> UnitT:
+        """A task's result as the unit's record."""
+        ...
+
+    def save(self, folder: Path, commit: str | None, done: Mapping[Range, UnitT]) -> None:
+        """Record the finished units, for a killed run to resume from."""
+        ...
+
+    def finish(self, folder: Path, commit: str | None, units: Sequence[UnitT]) -> Result:
+        """Write what marks the folder finished (last), from every unit in order."""
+        ...
+
+    def unit_files(self, unit: UnitT) -> list[str]:
+        """The folder-relative files a finished unit leaves, its resume state last."""
+        ...
+
+    def result_files(self, result: Result) -> list[str]:
+        """Every folder-relative file of the finished folder, what marks it finished last."""
+        ...
+
+
+class Destination(Protocol):
+    """Where a job's folder ends up (see the module docstring)."""
+
+    @property
+    def folder(self) -> Path:
+        """The local folder the job writes."""
+        ...
+
+    def unit_done(self, paths: Sequence[str]) -> None:
+        """A unit finished: these files of ``folder`` are complete (its resume state last)."""
+        ...
+
+    def job_done(self, paths: Sequence[str]) -> None:
+        """The job finished (or was up to date): these are every file of the folder."""
+        ...
+
+
+@dataclass(frozen=True)
+class LocalFolder:
+    """A local folder, written in place: nothing to publish."""
+
+    folder: Path
+
+    def unit_done(self, paths: Sequence[str]) -> None:
+        """Nothing: the files are where they belong."""
+
+    def job_done(self, paths: Sequence[str]) -> None:
+        """Nothing: the files are where they belong."""
+
+
+@dataclass(frozen=True)
+class Outcome(Generic[Result]):
+    """What :func:`run_folder_job` did: the product's result; ``up_to_date`` when the folder
+    already held this complete job; units run now and kept from an interrupted run."""
+
+    result: Result
+    up_to_date: bool
+    units_run: int
+    units_resumed: int
+
+
+@dataclass(frozen=True)
+class Execution:
+    """Where and how the units run: ``workers`` local processes (0: this process, no Dask)
+    or an existing Dask ``scheduler``; ``say`` receives progress lines (None: no progress)."""
+
+    workers: int
+    scheduler: str | None = None
+    say: Callable[[str], None] | None = None
+
+    def __post_init__(self) -> None:
+        check_workers(self.workers, self.scheduler)
+
+
+def prepare_folder(folder: Path) -> None:
+    """Create the output folder, or one SpecError naming it."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SpecError(f"{folder}: cannot create the output folder ({exc.strerror or exc})") from None
+
+
+def run_folder_job(
+    destination: Destination,
+    product: Product[UnitT, Result],
+    tasks: Sequence[ShardTask],
+    task_fn: TaskFn[Payload],
+    payload: Payload,
+    execution: Execution,
+    *,
+    overwrite: bool = False,
+    verb: str = "built",
+    key_prefix: str = "shard",
+    total_frames: int | None = None,
+    on_result: Callable[[dict[str, Any]], None] | None = None,
+) -> Outcome[Result]:
+    """Run the units of ``tasks`` not already done into the destination's folder and finish it (module docstring)."""
+    folder = destination.folder
+    prepare_folder(folder)
+    ranges = [(task.first, task.end) for task in tasks]
+    with folder_lock(folder):
+        remove_stray_temps(folder)
+        commit = git_commit()
+        previous = product.previous(folder, commit, overwrite)
+        if previous.finished is not None:
+            destination.job_done(product.result_files(previous.finished))
+            return Outcome(previous.finished, True, 0, len(previous.done))
+        done = {key: unit for key, unit in previous.done.items() if key in set(ranges)}
+        resumed = len(done)
+        todo = [task for task in tasks if (task.first, task.end) not in done]
+        say = execution.say
+        episodes = sum(end - first for first, end in ranges)
+        meter = None if say is None else Progress(len(ranges), episodes, total_frames=total_frames, say=say)
+        if meter is not None and say is not None and done:
+            say(f"resuming: {len(done)} of {len(ranges)} shards already {verb}")
+            meter.resumed([done[key] for key in sorted(done)])
+
+        def on_done(result: dict[str, Any]) -> None:
+            unit = product.unit(result)
+            done[(unit.first, unit.end)] = unit
+            product.save(folder, commit, done)
+            destination.unit_done(product.unit_files(unit))
+            if on_result is not None:
+                on_result(result)
+            if meter is not None:
+                meter.update(unit)
+
+        try:
+            run_tasks(todo, task_fn, payload, folder, execution.workers, execution.scheduler, on_done, key_prefix,
+                      on_episode=None if meter is None else meter.episode)
+        finally:
+            remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
+        result = product.finish(folder, commit, [done[key] for key in ranges])
+        destination.job_done(product.result_files(result))
+    return Outcome(result, False, len(todo), resumed)

@@ -1,0 +1,209 @@
+"""``catalog export DIR --format lerobot|lerobot-v2.1 --out OUT``: a built slice or an
+evaluated run as a LeRobot dataset, run by the job engine (:mod:`pipeline.jobs.engine`).
+
+The format (units, parts, metadata) is :mod:`catalog.export.lerobot`'s; here is the
+export as a job: its units are the source's shards, run as Dask tasks or in this
+process, under the folder lock, with progress per exported episode. The driver lives in
+``pipeline`` (not beside the format in ``catalog``) because running jobs (processes, Dask,
+the lock) is this layer's; ``catalog`` stays a library of formats and readers.
+
+A folder holds one export: an existing finished export of the same source and settings
+whose every listed file still has its size and sha256 is "up to date" (a damaged one is
+exported again); an interrupted export of the same source and settings resumes from the
+units whose files are intact; anything else in ``OUT`` is refused unless ``--overwrite``
+(which only ever deletes a folder that is a Dyana export).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from catalog.atomic import atomic_write_text
+from catalog.export.layout import DYANA_META
+from catalog.export.lerobot import (
+    WORK_DIR,
+    ExportError,
+    ExportPlan,
+    ExportSettings,
+    Json,
+    Part,
+    job_identity,
+    part_path,
+    read_part,
+)
+from catalog.export.meta import assemble, tasks_of
+from catalog.export.unit import export_unit
+from catalog.reader import FolderReader, open_folder
+from catalog.records import FileRecord
+from pipeline.jobs.engine import Execution, LocalFolder, Previous, Range, run_folder_job
+from pipeline.jobs.lock import LOCK_FILE
+from pipeline.jobs.state import file_intact
+from pipeline.jobs.tasks import ShardTask
+from schemas.errors import DyanaError
+from schemas.names import shorten
+
+JOB_FILE = "job.json"
+
+
+@dataclass(frozen=True)
+class ExportReport:
+    """What :func:`export` did: the folder, its episodes and frames, units exported now and
+    kept from an interrupted export, whether it was up to date, and the seconds taken."""
+
+    out: Path
+    episodes: int
+    frames: int
+    units_done: int
+    units_resumed: int
+    up_to_date: bool
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Exported:
+    """A finished export's size."""
+
+    episodes: int
+    frames: int
+
+
+def _content(out: Path) -> list[Path]:
+    """What ``out`` holds besides the export's work folder and the folder lock."""
+    return [child for child in out.iterdir() if child.name not in (WORK_DIR, LOCK_FILE)]
+
+
+def _is_export(out: Path) -> bool:
+    return (out / DYANA_META).is_file() or (out / WORK_DIR / JOB_FILE).is_file()
+
+
+def check_foreign(out: Path) -> None:
+    """Refuse, before writing anything (not even the lock), a folder holding something other than an export."""
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"{shorten(os.fspath(out))}: exists and is not a folder")
+    if out.is_dir() and not _is_export(out) and _content(out):
+        raise ExportError(f"{shorten(os.fspath(out))}: not empty and not a Dyana export; choose a new folder")
+
+
+def _read_json(path: Path) -> Json:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def files_intact(out: Path, files: Json) -> bool:
+    """Every file a ``meta/dyana.json`` lists is there with its size and sha256."""
+    if not isinstance(files, dict):
+        return False
+    try:
+        records = [FileRecord.from_dict({"path": path, **entry}) for path, entry in files.items()]
+    except (TypeError, DyanaError):
+        return False
+    return all(file_intact(out, record) for record in records)
+
+
+@dataclass(frozen=True)
+class LeRobotProduct:
+    """A LeRobot export folder as the engine's product (see the module docstring)."""
+
+    reader: FolderReader
+    settings: ExportSettings
+    plan: ExportPlan
+    identity: Mapping[str, Json]
+
+    def previous(self, folder: Path, commit: str | None, overwrite: bool) -> Previous[Part, Exported]:
+        check_foreign(folder)
+        finished, job = folder / DYANA_META, folder / WORK_DIR / JOB_FILE
+        meta = _read_json(finished) if finished.is_file() else None
+        same = isinstance(meta, dict) and meta.get("job") == self.identity and not overwrite
+        if same and isinstance(meta, dict) and files_intact(folder, meta.get("files")):
+            return Previous(finished=Exported(self.reader.manifest.episodes, self.reader.manifest.frames))
+        if _content(folder):
+            resuming = job.is_file() and _read_json(job) == self.identity and not finished.is_file()
+            if not (resuming or same):
+                if not overwrite:
+                    raise ExportError(f"{shorten(os.fspath(folder))}: holds an export of another source or settings; "
+                                      "use --overwrite to replace it")
+                for child in _content(folder):
+                    shutil.rmtree(child) if child.is_dir() else child.unlink()
+                for child in (folder / WORK_DIR).glob("part-*.json"):
+                    child.unlink()
+            if same:  # this export, damaged: its parts are gone, so every unit is exported again
+                finished.unlink()
+        atomic_write_text(job, json.dumps(dict(self.identity), sort_keys=True) + "\n")
+        done: dict[Range, Part] = {}
+        for number in range(len(self.reader.shards)):
+            part = read_part(folder, number)
+            if part is not None and all(file_intact(folder, f) for f in part.files):
+                done[(part.first, part.end)] = part
+        return Previous(done)
+
+    def unit(self, result: dict[str, Any]) -> Part:
+        return Part.from_dict(result["part"])
+
+    def save(self, folder: Path, commit: str | None, done: Mapping[Range, Part]) -> None:
+        """Nothing: each unit's part record, written by the unit itself, is the resume state."""
+
+    def unit_files(self, unit: Part) -> list[str]:
+        return [f.path for f in unit.files] + [part_path(Path(), unit.shard).as_posix()]
+
+    def result_files(self, result: Exported) -> list[str]:
+        meta = _read_json(Path(self.plan.out) / DYANA_META)
+        files = meta.get("files", {}) if isinstance(meta, dict) else {}
+        return [*sorted(files), DYANA_META]
+
+    def finish(self, folder: Path, commit: str | None, units: Sequence[Part]) -> Exported:
+        assemble(folder, self.reader, self.settings, units, self.plan.tasks, self.identity, self.plan.height,
+                 self.plan.width)
+        for part in units:
+            part_path(folder, part.shard).unlink()
+        (folder / WORK_DIR / JOB_FILE).unlink()
+        (folder / WORK_DIR).rmdir()
+        return Exported(sum(len(p.episodes) for p in units), sum(p.frames for p in units))
+
+
+def export_shard(task: ShardTask, plan: ExportPlan, folder: str) -> dict[str, Any]:
+    """Worker side: export the source shard of ``task``; its part record."""
+    return {"part": export_unit(plan, task.first, task.report).to_dict()}
+
+
+def export(
+    source: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    settings: ExportSettings,
+    *,
+    workers: int = 1,
+    overwrite: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> ExportReport:
+    """Export a built slice or run folder into ``out`` (see the module docstring):
+    ``workers`` processes (1: in this process), progress lines to ``progress``."""
+    start = time.perf_counter()
+    reader = open_folder(source, verify="sha256")
+    manifest = reader.manifest
+    if manifest.episodes == 0:
+        raise ExportError(f"{shorten(os.fspath(source))}: nothing to export (no episodes)")
+    target = Path(out)
+    check_foreign(target)
+    height = width = int(manifest.settings.get("resolution", 0))
+    if height <= 0 or height % 2:
+        raise ExportError(f"{shorten(os.fspath(source))}: video export needs an even image size, got {height}")
+    firsts = np.concatenate([[0], np.cumsum([s.frames for s in manifest.shards])]).astype(int)
+    plan = ExportPlan(str(reader.root), os.fspath(target), settings, tasks_of(reader), height, width,
+                      {s.first: int(firsts[k]) for k, s in enumerate(manifest.shards)})
+    product = LeRobotProduct(reader, settings, plan, job_identity(reader, settings))
+    tasks = [ShardTask(manifest.slice, s.first, s.end) for s in manifest.shards]
+    execution = Execution(0 if workers <= 1 else workers, None, progress)
+    outcome = run_folder_job(LocalFolder(target), product, tasks, export_shard, plan, execution, overwrite=overwrite,
+                             verb="exported", key_prefix="export", total_frames=int(firsts[-1]))
+    return ExportReport(target, outcome.result.episodes, outcome.result.frames, outcome.units_run,
+                        outcome.units_resumed, outcome.up_to_date, time.perf_counter() - start)

@@ -1,0 +1,146 @@
+"""What a job's folder already holds: the job it describes, the shards it may keep.
+
+A folder holds one job, described by its identity (slice, seed, episodes, shard ranges,
+settings and the extra manifest keys): a finished job's ``catalog.json``, or the
+``.build-state.json`` an interrupted run leaves (identity, code, finished shards). A
+shard is kept only when the same code (version and commit) wrote it and every one of
+its files still has its size and sha256; a folder is "up to date" only when every shard
+and the statistics file pass that check.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from catalog.atomic import atomic_write_text
+from catalog.manifest import Manifest, load_manifest, manifest_path
+from catalog.reader import check_file
+from catalog.records import FileRecord, ShardRecord
+from schemas.errors import ShardError, SpecError
+from schemas.versions import CODE_VERSION
+
+STATE_FILE = ".build-state.json"
+
+#: A job's identity: JSON values by key (``extra.<key>`` for the extra manifest keys).
+Identity = dict[str, object]
+Range = tuple[int, int]
+
+
+def identity_of(slice_name: str, seed: int | None, episodes: int, ranges: Sequence[Range],
+                settings: Mapping[str, object], extra: Mapping[str, object]) -> Identity:
+    """What a folder must hold for a job of these parts to reuse it."""
+    return {
+        "slice": slice_name,
+        "seed": seed,
+        "episodes": episodes,
+        "shards": [list(r) for r in ranges],
+        "settings": dict(settings),
+        **{f"extra.{k}": v for k, v in sorted(extra.items())},
+    }
+
+
+def manifest_identity(manifest: Manifest) -> Identity:
+    """The identity of the job that wrote ``manifest``."""
+    return identity_of(manifest.slice, manifest.seed, manifest.episodes, [s.episodes for s in manifest.shards],
+                       manifest.settings, manifest.extra)
+
+
+def _short(value: object, limit: int = 80) -> str:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def describe_difference(held: Mapping[str, object], wanted: Mapping[str, object]) -> str:
+    """The first few keys on which two identities differ, as ``key held -> wanted``."""
+    keys = [k for k in sorted(set(held) | set(wanted)) if held.get(k) != wanted.get(k)]
+    if "shards" in keys and "episodes" in keys:
+        keys.remove("shards")
+    parts = [f"{k} {_short(held.get(k))} -> {_short(wanted.get(k))}" for k in keys[:3]]
+    if len(keys) > 3:
+        parts.append(f"and {len(keys) - 3} more")
+    return "; ".join(parts)
+
+
+def file_intact(folder: Path, record: FileRecord) -> bool:
+    """The file is there with its recorded size and sha256."""
+    try:
+        check_file(folder, record, "sha256")
+    except ShardError:
+        return False
+    return True
+
+
+def shard_intact(folder: Path, record: ShardRecord) -> bool:
+    return all(file_intact(folder, f) for f in record.files.values())
+
+
+@dataclass(frozen=True)
+class PreviousWork:
+    """Finished shards a job may keep (by range), and whether the folder is complete."""
+
+    done: Mapping[Range, ShardRecord] = field(default_factory=dict)
+    complete: bool = False
+
+
+def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str | None, overwrite: bool) -> PreviousWork:
+    """What ``folder`` holds of the job ``wanted`` (see the module docstring).
+
+    Refuses (SpecError) a folder holding another job unless ``overwrite``, which then
+    forgets it (its files are removed once the new job is finished)."""
+    state_path = folder / STATE_FILE
+    held: Identity | None = None
+    records: list[ShardRecord] = []
+    code: tuple[str | None, str | None] = (None, None)
+    complete = False
+    if manifest_path(folder).exists():
+        try:
+            manifest = load_manifest(folder)
+        except ShardError:
+            if not overwrite:
+                raise
+        else:
+            held, records = manifest_identity(manifest), list(manifest.shards)
+            complete = file_intact(folder, manifest.stats) if manifest.stats is not None else not with_stats
+            code = (manifest.code.version, manifest.code.commit)
+    if held is None and state_path.exists():
+        try:
+            state = json.loads(state_path.read_text())
+            held = state["identity"]
+            records = [ShardRecord.from_dict(raw) for raw in state["shards"]]
+            code = (state["code"]["version"], state["code"]["commit"])
+        except (OSError, ValueError, KeyError, TypeError, ShardError) as exc:
+            if not overwrite:
+                raise ShardError(
+                    f"{state_path}: unreadable state of an interrupted run ({type(exc).__name__}); "
+                    "pass --overwrite to start the folder afresh"
+                ) from None
+            held = None
+    if held is None:
+        return PreviousWork()
+    if held != wanted:
+        if overwrite:
+            manifest_path(folder).unlink(missing_ok=True)
+            state_path.unlink(missing_ok=True)
+            return PreviousWork()
+        what = "holds" if complete else "holds an unfinished run of"
+        raise SpecError(
+            f"{folder} {what} another job ({describe_difference(held, wanted)}): "
+            "choose another --out, or pass --overwrite to replace it"
+        )
+    if code != (CODE_VERSION, commit):
+        return PreviousWork()
+    done = {(r.first, r.end): r for r in records if shard_intact(folder, r)}
+    return PreviousWork(done, complete and len(done) == len(records))
+
+
+def save_state(folder: Path, identity: Identity, commit: str | None, done: Mapping[Range, ShardRecord]) -> None:
+    """Record the finished shards of a running job (what an interrupted run resumes from)."""
+    state = {
+        "identity": identity,
+        "code": {"version": CODE_VERSION, "commit": commit},
+        "shards": [done[key].to_dict() for key in sorted(done)],
+    }
+    atomic_write_text(folder / STATE_FILE, json.dumps(state, sort_keys=True, indent=2) + "\n")

@@ -1,0 +1,228 @@
+"""Shard tasks and where they run: a local Dask cluster of single-threaded worker processes
+(one per core by default), an existing ``--scheduler``, or this process (``workers=0``).
+
+A task is ``task_fn(task, payload, folder)``; it returns a plain dict with the shard's
+``record`` and whatever else its job's caller wants (timing). Its episode reports reach
+the driver through :attr:`ShardTask.report`: in this process the driver's own callback,
+in a Dask worker a function sending a Dask event (``Worker.log_event``) on a topic of
+this run that the driver's client subscribes to.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import os
+import threading
+import uuid
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+from pipeline.jobs.progress import EpisodeReport, ReportingSpecs
+from schemas.errors import DyanaError, SpecError
+from schemas.names import shorten
+from schemas.spec import EpisodeSpec
+
+#: The most local worker processes a run starts (each holds a simulator and a renderer).
+MAX_WORKERS = 64
+#: Seconds a --scheduler has to answer as a Dask scheduler.
+CONNECT_TIMEOUT_S = 30.0
+
+#: Worker settings for CPU-bound whole-shard tasks: no statistical profiler sampling the
+#: task thread every 10 ms, no work stealing of long tasks, no spilling (results are tiny).
+LEAN_WORKERS = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.scheduler.work-stealing": False,
+    "distributed.worker.memory.spill": False,
+    "distributed.worker.memory.target": False,
+}
+
+Payload = TypeVar("Payload")
+
+
+def default_workers() -> int:
+    """One worker per core this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def check_workers(workers: int, scheduler: str | None) -> None:
+    """SpecError unless ``workers`` is 0 (this process) to :data:`MAX_WORKERS` (ignored with a scheduler)."""
+    if scheduler:
+        return
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= MAX_WORKERS:
+        raise SpecError(
+            f"--workers must be an integer in [0, {MAX_WORKERS}] (0: in this process, without Dask), got {workers!r}"
+        )
+
+
+@dataclass(frozen=True)
+class ShardTask:
+    """One shard: episodes [first, end) of ``slice_name``, from the recipe or from given
+    specs; ``report`` is where it reports finished episodes (set by the runner)."""
+
+    slice_name: str
+    first: int
+    end: int
+    specs_json: tuple[str, ...] | None = None
+    report: EpisodeReport | None = field(default=None, compare=False, repr=False)
+
+    def specs(self) -> list[EpisodeSpec]:
+        """The shard's specs, as :class:`ReportingSpecs` (episode progress to :attr:`report`)."""
+        if self.specs_json is not None:
+            specs = [EpisodeSpec.from_json(text) for text in self.specs_json]
+        else:
+            from generators.recipe import spec_for  # the recipe is loaded only by tasks that draw from it
+
+            specs = [spec_for(self.slice_name, i) for i in range(self.first, self.end)]
+        return ReportingSpecs(specs, self.first, self.end, self.report)
+
+    def reporting_to(self, report: EpisodeReport | None) -> ShardTask:
+        """This task, reporting its episodes to ``report``."""
+        return dataclasses.replace(self, report=report)
+
+
+def shard_ranges(episodes: int, shard_size: int) -> list[tuple[int, int]]:
+    """Fixed episode ranges [first, end) of at most ``shard_size`` episodes."""
+    if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
+        raise SpecError(f"--shard-size must be an integer >= 1, got {shard_size!r}")
+    return [(a, min(a + shard_size, episodes)) for a in range(0, episodes, shard_size)]
+
+
+TaskFn = Callable[[ShardTask, Payload, str], dict[str, Any]]
+
+
+@contextlib.contextmanager
+def quiet_dask() -> Iterator[None]:
+    """Keep Dask's own log lines (a task's traceback, shutdown chatter) out of the
+    driver's output: a failure reaches the user once, as Dyana's one-line error."""
+    logger = logging.getLogger("distributed")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def connect(client_class: Callable[..., Any], scheduler: str) -> Any:
+    """A Client of ``scheduler``, or one DyanaError: unreachable, not an address, or
+    something that is not a Dask scheduler (which may never answer the handshake, hence
+    the connection runs on a thread we stop waiting for)."""
+    outcome: dict[str, Any] = {}
+
+    def attempt() -> None:
+        try:
+            outcome["client"] = client_class(scheduler, timeout=f"{CONNECT_TIMEOUT_S:g}s")
+        except BaseException as exc:  # reported below, in the caller's thread
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=attempt, name="dyana-dask-connect", daemon=True)
+    thread.start()
+    thread.join(CONNECT_TIMEOUT_S + 5.0)
+    where = f"--scheduler {shorten(scheduler)!r}: cannot connect to the Dask scheduler"
+    if "client" in outcome:
+        return outcome["client"]
+    error = outcome.get("error")
+    if error is None:
+        raise DyanaError(f"{where}: no Dask handshake within {CONNECT_TIMEOUT_S:g} s (is it a Dask scheduler?)")
+    if isinstance(error, MemoryError):
+        raise DyanaError(f"{where}: it did not answer as a Dask scheduler") from None
+    if isinstance(error, (OSError, ValueError, TypeError)):
+        raise DyanaError(f"{where}: {shorten(str(error), 200)}") from None
+    raise error
+
+
+def run_tasks(
+    tasks: Sequence[ShardTask],
+    task_fn: TaskFn[Payload],
+    payload: Payload,
+    folder: Path,
+    workers: int,
+    scheduler: str | None,
+    on_done: Callable[[dict[str, Any]], None],
+    key_prefix: str = "shard",
+    on_episode: EpisodeReport | None = None,
+) -> None:
+    """Run ``task_fn(task, payload, str(folder))`` for every task on a local cluster (one
+    single-threaded process per worker), on an existing scheduler, or in this process
+    (``workers == 0``); call ``on_done`` in the driver with each result as it finishes, and
+    ``on_episode`` (on another thread with Dask) with the tasks' episode reports."""
+    if not tasks:
+        return
+    if workers == 0 and not scheduler:
+        for task in tasks:
+            on_done(task_fn(task.reporting_to(on_episode), payload, str(folder)))
+        return
+    import dask  # Dask is imported only by runs that use it
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    with dask.config.set(LEAN_WORKERS), quiet_dask():
+        cluster = None
+        if scheduler:
+            client = connect(Client, scheduler)
+        else:
+            cluster = LocalCluster(
+                n_workers=min(workers, len(tasks)),
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address="127.0.0.1:0",  # None still starts one on 8787 (dask/distributed#8136)
+                silence_logs=logging.CRITICAL,
+            )
+            try:
+                client = Client(cluster)
+            except BaseException:
+                cluster.close()
+                raise
+        listening = on_episode is not None
+        topic = f"dyana-progress-{uuid.uuid4().hex}"  # this run's alone, on a shared scheduler too
+
+        def heard(event: tuple[float, Any]) -> None:  # on the client's event loop thread
+            if listening and on_episode is not None:
+                with contextlib.suppress(Exception):
+                    msg = event[1]
+                    on_episode(int(msg["first"]), int(msg["end"]), int(msg["done"]), int(msg["frames"]))
+
+        try:
+            if on_episode is not None:
+                client.subscribe_topic(topic, heard)
+            futures = [
+                client.submit(
+                    reporting_task,
+                    task_fn,
+                    task,
+                    payload,
+                    str(folder),
+                    topic if on_episode is not None else None,
+                    key=f"{key_prefix}-{task.first:06d}-{task.end:06d}",
+                    pure=False,
+                )
+                for task in tasks
+            ]
+            for future in as_completed(futures):
+                on_done(future.result())
+        finally:
+            listening = False
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+def reporting_task(
+    task_fn: TaskFn[Payload], task: ShardTask, payload: Payload, folder: str, topic: str | None
+) -> dict[str, Any]:
+    """Worker side: ``task_fn``, its episode reports sent to the driver as Dask events on ``topic``."""
+    if topic is None:
+        return task_fn(task, payload, folder)
+    from distributed import get_worker  # in a Dask worker, where distributed is loaded
+
+    worker = get_worker()
+
+    def report(first: int, end: int, done: int, frames: int) -> None:
+        worker.log_event(topic, {"first": first, "end": end, "done": done, "frames": frames})
+
+    return task_fn(task.reporting_to(report), payload, folder)
