@@ -300,3 +300,11 @@ def test_the_largest_spec_the_limits_admit_fits_on_one_line():
                                        obstacles=[{"category": "crate", "centre": [number, number],
                                                    "half_extents": [0.05, 0.05, 0.05], "yaw": number}] * 8))
     assert len(json.dumps(spec.to_dict()).encode()) < limits.MAX_SPEC_LINE_BYTES
+
+
+def test_a_spec_at_the_speed_limit_is_refused_as_infeasible_not_with_a_traceback(tmp_path):
+    # at 100 units/s the object passes the camera's near plane while observed: its silhouette
+    # once took a 199 GiB raster (generators.visibility)
+    (tmp_path / "s.jsonl").write_text(json.dumps(_line(speed=limits.MAX_SPEED, acceleration=0.0)) + "\n")
+    err = _build_in_a_child(tmp_path, str(tmp_path / "s.jsonl"))
+    assert "s.jsonl:1: infeasible episode linear-fast:000000: the object is only" in err
