@@ -93,7 +93,7 @@ _INT64_MAX = 2**63 - 1
 
 def _int(name: str, value: Any, minimum: int, maximum: int) -> int:
     if isinstance(value, LongNumber):
-        raise FieldError(f"spec.{name}", f"must be <= {maximum}, got {value!r}")
+        raise FieldError(f"spec.{name}", f"must be in [{minimum}, {maximum}], got {value!r}")
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         if isinstance(value, float) and value.is_integer():
             value = int(value)
@@ -309,7 +309,7 @@ def read_specs_lines(path: str) -> list[tuple[int, EpisodeSpec]]:
     :data:`MAX_SPEC_LINE_BYTES`, is read (never a device or FIFO, which could stream for ever)."""
     specs: list[tuple[int, EpisodeSpec]] = []
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO opens at once, to be refused
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO opens at once, to be refused
     except (OSError, TypeError, ValueError) as exc:
         raise SpecError(f"cannot read specs file {path}: {getattr(exc, 'strerror', None) or exc}") from exc
     status = os.fstat(fd)

@@ -185,7 +185,7 @@ def test_a_lone_surrogate_in_the_text_is_one_clear_error():
 
 def test_a_huge_integer_is_one_clear_error():
     line = json.dumps(spec_dict()).replace('"seed": 7', '"seed": ' + "9" * 5000)
-    with pytest.raises(SpecError, match=r"spec.seed must be <= 9223372036854775807, got 9{20}\.\.\. \(an integer of 5,000 digits\)"):
+    with pytest.raises(SpecError, match=r"spec.seed must be in \[0, 9223372036854775807\], got 9{20}\.\.\. \(an integer of 5,000 digits\)"):
         EpisodeSpec.from_json(line)
 
 

@@ -123,7 +123,7 @@ def test_an_out_of_bounds_value_is_one_line_naming_its_field(case, tmp_path, cap
         (json.dumps(GOOD)[:-1] + ', "object": "orange"}', "spec.object is given twice"),
         (json.dumps(GOOD).replace('"speed": 0.6', '"speed": 0.6, "speed": 0.7'), r"spec.motion.base[0].speed is given twice"),
         (json.dumps(GOOD).replace('"seed": 1', '"seed": ' + "9" * 5000),
-         "spec.seed must be <= 9223372036854775807, got 99999999999999999999... (an integer of 5,000 digits)"),
+         "spec.seed must be in [0, 9223372036854775807], got 99999999999999999999... (an integer of 5,000 digits)"),
         (json.dumps(GOOD).replace('"speed": 0.6', '"speed": ' + "9" * 5000),
          "spec.motion.base[0].speed holds at most 40 digits, got 99999999999999999999... (an integer of 5,000 digits)"),
     ],
