@@ -308,3 +308,14 @@ def test_a_spec_at_the_speed_limit_is_refused_as_infeasible_not_with_a_traceback
     (tmp_path / "s.jsonl").write_text(json.dumps(_line(speed=limits.MAX_SPEED, acceleration=0.0)) + "\n")
     err = _build_in_a_child(tmp_path, str(tmp_path / "s.jsonl"))
     assert "s.jsonl:1: infeasible episode linear-fast:000000: the object is only" in err
+
+
+def test_a_clothoid_joined_at_speed_is_refused_by_its_turning_not_a_huge_quadrature(tmp_path):
+    # its own fields pass (default speed 1); joined after a 50 units/s line it would turn
+    # 250,000 rad, once a 7.7 GiB quadrature array (generators.primitives.clothoid)
+    line = dict(L, speed=50.0, duration=0.5)
+    spec = _spec(motion_type="custom", motion={"base": [line, {"type": "C", "curvature_slope": 100.0, "duration": 1.0}]})
+    (tmp_path / "s.jsonl").write_text(json.dumps(spec) + "\n")
+    err = _build_in_a_child(tmp_path, str(tmp_path / "s.jsonl"))
+    assert "s.jsonl:1: episode linear-fast:000000: a C token starting at 0.500 s, joined at 50 units/s" in err
+    assert "turns the heading by up to 2.5e+05 rad (at most 201.1: 32 turns)" in err
