@@ -51,7 +51,7 @@ from generators.hand import (
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle
 from schemas.rotations import euler_to_matrix, quaternion_to_matrix
-from schemas.scene import CAMERA_EYE, DEFAULT_RESOLUTION, MIN_OBSERVE_VISIBLE
+from schemas.scene import CAMERA_EYE, CAMERA_NEAR, DEFAULT_RESOLUTION, MIN_OBSERVE_VISIBLE
 
 #: Sub-pixels per pixel side when filling silhouettes.
 SUPERSAMPLE = 4
@@ -198,8 +198,8 @@ def visible_fraction(
     square image and is not covered by a nearer occluder (hulls of ``occluders``) or by
     an obstacle in front of it (:func:`obstacle_hides`)."""
     obj_px, obj_depth = project(object_points, resolution, resolution)
-    if np.any(obj_depth <= 0.0):
-        return 0.0
+    if np.any(obj_depth <= CAMERA_NEAR):  # cut by the near plane, never drawn whole; and its
+        return 0.0  # silhouette, rasterized below, grows without bound as the depth nears 0
     low = np.floor(obj_px.min(axis=0)) - 1.0
     high = np.ceil(obj_px.max(axis=0)) + 1.0
     shape = tuple(int(v) for v in ((high - low)[::-1] * SUPERSAMPLE))

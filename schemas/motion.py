@@ -29,11 +29,46 @@ from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar
 
 from schemas.errors import SpecError
+from schemas.limits import (
+    MAX_ACCELERATION,
+    MAX_AMPLITUDE,
+    MAX_ANGLE,
+    MAX_CURVATURE,
+    MAX_CURVATURE_SLOPE,
+    MAX_FREQUENCY,
+    MAX_HEIGHT,
+    MAX_OVERLAYS,
+    MAX_POSITION,
+    MAX_RADIUS,
+    MAX_SECONDS,
+    MAX_SPEED,
+    MAX_TRACK_TOKENS,
+    MAX_TURN_RATE,
+    MAX_TURNING,
+    MIN_RADIUS,
+)
 from schemas.names import shorten
-from schemas.values import Vec2, Vec3, finite, load_json, non_negative, pair, positive, triple
+from schemas.values import (
+    FieldError,
+    Vec2,
+    Vec3,
+    finite,
+    load_json,
+    non_negative,
+    pair,
+    positive,
+    relocate,
+    triple,
+)
 
 #: Standard gravity in scene units (9.81 m/s^2 = 98.1 units/s^2), the default of ``P``.
 STANDARD_GRAVITY = 98.1
+
+
+def _peak_speed(owner: str, name: str, speed: float) -> None:
+    """Refuse a token whose fastest moment exceeds :data:`MAX_SPEED` (a camera shows nothing faster)."""
+    if speed > MAX_SPEED:
+        raise FieldError(f"{owner}.{name}", f"makes the object reach {speed:.4g} units/s (at most {MAX_SPEED:g})")
 
 
 @dataclass(frozen=True)
@@ -49,11 +84,12 @@ class LineToken:
     airborne: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "start", pair("L", "start", self.start))
-        object.__setattr__(self, "direction", finite("L", "direction", self.direction))
-        object.__setattr__(self, "speed", non_negative("L", "speed", self.speed))
-        object.__setattr__(self, "acceleration", finite("L", "acceleration", self.acceleration))
-        object.__setattr__(self, "duration", positive("L", "duration", self.duration))
+        object.__setattr__(self, "start", pair("L", "start", self.start, MAX_POSITION))
+        object.__setattr__(self, "direction", finite("L", "direction", self.direction, MAX_ANGLE))
+        object.__setattr__(self, "speed", non_negative("L", "speed", self.speed, MAX_SPEED))
+        object.__setattr__(self, "acceleration", finite("L", "acceleration", self.acceleration, MAX_ACCELERATION))
+        object.__setattr__(self, "duration", positive("L", "duration", self.duration, MAX_SECONDS))
+        _peak_speed("L", "acceleration", max(self.speed, abs(self.speed + self.acceleration * self.duration)))
 
 
 @dataclass(frozen=True)
@@ -73,14 +109,19 @@ class ArcToken:
     airborne: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "centre", pair("A", "centre", self.centre))
-        object.__setattr__(self, "radius", positive("A", "radius", self.radius))
-        object.__setattr__(self, "angular_velocity", non_negative("A", "angular_velocity", self.angular_velocity))
-        object.__setattr__(self, "start_angle", finite("A", "start_angle", self.start_angle))
+        object.__setattr__(self, "centre", pair("A", "centre", self.centre, MAX_POSITION))
+        radius = positive("A", "radius", self.radius, MAX_RADIUS)
+        if radius < MIN_RADIUS:
+            raise FieldError("A.radius", f"must be in [{MIN_RADIUS:g}, {MAX_RADIUS:g}], got {shorten(repr(radius))}")
+        object.__setattr__(self, "radius", radius)
+        object.__setattr__(self, "angular_velocity",
+                           non_negative("A", "angular_velocity", self.angular_velocity, MAX_TURN_RATE))
+        object.__setattr__(self, "start_angle", finite("A", "start_angle", self.start_angle, MAX_ANGLE))
         if self.turn not in (1, -1) or isinstance(self.turn, bool):
-            raise SpecError(f"A.turn must be +1 or -1, got {shorten(repr(self.turn))}")
+            raise FieldError("A.turn", f"must be +1 or -1, got {shorten(repr(self.turn))}")
         object.__setattr__(self, "turn", int(self.turn))
-        object.__setattr__(self, "duration", positive("A", "duration", self.duration))
+        object.__setattr__(self, "duration", positive("A", "duration", self.duration, MAX_SECONDS))
+        _peak_speed("A", "angular_velocity", self.radius * self.angular_velocity)
 
 
 @dataclass(frozen=True)
@@ -101,13 +142,14 @@ class HarmonicToken:
     airborne: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "centre", pair("H", "centre", self.centre))
-        object.__setattr__(self, "axis", finite("H", "axis", self.axis))
-        object.__setattr__(self, "amplitude", non_negative("H", "amplitude", self.amplitude))
-        object.__setattr__(self, "frequency", positive("H", "frequency", self.frequency))
-        object.__setattr__(self, "phase", finite("H", "phase", self.phase))
-        object.__setattr__(self, "duration", positive("H", "duration", self.duration))
-        object.__setattr__(self, "drift", pair("H", "drift", self.drift))
+        object.__setattr__(self, "centre", pair("H", "centre", self.centre, MAX_POSITION))
+        object.__setattr__(self, "axis", finite("H", "axis", self.axis, MAX_ANGLE))
+        object.__setattr__(self, "amplitude", non_negative("H", "amplitude", self.amplitude, MAX_AMPLITUDE))
+        object.__setattr__(self, "frequency", positive("H", "frequency", self.frequency, MAX_FREQUENCY))
+        object.__setattr__(self, "phase", finite("H", "phase", self.phase, MAX_ANGLE))
+        object.__setattr__(self, "duration", positive("H", "duration", self.duration, MAX_SECONDS))
+        object.__setattr__(self, "drift", pair("H", "drift", self.drift, MAX_SPEED))
+        _peak_speed("H", "amplitude", 2.0 * math.pi * self.frequency * self.amplitude + math.hypot(*self.drift))
 
 
 @dataclass(frozen=True)
@@ -129,12 +171,18 @@ class ClothoidToken:
     airborne: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "curvature_slope", finite("C", "curvature_slope", self.curvature_slope))
-        object.__setattr__(self, "duration", positive("C", "duration", self.duration))
-        object.__setattr__(self, "start", pair("C", "start", self.start))
-        object.__setattr__(self, "heading", finite("C", "heading", self.heading))
-        object.__setattr__(self, "speed", non_negative("C", "speed", self.speed))
-        object.__setattr__(self, "curvature", finite("C", "curvature", self.curvature))
+        object.__setattr__(self, "curvature_slope",
+                           finite("C", "curvature_slope", self.curvature_slope, MAX_CURVATURE_SLOPE))
+        object.__setattr__(self, "duration", positive("C", "duration", self.duration, MAX_SECONDS))
+        object.__setattr__(self, "start", pair("C", "start", self.start, MAX_POSITION))
+        object.__setattr__(self, "heading", finite("C", "heading", self.heading, MAX_ANGLE))
+        object.__setattr__(self, "speed", non_negative("C", "speed", self.speed, MAX_SPEED))
+        object.__setattr__(self, "curvature", finite("C", "curvature", self.curvature, MAX_CURVATURE))
+        length = self.speed * self.duration
+        turning = (abs(self.curvature) + abs(self.curvature_slope) * length) * length
+        if turning > MAX_TURNING:
+            raise FieldError("C.curvature_slope", f"turns the heading by up to {turning:.4g} rad over the token "
+                             f"(at most {MAX_TURNING:.4g}: 32 turns)")
 
 
 @dataclass(frozen=True)
@@ -161,22 +209,18 @@ class ProjectileToken:
     airborne: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "start", pair("P", "start", self.start))
-        object.__setattr__(self, "velocity", triple("P", "velocity", self.velocity))
-        object.__setattr__(self, "duration", positive("P", "duration", self.duration))
-        object.__setattr__(self, "height", non_negative("P", "height", self.height))
-        object.__setattr__(self, "gravity", positive("P", "gravity", self.gravity))
+        object.__setattr__(self, "start", pair("P", "start", self.start, MAX_POSITION))
+        object.__setattr__(self, "velocity", triple("P", "velocity", self.velocity, MAX_SPEED))
+        object.__setattr__(self, "duration", positive("P", "duration", self.duration, MAX_SECONDS))
+        object.__setattr__(self, "height", non_negative("P", "height", self.height, MAX_HEIGHT))
+        object.__setattr__(self, "gravity", positive("P", "gravity", self.gravity, MAX_ACCELERATION))
         restitution = non_negative("P", "restitution", self.restitution)
         if restitution >= 1.0:
-            raise SpecError(f"P.restitution must be < 1 (a bounce loses energy), got {shorten(repr(restitution))}")
+            raise FieldError("P.restitution", f"must be < 1 (a bounce loses energy), got {shorten(repr(restitution))}")
         object.__setattr__(self, "restitution", restitution)
 
 
 Token = LineToken | ArcToken | HarmonicToken | ClothoidToken | ProjectileToken
-#: Bounds that keep a spec's cost small (the recipe uses one token and no overlay; the
-#: episode stage is linear in the token count, these only cap a hostile input).
-MAX_TRACK_TOKENS = 256
-MAX_OVERLAYS = 16
 TOKEN_TYPES: dict[str, type[Token]] = {
     cls.type: cls for cls in (LineToken, ArcToken, HarmonicToken, ClothoidToken, ProjectileToken)
 }
@@ -194,22 +238,43 @@ def token_to_dict(token: Token) -> dict[str, Any]:
 def token_from_dict(data: Any) -> Token:
     """Validate and build a token from its dict; names the bad field on error."""
     if not isinstance(data, dict):
-        raise SpecError(f"a token must be an object, got {shorten(repr(data))}")
+        raise FieldError("token", f"must be an object, got {shorten(repr(data))}")
     if "type" not in data:
-        raise SpecError(f"token is missing field 'type' (one of {sorted(TOKEN_TYPES)}), got {shorten(repr(data))}")
+        raise FieldError("token", f"is missing field 'type' (one of {sorted(TOKEN_TYPES)}), got {shorten(repr(data))}")
     kind = data["type"]
     cls = TOKEN_TYPES.get(kind) if isinstance(kind, str) else None
     if cls is None:
-        raise SpecError(f"unknown token type {shorten(repr(kind))} (expected one of {sorted(TOKEN_TYPES)})")
+        raise FieldError("token.type", f"is an unknown token type {shorten(repr(kind))} (expected one of "
+                         f"{sorted(TOKEN_TYPES)})")
     names = {f.name for f in fields(cls)}
     unknown = sorted(str(k) for k in set(data) - names - {"type"})
     if unknown:
-        raise SpecError(f"{kind} token has unknown field(s) {unknown}")
+        raise FieldError("token", f"({kind}) has unknown field(s) {unknown}")
     required = [f.name for f in fields(cls) if f.default is MISSING]
     missing = [n for n in required if n not in data]
     if missing:
-        raise SpecError(f"{kind} token is missing field(s) {missing}")
+        raise FieldError("token", f"({kind}) is missing field(s) {missing}")
     return cls(**{k: v for k, v in data.items() if k != "type"})
+
+
+def _tokens(where: str, items: list[Any]) -> tuple[Token, ...]:
+    """The tokens of the JSON list at ``where`` (``motion.base``); errors name the token's path."""
+    if len(items) > MAX_TRACK_TOKENS:
+        raise FieldError(where, f"holds at most {MAX_TRACK_TOKENS} tokens, got {len(items):,}")
+    tokens = []
+    for i, item in enumerate(items):
+        try:
+            tokens.append(token_from_dict(item))
+        except SpecError as exc:
+            raise relocate(exc, f"{where}[{i}]") from None
+    return tuple(tokens)
+
+
+def _track(where: str, tokens: tuple[Token, ...], start: Any = 0.0) -> Track:
+    try:
+        return Track(tokens, start)
+    except SpecError as exc:
+        raise relocate(exc, where) from None
 
 
 @dataclass(frozen=True)
@@ -222,14 +287,18 @@ class Track:
     def __post_init__(self) -> None:
         tokens = tuple(self.tokens) if isinstance(self.tokens, (tuple, list)) else self.tokens
         if not isinstance(tokens, tuple) or not tokens:
-            raise SpecError(f"a track needs at least one token, got {shorten(self.tokens)}")
+            raise FieldError("track", "needs at least one token, got none" if isinstance(tokens, tuple) else
+                             f"must be a list of tokens, got {shorten(repr(self.tokens))}")
         if len(tokens) > MAX_TRACK_TOKENS:
-            raise SpecError(f"a track holds at most {MAX_TRACK_TOKENS} tokens, got {len(tokens):,}")
+            raise FieldError("track", f"holds at most {MAX_TRACK_TOKENS} tokens, got {len(tokens):,}")
         for token in tokens:
             if not isinstance(token, tuple(TOKEN_TYPES.values())):
-                raise SpecError(f"not a motion token: {shorten(repr(token))}")
+                raise FieldError("track", f"holds something that is not a motion token: {shorten(repr(token))}")
         object.__setattr__(self, "tokens", tokens)
-        object.__setattr__(self, "start", non_negative("track", "start", self.start))
+        object.__setattr__(self, "start", non_negative("track", "start", self.start, MAX_SECONDS))
+        if self.end > MAX_SECONDS:
+            raise FieldError("track", f"ends at {self.end:.6g} s (start plus its tokens' durations; at most "
+                             f"{MAX_SECONDS:g} s)")
 
     @property
     def duration(self) -> float:
@@ -249,21 +318,21 @@ class Motion:
 
     def __post_init__(self) -> None:
         if not isinstance(self.base, Track):
-            raise SpecError(f"motion.base must be a Track, got {shorten(repr(self.base))}")
+            raise FieldError("motion.base", f"must be a Track, got {shorten(repr(self.base))}")
         if self.base.start != 0.0:
-            raise SpecError(f"motion.base must start at 0, got start={shorten(repr(self.base.start))}")
+            raise FieldError("motion.base", f"must start at 0, got start={shorten(repr(self.base.start))}")
         if not isinstance(self.overlays, (tuple, list)):
-            raise SpecError(f"motion.overlays must be a sequence of Tracks, got {shorten(repr(self.overlays))}")
+            raise FieldError("motion.overlays", f"must be a sequence of Tracks, got {shorten(repr(self.overlays))}")
         overlays = tuple(self.overlays)
         if len(overlays) > MAX_OVERLAYS:
-            raise SpecError(f"a motion holds at most {MAX_OVERLAYS} overlay tracks, got {len(overlays):,}")
-        for overlay in overlays:
+            raise FieldError("motion.overlays", f"holds at most {MAX_OVERLAYS} tracks, got {len(overlays):,}")
+        for i, overlay in enumerate(overlays):
             if not isinstance(overlay, Track):
-                raise SpecError(f"motion overlay must be a Track, got {shorten(repr(overlay))}")
-            for token in overlay.tokens:
+                raise FieldError(f"motion.overlays[{i}]", f"must be a Track, got {shorten(repr(overlay))}")
+            for k, token in enumerate(overlay.tokens):
                 if token.airborne:
-                    raise SpecError(f"a token that leaves the table ({token.type}) may only be in the base track, "
-                                    "not in an overlay")
+                    raise FieldError(f"motion.overlays[{i}].tokens[{k}]", f"({token.type}) leaves the table: such a "
+                                     "token may only be in the base track, not in an overlay")
         object.__setattr__(self, "overlays", overlays)
 
     @classmethod
@@ -294,32 +363,38 @@ class Motion:
 
     @classmethod
     def from_dict(cls, data: Any) -> Motion:
+        """A motion from its JSON form (a bare list is its base track); errors name the
+        field's path, e.g. ``motion.base[2].curvature``."""
+        base_path = "motion.base"
         if isinstance(data, list):
-            data = {"base": data}
+            data, base_path = {"base": data}, "motion"
         if not isinstance(data, dict):
-            raise SpecError(f"motion must be an object with 'base', got {shorten(repr(data))}")
+            raise FieldError("motion", f"must be an object with 'base', got {shorten(repr(data))}")
         unknown = sorted(str(k) for k in set(data) - {"base", "overlays"})
         if unknown:
-            raise SpecError(f"motion has unknown field(s) {unknown}")
+            raise FieldError("motion", f"has unknown field(s) {unknown}")
         if "base" not in data:
-            raise SpecError("motion is missing field 'base'")
+            raise FieldError("motion", "is missing field 'base'")
         base = data["base"]
         if not isinstance(base, list):
-            raise SpecError(f"motion.base must be a list of tokens, got {shorten(repr(base))}")
+            raise FieldError(base_path, f"must be a list of tokens, got {shorten(repr(base))}")
         items = data.get("overlays", [])
         if not isinstance(items, list):
-            raise SpecError(f"motion.overlays must be a list of tracks, got {shorten(repr(items))}")
+            raise FieldError("motion.overlays", f"must be a list of tracks, got {shorten(repr(items))}")
+        if len(items) > MAX_OVERLAYS:
+            raise FieldError("motion.overlays", f"holds at most {MAX_OVERLAYS} tracks, got {len(items):,}")
         overlays = []
         for i, item in enumerate(items):
+            where = f"motion.overlays[{i}]"
             if not isinstance(item, dict) or "tokens" not in item:
-                raise SpecError(f"motion.overlays[{i}] must be an object with 'tokens', got {shorten(repr(item))}")
+                raise FieldError(where, f"must be an object with 'tokens', got {shorten(repr(item))}")
             unknown = sorted(str(k) for k in set(item) - {"start", "tokens"})
             if unknown:
-                raise SpecError(f"motion.overlays[{i}] has unknown field(s) {unknown}")
+                raise FieldError(where, f"has unknown field(s) {unknown}")
             if not isinstance(item["tokens"], list):
-                raise SpecError(f"motion.overlays[{i}].tokens must be a list of tokens, got {shorten(repr(item['tokens']))}")
-            overlays.append(Track(tuple(token_from_dict(t) for t in item["tokens"]), item.get("start", 0.0)))
-        return cls(Track(tuple(token_from_dict(t) for t in base)), tuple(overlays))
+                raise FieldError(f"{where}.tokens", f"must be a list of tokens, got {shorten(repr(item['tokens']))}")
+            overlays.append(_track(where, _tokens(f"{where}.tokens", item["tokens"]), item.get("start", 0.0)))
+        return cls(_track(base_path, _tokens(base_path, base)), tuple(overlays))
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))

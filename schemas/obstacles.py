@@ -17,9 +17,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import SpecError
+from schemas.limits import MAX_ANGLE
 from schemas.names import shorten
 from schemas.scene import TABLE_X, TABLE_Z
-from schemas.values import finite
+from schemas.values import finite, relocate
 
 #: Most obstacles one spec may hold.
 MAX_OBSTACLES = 8
@@ -51,9 +52,9 @@ OBSTACLE_CATEGORIES: dict[str, ObstacleCategory] = {
 }
 
 
-def _number(name: str, value: Any) -> float:
+def _number(name: str, value: Any, limit: float | None = None) -> float:
     owner, _, field = name.partition(".")
-    return finite(owner, field, value)
+    return finite(owner, field, value, limit)
 
 
 def _pair(name: str, value: Any, width: int) -> tuple[float, ...]:
@@ -86,7 +87,7 @@ class Obstacle:
             raise SpecError(f"obstacle.half_extents must each be in [{low}, {high}] units, got {shorten(repr(half))}")
         object.__setattr__(self, "centre", centre)
         object.__setattr__(self, "half_extents", half)
-        object.__setattr__(self, "yaw", _number("obstacle.yaw", self.yaw))
+        object.__setattr__(self, "yaw", _number("obstacle.yaw", self.yaw, MAX_ANGLE))
 
     @property
     def rgba(self) -> tuple[float, float, float, float]:
@@ -142,7 +143,7 @@ def obstacles_from_list(data: Any) -> tuple[Obstacle, ...]:
         try:
             out.append(Obstacle.from_dict(item))
         except SpecError as exc:
-            raise SpecError(f"spec.obstacles[{k}]: {exc}") from None
+            raise relocate(exc, f"spec.obstacles[{k}]") from None
     return tuple(out)
 
 

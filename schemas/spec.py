@@ -10,10 +10,13 @@ import hashlib
 import json
 import math
 import numbers
+import os
+import stat
 from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import SpecError
+from schemas.limits import MAX_NUM_FRAMES, MAX_SPEC_LINE_BYTES, MAX_SPECS_FILE_BYTES, MAX_TEXT
 from schemas.motion import Motion
 from schemas.names import shorten, validate_name
 from schemas.objects import object_category
@@ -27,7 +30,7 @@ from schemas.scene import (
     MOTION_TYPES,
     ROLLOUT_FORMATS,
 )
-from schemas.values import load_json
+from schemas.values import FieldError, LongNumber, load_json, relocate
 from schemas.versions import FPS
 
 SPEC_FIELDS = (
@@ -65,11 +68,11 @@ class Disturbance:
     amount: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "frame", _int("disturbance.frame", self.frame, 0, _INT32_MAX))
+        object.__setattr__(self, "frame", _int("disturbance.frame", self.frame, 0, MAX_NUM_FRAMES))
         _choice("disturbance.kind", self.kind, DISTURBANCE_KINDS)
         amount = self.amount
         if isinstance(amount, bool) or not isinstance(amount, numbers.Real) or not math.isfinite(amount):
-            raise SpecError(f"spec.disturbance.amount must be a finite number, got {shorten(repr(amount))}")
+            raise FieldError("spec.disturbance.amount", f"must be a finite number, got {shorten(repr(amount))}")
         object.__setattr__(self, "amount", float(amount))
 
     def to_dict(self) -> dict[str, Any]:
@@ -84,29 +87,29 @@ class Disturbance:
 _MOTION_TYPES = MOTION_TYPES + COMPLEX_MOTION_TYPES + ("custom",)
 
 
-#: Largest values the shard tables can store (``episode_index``/``seed`` are int64
-#: columns, ``observe_frames``/``num_frames`` int32).
+#: Largest value the shard tables can store (``episode_index``/``seed`` are int64 columns).
 _INT64_MAX = 2**63 - 1
-_INT32_MAX = 2**31 - 1
 
 
 def _int(name: str, value: Any, minimum: int, maximum: int) -> int:
+    if isinstance(value, LongNumber):
+        raise FieldError(f"spec.{name}", f"must be in [{minimum}, {maximum}], got {value!r}")
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         else:
-            raise SpecError(f"spec.{name} must be an integer, got {shorten(repr(value))}")
+            raise FieldError(f"spec.{name}", f"must be an integer, got {shorten(repr(value))}")
     value = int(value)
     if value < minimum:
-        raise SpecError(f"spec.{name} must be >= {minimum}, got {shorten(repr(value))}")
+        raise FieldError(f"spec.{name}", f"must be >= {minimum}, got {shorten(repr(value))}")
     if value > maximum:
-        raise SpecError(f"spec.{name} must be <= {maximum}, got {shorten(repr(value))}")
+        raise FieldError(f"spec.{name}", f"must be <= {maximum}, got {shorten(repr(value))}")
     return value
 
 
 def _choice(name: str, value: Any, options: tuple[str, ...]) -> str:
     if value not in options:
-        raise SpecError(f"spec.{name} must be one of {list(options)}, got {shorten(repr(value))}")
+        raise FieldError(f"spec.{name}", f"must be one of {list(options)}, got {shorten(repr(value))}")
     return value
 
 
@@ -158,13 +161,13 @@ class EpisodeSpec:
         _choice("hand", self.hand, HANDS)
         _choice("rollout_format", self.rollout_format, ROLLOUT_FORMATS)
         _choice("intercept_setting", self.intercept_setting, tuple(INTERCEPT_SECONDS))
-        object.__setattr__(self, "observe_frames", _int("observe_frames", self.observe_frames, 0, _INT32_MAX))
+        object.__setattr__(self, "observe_frames", _int("observe_frames", self.observe_frames, 0, MAX_NUM_FRAMES))
         if self.rollout_format == "direct-act" and self.observe_frames != 0:
             raise SpecError(f"spec.observe_frames must be 0 for direct-act, got {shorten(repr(self.observe_frames))}")
         if self.rollout_format == "observe-before-act" and self.observe_frames < 1:
             raise SpecError(f"spec.observe_frames must be >= 1 for observe-before-act, got {shorten(repr(self.observe_frames))}")
         minimum = self.intercept_frame + GRASP_FRAMES + 1
-        object.__setattr__(self, "num_frames", _int("num_frames", self.num_frames, minimum, _INT32_MAX))
+        object.__setattr__(self, "num_frames", _int("num_frames", self.num_frames, minimum, MAX_NUM_FRAMES))
         needed = (self.num_frames - 1) / FPS
         if self.motion.duration + 1e-9 < needed:
             raise SpecError(
@@ -251,7 +254,10 @@ class EpisodeSpec:
         if unknown:
             raise SpecError(f"spec has unknown field(s) {unknown}")
         values = dict(data)
-        values["motion"] = Motion.from_dict(data["motion"])
+        try:
+            values["motion"] = Motion.from_dict(data["motion"])
+        except SpecError as exc:
+            raise relocate(exc, "spec.motion") from None
         if "obstacles" in data:
             values["obstacles"] = obstacles_from_list(data["obstacles"])
         if "disturbance" in data:
@@ -265,8 +271,6 @@ class EpisodeSpec:
 
 #: Motion type of each token kind; ``C`` (clothoid) only connects the others.
 TOKEN_MOTION_TYPES = {"L": "linear", "A": "circular", "H": "harmonic", "P": "projectile"}
-#: Longest instruction text a spec may carry.
-MAX_TEXT = 10_000
 
 
 def implied_motion_types(motion: Motion) -> set[str]:
@@ -300,14 +304,29 @@ def read_specs_jsonl(path: str) -> list[EpisodeSpec]:
 
 
 def read_specs_lines(path: str) -> list[tuple[int, EpisodeSpec]]:
-    """:func:`read_specs_jsonl` with each spec's line number, for later messages."""
+    """:func:`read_specs_jsonl` with each spec's line number, for later messages. Only a
+    regular file of at most :data:`MAX_SPECS_FILE_BYTES`, with lines of at most
+    :data:`MAX_SPEC_LINE_BYTES`, is read (never a device or FIFO, which could stream for ever)."""
     specs: list[tuple[int, EpisodeSpec]] = []
     try:
-        handle = open(path, "rb")
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO opens at once, to be refused
     except (OSError, TypeError, ValueError) as exc:
         raise SpecError(f"cannot read specs file {path}: {getattr(exc, 'strerror', None) or exc}") from exc
-    with handle:
-        for lineno, raw in enumerate(handle, start=1):
+    status = os.fstat(fd)
+    if not stat.S_ISREG(status.st_mode) or status.st_size > MAX_SPECS_FILE_BYTES:
+        os.close(fd)
+        if not stat.S_ISREG(status.st_mode):
+            raise SpecError(f"specs file {path} is not a regular file ({_file_kind(status.st_mode)})")
+        raise SpecError(f"specs file {path} holds {status.st_size:,} bytes, more than the "
+                        f"{MAX_SPECS_FILE_BYTES:,} a specs file may hold")
+    with os.fdopen(fd, "rb") as handle:
+        total = 0
+        for lineno, raw in enumerate(iter(lambda: handle.readline(MAX_SPEC_LINE_BYTES + 1), b""), start=1):
+            total += len(raw)
+            if len(raw) > MAX_SPEC_LINE_BYTES:
+                raise SpecError(f"{path}:{lineno}: line longer than {MAX_SPEC_LINE_BYTES:,} bytes (a spec holds less)")
+            if total > MAX_SPECS_FILE_BYTES:
+                raise SpecError(f"specs file {path} grew past the {MAX_SPECS_FILE_BYTES:,} bytes a specs file may hold")
             try:
                 line = raw.decode("utf-8")
             except UnicodeDecodeError as exc:
@@ -321,3 +340,9 @@ def read_specs_lines(path: str) -> list[tuple[int, EpisodeSpec]]:
     if not specs:
         raise SpecError(f"specs file {path} holds no spec")
     return specs
+
+
+def _file_kind(mode: int) -> str:
+    kinds = ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+             (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"))
+    return next((name for test, name in kinds if test(mode)), "not a regular file")

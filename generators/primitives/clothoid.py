@@ -16,6 +16,8 @@ from scipy.special import fresnel
 
 from generators.primitives.base import XZ, Box, EndState, Piece, Primitive, Segment, register
 from generators.quadrature import weighted_sum
+from schemas.errors import SpecError
+from schemas.limits import MAX_TURNING
 from schemas.motion import ClothoidToken
 
 _GL10_X, _GL10_W = np.polynomial.legendre.leggauss(10)
@@ -100,6 +102,15 @@ class Clothoid(Primitive[ClothoidToken]):
         else:
             pos, heading, speed, kappa = prev
             p = (float(pos[0]), float(pos[1]), heading, speed, kappa, token.curvature_slope)
+        # the token checked its own speed and curvature; joined, it inherits others, and its
+        # quadrature's panels grow with the turning
+        length = p[3] * token.duration
+        turning = (abs(p[4]) + abs(p[5]) * length) * length
+        if not turning <= MAX_TURNING:
+            raise SpecError(
+                f"a C token starting at {t0:.3f} s, joined at {p[3]:.4g} units/s and curvature {p[4]:.4g}, turns "
+                f"the heading by up to {turning:.4g} rad (at most {MAX_TURNING:.4g}: 32 turns)"
+            )
         return Piece(self, t0, token.duration, p)
 
     def evaluate(self, piece: Piece, tau: np.ndarray) -> XZ:

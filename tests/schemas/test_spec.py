@@ -115,7 +115,7 @@ def test_nan_in_json_text_is_rejected():
     text = json.dumps(spec_dict())
     with pytest.raises(SpecError, match=r"spec.object_size must be a finite number > 0, got nan"):
         EpisodeSpec.from_json(text.replace('"object_size": 0.6', '"object_size": NaN'))
-    with pytest.raises(SpecError, match=r"L.direction must be finite, got nan"):
+    with pytest.raises(SpecError, match=r"spec.motion.base\[0\].direction must be finite, got nan"):
         EpisodeSpec.from_json(text.replace('"direction": 0.5', '"direction": NaN'))
     with pytest.raises(SpecError, match=r"spec.seed must be an integer, got inf"):
         EpisodeSpec.from_json(text.replace('"seed": 7', '"seed": Infinity'))
@@ -128,7 +128,7 @@ def test_missing_and_unknown_fields_are_named():
         EpisodeSpec.from_dict(data)
     with pytest.raises(SpecError, match=r"spec has unknown field\(s\) \['fps'\]"):
         EpisodeSpec.from_dict(spec_dict(fps=20))
-    with pytest.raises(SpecError, match=r"L token is missing field\(s\) \['speed'\]"):
+    with pytest.raises(SpecError, match=r"spec.motion.base\[0\] \(L\) is missing field\(s\) \['speed'\]"):
         motion = {"base": [{"type": "L", "start": [0.0, 3.0], "direction": 0.5, "acceleration": 0.0, "duration": 2.0}]}
         EpisodeSpec.from_dict(spec_dict(motion=motion))
     with pytest.raises(SpecError, match=r"a spec must be a JSON object, got \[\]"):
@@ -185,7 +185,7 @@ def test_a_lone_surrogate_in_the_text_is_one_clear_error():
 
 def test_a_huge_integer_is_one_clear_error():
     line = json.dumps(spec_dict()).replace('"seed": 7', '"seed": ' + "9" * 5000)
-    with pytest.raises(SpecError, match="holds a number Dyana cannot read"):
+    with pytest.raises(SpecError, match=r"spec.seed must be in \[0, 9223372036854775807\], got 9{20}\.\.\. \(an integer of 5,000 digits\)"):
         EpisodeSpec.from_json(line)
 
 
@@ -221,7 +221,7 @@ def test_obstacles_round_trip_and_are_left_out_when_there_are_none():
         ([dict(BOX, centre=[40.0, 3.0])], r"obstacle.centre must lie on the table"),
         ([dict(BOX, half_extents=[0.5, 0.0, 0.5])], r"obstacle.half_extents must each be in"),
         ([dict(BOX, half_extents=[0.5, 0.5])], r"obstacle.half_extents must be a list of 3 numbers"),
-        ([dict(BOX, yaw="north")], r"obstacle.yaw must be a number, got 'north'"),
+        ([dict(BOX, yaw="north")], r"spec.obstacles\[0\].yaw must be a number, got 'north'"),
         ([dict(BOX, colour="red")], r"obstacle has unknown field\(s\) \['colour'\]"),
         ([{"category": "crate"}], r"obstacle is missing field\(s\) \['centre', 'half_extents'\]"),
         ([BOX] * 9, r"at most 8 obstacles, got 9"),
