@@ -42,12 +42,17 @@ def s3_server(bucket: str) -> Iterator[dict[str, str]]:
                 time.sleep(0.1)
         saved = {key: os.environ.get(key) for key in env}
         os.environ.update(env)
-        try:
-            import fsspec
+        import fsspec
+        import s3fs
 
+        # fsspec keeps one S3 filesystem per set of arguments, made with the endpoint the
+        # environment named then: a server of an earlier test would still be asked.
+        s3fs.S3FileSystem.clear_instance_cache()
+        try:
             fsspec.filesystem("s3", skip_instance_cache=True).mkdir(bucket)
             yield env
         finally:
+            s3fs.S3FileSystem.clear_instance_cache()
             for key, value in saved.items():
                 if value is None:
                     os.environ.pop(key, None)
