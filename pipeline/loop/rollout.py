@@ -141,7 +141,8 @@ def run_episode(
     frame = int(obs["frame_index"])
     waited = 0.0
     try:
-        task = task_for(spec, env.resolution, bool(policy.privileged), horizon(spec))
+        # a policy that does not say is not privileged (the protocol's default, as describe_policy reads it)
+        task = task_for(spec, env.resolution, bool(getattr(policy, "privileged", False)), horizon(spec))
         call_policy(worker, policy.reset, task, deadline_s, watchdog_s, "reset")
         done = env.done
         while not done:
