@@ -21,7 +21,7 @@ from collections import deque
 import numpy as np
 
 from pipeline.policies.base import Observation, Task
-from pipeline.remote.client import RemotePolicy
+from pipeline.remote.client import RemotePolicy, ServerError
 from schemas.errors import PolicyError
 
 #: Seconds a child process has to import the policy and start listening.
@@ -86,11 +86,16 @@ class IsolatedPolicy:
             self._last_lines.append(raw.decode("utf-8", "replace").strip()[:200])
 
     def _failure(self, exc: PolicyError) -> PolicyError:
+        """The fault in the words of an in-process run: the policy's own error as is (no
+        wait: its process is alive), else how the process ended, if it did."""
+        if isinstance(exc, ServerError):
+            return PolicyError(exc.message)
+        text = str(exc).removeprefix("remote policy: ")
         try:
             code = self._process.wait(timeout=2.0)
         except subprocess.TimeoutExpired:
-            return exc
-        return PolicyError(f"policy process {_ended(code)} ({exc})")
+            return PolicyError(f"policy process: {text}")
+        return PolicyError(f"policy process {_ended(code)} ({text})")
 
     def reset(self, task: Task) -> None:
         try:

@@ -22,7 +22,7 @@ from typing import Any
 from pipeline.loop.worker_thread import WorkerThread
 from pipeline.policies.base import make_policy
 from pipeline.remote import protocol
-from schemas.errors import DyanaError
+from schemas.errors import DyanaError, PolicyError
 
 PolicyFactory = Callable[[], Any]
 #: Seconds the server waits for open sessions to end when it stops.
@@ -124,7 +124,10 @@ async def _answer(websocket, worker: WorkerThread, policy: Any) -> None:
                 start = time.perf_counter()
                 action = await worker.acall(policy.act, request["observation"])
                 elapsed_ms = (time.perf_counter() - start) * 1000.0
-                reply = protocol.action_message(action, elapsed_ms)
+                try:  # refused as in-process, in the same words (complex values, ...)
+                    reply = protocol.action_message(action, elapsed_ms)
+                except PolicyError as exc:
+                    reply = protocol.error_message(str(exc))
         except Exception as exc:
             reply = protocol.error_message(f"policy {kind} raised {_describe(exc)}")
         await _send(websocket, reply)

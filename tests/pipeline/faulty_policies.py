@@ -70,6 +70,14 @@ class Single:
         return faulty_action(self.fault, obs, self.calls)
 
 
+class ComplexFault(Single):
+    fault = "complex"
+
+
+class RaiseFault(Single):
+    fault = "raise"
+
+
 class Mixed:
     """Privileged (it reads the episode index from the spec): a different fault per episode."""
 

@@ -73,6 +73,24 @@ def test_each_fault_fails_the_episode_and_keeps_its_frames(env, fault, tmp_path)
     assert w.record.frames == result.frames.num_frames
 
 
+@pytest.mark.parametrize("ref", ["ComplexFault", "RaiseFault"])
+def test_a_child_process_refuses_what_in_process_refuses_in_the_same_words(env, ref):
+    """The default child process and --in-process agree: a complex action (whose cast would
+    drop the imaginary part) fails the episode both ways, and the reasons are equal."""
+    from pipeline.policies.base import make_policy
+    from pipeline.remote.isolated import IsolatedPolicy
+
+    local = run_episode(env, make_policy(f"tests.pipeline.faulty_policies:{ref}"), SPEC, 5.0)
+    child_policy = IsolatedPolicy(f"tests.pipeline.faulty_policies:{ref}", timeout_s=30.0)
+    try:
+        child = run_episode(env, child_policy, SPEC, 30.0)
+    finally:
+        child_policy.close()
+    assert local.status == child.status == "error"
+    assert child.error == local.error and child.calls == local.calls == FAULT_CALL
+    assert child.policy_s < 1.0  # the policy's own error: no wait for its process to end
+
+
 def test_a_hung_call_does_not_hold_the_run(env):
     import time
 
@@ -121,7 +139,7 @@ def test_a_faulty_run_records_every_episode_and_counts_the_errors(tmp_path):
 # --- a misbehaving server ---------------------------------------------------------------
 
 #: Episode index -> what the server does on that episode's third act.
-SERVER_FAULTS = {1: "close", 2: "abort", 3: "garbage", 4: "error"}
+SERVER_FAULTS = {0: "twice", 1: "close", 2: "abort", 3: "garbage", 4: "error"}
 
 
 async def _misbehave(ws) -> None:
@@ -141,7 +159,11 @@ async def _misbehave(ws) -> None:
         if fault == "abort":
             ws.transport.abort()
             return
-        if fault == "garbage":
+        if fault == "twice":  # one spare reply: it must fail this episode, not the next
+            reply = protocol.encode(protocol.action_message(state_action(message["observation"]), 0.1))
+            await ws.send(reply)
+            await ws.send(reply)
+        elif fault == "garbage":
             await ws.send(b"\xc1 not msgpack")
         elif fault == "error":
             await ws.send(protocol.encode(protocol.error_message("CUDA out of memory")))
@@ -182,15 +204,19 @@ def test_dropped_connections_and_bad_replies_fail_only_their_episode(flaky_serve
     for shard in manifest.shards:
         rows += read_episodes(tmp_path / "run" / shard.files["episodes"].path, ["episode_index", "status", "error"]).to_pylist()
     errors = {row["episode_index"]: row["error"] for row in rows if row["status"] == "error"}
-    assert sorted(errors) == [1, 2, 3, 4]
+    assert sorted(errors) == [0, 1, 2, 3, 4]
+    assert re.fullmatch(r"frame \d+: remote policy: protocol error: a spare action reply that answers no request", errors[0])
     assert "remote policy: connection closed (code 1011, model crashed)" in errors[1]
     assert "remote policy: connection closed" in errors[2]
     assert "remote policy: protocol error: not a msgpack message" in errors[3]
     assert "remote policy: server error: CUDA out of memory" in errors[4]
     for index, reason in errors.items():
+        if index == 0:  # found at the act after the doubled one
+            assert reason.startswith(f"frame {spec_for('test-1k', 0).observe_frames + FAULT_CALL}:"), reason
+            continue
         assert reason.startswith(f"frame {spec_for('test-1k', index).observe_frames + FAULT_CALL - 1}:"), reason
         assert "127.0.0.1" not in reason  # recorded reasons never name the host
-    assert "4 error(s)" in printed.getvalue()
+    assert "5 error(s)" in printed.getvalue()
     assert "error in episode 1: frame" in printed.getvalue()
 
 
