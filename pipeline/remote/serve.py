@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from pipeline.loop.fault_text import raised
 from pipeline.loop.worker_thread import WorkerThread
 from pipeline.policies.base import make_policy
 from pipeline.remote import protocol
@@ -128,8 +129,8 @@ async def _answer(websocket, worker: WorkerThread, policy: Any) -> None:
                     reply = protocol.action_message(action, elapsed_ms)
                 except PolicyError as exc:
                     reply = protocol.error_message(str(exc))
-        except Exception as exc:
-            reply = protocol.error_message(f"policy {kind} raised {_describe(exc)}")
+        except Exception as exc:  # in the in-process words, traceback included
+            reply = protocol.error_message(raised(kind, exc))
         await _send(websocket, reply)
 
 
