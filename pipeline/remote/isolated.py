@@ -23,6 +23,7 @@ import numpy as np
 from pipeline.policies.base import Observation, Task
 from pipeline.remote.client import RemotePolicy, ServerError
 from schemas.errors import PolicyError
+from schemas.names import printable
 
 #: Seconds a child process has to import the policy and start listening.
 START_TIMEOUT_S = 120.0
@@ -76,7 +77,7 @@ class IsolatedPolicy:
         finally:
             timer.cancel()
         code = self._process.wait()
-        detail = self._last_lines[-1] if self._last_lines else "no output"
+        detail = printable(self._last_lines[-1], 200) if self._last_lines else "no output"
         raise PolicyError(f"the policy process for {self.ref!r} {_ended(code)} before serving: {detail}")
 
     def _drain_stderr(self) -> None:
