@@ -155,3 +155,24 @@ def test_the_cli_needs_a_model_and_keeps_vlm_flags_to_vlm_policies(tmp_path, cap
     assert "--model is for --policy vlm:URL only" in capsys.readouterr().err
     assert pipeline_main(["eval", "--policy", "vlm:ftp://x", "--model", "m", "--out", str(tmp_path / "r")]) == 2
     assert "http://" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "flag, value, named",
+    [
+        ("--vlm-latency-frames", "1000000000", "latency_frames must be an integer in [0, 1000]"),
+        ("--vlm-observe-images", "1000000000", "observe_images must be an integer in [0, 16]"),
+        ("--vlm-temperature", "-1", "temperature must be a finite number in [0, 2]"),
+        ("--vlm-temperature", "nan", "temperature must be a finite number in [0, 2]"),
+        ("--vlm-temperature", "inf", "temperature must be a finite number in [0, 2]"),
+        ("--vlm-seed", str(2**70), "seed must be an integer in [0, 9223372036854775807]"),
+        ("--vlm-api-key-env", "", "api_key_env must name an environment variable"),
+        ("--vlm-api-key-env", "sk-a key", "api_key_env must name an environment variable"),
+    ],
+)
+def test_vlm_settings_out_of_bounds_are_refused_naming_them(tmp_path, capsys, flag, value, named):
+    out = tmp_path / "r"
+    code = pipeline_main(["eval", "--policy", "vlm:http://127.0.0.1:9/v1", "--model", "m", flag, value, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and named in err and err.count("\n") == 1, err
+    assert not out.exists()
