@@ -176,3 +176,60 @@ def test_vlm_settings_out_of_bounds_are_refused_naming_them(tmp_path, capsys, fl
     err = capsys.readouterr().err
     assert code == 2 and named in err and err.count("\n") == 1, err
     assert not out.exists()
+
+
+@pytest.fixture
+def echo_endpoint():
+    """An endpoint that echoes the Authorization header into its answer (or, as ``/fail``,
+    into an HTTP 500 body) and reports NaN token counts."""
+    import threading
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    class Echo(BaseHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+        def do_POST(self):  # noqa: N802
+            self.rfile.read(int(self.headers.get("Content-Length", 0)))
+            auth = self.headers.get("Authorization", "")
+            if self.path.startswith("/fail"):
+                body, status = json.dumps({"error": {"message": f"bad header {auth}"}}), 500
+            else:
+                message = {"role": "assistant", "content": f"you sent {auth}"}
+                body = json.dumps({"id": "x", "object": "chat.completion", "created": 0, "model": "m",
+                                   "choices": [{"index": 0, "message": message, "finish_reason": "stop"}],
+                                   "usage": {"prompt_tokens": float("nan"), "completion_tokens": 1e400,
+                                             "total_tokens": 1}})
+                status = 200
+            data = body.encode()
+            self.send_response(status)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(data)))
+            self.end_headers()
+            self.wfile.write(data)
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Echo)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    yield f"http://127.0.0.1:{server.server_address[1]}"
+    server.shutdown()
+
+
+@pytest.mark.parametrize("path", ["/v1", "/fail/v1"])
+def test_an_endpoint_echoing_the_key_never_gets_it_stored(echo_endpoint, monkeypatch, path):
+    """The key (and any Bearer credential) is redacted from every text of a reply, and
+    usage that is not a whole number is dropped, so the audit trail can be written."""
+    from pipeline.policies.vlm_transport import HttpTransport
+
+    monkeypatch.setenv("DYANA_TEST_KEY", SECRET)
+    transport = HttpTransport(echo_endpoint + path, "DYANA_TEST_KEY", 10.0)
+    try:
+        reply = transport.complete({"model": "m", "messages": [{"role": "user", "content": "hi"}]})
+    finally:
+        transport.close()
+    stored = json.dumps(reply.to_dict(), allow_nan=False)
+    assert SECRET not in stored and "sk-dyana" not in stored
+    assert "Bearer [redacted]" in stored
+    if path == "/v1":
+        assert reply.outcome == "answered" and reply.prompt_tokens is None and reply.completion_tokens is None
+    else:
+        assert reply.outcome == "http_error"
