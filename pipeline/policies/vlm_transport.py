@@ -87,20 +87,25 @@ class HttpTransport:
             return Reply("http_error", detail=f"connection failed: {str(exc)[:160]}", latency_ms=_ms(start))
         except openai.OpenAIError as exc:
             return Reply("http_error", detail=f"{type(exc).__name__}: {str(exc)[:160]}", latency_ms=_ms(start))
+        except (ValueError, RecursionError) as exc:  # a body that is not JSON, or nested past the parser's depth
+            return Reply("http_error", detail=f"unreadable reply ({type(exc).__name__}: {str(exc)[:160]})", latency_ms=_ms(start))
         latency = _ms(start)
-        if not response.choices:
-            return Reply("http_error", detail="the response has no choices", latency_ms=latency)
-        choice = response.choices[0]
-        usage = response.usage
-        return Reply(
-            "answered",
-            content=choice.message.content,
-            refusal=getattr(choice.message, "refusal", None),
-            finish_reason=choice.finish_reason,
-            prompt_tokens=None if usage is None else usage.prompt_tokens,
-            completion_tokens=None if usage is None else usage.completion_tokens,
-            latency_ms=latency,
-        )
+        try:  # a null body, a null message, ...: a fault of the endpoint, recorded like any other
+            if not response.choices:
+                return Reply("http_error", detail="the response has no choices", latency_ms=latency)
+            choice = response.choices[0]
+            usage = response.usage
+            return Reply(
+                "answered",
+                content=choice.message.content,
+                refusal=getattr(choice.message, "refusal", None),
+                finish_reason=choice.finish_reason,
+                prompt_tokens=None if usage is None else usage.prompt_tokens,
+                completion_tokens=None if usage is None else usage.completion_tokens,
+                latency_ms=latency,
+            )
+        except (AttributeError, TypeError, IndexError) as exc:
+            return Reply("http_error", detail=f"malformed reply ({type(exc).__name__}: {str(exc)[:160]})", latency_ms=latency)
 
     def close(self) -> None:
         self.client.close()

@@ -192,7 +192,12 @@ def echo_endpoint():
         def do_POST(self):  # noqa: N802
             self.rfile.read(int(self.headers.get("Content-Length", 0)))
             auth = self.headers.get("Authorization", "")
-            if self.path.startswith("/fail"):
+            broken = {"/deep": "[" * 5000 + "]" * 5000, "/empty": "", "/null": "null", "/bad": "{not json",
+                      "/nullmsg": json.dumps({"id": "x", "object": "chat.completion", "created": 0, "model": "m",
+                                              "choices": [{"index": 0, "message": None, "finish_reason": "stop"}]})}
+            if self.path.split("/v1")[0] in broken:
+                body, status = broken[self.path.split("/v1")[0]], 200
+            elif self.path.startswith("/fail"):
                 body, status = json.dumps({"error": {"message": f"bad header {auth}"}}), 500
             else:
                 message = {"role": "assistant", "content": f"you sent {auth}"}
@@ -233,3 +238,18 @@ def test_an_endpoint_echoing_the_key_never_gets_it_stored(echo_endpoint, monkeyp
         assert reply.outcome == "answered" and reply.prompt_tokens is None and reply.completion_tokens is None
     else:
         assert reply.outcome == "http_error"
+
+
+@pytest.mark.parametrize("path", ["/deep", "/empty", "/null", "/bad", "/nullmsg"])
+def test_an_unreadable_reply_is_an_http_error_reply_not_an_exception(echo_endpoint, path):
+    """Invalid JSON, an empty or null body, a null message, 5,000-deep JSON: the transport
+    returns an http_error reply (so the trail records it), it does not raise."""
+    from pipeline.policies.vlm_transport import HttpTransport
+
+    transport = HttpTransport(echo_endpoint + path + "/v1", "DYANA_TEST_UNSET_KEY", 10.0)
+    try:
+        reply = transport.complete({"model": "m", "messages": [{"role": "user", "content": "hi"}]})
+    finally:
+        transport.close()
+    assert reply.outcome == "http_error" and ("unreadable reply" in reply.detail or "malformed reply" in reply.detail)
+    json.dumps(reply.to_dict(), allow_nan=False)
