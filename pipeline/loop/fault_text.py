@@ -24,9 +24,9 @@ def raised(what: str, exc: BaseException) -> str:
     """``policy <what> raised <Type>: <message>`` and, on the next lines, its traceback."""
     text = str(exc)
     head = f"policy {what} raised {type(exc).__name__}" + (f": {text}" if text else "")
-    frames = traceback.extract_tb(exc.__traceback__)
-    own = [i for i, f in enumerate(frames) if Path(f.filename).name in _OWN_FRAMES]
-    frames = frames[own[-1] + 1 :] if own else frames  # the policy's frames: after Dyana's worker thread
+    stack = traceback.extract_tb(exc.__traceback__)
+    own = [i for i, f in enumerate(stack) if Path(f.filename).name in _OWN_FRAMES]
+    frames = list(stack)[own[-1] + 1 :] if own else list(stack)  # the policy's frames: after Dyana's worker thread
     if not frames:
         return head
     lines = [f"  {Path(f.filename).name}:{f.lineno} in {f.name}" + (f": {f.line}" if f.line else "") for f in frames]

@@ -111,14 +111,14 @@ class VLMConfig:
                 raise SpecError(f"vlm {name} must be an integer in [{low}, {high}], got {shorten(value)}")
         if self.on_fault not in FAULT_MODES:
             raise SpecError(f"--vlm-on-fault must be one of {list(FAULT_MODES)}, got {shorten(repr(self.on_fault))}")
-        for name, low_open, high in (("timeout_s", True, MAX_TIMEOUT_S), ("temperature", False, MAX_TEMPERATURE)):
-            value = getattr(self, name)
+        for name, low_open, top in (("timeout_s", True, MAX_TIMEOUT_S), ("temperature", False, MAX_TEMPERATURE)):
+            number = getattr(self, name)
             if (
-                isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-                or not (0 < value if low_open else 0 <= value) or value > high
+                isinstance(number, bool) or not isinstance(number, (int, float)) or not math.isfinite(number)
+                or not (0 < number if low_open else 0 <= number) or number > top
             ):
-                bound = f"in ({0}, {high:g}]" if low_open else f"in [0, {high:g}]"
-                raise SpecError(f"vlm {name} must be a finite number {bound}, got {shorten(value)}")
+                bound = f"in (0, {top:g}]" if low_open else f"in [0, {top:g}]"
+                raise SpecError(f"vlm {name} must be a finite number {bound}, got {shorten(number)}")
         if not isinstance(self.api_key_env, str) or not ENV_NAME.fullmatch(self.api_key_env):
             raise SpecError(
                 "vlm api_key_env must name an environment variable (letters, digits, '_', not starting with a digit), "
