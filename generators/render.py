@@ -73,10 +73,14 @@ from generators.scene import (
 )
 from schemas.errors import DyanaError, SpecError
 from schemas.frames import EpisodeFrames
+from schemas.names import shorten
 from schemas.objects import object_category
 from schemas.scene import DEFAULT_RESOLUTION, HANDS
 
 #: Light settings passed to every ``getCameraImage`` call (no defaults relied on).
+#: Largest image side rendered: the largest a build writes (1024 px, 3 MB a frame), and a
+#: bound that keeps a mistyped resolution from asking for gigabytes before any check.
+MAX_RESOLUTION = 1024
 LIGHT_DIRECTION = (0.3, 1.0, -0.5)
 LIGHT_COLOR = (1.0, 1.0, 1.0)
 LIGHT_DISTANCE = 10.0
@@ -110,6 +114,13 @@ class _Hand:
     joints: np.ndarray
 
 
+def check_resolution(name: str, value: object) -> int:
+    """An image side in pixels in [8, MAX_RESOLUTION], or SpecError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 8 <= value <= MAX_RESOLUTION:
+        raise SpecError(f"{name} must be an integer in [8, {MAX_RESOLUTION}], got {shorten(value)}")
+    return int(value)
+
+
 def _floats(values) -> np.ndarray | None:
     """``values`` as a float64 array, or None when they are not numbers."""
     try:
@@ -124,11 +135,10 @@ class Renderer:
     RGB frames. Use as a context manager or call :meth:`close`."""
 
     def __init__(self, resolution: int = DEFAULT_RESOLUTION, width: int | None = None, backend: str = "tiny"):
-        if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
-            raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
+        check_resolution("resolution", resolution)
         self.height = int(resolution)
-        if width is not None and (isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 8):
-            raise SpecError(f"width must be an integer >= 8, got {width!r}")
+        if width is not None:
+            check_resolution("width", width)
         self.width = self.height if width is None else int(width)
         if backend not in BACKENDS:
             raise SpecError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")

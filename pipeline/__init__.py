@@ -26,7 +26,8 @@ def episode(spec: EpisodeSpec) -> EpisodeFrames:
     """Ground-truth states and actions of every frame of ``spec`` (float32 arrays, no
     rendering): :func:`pipeline.stages.episode.episode`.
 
-    Raises :class:`schemas.errors.InfeasibleError` when the interception cannot be planned.
+    Raises :class:`schemas.errors.InfeasibleError` when the interception cannot be planned,
+    and :class:`schemas.errors.SpecError` naming the argument when ``spec`` is not an EpisodeSpec.
     """
     from pipeline.stages.episode import episode as run
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import DyanaError, ReplayMismatch
-from schemas.names import shorten
+from schemas.names import printable, shorten
 from schemas.versions import CODE_VERSION, DATASET_VERSION
 
 #: What ``--version`` says after the program's name: a folder's ``catalog info`` names the same two.
@@ -302,7 +302,7 @@ def one_line(exc: BaseException) -> str:
         text = f"{where}{exc.strerror}"
     else:
         text = str(exc) or type(exc).__name__
-    return shorten(" ".join(text.split()), MESSAGE_LIMIT)
+    return printable(" ".join(text.split()), MESSAGE_LIMIT)  # a peer's text may hold terminal escapes
 
 
 def _storage_errors() -> tuple[type[BaseException], ...]:

@@ -26,6 +26,18 @@ def shorten(value: Any, limit: int = ECHO_LIMIT) -> str:
     return f"{text[: limit - 3]}... ({len(text):,} characters)"
 
 
+def printable(value: Any, limit: int = ECHO_LIMIT) -> str:
+    """A peer's text (a server's error, a policy's name) safe to print on a terminal:
+    characters that are not printable (escape sequences, newlines) become backslash
+    escapes (``\\x1b``, ``\\n``), and the result is cut to ``limit`` characters."""
+    text = value if isinstance(value, str) else repr(value)
+    head = text[: limit + 1]
+    safe = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in head)
+    if len(text) <= limit and len(safe) <= limit:
+        return safe
+    return f"{safe[: limit - 3]}... ({len(text):,} characters)"
+
+
 def validate_name(kind: str, value: Any) -> str:
     """``value`` if it is a valid name; SpecError naming ``kind`` and the value otherwise."""
     if not isinstance(value, str) or not NAME_PATTERN.fullmatch(value) or set(value) <= {"."}:

@@ -34,6 +34,7 @@ from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
 from pipeline.loop.conditions import EvalProtocol
+from pipeline.loop.fault_text import split_reason
 from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
 from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import Observation, Policy, Task
@@ -51,6 +52,7 @@ from pipeline.policy_registry import (
 )
 from schemas.errors import PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
+from schemas.names import printable
 
 DEFAULT_SHARD_SIZE = 32
 
@@ -183,6 +185,10 @@ def _merge_timing(total: dict | None, part: dict) -> dict:
     return merged
 
 
+#: Characters of an error reason (or traceback line) the summary prints.
+REASON_CHARS = 300
+
+
 @dataclass
 class EvalSummary:
     """Quick counts over a run's files (``scoring eval RUN`` gives the paper's metrics):
@@ -200,17 +206,21 @@ class EvalSummary:
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
-    def lines(self) -> list[str]:
+    def lines(self, tracebacks: bool = False) -> list[str]:
+        """The summary; peer text made printable. ``tracebacks`` adds each error's traceback
+        lines (kept in the error record; printed with ``--in-process``)."""
         n = max(self.episodes, 1)
         out = [
-            f"evaluated {self.policy} on {self.slice}: {self.episodes} episodes, {self.frames} frames, "
+            f"evaluated {printable(self.policy)} on {self.slice}: {self.episodes} episodes, {self.frames} frames, "
             f"{self.errors} error(s)",
             f"  localized {self.localized}/{self.episodes} ({100.0 * self.localized / n:.1f}%), "
             f"grasped {self.grasped}/{self.episodes} ({100.0 * self.grasped / n:.1f}%)  "
             "(quick counts; `scoring eval RUN` for the metrics)",
         ]
         for index, reason in self.error_reasons[:5]:
-            out.append(f"  error in episode {index}: {reason}")
+            head, frames = split_reason(reason)
+            out.append(f"  error in episode {index}: {printable(head, REASON_CHARS)}")
+            out.extend(f"    {printable(line, REASON_CHARS)}" for line in (frames if tracebacks else ()))
         if len(self.error_reasons) > 5:
             out.append(f"  ... and {len(self.error_reasons) - 5} more error(s)")
         return out
@@ -344,7 +354,7 @@ def evaluate(
         out_stream = sys.stdout if stream is None else stream
         if up_to_date:
             print(f"{run_dir}: up to date (the same run is complete; --overwrite to run it again)", file=out_stream)
-        for line in summarize(run_dir).lines():
+        for line in summarize(run_dir).lines(tracebacks=not isolate):
             print(line, file=out_stream)
         if kind.audit_dir is not None:
             trail = run_dir / kind.audit_dir
@@ -366,7 +376,7 @@ def _timing_lines(timing: dict[str, Any], elapsed: float) -> Sequence[str]:
     remote = timing["remote"]
     if remote is not None:
         lines.append(
-            f"  remote: {remote['round_trip_ms']:.2f} ms round trip per act (server {remote['server_ms']:.2f} ms, "
+            f"  transport: {remote['round_trip_ms']:.2f} ms round trip per act (server {remote['server_ms']:.2f} ms, "
             f"worst {remote['max_round_trip_ms']:.1f} ms)"
         )
     return lines

@@ -115,7 +115,7 @@ from generators.grasp import grasp_angles
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_PALM
 from generators.motion import object_pose
 from generators.recipe import spec_for
-from generators.render import Renderer
+from generators.render import Renderer, check_resolution
 from pipeline.loop.actions import as_action
 from pipeline.loop.spaces import (
     PALM_HIGH,
@@ -198,7 +198,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
     """Closed-loop dynamic grasping (module docstring): simulates one episode at a time.
 
     Args:
-        resolution: image side in pixels (>= 8).
+        resolution: image side in pixels, 8 to 1024 (``generators.render.MAX_RESOLUTION``,
+            the largest a build writes; checked before anything is allocated).
         jpeg_quality: the frames' JPEG quality (what a policy sees is the decoded JPEG).
         render_mode: None or ``"rgb_array"`` (:meth:`render` gives the latest frame).
         renderer: the :class:`~generators.render.Renderer` to draw with, at ``resolution``
@@ -218,8 +219,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         renderer: Renderer | None = None,
         episodes: EpisodeSource | None = None,
     ):
-        if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
-            raise SpecError(f"resolution must be an integer >= 8, got {resolution!r}")
+        check_resolution("resolution", resolution)
         if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, (int, np.integer)) or not 1 <= jpeg_quality <= 100:
             raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {jpeg_quality!r}")
         if render_mode not in (None, "rgb_array"):

@@ -33,6 +33,7 @@ from typing import TypeVar
 
 from pipeline.loop.actions import run_chunk
 from pipeline.loop.env import horizon
+from pipeline.loop.fault_text import raised
 from pipeline.loop.worker_thread import CallTimeout, WorkerThread
 from pipeline.loop.wrappers import RecordEpisode, note_policy_time
 from pipeline.policies.base import Policy, Task
@@ -107,8 +108,7 @@ def call_policy(
     except PolicyError:
         raise
     except Exception as exc:
-        text = str(exc)
-        raise PolicyError(f"policy {what} raised {type(exc).__name__}" + (f": {text}" if text else "")) from None
+        raise PolicyError(raised(what, exc)) from None
 
 
 def check_seconds(name: str, value: object) -> float:
@@ -148,11 +148,9 @@ def run_episode(
         while not done:
             calls += 1
             start = time.perf_counter()
-            try:
-                raw = call_policy(worker, policy.act, obs, deadline_s, watchdog_s, "act")
-            finally:
-                took = time.perf_counter() - start
-                waited += took
+            raw = call_policy(worker, policy.act, obs, deadline_s, watchdog_s, "act")
+            took = time.perf_counter() - start
+            waited += took  # answered calls only: a failed call's time is no per-act time
             note_policy_time(env, took)  # a real-time protocol's latency (opt-in, recorded as not deterministic)
             ran = run_chunk(env, raw)
             obs, info, steps = ran.observation, ran.info, steps + ran.steps

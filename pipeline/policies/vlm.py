@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import math
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +50,23 @@ TEMPLATES = Path(__file__).with_name("vlm_prompts")
 FAULT_MODES = ("error", "hold")
 OUTCOMES = ("ok", "http_error", "timeout", "parse_error", "refusal")
 IMAGE_JPEG_QUALITY = 90
+#: Bounds of VLMConfig (each refused beyond, in one line naming the flag):
+#: an answer delay or query interval beyond 1,000 frames (33 s at 30 fps) outlasts any
+#: episode, so it can only be a typo;
+MAX_FRAMES = 1000
+#: observe-window images sent with the first query: each is a base64 JPEG in the request,
+#: and endpoints cap images per request;
+MAX_OBSERVE_IMAGES = 16
+#: the answer is one small JSON object (~50 tokens);
+MAX_TOKENS = 4096
+#: the OpenAI-compatible sampling temperature range, finite;
+MAX_TEMPERATURE = 2.0
+#: sampling seeds as endpoints take them: a non-negative signed 64-bit integer;
+MAX_SEED = 2**63 - 1
+#: a request's timeout: one hour at most, finite;
+MAX_TIMEOUT_S = 3600.0
+#: and the API key's variable: an environment variable name (never empty, never the key).
+ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,127}")
 
 
 def template_path(name: str) -> Path:
@@ -83,14 +102,28 @@ class VLMConfig:
             raise SpecError(f"vlm URL must start with http:// or https://, got {shorten(repr(self.url))}")
         if not self.model:
             raise SpecError("a VLM policy needs --model NAME (the model the endpoint serves)")
-        for name, low in (("every", 1), ("latency_frames", 0), ("observe_images", 0), ("max_tokens", 1)):
+        for name, low, high in (
+            ("every", 1, MAX_FRAMES), ("latency_frames", 0, MAX_FRAMES), ("observe_images", 0, MAX_OBSERVE_IMAGES),
+            ("max_tokens", 1, MAX_TOKENS), ("seed", 0, MAX_SEED),
+        ):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise SpecError(f"vlm {name} must be an integer >= {low}, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise SpecError(f"vlm {name} must be an integer in [{low}, {high}], got {shorten(value)}")
         if self.on_fault not in FAULT_MODES:
             raise SpecError(f"--vlm-on-fault must be one of {list(FAULT_MODES)}, got {shorten(repr(self.on_fault))}")
-        if not self.timeout_s > 0:
-            raise SpecError(f"--vlm-timeout must be > 0, got {self.timeout_s!r}")
+        for name, low_open, top in (("timeout_s", True, MAX_TIMEOUT_S), ("temperature", False, MAX_TEMPERATURE)):
+            number = getattr(self, name)
+            if (
+                isinstance(number, bool) or not isinstance(number, (int, float)) or not math.isfinite(number)
+                or not (0 < number if low_open else 0 <= number) or number > top
+            ):
+                bound = f"in (0, {top:g}]" if low_open else f"in [0, {top:g}]"
+                raise SpecError(f"vlm {name} must be a finite number {bound}, got {shorten(number)}")
+        if not isinstance(self.api_key_env, str) or not ENV_NAME.fullmatch(self.api_key_env):
+            raise SpecError(
+                "vlm api_key_env must name an environment variable (letters, digits, '_', not starting with a digit), "
+                f"got {shorten(repr(self.api_key_env))}"
+            )
         text = template_path(self.template).read_bytes()
         object.__setattr__(self, "template_sha256", hashlib.sha256(text).hexdigest())
 

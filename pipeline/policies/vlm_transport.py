@@ -5,18 +5,27 @@ Both return a :class:`Reply`; transport faults come back as replies with ``outco
 ``http_error`` or ``timeout``, never as exceptions, so that the policy decides what a
 fault does to its episode. The client makes no retries of its own (one request, one
 answer: what the audit trail shows is what happened). The API key comes from the
-environment variable the run names, never from a flag or a file.
+environment variable the run names, never from a flag or a file, and never reaches what
+the run stores: every text of a reply (answer, refusal, error detail) has the key and any
+``Bearer ...`` credential replaced by ``[redacted]`` (an endpoint may echo its headers),
+and token counts that are not whole numbers (NaN from a broken endpoint) are dropped.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from schemas.errors import PolicyError
+
+REDACTED = "[redacted]"
+_BEARER = re.compile(r"(?i)bearer\s+[^\s\"',;]+")
+#: Largest token count kept from a reply's ``usage`` (anything else is recorded as unknown).
+MAX_TOKENS_COUNTED = 10**9
 
 
 @dataclass(frozen=True)
@@ -58,9 +67,14 @@ class HttpTransport:
             raise PolicyError("VLM policies need the openai package: pip install openai") from None
         self._openai = openai
         key = os.environ.get(api_key_env) or "not-needed"  # local servers accept any key
+        self._key = key
         self.client = openai.OpenAI(base_url=url, api_key=key, timeout=timeout_s, max_retries=0)
 
     def complete(self, request: dict[str, Any]) -> Reply:
+        """One request; the reply as stored (secrets redacted, usage checked)."""
+        return stored_reply(self._exchange(request), self._key)
+
+    def _exchange(self, request: dict[str, Any]) -> Reply:
         openai = self._openai
         start = time.perf_counter()
         try:
@@ -73,20 +87,25 @@ class HttpTransport:
             return Reply("http_error", detail=f"connection failed: {str(exc)[:160]}", latency_ms=_ms(start))
         except openai.OpenAIError as exc:
             return Reply("http_error", detail=f"{type(exc).__name__}: {str(exc)[:160]}", latency_ms=_ms(start))
+        except (ValueError, RecursionError) as exc:  # a body that is not JSON, or nested past the parser's depth
+            return Reply("http_error", detail=f"unreadable reply ({type(exc).__name__}: {str(exc)[:160]})", latency_ms=_ms(start))
         latency = _ms(start)
-        if not response.choices:
-            return Reply("http_error", detail="the response has no choices", latency_ms=latency)
-        choice = response.choices[0]
-        usage = response.usage
-        return Reply(
-            "answered",
-            content=choice.message.content,
-            refusal=getattr(choice.message, "refusal", None),
-            finish_reason=choice.finish_reason,
-            prompt_tokens=None if usage is None else usage.prompt_tokens,
-            completion_tokens=None if usage is None else usage.completion_tokens,
-            latency_ms=latency,
-        )
+        try:  # a null body, a null message, ...: a fault of the endpoint, recorded like any other
+            if not response.choices:
+                return Reply("http_error", detail="the response has no choices", latency_ms=latency)
+            choice = response.choices[0]
+            usage = response.usage
+            return Reply(
+                "answered",
+                content=choice.message.content,
+                refusal=getattr(choice.message, "refusal", None),
+                finish_reason=choice.finish_reason,
+                prompt_tokens=None if usage is None else usage.prompt_tokens,
+                completion_tokens=None if usage is None else usage.completion_tokens,
+                latency_ms=latency,
+            )
+        except (AttributeError, TypeError, IndexError) as exc:
+            return Reply("http_error", detail=f"malformed reply ({type(exc).__name__}: {str(exc)[:160]})", latency_ms=latency)
 
     def close(self) -> None:
         self.client.close()
@@ -111,6 +130,33 @@ class RecordedTransport:
 
     def close(self) -> None:
         return None
+
+
+def redact(text: str, key: str) -> str:
+    """``text`` without the API key or any ``Bearer`` credential."""
+    if key:
+        text = text.replace(key, REDACTED)
+    return _BEARER.sub(f"Bearer {REDACTED}", text)
+
+
+def _count(value: object) -> int | None:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_TOKENS_COUNTED:
+        return None
+    return value
+
+
+def stored_reply(reply: Reply, key: str) -> Reply:
+    """``reply`` as the run may store it: every text redacted, token counts whole numbers or None."""
+
+    def clean(value: str | None) -> str | None:
+        return None if value is None else redact(str(value), key)
+
+    return replace(
+        reply,
+        content=clean(reply.content), refusal=clean(reply.refusal), finish_reason=clean(reply.finish_reason),
+        detail=redact(reply.detail, key),
+        prompt_tokens=_count(reply.prompt_tokens), completion_tokens=_count(reply.completion_tokens),
+    )
 
 
 def request_prompt(request: dict[str, Any]) -> str:

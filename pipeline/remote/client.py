@@ -6,6 +6,10 @@ It connects on construction and reads the server's metadata (``name``,
 reply or an ``error`` reply raises :class:`~schemas.errors.PolicyError`; after any
 of these the connection is closed and the object refuses further calls (a late
 reply could otherwise be mistaken for the next one): make a new RemotePolicy.
+The protocol has no request ids, so replies are matched by order: a reply waiting
+before a request is sent answers nothing (a server that answered one request twice).
+Before an ``act`` it fails that call (the episode that got it); before a ``reset`` it
+is dropped, so the next episode starts in step and the peer's fault stays in its own.
 Reasons never contain the server's address, so recorded errors stay reproducible.
 """
 
@@ -33,6 +37,14 @@ _LOOPBACK = {"127.0.0.1", "localhost", "::1"}
 def is_remote(ref: str) -> bool:
     """Whether a policy ref names a server (``ws://`` or ``wss://``)."""
     return isinstance(ref, str) and ref.startswith(("ws://", "wss://"))
+
+
+class ServerError(PolicyError):
+    """An ``error`` reply: ``message`` is the server's own text (a policy fault, as worded in process)."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(reason)
+        self.message = message
 
 
 class RemotePolicy:
@@ -75,10 +87,15 @@ class RemotePolicy:
     # --- Policy protocol --------------------------------------------------------------
 
     def reset(self, task: Task) -> None:
+        while self._spare_reply() is not None:  # the previous episode's, after its last act
+            pass
         self._send(protocol.reset_message(task))
         self._receive(("ready",), self.timeout_s)
 
     def act(self, obs: Observation) -> np.ndarray:
+        spare = self._spare_reply()
+        if spare is not None:
+            raise self._fail(f"remote policy: protocol error: a spare {spare} reply that answers no request")
         start = time.perf_counter()
         self._send(protocol.act_message(obs))
         reply = self._receive(("action",), self.timeout_s)
@@ -139,6 +156,25 @@ class RemotePolicy:
         except OSError as exc:
             raise self._fail(f"remote policy: cannot send ({_describe(exc)})") from None
 
+    def _spare_reply(self) -> str | None:
+        """The type of a message already waiting (and read) when no request is pending, else None."""
+        ws = self._usable()
+        from websockets.exceptions import ConnectionClosed
+
+        try:
+            data = ws.recv(timeout=0)
+        except TimeoutError:
+            return None
+        except ConnectionClosed as exc:
+            raise self._fail(f"remote policy: connection closed ({_closed(exc)})") from None
+        except OSError as exc:
+            raise self._fail(f"remote policy: connection failed ({_describe(exc)})") from None
+        try:
+            kind = protocol.decode(data).get("type")
+        except protocol.ProtocolError:
+            kind = None
+        return kind if isinstance(kind, str) and kind in protocol.MESSAGES else "malformed"
+
     def _receive(self, expected: tuple[str, ...], timeout: float) -> dict[str, Any]:
         ws = self._usable()
         from websockets.exceptions import ConnectionClosed
@@ -156,7 +192,8 @@ class RemotePolicy:
         except protocol.ProtocolError as exc:
             raise self._fail(f"remote policy: protocol error: {exc}") from None
         if message["type"] == "error":
-            raise self._fail(f"remote policy: server error: {message['message']}")
+            self._fail(message["message"])
+            raise ServerError(f"remote policy: server error: {message['message']}", message["message"])
         return message
 
 

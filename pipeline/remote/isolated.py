@@ -21,8 +21,9 @@ from collections import deque
 import numpy as np
 
 from pipeline.policies.base import Observation, Task
-from pipeline.remote.client import RemotePolicy
+from pipeline.remote.client import RemotePolicy, ServerError
 from schemas.errors import PolicyError
+from schemas.names import printable
 
 #: Seconds a child process has to import the policy and start listening.
 START_TIMEOUT_S = 120.0
@@ -76,7 +77,7 @@ class IsolatedPolicy:
         finally:
             timer.cancel()
         code = self._process.wait()
-        detail = self._last_lines[-1] if self._last_lines else "no output"
+        detail = printable(self._last_lines[-1], 200) if self._last_lines else "no output"
         raise PolicyError(f"the policy process for {self.ref!r} {_ended(code)} before serving: {detail}")
 
     def _drain_stderr(self) -> None:
@@ -86,11 +87,16 @@ class IsolatedPolicy:
             self._last_lines.append(raw.decode("utf-8", "replace").strip()[:200])
 
     def _failure(self, exc: PolicyError) -> PolicyError:
+        """The fault in the words of an in-process run: the policy's own error as is (no
+        wait: its process is alive), else how the process ended, if it did."""
+        if isinstance(exc, ServerError):
+            return PolicyError(exc.message)
+        text = str(exc).removeprefix("remote policy: ")
         try:
             code = self._process.wait(timeout=2.0)
         except subprocess.TimeoutExpired:
-            return exc
-        return PolicyError(f"policy process {_ended(code)} ({exc})")
+            return PolicyError(f"policy process: {text}")
+        return PolicyError(f"policy process {_ended(code)} ({text})")
 
     def reset(self, task: Task) -> None:
         try:

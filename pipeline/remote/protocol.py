@@ -24,6 +24,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from pipeline.loop.actions import float32_copy
 from schemas.errors import PolicyError
 
 PROTOCOL = "dyana/1"
@@ -230,8 +231,9 @@ def act_message(observation: Mapping[str, Any]) -> dict[str, Any]:
 
 def action_message(action: Any, server_time_ms: float) -> dict[str, Any]:
     """The action as sent: a float32 ``(H, 18)`` chunk (a policy's float64 output is cast, as
-    in-process; a single ``(18,)`` row becomes a chunk of one)."""
-    array = np.asarray(action, dtype=np.float32)
+    in-process; a single ``(18,)`` row becomes a chunk of one). What in-process refuses
+    (complex values, an unconvertible object) raises the same PolicyError here."""
+    array = float32_copy(action)
     if array.ndim == 1:
         array = array[None]
     return {"type": "action", "action": array, "server_time_ms": float(server_time_ms)}

@@ -19,10 +19,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from pipeline.loop.fault_text import raised
 from pipeline.loop.worker_thread import WorkerThread
 from pipeline.policies.base import make_policy
 from pipeline.remote import protocol
-from schemas.errors import DyanaError
+from schemas.errors import DyanaError, PolicyError
 
 PolicyFactory = Callable[[], Any]
 #: Seconds the server waits for open sessions to end when it stops.
@@ -75,52 +76,62 @@ async def _session(websocket, factory: PolicyFactory) -> None:
     from websockets.exceptions import ConnectionClosed  # lazy, as the server below
 
     worker = WorkerThread("dyana-serve-policy")
-    try:
-        policy = await worker.acall(factory)
-    except Exception as exc:
-        worker.close()
-        await _send(websocket, protocol.error_message(f"cannot create the policy: {_describe(exc)}"))
-        return
-    try:
-        hello = protocol.metadata_message(policy.name, policy.action_horizon, policy.privileged)
-    except (AttributeError, TypeError, ValueError) as exc:
-        worker.close()
-        await _send(websocket, protocol.error_message(f"the policy does not describe itself: {_describe(exc)}"))
-        return
-    await _send(websocket, hello)
-    reset_done = False
-    try:
-        async for data in websocket:
-            try:
-                request = protocol.parse(data, ("reset", "act"))
-            except protocol.ProtocolError as exc:
-                await _send(websocket, protocol.error_message(f"bad request: {exc}"))
-                continue
-            kind = request["type"]
-            if kind == "error":
-                continue
-            try:
-                if kind == "reset":
-                    await worker.acall(policy.reset, request["task"])
-                    reset_done = True
-                    reply = {"type": "ready"}
-                elif not reset_done:
-                    reply = protocol.error_message("act before reset: send a reset message first")
-                else:
-                    start = time.perf_counter()
-                    action = await worker.acall(policy.act, request["observation"])
-                    elapsed_ms = (time.perf_counter() - start) * 1000.0
-                    reply = protocol.action_message(action, elapsed_ms)
-            except Exception as exc:
-                reply = protocol.error_message(f"policy {kind} raised {_describe(exc)}")
-            await _send(websocket, reply)
+    policy: Any = None
+    try:  # everything after the thread starts, the metadata send too, ends it in `finally`
+        try:
+            policy = await worker.acall(factory)
+        except Exception as exc:
+            await _send(websocket, protocol.error_message(f"cannot create the policy: {_describe(exc)}"))
+            return
+        try:
+            hello = protocol.metadata_message(policy.name, policy.action_horizon, policy.privileged)
+        except (AttributeError, TypeError, ValueError) as exc:
+            await _send(websocket, protocol.error_message(f"the policy does not describe itself: {_describe(exc)}"))
+            return
+        await _send(websocket, hello)
+        await _answer(websocket, worker, policy)
     except ConnectionClosed:
         pass
     finally:
         close = getattr(policy, "close", None)
         if callable(close) and not worker.stuck:
-            await worker.acall(close)
+            try:
+                await worker.acall(close)
+            except Exception:  # a policy whose close raises must not keep its thread alive
+                pass
         worker.close()
+
+
+async def _answer(websocket, worker: WorkerThread, policy: Any) -> None:
+    """Answer reset/act requests until the client closes."""
+    reset_done = False
+    async for data in websocket:
+        try:
+            request = protocol.parse(data, ("reset", "act"))
+        except protocol.ProtocolError as exc:
+            await _send(websocket, protocol.error_message(f"bad request: {exc}"))
+            continue
+        kind = request["type"]
+        if kind == "error":
+            continue
+        try:
+            if kind == "reset":
+                await worker.acall(policy.reset, request["task"])
+                reset_done = True
+                reply = {"type": "ready"}
+            elif not reset_done:
+                reply = protocol.error_message("act before reset: send a reset message first")
+            else:
+                start = time.perf_counter()
+                action = await worker.acall(policy.act, request["observation"])
+                elapsed_ms = (time.perf_counter() - start) * 1000.0
+                try:  # refused as in-process, in the same words (complex values, ...)
+                    reply = protocol.action_message(action, elapsed_ms)
+                except PolicyError as exc:
+                    reply = protocol.error_message(str(exc))
+        except Exception as exc:  # in the in-process words, traceback included
+            reply = protocol.error_message(raised(kind, exc))
+        await _send(websocket, reply)
 
 
 async def serve_async(

@@ -20,8 +20,10 @@ from generators.clearance import hand_clearance
 from generators.contact import fingertip_distance
 from generators.ground_truth import plan
 from generators.hand import forward_kinematics
+from schemas.errors import SpecError
 from schemas.events import palm_distance, spec_hover_offset
 from schemas.frames import EpisodeFrames
+from schemas.names import shorten
 from schemas.spec import EpisodeSpec
 
 
@@ -102,8 +104,11 @@ def obstacle_clearance(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: n
 def episode(spec: EpisodeSpec) -> EpisodeFrames:
     """Ground-truth states and actions of every frame of ``spec`` (float32 arrays).
 
-    Raises :class:`schemas.errors.InfeasibleError` when the interception cannot be planned.
+    Raises :class:`schemas.errors.InfeasibleError` when the interception cannot be planned,
+    and SpecError naming the argument when ``spec`` is not an EpisodeSpec.
     """
+    if not isinstance(spec, EpisodeSpec):
+        raise SpecError(f"spec must be a schemas.spec.EpisodeSpec, got {shorten(spec)} ({type(spec).__name__})")
     hand, poses, velocity = plan(spec)
     return assemble_frames(
         spec, hand.phase, poses, velocity, hand.palm_pose, hand.joint_angles, hand.action, hand.grasp_angles

@@ -70,6 +70,23 @@ class Single:
         return faulty_action(self.fault, obs, self.calls)
 
 
+class ComplexFault(Single):
+    fault = "complex"
+
+
+class RaiseFault(Single):
+    fault = "raise"
+
+
+class Escapes(Single):
+    """A hostile name and error text: terminal escapes and newlines."""
+
+    name = "evil\x1b[2J\nname"
+
+    def act(self, obs: dict):
+        raise RuntimeError("\x1b[2J\x1b[31mclear\nscreen")
+
+
 class Mixed:
     """Privileged (it reads the episode index from the spec): a different fault per episode."""
 

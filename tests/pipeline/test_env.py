@@ -459,3 +459,20 @@ def test_the_recording_keeps_actions_a_policy_later_reuses(env):
     recorded = result.frames.action[spec.observe_frames : spec.observe_frames + len(policy.issued)]
     assert result.status == "ok" and len(policy.issued) > 2
     np.testing.assert_array_equal(recorded, np.stack(policy.issued))
+
+
+@pytest.mark.parametrize("resolution", [10**6, 1025, 7, 2**70])
+def test_an_unrenderable_resolution_is_refused_before_allocating(resolution):
+    from schemas.errors import SpecError
+
+    with pytest.raises(SpecError, match=r"resolution must be an integer in \[8, 1024\]"):
+        DyanaEnv(resolution=resolution)
+
+
+@pytest.mark.parametrize("spec", [None, "test-1k", {"episode_index": 0}])
+def test_the_api_episode_names_a_spec_that_is_not_one(spec):
+    import pipeline
+    from schemas.errors import SpecError
+
+    with pytest.raises(SpecError, match="spec must be a schemas.spec.EpisodeSpec"):
+        pipeline.episode(spec)

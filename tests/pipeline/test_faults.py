@@ -23,6 +23,7 @@ from catalog.shard import ShardWriter
 from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate, summarize
 from pipeline.jobs.replay import replay
+from pipeline.loop.fault_text import split_reason
 from pipeline.loop.rollout import run_episode
 from pipeline.loop.wrappers import loop_env
 from pipeline.policies.base import state_action
@@ -58,7 +59,11 @@ def test_each_fault_fails_the_episode_and_keeps_its_frames(env, fault, tmp_path)
     policy = type("P", (Single,), {"fault": fault})()
     result = run_episode(env, policy, SPEC, DEADLINE_S)
     assert result.status == "error"
-    assert re.fullmatch(REASONS[fault], result.error), result.error
+    reason, frames = split_reason(result.error)
+    assert re.fullmatch(REASONS[fault], reason), result.error
+    if fault in ("raise", "reset"):  # the traceback is kept, the policy's frames only, file names only
+        assert frames and "faulty_policies.py:" in frames[-1] and "/" not in result.error
+        assert not any("rollout.py" in line or "worker_thread.py" in line for line in frames)
     first_acting = SPEC.observe_frames
     if fault == "reset":
         assert result.calls == 0 and result.frames.num_frames == first_acting + 1
@@ -71,6 +76,55 @@ def test_each_fault_fails_the_episode_and_keeps_its_frames(env, fault, tmp_path)
     with ShardWriter(tmp_path, SPEC.episode_index, SPEC.episode_index + 1, {"resolution": RESOLUTION}, rollout=True) as w:
         w.add_episode(SPEC, result.frames, result.images, policy=policy.name, status=result.status, error=result.error)
     assert w.record.frames == result.frames.num_frames
+
+
+@pytest.mark.parametrize("ref", ["ComplexFault", "RaiseFault"])
+def test_a_child_process_refuses_what_in_process_refuses_in_the_same_words(env, ref):
+    """The default child process and --in-process agree: a complex action (whose cast would
+    drop the imaginary part) fails the episode both ways, and the reasons are equal."""
+    from pipeline.policies.base import make_policy
+    from pipeline.remote.isolated import IsolatedPolicy
+
+    local = run_episode(env, make_policy(f"tests.pipeline.faulty_policies:{ref}"), SPEC, 5.0)
+    child_policy = IsolatedPolicy(f"tests.pipeline.faulty_policies:{ref}", timeout_s=30.0)
+    try:
+        child = run_episode(env, child_policy, SPEC, 30.0)
+    finally:
+        child_policy.close()
+    assert local.status == child.status == "error"
+    assert child.error == local.error and child.calls == local.calls == FAULT_CALL
+    assert child.policy_s < 1.0  # the policy's own error: no wait for its process to end
+
+
+@pytest.mark.parametrize("isolate", [False, True])
+def test_a_raising_policy_is_reported_as_a_policy_with_its_traceback(isolate, tmp_path):
+    """Nothing is remote: the summary says "policy", the traceback is in the record (and
+    printed with --in-process), and the failed call's time is not counted as act time."""
+    printed = io.StringIO()
+    manifest = evaluate(
+        "tests.pipeline.faulty_policies:RaiseFault", "test-1k", tmp_path / "run", episodes=1, workers=0,
+        resolution=RESOLUTION, progress=False, stream=printed, isolate=isolate,
+    )
+    text = printed.getvalue()
+    assert "remote" not in text, text
+    assert re.search(r"error in episode 0: frame \d+: policy act raised ValueError: the model diverged\n", text), text
+    assert ("faulty_policies.py:" in text) == (not isolate), text
+    per_act = float(re.search(r"policy ([\d.]+) ms per act", text).group(1))
+    assert per_act < 500, text
+    row = read_episodes(tmp_path / "run" / manifest.shards[0].files["episodes"].path, ["error"]).to_pylist()[0]
+    assert split_reason(row["error"])[1][-1].startswith("  faulty_policies.py:")
+
+
+def test_terminal_escapes_from_a_policy_are_printed_as_escapes(tmp_path):
+    printed = io.StringIO()
+    evaluate(
+        "tests.pipeline.faulty_policies:Escapes", "test-1k", tmp_path / "run", episodes=1, workers=0,
+        resolution=RESOLUTION, progress=False, stream=printed, isolate=False,
+    )
+    text = printed.getvalue()
+    assert "\x1b" not in text, repr(text)
+    assert "evaluated evil\\x1b[2J\\nname on test-1k" in text
+    assert "raised RuntimeError: \\x1b[2J\\x1b[31mclear\\nscreen" in text
 
 
 def test_a_hung_call_does_not_hold_the_run(env):
@@ -105,7 +159,7 @@ def test_a_faulty_run_records_every_episode_and_counts_the_errors(tmp_path):
     faults = {1: "nan", 2: "inf", 3: "shape", 4: "raise", 5: "hang", 6: "reset"}
     for index, fault in faults.items():
         pattern = REASONS[fault] if fault != "reset" else r"frame \d+: policy reset raised RuntimeError: cannot load the weights"
-        assert re.fullmatch(pattern, by_index[index]["error"]), (index, by_index[index]["error"])
+        assert re.fullmatch(pattern, split_reason(by_index[index]["error"])[0]), (index, by_index[index]["error"])
     frames = read_frames(run / manifest.shards[1].files["frames"].path, ["episode_index"])
     counts = np.bincount(frames.column("episode_index").to_numpy() - 4, minlength=4)
     assert counts[2] == spec_for("test-1k", 6).observe_frames + 1  # reset failed: observe + first frame
@@ -121,7 +175,7 @@ def test_a_faulty_run_records_every_episode_and_counts_the_errors(tmp_path):
 # --- a misbehaving server ---------------------------------------------------------------
 
 #: Episode index -> what the server does on that episode's third act.
-SERVER_FAULTS = {1: "close", 2: "abort", 3: "garbage", 4: "error"}
+SERVER_FAULTS = {0: "twice", 1: "close", 2: "abort", 3: "garbage", 4: "error"}
 
 
 async def _misbehave(ws) -> None:
@@ -141,7 +195,11 @@ async def _misbehave(ws) -> None:
         if fault == "abort":
             ws.transport.abort()
             return
-        if fault == "garbage":
+        if fault == "twice":  # one spare reply: it must fail this episode, not the next
+            reply = protocol.encode(protocol.action_message(state_action(message["observation"]), 0.1))
+            await ws.send(reply)
+            await ws.send(reply)
+        elif fault == "garbage":
             await ws.send(b"\xc1 not msgpack")
         elif fault == "error":
             await ws.send(protocol.encode(protocol.error_message("CUDA out of memory")))
@@ -182,15 +240,19 @@ def test_dropped_connections_and_bad_replies_fail_only_their_episode(flaky_serve
     for shard in manifest.shards:
         rows += read_episodes(tmp_path / "run" / shard.files["episodes"].path, ["episode_index", "status", "error"]).to_pylist()
     errors = {row["episode_index"]: row["error"] for row in rows if row["status"] == "error"}
-    assert sorted(errors) == [1, 2, 3, 4]
+    assert sorted(errors) == [0, 1, 2, 3, 4]
+    assert re.fullmatch(r"frame \d+: remote policy: protocol error: a spare action reply that answers no request", errors[0])
     assert "remote policy: connection closed (code 1011, model crashed)" in errors[1]
     assert "remote policy: connection closed" in errors[2]
     assert "remote policy: protocol error: not a msgpack message" in errors[3]
     assert "remote policy: server error: CUDA out of memory" in errors[4]
     for index, reason in errors.items():
+        if index == 0:  # found at a later act (the next one, unless the spare is slow to arrive)
+            assert int(reason.split(":")[0].split()[1]) >= spec_for("test-1k", 0).observe_frames + FAULT_CALL, reason
+            continue
         assert reason.startswith(f"frame {spec_for('test-1k', index).observe_frames + FAULT_CALL - 1}:"), reason
         assert "127.0.0.1" not in reason  # recorded reasons never name the host
-    assert "4 error(s)" in printed.getvalue()
+    assert "5 error(s)" in printed.getvalue()
     assert "error in episode 1: frame" in printed.getvalue()
 
 

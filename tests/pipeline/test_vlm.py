@@ -155,3 +155,101 @@ def test_the_cli_needs_a_model_and_keeps_vlm_flags_to_vlm_policies(tmp_path, cap
     assert "--model is for --policy vlm:URL only" in capsys.readouterr().err
     assert pipeline_main(["eval", "--policy", "vlm:ftp://x", "--model", "m", "--out", str(tmp_path / "r")]) == 2
     assert "http://" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "flag, value, named",
+    [
+        ("--vlm-latency-frames", "1000000000", "latency_frames must be an integer in [0, 1000]"),
+        ("--vlm-observe-images", "1000000000", "observe_images must be an integer in [0, 16]"),
+        ("--vlm-temperature", "-1", "temperature must be a finite number in [0, 2]"),
+        ("--vlm-temperature", "nan", "temperature must be a finite number in [0, 2]"),
+        ("--vlm-temperature", "inf", "temperature must be a finite number in [0, 2]"),
+        ("--vlm-seed", str(2**70), "seed must be an integer in [0, 9223372036854775807]"),
+        ("--vlm-api-key-env", "", "api_key_env must name an environment variable"),
+        ("--vlm-api-key-env", "sk-a key", "api_key_env must name an environment variable"),
+    ],
+)
+def test_vlm_settings_out_of_bounds_are_refused_naming_them(tmp_path, capsys, flag, value, named):
+    out = tmp_path / "r"
+    code = pipeline_main(["eval", "--policy", "vlm:http://127.0.0.1:9/v1", "--model", "m", flag, value, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and named in err and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+@pytest.fixture
+def echo_endpoint():
+    """An endpoint that echoes the Authorization header into its answer (or, as ``/fail``,
+    into an HTTP 500 body) and reports NaN token counts."""
+    import threading
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    class Echo(BaseHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+        def do_POST(self):  # noqa: N802
+            self.rfile.read(int(self.headers.get("Content-Length", 0)))
+            auth = self.headers.get("Authorization", "")
+            broken = {"/deep": "[" * 5000 + "]" * 5000, "/empty": "", "/null": "null", "/bad": "{not json",
+                      "/nullmsg": json.dumps({"id": "x", "object": "chat.completion", "created": 0, "model": "m",
+                                              "choices": [{"index": 0, "message": None, "finish_reason": "stop"}]})}
+            if self.path.split("/v1")[0] in broken:
+                body, status = broken[self.path.split("/v1")[0]], 200
+            elif self.path.startswith("/fail"):
+                body, status = json.dumps({"error": {"message": f"bad header {auth}"}}), 500
+            else:
+                message = {"role": "assistant", "content": f"you sent {auth}"}
+                body = json.dumps({"id": "x", "object": "chat.completion", "created": 0, "model": "m",
+                                   "choices": [{"index": 0, "message": message, "finish_reason": "stop"}],
+                                   "usage": {"prompt_tokens": float("nan"), "completion_tokens": 1e400,
+                                             "total_tokens": 1}})
+                status = 200
+            data = body.encode()
+            self.send_response(status)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(data)))
+            self.end_headers()
+            self.wfile.write(data)
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Echo)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    yield f"http://127.0.0.1:{server.server_address[1]}"
+    server.shutdown()
+
+
+@pytest.mark.parametrize("path", ["/v1", "/fail/v1"])
+def test_an_endpoint_echoing_the_key_never_gets_it_stored(echo_endpoint, monkeypatch, path):
+    """The key (and any Bearer credential) is redacted from every text of a reply, and
+    usage that is not a whole number is dropped, so the audit trail can be written."""
+    from pipeline.policies.vlm_transport import HttpTransport
+
+    monkeypatch.setenv("DYANA_TEST_KEY", SECRET)
+    transport = HttpTransport(echo_endpoint + path, "DYANA_TEST_KEY", 10.0)
+    try:
+        reply = transport.complete({"model": "m", "messages": [{"role": "user", "content": "hi"}]})
+    finally:
+        transport.close()
+    stored = json.dumps(reply.to_dict(), allow_nan=False)
+    assert SECRET not in stored and "sk-dyana" not in stored
+    assert "Bearer [redacted]" in stored
+    if path == "/v1":
+        assert reply.outcome == "answered" and reply.prompt_tokens is None and reply.completion_tokens is None
+    else:
+        assert reply.outcome == "http_error"
+
+
+@pytest.mark.parametrize("path", ["/deep", "/empty", "/null", "/bad", "/nullmsg"])
+def test_an_unreadable_reply_is_an_http_error_reply_not_an_exception(echo_endpoint, path):
+    """Invalid JSON, an empty or null body, a null message, 5,000-deep JSON: the transport
+    returns an http_error reply (so the trail records it), it does not raise."""
+    from pipeline.policies.vlm_transport import HttpTransport
+
+    transport = HttpTransport(echo_endpoint + path + "/v1", "DYANA_TEST_UNSET_KEY", 10.0)
+    try:
+        reply = transport.complete({"model": "m", "messages": [{"role": "user", "content": "hi"}]})
+    finally:
+        transport.close()
+    assert reply.outcome == "http_error" and ("unreadable reply" in reply.detail or "malformed reply" in reply.detail)
+    json.dumps(reply.to_dict(), allow_nan=False)

@@ -121,3 +121,15 @@ def test_episode_frames_reject_non_arrays_and_fractional_phases(changes, needle)
     assert _frames().num_frames == 3
     with pytest.raises(SpecError, match=needle):
         _frames(**changes)
+
+
+def test_a_peers_text_reaches_the_terminal_as_printable_escapes():
+    """An error carrying a server's or policy's text (ESC[2J, newlines) prints as one safe line."""
+    from schemas.cli import one_line
+    from schemas.errors import PolicyError
+    from schemas.names import printable
+
+    line = one_line(PolicyError("server error: \x1b[2J\x1b[31mboom\nsecond line"))
+    assert "\x1b" not in line and "\n" not in line and "\\x1b[2J" in line
+    assert printable("a\x1b[2J\nb") == "a\\x1b[2J\\nb"
+    assert printable("\x07" * 5000, 40).endswith("(5,000 characters)") and len(printable("x" * 5000, 40)) < 70
