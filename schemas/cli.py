@@ -90,6 +90,16 @@ def positive_float(text: str) -> float:
     return _number(text, float, "a number", lambda v: 0 < v < float("inf"), "a number > 0")
 
 
+def output_path(text: str) -> str:
+    """A file or folder name to write: one the file system layer can encode (a name that is not
+    valid UTF-8 reaches Python as surrogates, which pyarrow and others cannot write)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise argparse.ArgumentTypeError(f"expected a name in UTF-8, got '{printable(text)}'") from None
+    return text
+
+
 def port(text: str) -> int:
     """A TCP port, 0 meaning any free one."""
     return _number(text, int, "a port number", lambda v: 0 <= v <= 65535, "a port in [0, 65535] (0 = any free port)")
