@@ -47,7 +47,7 @@ from catalog.records import FileRecord
 from pipeline.jobs.engine import Execution, LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
 from pipeline.jobs.state import file_intact
-from pipeline.jobs.tasks import ShardTask
+from pipeline.jobs.tasks import ShardTask, check_workers
 from schemas.errors import DyanaError
 from schemas.names import shorten
 
@@ -187,6 +187,7 @@ def export(
 ) -> ExportReport:
     """Export a built slice or run folder into ``out`` (see the module docstring):
     ``workers`` processes (1: in this process), progress lines to ``progress``."""
+    check_workers(workers, None)
     start = time.perf_counter()
     reader = open_folder(source, verify="sha256")
     manifest = reader.manifest
