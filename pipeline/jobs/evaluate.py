@@ -31,6 +31,7 @@ from catalog.manifest import Manifest, load_manifest, manifest_path
 from catalog.storage import as_location, is_url
 from pipeline.jobs.audit import read_audit, write_audit, write_audit_index
 from pipeline.jobs.build import BuildSettings
+from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
 from pipeline.loop.conditions import EvalProtocol
@@ -307,6 +308,8 @@ def evaluate(
                                    protocol=None if protocol.plain else protocol.to_dict(),
                                    formats=parse_formats(formats))
     ranges = shard_ranges(total, shard_size)
+    if not is_url(out):
+        refuse_export_folder(as_location(out), "run")
     config = kind.configure(policy_ref, vlm)
     options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config)
     name, privileged = describe_policy(policy_ref, options)

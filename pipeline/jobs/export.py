@@ -89,6 +89,9 @@ def check_foreign(out: Path) -> None:
     """Refuse, before writing anything (not even the lock), a folder holding something other than an export."""
     if out.exists() and not out.is_dir():
         raise ExportError(f"{shorten(os.fspath(out))}: exists and is not a folder")
+    if (out / "catalog.json").is_file():
+        raise ExportError(f"{shorten(os.fspath(out))}: holds a Dyana build or run (catalog.json); "
+                          "a folder holds one kind of thing, so export to another folder")
     if out.is_dir() and not _is_export(out) and _content(out):
         raise ExportError(f"{shorten(os.fspath(out))}: not empty and not a Dyana export; choose a new folder")
 
