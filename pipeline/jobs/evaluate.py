@@ -51,7 +51,7 @@ from pipeline.policy_registry import (
     kind_of,
     open_policy,
 )
-from schemas.errors import PolicyError, SpecError
+from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import printable
 
@@ -225,6 +225,16 @@ class EvalSummary:
         if len(self.error_reasons) > 5:
             out.append(f"  ... and {len(self.error_reasons) - 5} more error(s)")
         return out
+
+
+def check_some_episode_ran(summary: EvalSummary) -> None:
+    """AllEpisodesFailed (exit 3) when every episode of a written run failed, with the first reason."""
+    if summary.episodes and len(summary.error_reasons) >= summary.episodes:
+        index, reason = summary.error_reasons[0]
+        raise AllEpisodesFailed(
+            f"every episode failed ({summary.episodes} of {summary.episodes}); the first, episode {index}: "
+            f"{printable(split_reason(reason)[0], REASON_CHARS)}"
+        )
 
 
 def summarize(run_dir: str | Path) -> EvalSummary:
