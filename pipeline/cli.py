@@ -19,7 +19,7 @@ if TYPE_CHECKING:  # the commands import their modules when run, so --help stays
 def _build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slice", help="slice name, e.g. linear-fast (see `catalog list`)")
     cli.add_episodes(p, "build only the first N episodes (of each part for dyana-12m)")
-    p.add_argument("--out", default="out", help="output folder; the slice goes to OUT/<slice>/ (default: out)")
+    p.add_argument("--out", type=cli.output_path, default="out", help="output folder; the slice goes to OUT/<slice>/ (default: out)")
     cli.add_workers(p)
     cli.add_resolution(p)
     cli.add_shard_size(p, 128)
@@ -73,7 +73,8 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
                    "(an OpenAI-compatible endpoint, e.g. vlm:http://127.0.0.1:8000/v1)")
     p.add_argument("--slice", default="test-1k", help="slice whose episodes to run (default: test-1k)")
     cli.add_episodes(p)
-    p.add_argument("--out", required=True, help="run folder: RUN/catalog.json and RUN/frames/, RUN/episodes/, RUN/mcap/")
+    p.add_argument("--out", type=cli.output_path, required=True,
+                   help="run folder: RUN/catalog.json and RUN/frames/, RUN/episodes/, RUN/mcap/")
     cli.add_workers(p)
     p.add_argument(
         "--deadline", type=cli.positive_float, default=None,
@@ -156,7 +157,7 @@ def _protocol(args: argparse.Namespace) -> EvalProtocol:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from pipeline.jobs.evaluate import evaluate
+    from pipeline.jobs.evaluate import check_some_episode_ran, evaluate, summarize
     from pipeline.jobs.repeats import evaluate_repeats
 
     vlm = _vlm_options(args)
@@ -168,6 +169,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
     else:
         evaluate(args.policy, args.slice, args.out, protocol=protocol, **options)
+        check_some_episode_ran(summarize(args.out))
     return 0
 
 
@@ -220,7 +222,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def _view_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", metavar="DIR", help="a built slice or rollout folder (holding catalog.json)")
     p.add_argument("--episode", type=int, default=0, help="episode index (default: 0)")
-    p.add_argument("--out", required=True, help="the .rrd file to write")
+    p.add_argument("--out", type=cli.output_path, required=True, help="the .rrd file to write")
 
 
 def cmd_view(args: argparse.Namespace) -> int:

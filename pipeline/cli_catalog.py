@@ -186,7 +186,7 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", metavar="DIR", help="a built slice or evaluated run folder (holding catalog.json)")
     p.add_argument("--format", choices=sorted(FORMATS), default="lerobot",
                    help="lerobot: LeRobot v3.0; lerobot-v2.1: LeRobot v2.1 with GR00T's meta/modality.json")
-    p.add_argument("--out", required=True, metavar="OUT", help="the export's folder (one export per folder)")
+    p.add_argument("--out", type=cli.output_path, required=True, metavar="OUT", help="the export's folder (one export per folder)")
     p.add_argument("--codec", choices=sorted(CODECS), default="h264", help="video codec (default: h264)")
     p.add_argument("--workers", type=cli.positive_int, default=None, help="processes encoding shards in parallel "
                    f"(default: one per core, {cli.default_worker_count()} here)")

@@ -8,8 +8,9 @@ layer guarantees what users and scripts rely on:
 - usage errors and every expected failure are one line, ``PROG CMD: error: MESSAGE``
   on stderr, with bad values echoed truncated; never a traceback;
 - exit codes come from one map (:data:`EXIT_CODES`): 2 for bad input or an unusable
-  file, 1 for a replay that differs, 130 on Ctrl-C, 141 when the reader of stdout went
-  away (``catalog specs ... | head``), 0 otherwise;
+  file, 1 for a replay that differs, 3 for an eval whose every episode failed (its run
+  written), 130 on Ctrl-C, 141 when the reader of stdout went away
+  (``catalog specs ... | head``), 0 otherwise;
 - a full or closed stdout is reported once, cleanly, even when only the final flush
   finds it;
 - ``--version`` on the program and on every command: the code version and the dataset
@@ -33,7 +34,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from schemas.errors import DyanaError, ReplayMismatch
+from schemas.errors import AllEpisodesFailed, DyanaError, ReplayMismatch
 from schemas.names import printable, shorten
 from schemas.versions import CODE_VERSION, DATASET_VERSION
 
@@ -42,9 +43,12 @@ VERSION = f"dyana {CODE_VERSION}, writes dataset {DATASET_VERSION}"
 #: The longest error line printed (values inside it are cut shorter, see schemas.names).
 MESSAGE_LIMIT = 600
 EXIT_OK, EXIT_DIFFERENT, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 0, 1, 2, 130, 141
+#: An eval that wrote its run but every episode failed (a policy or transport error).
+EXIT_ALL_FAILED = 3
 #: Exception type -> exit code, most specific first.
 EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (
     (ReplayMismatch, EXIT_DIFFERENT),
+    (AllEpisodesFailed, EXIT_ALL_FAILED),
     (DyanaError, EXIT_BAD_INPUT),
     (OSError, EXIT_BAD_INPUT),
 )
@@ -88,6 +92,16 @@ def _number(text: str, convert: Callable[[str], Any], what: str, valid: Callable
 def positive_float(text: str) -> float:
     """A finite number > 0."""
     return _number(text, float, "a number", lambda v: 0 < v < float("inf"), "a number > 0")
+
+
+def output_path(text: str) -> str:
+    """A file or folder name to write: one the file system layer can encode (a name that is not
+    valid UTF-8 reaches Python as surrogates, which pyarrow and others cannot write)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise argparse.ArgumentTypeError(f"expected a name in UTF-8, got '{printable(text)}'") from None
+    return text
 
 
 def port(text: str) -> int:

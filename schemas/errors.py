@@ -2,7 +2,8 @@
 
 CLIs catch :class:`DyanaError`, print its one-line message and exit with a code from
 :data:`schemas.cli.EXIT_CODES`: 1 for :class:`ReplayMismatch` (a replay or verify whose
-bytes differ), 2 for every other DyanaError (bad input or an unusable file).
+bytes differ), 3 for :class:`AllEpisodesFailed` (an eval whose every episode failed; the run
+is written), 2 for every other DyanaError (bad input or an unusable file).
 """
 
 
@@ -37,6 +38,10 @@ class OutputError(DyanaError):
 
 class PolicyError(DyanaError):
     """A policy returned an invalid action, raised, timed out or disconnected."""
+
+
+class AllEpisodesFailed(DyanaError):
+    """An evaluation wrote its run, but every episode failed (a policy or transport error)."""
 
 
 class ReplayMismatch(DyanaError):

@@ -41,9 +41,9 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
                    help="a folder with catalog.json and its shards, or a folder of repeats (repeats.json)")
     cli.add_json(p, "print JSON (an object for one run, a list for several; with repeats, "
                  "{\"runs\": [...], \"robustness\": [...]})")
-    p.add_argument("--plot", metavar="FILE.png", help="write a radar chart and per-motion bars")
-    p.add_argument("--markdown", metavar="FILE.md", help="write the tables as Markdown")
-    p.add_argument("--csv", metavar="FILE.csv", help="write every summary row as CSV")
+    p.add_argument("--plot", type=cli.output_path, metavar="FILE.png", help="write a radar chart and per-motion bars")
+    p.add_argument("--markdown", type=cli.output_path, metavar="FILE.md", help="write the tables as Markdown")
+    p.add_argument("--csv", type=cli.output_path, metavar="FILE.csv", help="write every summary row as CSV")
     p.add_argument(
         "--paper", action="store_true",
         help="add the paper's published rows (Tables 3 and 4) to the table, Markdown and plot",
@@ -53,10 +53,10 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
         help="an episode whose hand touched an obstacle: 'report' it in the collision rate (default) "
         "or also score it as a 'fail'ure",
     )
-    p.add_argument("--latency-plot", metavar="FILE.png",
+    p.add_argument("--latency-plot", type=cli.output_path, metavar="FILE.png",
                    help="write S_loc and E_loc against the runs' --latency-frames, one line per policy")
     p.add_argument(
-        "--episodes", metavar="FILE.parquet|.csv",
+        "--episodes", type=cli.output_path, metavar="FILE.parquet|.csv",
         help="write one row per episode (ids, motion, object, status, event frames, every metric)",
     )
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from catalog.manifest import Manifest
 from catalog.storage import is_url
+from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, JobResult
 from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
@@ -135,6 +136,9 @@ def build_job(
         for first, end in shard_ranges(total, shard_size)
     )
     remote = is_url(out)
+    if not remote:
+        for folder in (Path(out), Path(out) / slice_name):
+            refuse_export_folder(folder, "build")
     destination = f"{str(out).rstrip('/')}/{slice_name}" if remote else Path(out) / slice_name
     job = Job(
         folder=Path("/nonexistent-remote-job") if remote else Path(destination),

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar
 
 from catalog.atomic import remove_stray_temps
+from catalog.export.layout import DYANA_META
 from catalog.manifest import git_commit
 from pipeline.jobs.lock import folder_lock
 from pipeline.jobs.progress import Progress, Unit
@@ -139,6 +140,21 @@ def prepare_folder(folder: Path) -> None:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SpecError(f"{folder}: cannot create the output folder ({exc.strerror or exc})") from None
+
+
+#: Files that mark a folder as a LeRobot export (``catalog export`` writes both).
+EXPORT_MARKERS = (DYANA_META, "meta/info.json")
+
+
+def refuse_export_folder(folder: Path, what: str) -> None:
+    """SpecError when ``folder`` holds a LeRobot export: a build or run written there would
+    sit beside it, and a folder holds one kind of thing."""
+    for marker in EXPORT_MARKERS:
+        if (folder / marker).is_file():
+            raise SpecError(
+                f"{folder}: holds a LeRobot export ({marker}); a folder holds one kind of thing, "
+                f"so write the {what} to another folder"
+            )
 
 
 def run_folder_job(

@@ -31,6 +31,7 @@ from catalog.manifest import Manifest, load_manifest, manifest_path
 from catalog.storage import as_location, is_url
 from pipeline.jobs.audit import read_audit, write_audit, write_audit_index
 from pipeline.jobs.build import BuildSettings
+from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
 from pipeline.loop.conditions import EvalProtocol
@@ -50,7 +51,7 @@ from pipeline.policy_registry import (
     kind_of,
     open_policy,
 )
-from schemas.errors import PolicyError, SpecError
+from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import printable
 
@@ -226,6 +227,16 @@ class EvalSummary:
         return out
 
 
+def check_some_episode_ran(summary: EvalSummary) -> None:
+    """AllEpisodesFailed (exit 3) when every episode of a written run failed, with the first reason."""
+    if summary.episodes and len(summary.error_reasons) >= summary.episodes:
+        index, reason = summary.error_reasons[0]
+        raise AllEpisodesFailed(
+            f"every episode failed ({summary.episodes} of {summary.episodes}); the first, episode {index}: "
+            f"{printable(split_reason(reason)[0], REASON_CHARS)}"
+        )
+
+
 def summarize(run_dir: str | Path) -> EvalSummary:
     """Count episodes, errors, localizations and grasps of a run, through :mod:`scoring`
     (the same reading, checks and event definitions as ``scoring eval``)."""
@@ -307,6 +318,8 @@ def evaluate(
                                    protocol=None if protocol.plain else protocol.to_dict(),
                                    formats=parse_formats(formats))
     ranges = shard_ranges(total, shard_size)
+    if not is_url(out):
+        refuse_export_folder(as_location(out), "run")
     config = kind.configure(policy_ref, vlm)
     options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config)
     name, privileged = describe_policy(policy_ref, options)

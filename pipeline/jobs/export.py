@@ -47,7 +47,7 @@ from catalog.records import FileRecord
 from pipeline.jobs.engine import Execution, LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
 from pipeline.jobs.state import file_intact
-from pipeline.jobs.tasks import ShardTask
+from pipeline.jobs.tasks import ShardTask, check_workers
 from schemas.errors import DyanaError
 from schemas.names import shorten
 
@@ -89,6 +89,9 @@ def check_foreign(out: Path) -> None:
     """Refuse, before writing anything (not even the lock), a folder holding something other than an export."""
     if out.exists() and not out.is_dir():
         raise ExportError(f"{shorten(os.fspath(out))}: exists and is not a folder")
+    if (out / "catalog.json").is_file():
+        raise ExportError(f"{shorten(os.fspath(out))}: holds a Dyana build or run (catalog.json); "
+                          "a folder holds one kind of thing, so export to another folder")
     if out.is_dir() and not _is_export(out) and _content(out):
         raise ExportError(f"{shorten(os.fspath(out))}: not empty and not a Dyana export; choose a new folder")
 
@@ -187,6 +190,7 @@ def export(
 ) -> ExportReport:
     """Export a built slice or run folder into ``out`` (see the module docstring):
     ``workers`` processes (1: in this process), progress lines to ``progress``."""
+    check_workers(workers, None)
     start = time.perf_counter()
     reader = open_folder(source, verify="sha256")
     manifest = reader.manifest

@@ -105,9 +105,11 @@ class Perturbation:
     @classmethod
     def parse(cls, text: str) -> Perturbation:
         """``NAME`` or ``NAME:STRENGTH`` (the command line's form)."""
-        name, _, strength = str(text).partition(":")
-        if not strength:
+        name, colon, strength = str(text).partition(":")
+        if not colon:
             return cls(name)
+        if not strength.strip():
+            raise SpecError(f"--perturb {shorten(repr(text))}: the strength after ':' is empty (give NAME or NAME:STRENGTH)")
         try:
             value = float(strength)
         except ValueError:

@@ -73,3 +73,22 @@ def test_a_full_stdout_is_one_line_and_exit_2(args):
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and "No space left on device" in result.stderr
     assert "Traceback" not in result.stderr and "Exception ignored" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("pipeline", "build", "--slice", "linear-fast", "--episodes", "2"),
+        ("pipeline", "eval", "--policy", "still", "--slice", "linear-fast", "--episodes", "2"),
+        ("catalog", "export", "nowhere"),
+    ],
+)
+def test_an_out_name_that_is_not_utf8_is_refused_in_one_line(args, tmp_path):
+    bad = bytes(tmp_path) + b"/bad\xffname"
+    argv = [str(BIN / args[0]).encode(), *(a.encode() for a in args[1:]), b"--out", bad]
+    result = subprocess.run(argv, capture_output=True, timeout=120)
+    stderr = result.stderr.decode("utf-8", "replace")
+    assert result.returncode == 2, stderr
+    assert stderr.count("\n") == 1 and "Traceback" not in stderr
+    assert "argument --out: expected a name in UTF-8" in stderr and "bad\\udcffname" in stderr
+    assert not any(tmp_path.iterdir())

@@ -33,6 +33,7 @@ def test_console_script_points_here():
         (("stats",), "SLICE"),
         ((), "COMMAND"),
         (("frobnicate",), "frobnicate"),
+        (("export", "nowhere", "--out", "nowhere-out", "--workers", "65"), "--workers must be an integer in [0, 64]"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(args, needle):

@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -284,3 +286,30 @@ def test_export_reports_episodes_before_their_shard_is_done(built, exports, tmp_
     for meta in (shown, quiet):
         meta["files"] = {k: v for k, v in meta["files"].items() if not k.endswith(".mp4")}
     assert shown == quiet
+
+
+@pytest.mark.parametrize("command", [
+    ("build", "--slice", "linear-fast", "--episodes", "1", "--workers", "1"),
+    ("eval", "--policy", "still", "--slice", "linear-fast", "--episodes", "1", "--workers", "1"),
+])
+def test_a_build_or_run_is_not_written_into_an_export(exports, tmp_path, command):
+    target = tmp_path / "export"
+    shutil.copytree(exports["lerobot"], target)
+    before = _tree(target)
+    result = subprocess.run([str(Path(sys.executable).parent / "pipeline"), *command, "--out", str(target)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert f"{target}: holds a LeRobot export (meta/dyana.json)" in result.stderr
+    assert "a folder holds one kind of thing" in result.stderr
+    assert _tree(target) == before
+
+
+def test_an_export_is_not_written_into_a_build(built, tmp_path, capsys):
+    target = tmp_path / "build"
+    shutil.copytree(built, target)
+    before = _tree(target)
+    code = catalog_main(["export", str(built), "--out", str(target), "--overwrite", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "holds a Dyana build or run (catalog.json); a folder holds one kind of thing" in err
+    assert _tree(target) == before

@@ -279,3 +279,18 @@ def test_a_policy_that_kills_its_own_process_fails_only_its_episode(tmp_path):
     assert "policy process exited with code 4" in rows[2]["error"]
     assert "policy process exited with code" in rows[3]["error"]
     assert [p.name for p in run.rglob("*") if p.name.startswith(".")] == [".lock"]  # no temporary; the lock stays
+
+
+def test_an_eval_where_every_episode_failed_is_written_then_exits_3(tmp_path):
+    out = tmp_path / "run"
+    result = subprocess.run(
+        [str(Path(sys.executable).parent / "pipeline"), "eval", "--policy", "tests.pipeline.faulty_policies:RaiseFault",
+         "--slice", "test-1k", "--episodes", "2", "--workers", "1", "--resolution", str(RESOLUTION), "--quiet",
+         "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert result.returncode == 3, result.stderr
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+    assert re.search(r"error: every episode failed \(2 of 2\); the first, episode 0: frame \d+: policy act raised "
+                     r"ValueError: the model diverged", result.stderr), result.stderr
+    assert (out / "catalog.json").is_file()

@@ -195,6 +195,8 @@ def test_repeats_from_the_command_line(tmp_path):
     (("--latency-frames", "-1"), "--latency-frames must be an integer in [0, 50]"),
     (("--repeats", "100"), "--repeats must be an integer in [2, 64]"),
     (("--perturb", "blur"), "--perturb must be one of"),
+    (("--perturb", "noise:"), "--perturb 'noise:': the strength after ':' is empty"),
+    (("--perturb", "noise: "), "--perturb 'noise: ': the strength after ':' is empty"),
 ])
 def test_bad_protocol_flags_are_one_line(tmp_path, flags, message):
     result = run("pipeline", "eval", "--policy", "still", "--episodes", "1", "--out", str(tmp_path / "x"), *flags)
