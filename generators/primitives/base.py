@@ -3,6 +3,7 @@ provides, and the lookup from a token to its primitive (:mod:`generators.primiti
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, NamedTuple, TypeVar, cast
@@ -82,28 +83,35 @@ class FlightArc:
     g: float
 
 
-class Shape:
-    """The closed forms of a placed piece (what a :class:`Piece` calls, whatever its token)."""
+class Shape(ABC):
+    """The closed forms of a placed piece (what a :class:`Piece` calls, whatever its token).
 
+    Abstract: a primitive that leaves one out cannot be made, so cannot be registered."""
+
+    @abstractmethod
     def evaluate(self, piece: Piece, tau: np.ndarray) -> XZ:
         """Closed-form position, velocity and acceleration ``(n, 2)`` at local times ``tau``."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def natural_heading(self, piece: Piece, tau: float) -> float:
         """Direction of travel implied by the parameters where the speed is zero."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def segment(self, piece: Piece, t0: float, t1: float) -> Segment:
         """The piece on ``[t0, t1)`` as a line, arc or general segment."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def distance(self, piece: Piece, tau: np.ndarray) -> np.ndarray:
         """Closed-form distance travelled since the piece's start (line and arc segments only)."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def bounds(self, piece: Piece, span: float) -> Box:
         """Exact ``(x_min, x_max, z_min, z_max)`` of the position over local ``[0, span]``."""
-        raise NotImplementedError
+        ...
 
 
 class Primitive(Shape, Generic[TokenT]):
@@ -111,9 +119,10 @@ class Primitive(Shape, Generic[TokenT]):
     closed forms (:class:`Shape`) and its elevation; :meth:`lift` defaults to staying on
     the table (only ``P`` leaves it)."""
 
+    @abstractmethod
     def place(self, token: TokenT, t0: float, prev: EndState | None) -> Piece:
         """``token`` on the global clock from ``t0``, translated to start where ``prev`` ends."""
-        raise NotImplementedError
+        ...
 
     def lift(self, token: TokenT, index: int, t0: float, t1: float, y: float) -> tuple[list[FlightArc], float]:
         """The elevation arcs of ``token`` (base-track token ``index``) on ``[t0, t1)`` when

@@ -26,3 +26,17 @@ def test_a_second_primitive_for_a_token_type_is_refused() -> None:
         @register(LineToken)
         class Again(Primitive[LineToken]):
             pass
+
+
+def test_a_primitive_that_leaves_out_a_closed_form_cannot_be_registered() -> None:
+    class NewToken:  # a token type no primitive handles yet
+        pass
+
+    with pytest.raises(TypeError, match="abstract"):
+
+        @register(NewToken)  # type: ignore[arg-type]
+        class Partial(Primitive):  # type: ignore[type-arg]
+            def place(self, token, t0, prev):  # type: ignore[no-untyped-def]
+                raise AssertionError("never called")
+
+    assert NewToken not in registered()
