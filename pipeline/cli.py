@@ -157,7 +157,7 @@ def _protocol(args: argparse.Namespace) -> EvalProtocol:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from pipeline.jobs.evaluate import check_some_episode_ran, evaluate, summarize
+    from pipeline.jobs.evaluate import evaluate
     from pipeline.jobs.repeats import evaluate_repeats
 
     vlm = _vlm_options(args)
@@ -168,8 +168,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.repeats != 1:
         evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
     else:
-        evaluate(args.policy, args.slice, args.out, protocol=protocol, **options)
-        check_some_episode_ran(summarize(args.out))
+        evaluate(args.policy, args.slice, args.out, protocol=protocol, require_success=True, **options)
     return 0
 
 

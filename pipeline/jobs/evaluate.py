@@ -285,6 +285,7 @@ def evaluate(
     vlm: dict[str, Any] | None = None,
     protocol: EvalProtocol | None = None,
     formats: str | tuple[str, ...] = ALL_FORMATS,
+    require_success: bool = False,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
@@ -296,7 +297,9 @@ def evaluate(
     that its crash or exit fails only its episode. ``protocol`` (latency, perturbation,
     repeat; :mod:`pipeline.loop.conditions`) is recorded in ``settings.protocol``. ``vlm``
     holds the ``--model`` and ``--vlm-*`` settings of a ``vlm:URL`` policy (its kind's
-    configuration, :mod:`pipeline.policy_registry`); other kinds refuse it."""
+    configuration, :mod:`pipeline.policy_registry`); other kinds refuse it. With
+    ``require_success``, a run in which every episode failed raises AllEpisodesFailed after
+    it is written and summarised (the run is read once for both)."""
     from generators.encode import JPEG_QUALITY
     from schemas.slices import get_slice
 
@@ -363,11 +366,12 @@ def evaluate(
     elapsed = time.monotonic() - start
     if kind.audit_dir is not None:
         write_audit_index(run_dir / kind.audit_dir)
-    if summary:
+    counts = summarize(run_dir) if summary or require_success else None
+    if summary and counts is not None:
         out_stream = sys.stdout if stream is None else stream
         if up_to_date:
             print(f"{run_dir}: up to date (the same run is complete; --overwrite to run it again)", file=out_stream)
-        for line in summarize(run_dir).lines(tracebacks=not isolate):
+        for line in counts.lines(tracebacks=not isolate):
             print(line, file=out_stream)
         if kind.audit_dir is not None:
             trail = run_dir / kind.audit_dir
@@ -376,6 +380,8 @@ def evaluate(
         for line in _timing_lines(timing, elapsed):
             print(line, file=out_stream)
         print(f"  -> {manifest_path(run_dir)} (hash {manifest.hash[:16]})", file=out_stream, flush=True)
+    if require_success and counts is not None:
+        check_some_episode_ran(counts)
     return manifest
 
 
