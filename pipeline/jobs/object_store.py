@@ -14,7 +14,8 @@ published to the URL as it goes:
 
 Before starting, the URL is checked writable (a tiny probe object written and removed:
 the bucket exists, the credentials and endpoint work), and the client's failures are one
-:class:`~schemas.errors.StorageError` naming the URL (:mod:`catalog.storage`). Then a remote ``catalog.json`` describing this job with every listed object
+:class:`~schemas.errors.StorageError` naming the URL (:mod:`catalog.storage`). Then a
+remote ``catalog.json`` describing this job with every listed object
 present at its size means "up to date" (nothing is downloaded); one describing another job
 is refused unless ``overwrite``, as locally; otherwise the shards the remote state or
 manifest lists are downloaded into staging (on any machine), so a killed job resumes there.
