@@ -255,7 +255,8 @@ def _items(argument: str, value: object, kind: type) -> list:
     items = list(value)
     for k, item in enumerate(items):
         if not isinstance(item, kind):
-            raise SpecError(f"{argument}[{k}] must be a {kind.__name__}, got {shorten(repr(item))}")
+            article = "an" if kind.__name__[0] in "AEIOU" else "a"
+            raise SpecError(f"{argument}[{k}] must be {article} {kind.__name__}, got {shorten(repr(item))}")
     return items
 
 
