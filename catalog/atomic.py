@@ -130,13 +130,16 @@ def find_stray_temps(directory: str | os.PathLike[str], recursive: bool = True) 
     return sorted(p for p in candidates if p.is_file() and TEMP_PATTERN.match(p.name))
 
 
-def remove_stray_temps(directory: str | os.PathLike[str], *, only_dead: bool = True) -> list[Path]:
+def remove_stray_temps(directory: str | os.PathLike[str], *, only_dead: bool = True,
+                       keep_own: bool = True) -> list[Path]:
     """Delete temp files left by builds that died; returns what was removed.
 
     With ``only_dead`` (the default) a temp file whose writer pid is still running on
     this host is kept, so a concurrent build is not disturbed. Pids are host-local:
     on a shared file system written from several hosts, pass ``only_dead=False`` only
-    when no build is running.
+    when no build is running. ``keep_own=False`` also removes temps named with this
+    process's pid: for a caller that holds the folder's lock and has written nothing yet
+    (such a temp is a dead writer's whose pid was reused).
     """
     removed = []
     for path in find_stray_temps(directory):
@@ -144,7 +147,7 @@ def remove_stray_temps(directory: str | os.PathLike[str], *, only_dead: bool = T
         if match is None:  # find_stray_temps lists only matching names
             continue
         pid = int(match["pid"])
-        if only_dead and _pid_alive(pid):
+        if only_dead and not (pid == os.getpid() and not keep_own) and _pid_alive(pid):
             continue
         discard(path)
         removed.append(path)

@@ -16,6 +16,7 @@ import numpy as np
 
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import check_file, open_folder
+from catalog.storage import is_remote
 from schemas.errors import SpecError
 from schemas.names import shorten
 from schemas.tables import ARRAY_WIDTHS, STATE_COLUMNS
@@ -83,6 +84,9 @@ class ShardFile:
     frames: int
     index_digest: str  # sha256 of its episode_index + frame_index columns, as read at open
     resolution: int  # side of its square images, as its folder's settings say
+    #: The remote file as a UPath with the storage options it was opened with (key, secret,
+    #: endpoint_url given in code), which ``path`` (text) cannot carry; None for a local file.
+    location: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -126,7 +130,7 @@ def load_source(root: Path, source: int, verify: str, files: list[ShardFile]):
         files.append(
             ShardFile(
                 str(frames_path), record.size, record.sha256, shard.record.frames, index_digest(episode, frame),
-                folder.manifest.settings["resolution"],
+                folder.manifest.settings["resolution"], frames_path if is_remote(frames_path) else None,
             )
         )
         values = table.to_pydict()

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import IO
 
 from catalog.atomic import atomic_open, commit, discard, temp_path
-from catalog.storage import is_remote
+from catalog.storage import is_remote, is_url
 from schemas.errors import OutputError
 from schemas.names import shorten
 
@@ -83,6 +83,8 @@ def check_output(
         raise OutputError(f"{flag or 'output'}: the path must be text, got {shorten(repr(text))}")
     if not text:
         raise OutputError(f"{flag or 'output'}: the path is empty (give a file name)")
+    if is_url(text):  # else a local folder named "s3:" would be made
+        raise OutputError(f"{_named(text, flag)}: is a URL; this output is a local file (write it here, then copy it)")
     kind = _mode(text)
     if kind is not None and stat.S_IFMT(kind) in REFUSED:
         raise OutputError(f"{_named(text, flag)} is {REFUSED[stat.S_IFMT(kind)]}, not a file: give a file name")

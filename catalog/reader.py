@@ -39,7 +39,7 @@ from catalog.parquet_io import (
     table_kind,
 )
 from catalog.records import FileRecord, ShardRecord
-from catalog.storage import as_location
+from catalog.storage import as_location, reaching
 from schemas.errors import (
     DuplicateEpisode,
     FrameNumberingError,
@@ -233,6 +233,11 @@ def open_folder(
     each table is checked as it is read (sizes always, sha256 with ``verify="sha256"``)."""
     check_verify(verify)
     root = as_location(directory)
+    with reaching(root):  # an object store's failure: one StorageError naming the URL
+        return _open_folder(root, directory, verify, expect)
+
+
+def _open_folder(root: Path, directory: object, verify: str, expect: Mapping[str, Any] | None) -> FolderReader:
     if not root.is_dir():
         raise ShardError(f"{directory}: no such folder (expected a built slice or run holding catalog.json)")
     manifest = load_manifest(root)

@@ -10,6 +10,7 @@ import mmap
 import os
 from collections import OrderedDict
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,7 +30,7 @@ from catalog.index import (
 from catalog.pages import image_offsets, pread_into
 from catalog.parquet_io import check_columns, column_to_numpy, table_kind
 from catalog.remote_images import remote_images
-from catalog.storage import as_location, is_url, open_binary
+from catalog.storage import as_location, is_url, open_binary, reaching
 from schemas.errors import (
     ShardError,
     ShardHashMismatch,
@@ -181,9 +182,14 @@ class ShardCache:
 
     def _load_remote(self, key: int) -> OpenShard:
         """A remote frames file: size checked, float columns read, image pages located;
-        its JPEGs are fetched page by page (:mod:`catalog.remote_images`)."""
+        its JPEGs are fetched page by page (:mod:`catalog.remote_images`). The client's
+        failures are one StorageError naming the file."""
         record = self.files[key]
-        path = as_location(record.path)
+        path = record.location if record.location is not None else as_location(record.path)  # options kept
+        with reaching(record.path):
+            return self._load_remote_file(key, record, path)
+
+    def _load_remote_file(self, key: int, record: ShardFile, path: Path) -> OpenShard:
         try:
             size = path.stat().st_size
         except FileNotFoundError:

@@ -4,20 +4,30 @@ and written through fsspec.
 A URL becomes a :class:`upath.UPath` (pathlib's API over an fsspec filesystem), so the
 readers' path arithmetic (``root / "frames/000000-000127.parquet"``, ``stat().st_size``,
 ``read_text()``) is the same for both. Credentials and the endpoint come from the
-environment only (``AWS_ACCESS_KEY_ID``, ``AWS_SECRET_ACCESS_KEY``, ``AWS_ENDPOINT_URL``
-for an S3-compatible server, as botocore reads them); nothing about them is written
-anywhere. Files are opened for ranged reads (a small read-ahead cache), never downloaded
-whole unless every byte is needed (a sha256).
+environment (``AWS_ACCESS_KEY_ID``, ``AWS_SECRET_ACCESS_KEY``, ``AWS_ENDPOINT_URL``
+for an S3-compatible server, as botocore reads them), or from a UPath given in code
+(``UPath(url, key=..., secret=..., endpoint_url=...)``), whose options every path derived
+from it keeps; nothing about them is written anywhere. Files are opened for ranged reads
+(a small read-ahead cache), never downloaded whole unless every byte is needed (a sha256).
+
+The client's failures (no credentials, an unreachable endpoint, a refused request) become
+one :class:`~schemas.errors.StorageError` naming the URL (:func:`reaching`); an output URL
+is checked writable before any work (:func:`check_writable`).
 """
 
 from __future__ import annotations
 
 import os
 import re
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from schemas.errors import ShardError
+from schemas.errors import ShardError, StorageError
+from schemas.names import shorten
+from schemas.storage_faults import describe_storage_fault, is_storage_fault
 
 _URL = re.compile(r"^([a-z][a-z0-9+.-]*)://", re.IGNORECASE)
 #: Bytes fetched per ranged read when a remote file is walked (Parquet page headers).
@@ -73,3 +83,43 @@ class RangeReader:
         if length <= 0:
             return b""
         return self.path.fs.cat_file(self.path.path, start=offset, end=offset + length)  # type: ignore[attr-defined]
+
+
+def where(location: Any) -> str:
+    """A location as a short text for a message (a UPath without its options)."""
+    return shorten(str(location))
+
+
+@contextmanager
+def reaching(location: Any) -> Iterator[None]:
+    """Turn the object-store client's failures inside into one StorageError naming ``location``."""
+    try:
+        yield
+    except Exception as exc:
+        if not is_storage_fault(exc):
+            raise
+        raise StorageError(f"{where(location)}: {describe_storage_fault(exc)}") from None
+
+
+#: The object :func:`check_writable` writes and removes (a unique name per call).
+PROBE_PREFIX = ".dyana-probe-"
+
+
+def check_writable(remote: Any) -> None:
+    """StorageError unless a tiny object can be written under the URL ``remote`` and removed:
+    its bucket exists, the credentials work and allow writing. Run before any work, so a
+    missing bucket is not found after the first shard is built."""
+    fs, root = remote.fs, remote.path.rstrip("/")
+    probe = f"{root}/{PROBE_PREFIX}{uuid.uuid4().hex}"
+    with reaching(remote):
+        try:
+            fs.pipe_file(probe, b"")
+            fs.rm_file(probe)
+        except FileNotFoundError:
+            bucket = root.split("/", 1)[0]
+            raise StorageError(f"{where(remote)}: the bucket {shorten(bucket)!r} does not exist "
+                               "(create it first)") from None
+        except PermissionError as exc:
+            raise StorageError(f"{where(remote)}: not writable with these credentials ({shorten(exc)})") from None
+        except OSError as exc:
+            raise StorageError(f"{where(remote)}: cannot write ({type(exc).__name__}: {shorten(exc)})") from None

@@ -7,8 +7,9 @@ layer guarantees what users and scripts rely on:
 
 - usage errors and every expected failure are one line, ``PROG CMD: error: MESSAGE``
   on stderr, with bad values echoed truncated; never a traceback;
-- exit codes come from one map (:data:`EXIT_CODES`): 2 for bad input or an unusable
-  file, 1 for a replay that differs, 3 for an eval whose every episode failed (its run
+- exit codes come from one map (:data:`EXIT_CODES`): 2 for bad input, an unusable
+  file or an unusable object store (its client's errors are recognised by module,
+  :mod:`schemas.storage_faults`, without importing it), 1 for a replay that differs, 3 for an eval whose every episode failed (its run
   written), 130 on Ctrl-C, 141 when the reader of stdout went away
   (``catalog specs ... | head``), 0 otherwise;
 - a full or closed stdout is reported once, cleanly, even when only the final flush
@@ -36,6 +37,7 @@ from typing import Any
 
 from schemas.errors import AllEpisodesFailed, DyanaError, ReplayMismatch
 from schemas.names import printable, shorten
+from schemas.storage_faults import describe_storage_fault, is_storage_fault
 from schemas.versions import CODE_VERSION, DATASET_VERSION
 
 #: What ``--version`` says after the program's name: a folder's ``catalog info`` names the same two.
@@ -306,6 +308,8 @@ def exit_code(exc: BaseException) -> int:
     for kind, code in EXIT_CODES:
         if isinstance(exc, kind):
             return code
+    if is_storage_fault(exc):  # an object store's client error that no layer translated
+        return EXIT_BAD_INPUT
     raise exc
 
 
@@ -319,14 +323,24 @@ def one_line(exc: BaseException) -> str:
     return printable(" ".join(text.split()), MESSAGE_LIMIT)  # a peer's text may hold terminal escapes
 
 
-def _storage_errors() -> tuple[type[BaseException], ...]:
-    """botocore's errors (an object store unreachable, refusing, misconfigured), once loaded:
-    a URL's failure is one line like a file's. Not imported when no URL was used."""
-    if "botocore.exceptions" not in sys.modules:
-        return ()
-    from botocore.exceptions import BotoCoreError, ClientError
+#: URL schemes of peers and schedulers, not of storage (``--policy http://...``, ``--scheduler tcp://...``).
+_PEER_SCHEMES = ("http", "https", "tcp", "tls", "ws", "wss", "inproc", "ucx", "unix", "file")
 
-    return (BotoCoreError, ClientError)
+
+def storage_locations(args: argparse.Namespace) -> list[str]:
+    """The object-store URLs a command was given (``s3://...`` in any of its arguments)."""
+    found: list[str] = []
+    for value in vars(args).values():
+        for item in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(item, str) and "://" in item and item.split("://", 1)[0].lower() not in _PEER_SCHEMES:
+                found.append(item)
+    return found
+
+
+def storage_line(exc: BaseException, args: argparse.Namespace) -> str:
+    """An object store's failure as one line naming the URLs the command was given and the cause."""
+    urls = ", ".join(shorten(url) for url in storage_locations(args))
+    return printable(f"{urls + ': ' if urls else ''}{describe_storage_fault(exc)}", MESSAGE_LIMIT)
 
 
 def run(prog: str, description: str, commands: Sequence[Command], argv: Sequence[str] | None = None) -> int:
@@ -343,11 +357,16 @@ def run(prog: str, description: str, commands: Sequence[Command], argv: Sequence
     except BrokenPipeError:
         _silence_stdout()
         return EXIT_BROKEN_PIPE
-    except (DyanaError, OSError, *_storage_errors()) as exc:  # type: ignore[misc]
+    except (DyanaError, OSError) as exc:
         if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EPIPE, errno.EIO) and exc.filename is None:
             _silence_stdout()
             message = f"cannot write the output: {exc.strerror}"
         else:
             message = one_line(exc)
         print(f"{where}: error: {message}", file=sys.stderr)
+        return exit_code(exc)
+    except Exception as exc:
+        if not is_storage_fault(exc):
+            raise
+        print(f"{where}: error: {storage_line(exc, args)}", file=sys.stderr)
         return exit_code(exc)

@@ -3,7 +3,7 @@
 CLIs catch :class:`DyanaError`, print its one-line message and exit with a code from
 :data:`schemas.cli.EXIT_CODES`: 1 for :class:`ReplayMismatch` (a replay or verify whose
 bytes differ), 3 for :class:`AllEpisodesFailed` (an eval whose every episode failed; the run
-is written), 2 for every other DyanaError (bad input or an unusable file).
+is written), 2 for every other DyanaError (bad input, an unusable file or object store).
 """
 
 
@@ -34,6 +34,11 @@ class ShardError(DyanaError):
 class OutputError(DyanaError):
     """A user-named output path that cannot be written as asked: a folder, socket or block
     device, or a file inside a folder being read."""
+
+
+class StorageError(DyanaError):
+    """An object store (``s3://...``) that cannot be used: unreachable, no credentials, a
+    missing bucket, a refused request. The message names the URL and the cause."""
 
 
 class PolicyError(DyanaError):

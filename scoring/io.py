@@ -20,9 +20,10 @@ import pyarrow.compute as pc
 
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
-from schemas.errors import ShardError
+from schemas.errors import ShardError, SpecError
 from schemas.events import PROJECTILE_MARK, acting, acting_budget, hover_offset, spec_hover_offset
 from schemas.frames import EpisodeFrames
+from schemas.names import shorten
 from schemas.scene import PHASES
 from schemas.spec import EpisodeSpec
 from schemas.tables import OBSTACLE_CLEARANCE
@@ -247,6 +248,42 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
     )
 
 
+def _items(argument: str, value: object, kind: type) -> list:
+    """``value`` as a list of ``kind``, else a SpecError naming ``argument``."""
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+        raise SpecError(f"{argument} must be a list of {kind.__name__}, got {shorten(repr(value))}")
+    items = list(value)
+    for k, item in enumerate(items):
+        if not isinstance(item, kind):
+            article = "an" if kind.__name__[0] in "AEIOU" else "a"
+            raise SpecError(f"{argument}[{k}] must be {article} {kind.__name__}, got {shorten(repr(item))}")
+    return items
+
+
+def _check_recordings(name: object, slice_name: object, specs: object, recordings: object, policy: object,
+                      errors: object) -> None:
+    """SpecError naming the first argument of :func:`from_recordings` that is not what it needs."""
+    for argument, value in (("name", name), ("slice_name", slice_name)):
+        if not isinstance(value, str):
+            raise SpecError(f"{argument} must be a str, got {shorten(repr(value))}")
+    if policy is not None and not isinstance(policy, str):
+        raise SpecError(f"policy must be a str or None, got {shorten(repr(policy))}")
+    n = len(_items("specs", specs, EpisodeSpec))
+    if n == 0:
+        raise SpecError("specs must hold at least one EpisodeSpec, got none")
+    count = len(_items("recordings", recordings, EpisodeFrames))
+    if count != n:
+        raise SpecError(f"recordings must hold one EpisodeFrames per spec ({n}), got {count}")
+    if errors is not None:
+        if isinstance(errors, (str, bytes)) or not isinstance(errors, Sequence):
+            raise SpecError(f"errors must be a list of str or None, got {shorten(repr(errors))}")
+        if len(errors) != n:
+            raise SpecError(f"errors must have one entry per spec ({n}), got {len(errors)}")
+        for k, item in enumerate(errors):
+            if item is not None and not isinstance(item, str):
+                raise SpecError(f"errors[{k}] must be a str or None, got {shorten(repr(item))}")
+
+
 def from_recordings(
     name: str,
     slice_name: str,
@@ -258,13 +295,10 @@ def from_recordings(
     """A :class:`RunData` from episodes held in memory (a benchmark's, a notebook's),
     scored exactly as their shards would be: ``policy`` None means ground truth; else
     they are rollouts (R_time's N is the acting horizon) and ``errors`` holds each
-    episode's failure reason or None."""
-    if len(specs) != len(recordings) or not specs:
-        raise ValueError(f"need as many specs as recordings (at least one), got {len(specs)} and {len(recordings)}")
+    episode's failure reason or None. Wrong types or counts: a SpecError naming the argument."""
+    _check_recordings(name, slice_name, specs, recordings, policy, errors)
     rollout = policy is not None
     messages = np.array(list(errors) if errors is not None else [None] * len(specs), dtype=object)
-    if len(messages) != len(specs):
-        raise ValueError(f"errors must have {len(specs)} entries, got {len(messages)}")
     picks = [acting(frames.phase) for frames in recordings]
     counts = np.array([int(p.sum()) for p in picks], dtype=np.int64)
 

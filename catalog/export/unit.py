@@ -59,6 +59,17 @@ def _decode(jpeg: bytes) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+def _checked(image: np.ndarray, plan: ExportPlan, shard: ShardReader, episode: int, frame: int) -> np.ndarray:
+    """``image`` if it has the size the source's settings give (the video's size), else an
+    ExportError naming the source file: settings edited to another resolution (and re-hashed)
+    would otherwise fail in the encoder, naming the export's own video."""
+    if image.shape[:2] != (plan.height, plan.width):
+        raise ExportError(f"{shard.path('frames')}: episode {episode} frame {frame} is {image.shape[1]}x{image.shape[0]} px, "
+                          f"but catalog.json's settings say resolution {plan.height}: the folder's settings do not "
+                          "match its images")
+    return image
+
+
 def _hf_features() -> dict[str, Json]:
     """The ``huggingface`` schema metadata `datasets` reads the data files' features from."""
     out: dict[str, Json] = {}
@@ -160,7 +171,8 @@ def _write_episodes(plan: ExportPlan, number: int, shard: ShardReader, rows: lis
             episode = json_int(row["episode_index"])
             start, count = runs[episode]
             span = slice(start, start + count)
-            images = np.stack([_decode(jpegs[k].as_py()) for k in range(start, start + count)])
+            images = np.stack([_checked(_decode(jpegs[k].as_py()), plan, shard, episode, k - start)
+                               for k in range(start, start + count)])
             task = plan.tasks[str(row["text"])]
             index = np.arange(next_index, next_index + count, dtype=np.int64)
             data = _data_table(columns, span, episode, next_index, task)

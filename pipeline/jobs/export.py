@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from catalog.atomic import atomic_write_text
+from catalog.atomic import atomic_write_text, remove_stray_temps
 from catalog.export.layout import DYANA_META
 from catalog.export.lerobot import (
     WORK_DIR,
@@ -44,6 +44,7 @@ from catalog.export.meta import assemble, tasks_of
 from catalog.export.unit import export_unit
 from catalog.reader import FolderReader, open_folder
 from catalog.records import FileRecord
+from catalog.storage import is_remote
 from pipeline.jobs.engine import Execution, LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
 from pipeline.jobs.state import file_intact
@@ -96,6 +97,13 @@ def check_foreign(out: Path) -> None:
         raise ExportError(f"{shorten(os.fspath(out))}: not empty and not a Dyana export; choose a new folder")
 
 
+def _remove_work(folder: Path) -> None:
+    """Remove the work folder of a finished export (part records, the job record)."""
+    work = folder / WORK_DIR
+    if work.is_dir():
+        shutil.rmtree(work)
+
+
 def _read_json(path: Path) -> Json:
     try:
         return json.loads(path.read_text())
@@ -125,10 +133,15 @@ class LeRobotProduct:
 
     def previous(self, folder: Path, commit: str | None, overwrite: bool) -> Previous[Part, Exported]:
         check_foreign(folder)
+        # Under the folder lock, before this process writes anything: a temp named with this
+        # process's pid is a dead writer's whose pid was reused (a fresh pid namespace gives a
+        # rerun the killed driver's pid); the engine already removed the other dead ones.
+        remove_stray_temps(folder, keep_own=False)
         finished, job = folder / DYANA_META, folder / WORK_DIR / JOB_FILE
         meta = _read_json(finished) if finished.is_file() else None
         same = isinstance(meta, dict) and meta.get("job") == self.identity and not overwrite
         if same and isinstance(meta, dict) and files_intact(folder, meta.get("files")):
+            _remove_work(folder)  # a driver killed after dyana.json, before it cleaned up
             return Previous(finished=Exported(self.reader.manifest.episodes, self.reader.manifest.frames))
         if _content(folder):
             resuming = job.is_file() and _read_json(job) == self.identity and not finished.is_file()
@@ -167,10 +180,7 @@ class LeRobotProduct:
     def finish(self, folder: Path, commit: str | None, units: Sequence[Part]) -> Exported:
         assemble(folder, self.reader, self.settings, units, self.plan.tasks, self.identity, self.plan.height,
                  self.plan.width)
-        for part in units:
-            part_path(folder, part.shard).unlink()
-        (folder / WORK_DIR / JOB_FILE).unlink()
-        (folder / WORK_DIR).rmdir()
+        _remove_work(folder)
         return Exported(sum(len(p.episodes) for p in units), sum(p.frames for p in units))
 
 
@@ -191,6 +201,9 @@ def export(
     """Export a built slice or run folder into ``out`` (see the module docstring):
     ``workers`` processes (1: in this process), progress lines to ``progress``."""
     check_workers(workers, None)
+    if is_remote(out):  # else a local folder named "s3:" would be made
+        raise ExportError(f"--out {shorten(str(out))}: an export is written to a local folder (object-storage "
+                          "outputs are not supported yet): export here, then copy it")
     start = time.perf_counter()
     reader = open_folder(source, verify="sha256")
     manifest = reader.manifest

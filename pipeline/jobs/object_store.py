@@ -12,7 +12,10 @@ published to the URL as it goes:
   are deleted and the remote state removed; the staging folder is emptied (its lock file
   stays, as every lock file does: :mod:`pipeline.jobs.lock`).
 
-Before starting, a remote ``catalog.json`` describing this job with every listed object
+Before starting, the URL is checked writable (a tiny probe object written and removed:
+the bucket exists, the credentials and endpoint work), and the client's failures are one
+:class:`~schemas.errors.StorageError` naming the URL (:mod:`catalog.storage`). Then a
+remote ``catalog.json`` describing this job with every listed object
 present at its size means "up to date" (nothing is downloaded); one describing another job
 is refused unless ``overwrite``, as locally; otherwise the shards the remote state or
 manifest lists are downloaded into staging (on any machine), so a killed job resumes there.
@@ -36,12 +39,13 @@ from typing import Any, TypedDict, Unpack
 from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
 from catalog.records import ShardRecord
 from catalog.stats import STATS_NAME
-from catalog.storage import as_location, is_url
+from catalog.storage import as_location, check_writable, is_url, reaching
 from pipeline.jobs.lock import LOCK_FILE, held
 from pipeline.jobs.runner import Job, JobResult, run_job
 from pipeline.jobs.state import STATE_FILE, Identity, describe_difference, manifest_identity
 from pipeline.jobs.tasks import Payload
 from schemas.errors import ShardError, SpecError
+from schemas.names import shorten
 from schemas.versions import CODE_VERSION
 
 
@@ -139,10 +143,11 @@ def run_remote_job(job: Job[Payload], url: str, workers: int, options: RunOption
     staging = staging_folder(url)
     staging.parent.mkdir(parents=True, exist_ok=True)
     try:
-        with held(staging.with_name(staging.name + ".lock"), url):
+        with held(staging.with_name(staging.name + ".lock"), url), reaching(url):
+            check_writable(as_location(url))  # bucket, credentials, endpoint: before any work
             return _run_remote_job(job, url, staging, workers, options)
-    except FileNotFoundError as exc:  # s3fs: a missing bucket
-        raise ShardError(f"{url}: {exc}") from None
+    except FileNotFoundError as exc:  # s3fs: the bucket went away during the job
+        raise ShardError(f"{shorten(url)}: {exc}") from None
 
 
 def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, options: RunOptions) -> JobResult:

@@ -75,6 +75,7 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     os.environ.setdefault("RUST_LOG", "off")
     import rerun as rr
 
+    check_output(out, [], "--out")  # the name as given: Path() would turn a URL into a local "s3:" folder
     directory, out = as_location(directory), Path(out)
     if out.suffix != ".rrd":
         raise SpecError(f"--out must end in .rrd, got {str(out)!r}")

@@ -150,3 +150,15 @@ def test_stdout_redirected_to_a_file_is_appended_to_and_dev_shm_is_a_folder_of_f
     assert target.read_text() == "table\ncsv\n"
     if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK):
         check_output(f"/dev/shm/dyana-test-{os.getpid()}.csv")  # a file system under /dev, not a device
+
+
+@pytest.mark.parametrize("url", ["s3://bucket/out.csv", "gs://bucket/x/plot.png"])
+def test_a_url_is_refused_and_makes_no_local_folder(tmp_path, monkeypatch, url):
+    """Path("s3://b/k") is the local path "s3:/b/k": writing it would make a folder "s3:"."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(OutputError, match=r"--csv '.*': is a URL; this output is a local file"):
+        check_output(url, [], "--csv")
+    with pytest.raises(OutputError, match="is a URL"):
+        with open_output(url, "w") as handle:
+            handle.write("x")
+    assert list(tmp_path.iterdir()) == []

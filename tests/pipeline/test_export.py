@@ -5,6 +5,7 @@ loader and PyAV, compared frame by frame with the source; determinism, resume, u
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -313,3 +314,50 @@ def test_an_export_is_not_written_into_a_build(built, tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1
     assert "holds a Dyana build or run (catalog.json); a folder holds one kind of thing" in err
     assert _tree(target) == before
+
+
+def test_an_object_store_out_is_refused_in_one_line_and_makes_no_local_folder(built, tmp_path, capsys,
+                                                                              monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code = catalog_main(["export", str(built), "--out", "s3://bucket/exp", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
+    assert "--out s3://bucket/exp: an export is written to a local folder" in err
+    assert list(tmp_path.iterdir()) == []  # no ./s3:/bucket/exp
+
+
+def test_a_rerun_removes_temps_and_work_files_a_killed_export_left(built, exports, tmp_path):
+    """A driver killed near its end leaves ``meta/.stats.json.tmp-PID``; in a fresh pid namespace
+    the rerun may get that very pid (planted here as this process's own), so it is not 'alive'."""
+    target = tmp_path / "killed"
+    shutil.copytree(exports["lerobot"], target)
+    stray = [target / "meta" / f".stats.json.tmp-{os.getpid()}", target / "meta" / ".info.json.tmp-999999999"]
+    for path in stray:
+        path.write_text("{")
+    work = target / ".dyana-export"  # killed after meta/dyana.json, before the work folder went
+    work.mkdir()
+    (work / "job.json").write_text("{}\n")
+    (work / "part-00000.json").write_text("{}\n")
+    report = export(built, target, ExportSettings("lerobot"))
+    assert report.up_to_date
+    assert not any(path.exists() for path in stray) and not work.exists()
+    assert _tree(target) == _tree(exports["lerobot"])
+
+
+def test_settings_that_do_not_match_the_images_are_named_in_the_source(built, tmp_path):
+    """A catalog.json edited to another resolution (and re-hashed) is blamed on the source's
+    frames file, not on the export's own video."""
+    from catalog.manifest import Manifest, load_manifest, write_manifest
+
+    source = tmp_path / "edited"
+    shutil.copytree(built, source)
+    manifest = load_manifest(source)
+    settings = {**manifest.settings, "resolution": 32}
+    write_manifest(source, Manifest.create(manifest.slice, manifest.seed, settings, list(manifest.shards),
+                                           code=manifest.code, extra=manifest.extra))
+    with pytest.raises(ExportError) as caught:
+        export(source, tmp_path / "out", ExportSettings("lerobot"))
+    message = str(caught.value)
+    assert f"{source}/frames/" in message and "64x64 px" in message and "resolution 32" in message
+    assert ".mp4" not in message
+    assert not list((tmp_path / "out").rglob("*.mp4"))

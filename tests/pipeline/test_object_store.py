@@ -184,3 +184,100 @@ def test_a_second_job_on_one_url_from_this_machine_is_busy(tmp_path, monkeypatch
         with pytest.raises(FolderBusy, match=f"{url}: another process"):
             build("linear-fast", f"s3://{BUCKET}/busy", episodes=2, shard_size=2, resolution=32, workers=0,
                   progress=False)
+
+
+# --- failures: one line naming the URL, exit 2, no traceback -------------------------------
+
+
+def _closed_port() -> int:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]  # closed again when the block ends: nothing listens there
+
+
+@pytest.fixture
+def no_aws(monkeypatch, tmp_path):
+    """A clean environment: no AWS_* variables, no credentials or config files, no instance
+    metadata; one attempt per request (botocore retries 5 times by default: AWS_MAX_ATTEMPTS)."""
+    s3fs = pytest.importorskip("s3fs")
+    for key in [key for key in os.environ if key.startswith("AWS_")]:
+        monkeypatch.delenv(key)
+    monkeypatch.setenv("AWS_SHARED_CREDENTIALS_FILE", str(tmp_path / "no-credentials"))
+    monkeypatch.setenv("AWS_CONFIG_FILE", str(tmp_path / "no-config"))
+    monkeypatch.setenv("AWS_EC2_METADATA_DISABLED", "true")
+    monkeypatch.setenv("AWS_MAX_ATTEMPTS", "1")
+    monkeypatch.setenv("DYANA_STAGING", str(tmp_path / "staging"))
+    s3fs.S3FileSystem.clear_instance_cache()  # filesystems made with another environment
+    yield monkeypatch
+    s3fs.S3FileSystem.clear_instance_cache()
+
+
+URL = f"s3://{BUCKET}/nowhere"
+COMMANDS = {
+    "build": ("pipeline", ["build", *ARGS, "--out", URL]),
+    "eval": ("pipeline", ["eval", "--policy", "predictive", "--slice", "test-1k", "--episodes", "2", "--workers", "1",
+                          "--out", URL]),
+    "verify": ("catalog", ["verify", URL]),
+    "info": ("catalog", ["info", URL]),
+    "export": ("catalog", ["export", URL, "--out", "exported"]),
+}
+
+
+def _main(program: str, argv: list[str]) -> int:
+    from pipeline.cli import main as pipeline_main
+    from pipeline.cli_catalog import main as catalog_main
+
+    return (pipeline_main if program == "pipeline" else catalog_main)([*argv, "--quiet"] if argv[0] != "info" else argv)
+
+
+@pytest.mark.parametrize("cause", ["unreachable", "no credentials"])
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_an_unusable_object_store_is_one_line_naming_the_url(no_aws, tmp_path, capsys, command, cause):
+    port = _closed_port()
+    no_aws.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{port}")
+    if cause == "unreachable":
+        no_aws.setenv("AWS_ACCESS_KEY_ID", "dyana-test")
+        no_aws.setenv("AWS_SECRET_ACCESS_KEY", "dyana-test-secret")
+    no_aws.chdir(tmp_path)
+    program, argv = COMMANDS[command]
+    assert _main(program, argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert err.startswith(f"{program} {command}: error: {URL}")
+    assert (f"cannot reach the object store at http://127.0.0.1:{port}" if cause == "unreachable"
+            else "no credentials for the object store (set AWS_ACCESS_KEY_ID") in err
+
+
+def test_catalog_open_on_an_unusable_store_raises_a_storage_error(no_aws):
+    from schemas.errors import StorageError
+
+    no_aws.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{_closed_port()}")
+    with pytest.raises(StorageError, match=f"^{URL}: no credentials for the object store"):
+        catalog.open(URL)
+
+
+def test_a_missing_bucket_is_refused_before_any_shard_is_built(server, tmp_path, capsys, monkeypatch):
+    from pipeline.cli import main
+
+    monkeypatch.setenv("DYANA_STAGING", str(tmp_path))
+    assert main(["build", *ARGS, "--out", "s3://no-such-bucket/data", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "s3://no-such-bucket/data/linear-fast: the bucket 'no-such-bucket' does not exist" in err
+    assert not list(tmp_path.rglob("*.parquet"))  # checked before the first shard was built
+
+
+def test_storage_options_given_in_a_upath_reach_every_shard_load(remote, local, server, no_aws):
+    """Credentials and endpoint only in the UPath (no AWS_* variables): the folder opens and
+    items load, their shards read with the same options."""
+    from upath import UPath
+
+    path = UPath(remote, key=server["AWS_ACCESS_KEY_ID"], secret=server["AWS_SECRET_ACCESS_KEY"],
+                 endpoint_url=server["AWS_ENDPOINT_URL"], client_kwargs={"region_name": "us-east-1"})
+    there, here = catalog.open(path), catalog.open(local)
+    assert len(there) == len(here)
+    for index in (0, len(here) - 1):
+        a, b = there[index], here[index]
+        assert all(np.array_equal(np.asarray(a[key]), np.asarray(b[key])) for key in a)

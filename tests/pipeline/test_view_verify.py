@@ -295,3 +295,13 @@ def test_view_on_a_full_disk_is_refused_before_writing(built, tiny_disk):
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
     assert "ep.rrd: not enough free space" in result.stderr and "Traceback" not in result.stderr
     assert list(tiny_disk.iterdir()) == []
+
+
+def test_view_refuses_an_output_url_without_a_local_folder(built, tmp_path, monkeypatch, capsys):
+    from pipeline.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["view", str(built), "--episode", "0", "--out", "s3://bucket/e0.rrd"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--out 's3://bucket/e0.rrd': is a URL" in err
+    assert not (tmp_path / "s3:").exists()

@@ -390,3 +390,12 @@ def test_csv_to_dev_null_leaves_dev_null_a_device(capsys, run):
     code, _, err = run_main(capsys, "eval", str(run), "--csv", "/dev/null", "--markdown", "/dev/null")
     assert code == 0, err
     assert stat.S_ISCHR(os.lstat("/dev/null").st_mode)
+
+
+@pytest.mark.parametrize("flag", ["--csv", "--markdown", "--episodes", "--plot", "--latency-plot"])
+def test_an_output_url_is_refused_in_one_line_without_a_local_folder(tmp_path, capsys, monkeypatch, run, flag):
+    monkeypatch.chdir(tmp_path)
+    assert main(["eval", str(run), flag, "s3://bucket/out.parquet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{flag} 's3://bucket/out.parquet': is a URL" in err
+    assert not (tmp_path / "s3:").exists()
