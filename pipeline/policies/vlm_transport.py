@@ -4,7 +4,8 @@
 Both return a :class:`Reply`; transport faults come back as replies with ``outcome``
 ``http_error`` or ``timeout``, never as exceptions, so that the policy decides what a
 fault does to its episode. The client makes no retries of its own (one request, one
-answer: what the audit trail shows is what happened). The API key comes from the
+answer: what the audit trail shows is what happened), over :mod:`pipeline.policies.vlm_http`,
+which bounds the whole exchange by the timeout and the reply's bytes. The API key comes from the
 environment variable the run names, never from a flag or a file, and never reaches what
 the run stores: every text of a reply (answer, refusal, error detail) has the key and any
 ``Bearer ...`` credential replaced by ``[redacted]`` (an endpoint may echo its headers),
@@ -61,30 +62,38 @@ class HttpTransport:
     """Chat completions over HTTP with the ``openai`` client (base URL, timeout, no retries)."""
 
     def __init__(self, url: str, api_key_env: str, timeout_s: float) -> None:
-        try:
+        try:  # lazy: the client and its HTTP stack load when a VLM run needs them
             import openai
+
+            from pipeline.policies import vlm_http
         except ImportError:  # pragma: no cover - openai is a dependency
             raise PolicyError("VLM policies need the openai package: pip install openai") from None
-        self._openai = openai
+        self._openai, self._http = openai, vlm_http
         key = os.environ.get(api_key_env) or "not-needed"  # local servers accept any key
         self._key = key
-        self.client = openai.OpenAI(base_url=url, api_key=key, timeout=timeout_s, max_retries=0)
+        self.client = openai.OpenAI(base_url=url, api_key=key, timeout=timeout_s, max_retries=0,
+                                    http_client=vlm_http.bounded_client(timeout_s))
 
     def complete(self, request: dict[str, Any]) -> Reply:
         """One request; the reply as stored (secrets redacted, usage checked)."""
         return stored_reply(self._exchange(request), self._key)
 
     def _exchange(self, request: dict[str, Any]) -> Reply:
-        openai = self._openai
+        openai, http = self._openai, self._http
         start = time.perf_counter()
         try:
             response = self.client.chat.completions.create(**request)
+        except http.ReplyTooLarge as exc:
+            return Reply("http_error", detail=f"reply too large: {exc}", latency_ms=_ms(start))
         except openai.APITimeoutError:
-            return Reply("timeout", detail="no answer within the timeout", latency_ms=_ms(start))
+            return Reply("timeout", detail="no whole answer within the timeout", latency_ms=_ms(start))
         except openai.APIStatusError as exc:
             return Reply("http_error", detail=f"HTTP {exc.status_code}: {str(exc.message)[:160]}", latency_ms=_ms(start))
         except openai.APIConnectionError as exc:
-            return Reply("http_error", detail=f"connection failed: {str(exc)[:160]}", latency_ms=_ms(start))
+            cause = exc.__cause__
+            if isinstance(cause, http.UnreadableReply):
+                return Reply("http_error", detail=f"unreadable reply ({str(cause)[:160]})", latency_ms=_ms(start))
+            return Reply("http_error", detail=f"connection failed: {str(cause or exc)[:160]}", latency_ms=_ms(start))
         except openai.OpenAIError as exc:
             return Reply("http_error", detail=f"{type(exc).__name__}: {str(exc)[:160]}", latency_ms=_ms(start))
         except (ValueError, RecursionError) as exc:  # a body that is not JSON, or nested past the parser's depth
