@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import Any
 
 from catalog.atomic import atomic_open
-from catalog.manifest import Manifest
+from catalog.manifest import Manifest, load_manifest
 from catalog.storage import is_url
 from pipeline.loop.conditions import MAX_REPEATS, EvalProtocol
-from schemas.errors import SpecError
+from schemas.errors import AllEpisodesFailed, SpecError
 
 REPEATS_FILE = "repeats.json"
 
@@ -56,7 +56,9 @@ def evaluate_repeats(
 ) -> list[Manifest]:
     """Run ``repeats`` evaluations into ``out/repeat-NN`` and index them (module docstring).
     A folder holding a single run, or repeats of another experiment, is refused unless
-    ``overwrite`` (then each repeat folder is replaced as ``evaluate`` replaces a run)."""
+    ``overwrite`` (then each repeat folder is replaced as ``evaluate`` replaces a run).
+    With ``require_success``, when every episode of every repeat failed, AllEpisodesFailed
+    (exit 3, as for one run) is raised after all of them and the index are written."""
     from pipeline.jobs.evaluate import evaluate
 
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 2 <= repeats <= MAX_REPEATS:
@@ -77,12 +79,19 @@ def evaluate_repeats(
             raise SpecError(f"{out} holds repeats of another experiment: use another --out, or --overwrite")
     manifests = []
     name = policy_ref
+    failed: list[AllEpisodesFailed] = []
     for r in range(repeats):
-        manifest = evaluate(policy_ref, slice_name, out / repeat_folder(r), protocol=dataclasses.replace(protocol, repeat=r),
-                            **options)
+        try:
+            manifest = evaluate(policy_ref, slice_name, out / repeat_folder(r),
+                                protocol=dataclasses.replace(protocol, repeat=r), **options)
+        except AllEpisodesFailed as exc:  # written all the same: its manifest is read back below
+            failed.append(exc)
+            manifest = load_manifest(out / repeat_folder(r))
         name = str(manifest.extra.get("policy", policy_ref))
         manifests.append(manifest)
     out.mkdir(parents=True, exist_ok=True)
     with atomic_open(index_path, "w") as handle:
         handle.write(json.dumps(repeats_index(name, slice_name, protocol, manifests), indent=2, sort_keys=True) + "\n")
+    if len(failed) == repeats:
+        raise AllEpisodesFailed(f"in each of the {repeats} repeats {failed[0]}")
     return manifests

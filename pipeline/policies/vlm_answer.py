@@ -122,14 +122,18 @@ def _numbers(value: object, count: int, name: str) -> np.ndarray:
     return np.array(out, dtype=np.float64)
 
 
-def parse_answer(content: str | None, refusal: str | None = None, finish_reason: str | None = None) -> Answer:
-    """Read a chat completion's message (see the module docstring)."""
+def parse_answer(
+    content: str | None, refusal: str | None = None, finish_reason: str | None = None, length: int | None = None
+) -> Answer:
+    """Read a chat completion's message (see the module docstring). ``length``: the whole
+    answer's length when ``content`` is only its stored prefix."""
     if refusal:
         raise AnswerError("refusal", f"the model refused: {refusal[:120]}")
     if finish_reason == "content_filter":
         raise AnswerError("refusal", "the answer was withheld by the server's content filter")
-    if content is not None and len(content) > MAX_ANSWER_CHARS:
-        raise AnswerError("parse_error", f"the answer is {len(content):,} characters; at most {MAX_ANSWER_CHARS:,} are read")
+    chars = len(content or "") if length is None else length
+    if chars > MAX_ANSWER_CHARS:
+        raise AnswerError("parse_error", f"the answer is {chars:,} characters; at most {MAX_ANSWER_CHARS:,} are read")
     text = _FENCE.sub("", content or "")
     block = _first_object(text)
     if block is None:

@@ -27,6 +27,8 @@ from urllib.parse import urlsplit
 
 import httpx2
 
+from schemas.errors import PolicyError
+
 #: Largest reply read (bytes, before and after decompression): an answer is ~1 KB of JSON;
 #: 4 MiB holds any chat completion of at most 4,096 tokens many times over.
 MAX_REPLY_BYTES = 4 * 2**20
@@ -35,6 +37,11 @@ _CHUNK = 65_536
 _DECODERS = {"gzip": 16 + zlib.MAX_WBITS, "x-gzip": 16 + zlib.MAX_WBITS, "deflate": zlib.MAX_WBITS}
 #: Hop-by-hop and encoding headers not passed on (the body handed on is whole and decoded).
 _DROPPED = {"content-encoding", "transfer-encoding", "content-length", "connection", "keep-alive"}
+
+
+#: Longest wait of the endpoint check before a run's first episode (seconds; less if the
+#: request timeout is shorter).
+REACH_TIMEOUT_S = 10.0
 
 
 class ReplyTooLarge(Exception):
@@ -206,3 +213,19 @@ class BoundedTransport(httpx2.BaseTransport):
 def bounded_client(timeout_s: float) -> httpx2.Client:
     """An ``httpx2`` client (for ``openai.OpenAI(http_client=...)``) over :class:`BoundedTransport`."""
     return httpx2.Client(transport=BoundedTransport(timeout_s), timeout=timeout_s)
+
+
+def check_reachable(url: str, timeout_s: float, shown: str) -> None:
+    """PolicyError naming ``shown`` unless a connection to ``url``'s host (through its proxy,
+    TLS handshake included) opens within ``timeout_s``: checked once before a run's first
+    episode, so that an unreachable endpoint fails the run at once, not every episode."""
+    deadline = time.monotonic() + min(timeout_s, REACH_TIMEOUT_S)
+    try:
+        conn, _ = _connection(httpx2.URL(url), deadline, ssl.create_default_context())
+        try:
+            conn.connect()
+        finally:
+            conn.close()
+    except (OSError, http.client.HTTPException, httpx2.InvalidURL, ValueError) as exc:
+        reason = "no connection within the timeout" if isinstance(exc, TimeoutError) else f"{type(exc).__name__}: {exc}"
+        raise PolicyError(f"{shown}: cannot reach the VLM endpoint ({reason}); nothing was evaluated") from None

@@ -36,7 +36,8 @@ from generators.hand import REST_JOINTS, forward_kinematics
 from pipeline.policies.perception import ObjectLocator
 from schemas.scene import LOC_TOLERANCE, PALM_HOVER
 
-MODES = ("ok", "malformed", "prose", "error", "slow", "refuse", "flaky", "drip", "huge", "bomb")
+MODES = ("ok", "malformed", "prose", "error", "slow", "refuse", "flaky", "drip", "huge", "bomb", "long")
+LONG_CHARS = 2**20
 HUGE_BYTES = 64 * 2**20
 BOMB_BYTES = 100 * 2**20
 MODEL = "loopback-perception"
@@ -160,6 +161,8 @@ class _Handler(BaseHTTPRequestHandler):
         else:
             answer = json.dumps(perceive(text, images))
             content = f"Here is my plan.\n```json\n{answer}\n```\nGood luck." if mode == "prose" else answer
+            if mode == "long":
+                content = "Let me think. " * (LONG_CHARS // 13) + answer
         usage = {"prompt_tokens": len(text.split()) + 85 * len(images), "completion_tokens": len((content or "").split())}
         usage["total_tokens"] = usage["prompt_tokens"] + usage["completion_tokens"]
         self._send(200, {

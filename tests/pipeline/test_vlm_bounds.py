@@ -116,3 +116,41 @@ def test_an_answer_over_the_length_limit_is_not_read():
     with pytest.raises(AnswerError, match="at most 65,536"):
         parse_answer(answer + " " * MAX_ANSWER_CHARS)
     assert parse_answer("x" * 1000 + answer).closure == 0.5
+
+
+def test_a_long_answer_is_stored_as_a_prefix_with_its_size_and_hash_and_replays(hostile, tmp_path):
+    import hashlib
+    import io
+
+    from pipeline.jobs.evaluate import evaluate
+    from pipeline.jobs.replay import replay
+    from pipeline.remote.loopback_vlm import LONG_CHARS
+
+    run = tmp_path / "run"
+    evaluate(f"vlm:{hostile('long')}", "test-1k", run, episodes=1, workers=0, resolution=64, shard_size=1,
+             progress=False, summary=False, stream=io.StringIO(), vlm={"model": "loopback-perception"})
+    [record] = read_audit(run / "vlm")
+    reply = record["reply"]
+    assert record["outcome"] == "parse_error" and "at most 65,536" in record["detail"]
+    assert len(reply["content"]) == MAX_ANSWER_CHARS and reply["content_chars"] > LONG_CHARS
+    assert len(reply["content_sha256"]) == 64 and reply["content_sha256"] != hashlib.sha256(b"").hexdigest()
+    assert sum(p.stat().st_size for p in (run / "vlm").iterdir()) < 2 * MAX_ANSWER_CHARS
+    assert replay(run).episodes == 1
+
+
+def test_an_unreachable_endpoint_is_refused_before_the_first_episode(tmp_path, capsys):
+    import socket
+
+    from pipeline.cli import main as pipeline_main
+
+    with socket.socket() as closed:  # a port nothing listens on
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+    out = tmp_path / "run"
+    start = time.monotonic()
+    code = pipeline_main(["eval", "--policy", f"vlm:http://user:pw@127.0.0.1:{port}/v1", "--model", "m", "--slice",
+                          "test-1k", "--episodes", "2", "--workers", "1", "--repeats", "2", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and time.monotonic() - start < 8
+    assert err.count("\n") == 1 and f"vlm:http://127.0.0.1:{port}/v1: cannot reach the VLM endpoint" in err, err
+    assert "pw" not in err and not out.exists()
