@@ -2,7 +2,9 @@
 the protocol with ``repeat=r`` (so a seeded perturbation differs between repeats and is
 the same whenever repeat r is run again), one ordinary run folder per repeat
 (``RUN/repeat-00``, ...), and ``RUN/repeats.json`` naming them with their manifest hashes.
-``scoring eval RUN`` reads such a folder as one robustness experiment.
+``scoring eval RUN`` reads such a folder as one robustness experiment; the folder's layout
+(:data:`REPEATS_FILE`, :func:`repeat_folders`) is :mod:`catalog.repeat_sets`'s, which every
+reader of one run uses to refuse a folder of repeats saying what to pass instead.
 """
 
 from __future__ import annotations
@@ -14,28 +16,17 @@ from typing import Any
 
 from catalog.atomic import atomic_open
 from catalog.manifest import Manifest, load_manifest
+from catalog.repeat_sets import REPEATS_FILE, repeat_folders
 from catalog.storage import is_url
 from pipeline.loop.conditions import MAX_REPEATS, EvalProtocol
 from schemas.errors import AllEpisodesFailed, SpecError
 
-REPEATS_FILE = "repeats.json"
+#: The folder layout's names stay importable from here (``pipeline migrate``, ``catalog info``).
+__all__ = ["REPEATS_FILE", "evaluate_repeats", "repeat_folder", "repeat_folders", "repeats_index"]
 
 
 def repeat_folder(repeat: int) -> str:
     return f"repeat-{repeat:02d}"
-
-
-def repeat_folders(root: Path) -> list[Path]:
-    """The repeat folders ``root/repeats.json`` names (each a plain folder name inside ``root``)."""
-    path = root / REPEATS_FILE
-    try:
-        names = [entry["path"] for entry in json.loads(path.read_text())["runs"]]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise SpecError(f"{path}: not a readable repeats index ({type(exc).__name__})") from None
-    for name in names:
-        if not isinstance(name, str) or "/" in name or "\\" in name or name in ("", ".", ".."):
-            raise SpecError(f"{path}: a repeat's path must be a folder name, got {str(name)[:60]!r}")
-    return [root / name for name in names]
 
 
 def repeats_index(policy: str, slice_name: str, protocol: EvalProtocol, manifests: list[Manifest]) -> dict[str, Any]:

@@ -198,7 +198,7 @@ class BoundedTransport(httpx2.BaseTransport):
                 conn.request(request.method, target, body=body, headers=headers)
                 response = conn.getresponse()
                 content = _read_body(response, (response.getheader("Content-Encoding") or "").strip().lower())
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 raise httpx2.ReadTimeout("no whole reply within the timeout", request=request) from None
             except (OSError, http.client.HTTPException) as exc:
                 raise httpx2.ConnectError(f"{type(exc).__name__}: {exc}", request=request) from None
