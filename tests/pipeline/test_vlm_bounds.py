@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import signal
-import subprocess
-import sys
 import time
 import tracemalloc
 from collections.abc import Iterator
@@ -38,24 +36,6 @@ def within(seconds: float) -> Iterator[None]:
         signal.signal(signal.SIGALRM, previous)
 
 
-@pytest.fixture
-def hostile():
-    started: list[subprocess.Popen] = []
-
-    def start(mode: str, delay: float = 0.05) -> str:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "pipeline.remote.loopback_vlm", "--mode", mode, "--delay", str(delay)],
-            stdout=subprocess.PIPE, text=True,
-        )
-        started.append(process)
-        return process.stdout.readline().strip()
-
-    yield start
-    for process in started:
-        process.terminate()
-        process.wait(timeout=10)
-
-
 def _complete(url: str, timeout_s: float, trace: bool = False) -> tuple[Reply, float, int]:
     """One exchange: the reply, its wall time and (``trace``) the peak Python memory it took."""
     transport = HttpTransport(url, "DYANA_TEST_UNSET_KEY", timeout_s)
@@ -72,28 +52,28 @@ def _complete(url: str, timeout_s: float, trace: bool = False) -> tuple[Reply, f
     return reply, elapsed, peak
 
 
-def test_a_dripping_reply_is_cut_at_the_timeout(hostile):
+def test_a_dripping_reply_is_cut_at_the_timeout(serve):
     """One byte every 50 ms (the status line too): each read is quick, the whole is not."""
-    reply, elapsed, _ = _complete(hostile("drip", delay=0.05), timeout_s=1.0)
+    reply, elapsed, _ = _complete(serve("drip", delay=0.05), timeout_s=1.0)
     assert reply.outcome == "timeout", reply
     assert elapsed < 1.8  # the timeout and some slack (on the old code: ~15 s)
 
 
 @pytest.mark.parametrize("mode, said", [("huge", "bytes"), ("bomb", "once decompressed")])
-def test_a_reply_over_the_byte_limit_is_refused_reading_a_bounded_amount(hostile, mode, said):
-    reply, _, peak = _complete(hostile(mode), timeout_s=10.0, trace=True)
+def test_a_reply_over_the_byte_limit_is_refused_reading_a_bounded_amount(serve, mode, said):
+    reply, _, peak = _complete(serve(mode), timeout_s=10.0, trace=True)
     assert reply.outcome == "http_error" and "reply too large" in reply.detail and said in reply.detail, reply
     assert f"{MAX_REPLY_BYTES:,}" in reply.detail
     assert peak < 4 * MAX_REPLY_BYTES, f"{peak:,} bytes held"
 
 
-def test_a_bomb_fails_its_act_and_is_in_the_trail(hostile, tmp_path):
+def test_a_bomb_fails_its_act_and_is_in_the_trail(serve, tmp_path):
     import io
 
     from pipeline.jobs.evaluate import evaluate
 
     run = tmp_path / "run"
-    evaluate(f"vlm:{hostile('bomb')}", "test-1k", run, episodes=1, workers=0, resolution=64, shard_size=1,
+    evaluate(f"vlm:{serve('bomb')}", "test-1k", run, episodes=1, workers=0, resolution=64, shard_size=1,
              progress=False, summary=False, stream=io.StringIO(), vlm={"model": "loopback-perception"})
     [record] = read_audit(run / "vlm")
     assert record["outcome"] == "http_error" and "reply too large" in record["detail"]
@@ -118,7 +98,7 @@ def test_an_answer_over_the_length_limit_is_not_read():
     assert parse_answer("x" * 1000 + answer).closure == 0.5
 
 
-def test_a_long_answer_is_stored_as_a_prefix_with_its_size_and_hash_and_replays(hostile, tmp_path):
+def test_a_long_answer_is_stored_as_a_prefix_with_its_size_and_hash_and_replays(serve, tmp_path):
     import hashlib
     import io
 
@@ -127,7 +107,7 @@ def test_a_long_answer_is_stored_as_a_prefix_with_its_size_and_hash_and_replays(
     from pipeline.remote.loopback_vlm import LONG_CHARS
 
     run = tmp_path / "run"
-    evaluate(f"vlm:{hostile('long')}", "test-1k", run, episodes=1, workers=0, resolution=64, shard_size=1,
+    evaluate(f"vlm:{serve('long')}", "test-1k", run, episodes=1, workers=0, resolution=64, shard_size=1,
              progress=False, summary=False, stream=io.StringIO(), vlm={"model": "loopback-perception"})
     [record] = read_audit(run / "vlm")
     reply = record["reply"]
