@@ -6,7 +6,8 @@ The ``openai`` client's own transport bounds each socket read, not the exchange 
 dripping one byte a second holds it for ever) nor the bytes read (a 600 MB body, a gzip
 bomb). :class:`BoundedTransport` is an ``httpx2`` transport the client is given instead:
 it speaks HTTP/1.1 through :mod:`http.client`, every socket operation waiting at most the
-time left until the deadline, one connection per request (no keep-alive: a half-read
+time left until the deadline (the TLS handshake's, each at most the time left when the
+connection opened), one connection per request (no keep-alive: a half-read
 reply never leaks into the next). Proxies come from the environment as the client's would
 (``HTTP(S)_PROXY``, ``NO_PROXY``; ``https`` through a CONNECT tunnel). Faults are raised
 as ``httpx2`` errors the client maps to its own (``ReadTimeout`` to a timeout, ``ConnectError``
