@@ -23,6 +23,7 @@ from typing import Any
 from catalog.atomic import atomic_write_text
 from catalog.hashing import canonical_json, is_sha256, slice_hash
 from catalog.records import FileRecord, ShardRecord
+from catalog.repeat_sets import repeats_hint
 from catalog.storage import as_location
 from schemas.errors import ShardError, SpecError
 from schemas.formats import stored_formats
@@ -250,8 +251,9 @@ def load_manifest(directory: str | os.PathLike[str]) -> Manifest:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
+        hint = repeats_hint(directory)  # a folder of repeats says what to pass instead
         raise ShardError(
-            f"{path}: no catalog.json (not a built slice or run folder, or the build did not finish)"
+            hint or f"{path}: no catalog.json (not a built slice or run folder, or the build did not finish)"
         ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ShardError(f"{path}: cannot read: {exc}") from None

@@ -164,11 +164,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
     protocol = _protocol(args)
     if vlm is None:
         _importable_cwd(args.policy)
-    options = dict(deadline_s=args.deadline, isolate=not args.in_process, vlm=vlm, **cli.job_options(args))
+    options = dict(deadline_s=args.deadline, isolate=not args.in_process, vlm=vlm, require_success=True,
+                   **cli.job_options(args))
     if args.repeats != 1:
         evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
     else:
-        evaluate(args.policy, args.slice, args.out, protocol=protocol, require_success=True, **options)
+        evaluate(args.policy, args.slice, args.out, protocol=protocol, **options)
     return 0
 
 

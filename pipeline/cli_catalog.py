@@ -206,14 +206,11 @@ def _setting(value: object) -> str:
 def cmd_info(args: argparse.Namespace) -> int:
     # lazy, as the other commands: the job modules load numpy, pyarrow and the env
     from catalog.info import folder_info
-    from catalog.storage import as_location, is_remote
-    from pipeline.jobs.repeats import REPEATS_FILE, repeat_folders
+    from catalog.repeat_sets import repeats_hint
 
-    root = as_location(args.dir)
-    if not is_remote(root) and (root / REPEATS_FILE).is_file():
-        first = repeat_folders(root)[:1]
-        hint = f": run `catalog info {first[0]}` for one of them" if first else ""
-        raise SpecError(f"{args.dir}: a run of repeats ({REPEATS_FILE}), not one folder{hint}")
+    hint = repeats_hint(args.dir)  # as every reader of one run says it (catalog.manifest.load_manifest)
+    if hint:
+        raise SpecError(hint)
     info = folder_info(args.dir)
     if args.json:
         _print_json(info.to_dict())

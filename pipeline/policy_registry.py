@@ -91,6 +91,8 @@ class PolicyKind:
     ``replay(config, records)`` makes the policy that re-runs an episode from them
     (``summarize_audit(records)``: the run summary's line about them).
     ``names_ref`` prefixes the reference to the errors of describing the policy.
+    ``check(config)`` makes sure, in the driver before the first episode, that what every
+    episode needs is there (a VLM's endpoint accepts a connection): PolicyError if not.
     """
 
     name: str
@@ -102,6 +104,7 @@ class PolicyKind:
     replay: Callable[[Config, list[dict[str, Any]]], Policy] | None = None
     summarize_audit: Callable[[list[dict[str, Any]]], str] | None = None
     names_ref: bool = False
+    check: Callable[[Config | None], None] | None = None
 
     def manifest(self, config: Config | None) -> dict[str, Any]:
         """The run manifest's keys for this configuration."""
@@ -216,6 +219,13 @@ def replay_vlm(config: Config, records: list[dict[str, Any]]) -> Policy:
     return VLMPolicy(VLMConfig(**config), transport=RecordedTransport(records))
 
 
+def check_vlm(config: Config | None) -> None:
+    from pipeline.policies.vlm_http import check_reachable
+
+    if config is not None:
+        check_reachable(config["url"], float(config["timeout_s"]), VLM_PREFIX + public_url(config["url"]))
+
+
 def summarize_vlm(records: list[dict[str, Any]]) -> str:
     from pipeline.policies.vlm import audit_summary
 
@@ -244,4 +254,5 @@ register(PolicyKind("builtin", lambda ref: True, make_builtin))
 register(PolicyKind("module", lambda ref: ":" in ref, make_module))
 register(PolicyKind("remote", lambda ref: ref.startswith(("ws://", "wss://")), make_remote, names_ref=True))
 register(PolicyKind("vlm", lambda ref: ref.startswith(VLM_PREFIX), make_vlm, configure=configure_vlm,
-                    manifest_key="vlm", audit_dir="vlm", replay=replay_vlm, summarize_audit=summarize_vlm))
+                    manifest_key="vlm", audit_dir="vlm", replay=replay_vlm, summarize_audit=summarize_vlm,
+                    check=check_vlm))

@@ -326,6 +326,8 @@ def evaluate(
     config = kind.configure(policy_ref, vlm)
     options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config)
     name, privileged = describe_policy(policy_ref, options)
+    if kind.check is not None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run
+        kind.check(config)
     settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate), config,
                             protocol, kind.name)
     if is_url(out) and kind.audit_dir is not None:

@@ -2,7 +2,9 @@
 the protocol with ``repeat=r`` (so a seeded perturbation differs between repeats and is
 the same whenever repeat r is run again), one ordinary run folder per repeat
 (``RUN/repeat-00``, ...), and ``RUN/repeats.json`` naming them with their manifest hashes.
-``scoring eval RUN`` reads such a folder as one robustness experiment.
+``scoring eval RUN`` reads such a folder as one robustness experiment; the folder's layout
+(:data:`REPEATS_FILE`, :func:`repeat_folders`) is :mod:`catalog.repeat_sets`'s, which every
+reader of one run uses to refuse a folder of repeats saying what to pass instead.
 """
 
 from __future__ import annotations
@@ -13,29 +15,18 @@ from pathlib import Path
 from typing import Any
 
 from catalog.atomic import atomic_open
-from catalog.manifest import Manifest
+from catalog.manifest import Manifest, load_manifest
+from catalog.repeat_sets import REPEATS_FILE, repeat_folders
 from catalog.storage import is_url
 from pipeline.loop.conditions import MAX_REPEATS, EvalProtocol
-from schemas.errors import SpecError
+from schemas.errors import AllEpisodesFailed, SpecError
 
-REPEATS_FILE = "repeats.json"
+#: The folder layout's names stay importable from here (``pipeline migrate``, ``catalog info``).
+__all__ = ["REPEATS_FILE", "evaluate_repeats", "repeat_folder", "repeat_folders", "repeats_index"]
 
 
 def repeat_folder(repeat: int) -> str:
     return f"repeat-{repeat:02d}"
-
-
-def repeat_folders(root: Path) -> list[Path]:
-    """The repeat folders ``root/repeats.json`` names (each a plain folder name inside ``root``)."""
-    path = root / REPEATS_FILE
-    try:
-        names = [entry["path"] for entry in json.loads(path.read_text())["runs"]]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise SpecError(f"{path}: not a readable repeats index ({type(exc).__name__})") from None
-    for name in names:
-        if not isinstance(name, str) or "/" in name or "\\" in name or name in ("", ".", ".."):
-            raise SpecError(f"{path}: a repeat's path must be a folder name, got {str(name)[:60]!r}")
-    return [root / name for name in names]
 
 
 def repeats_index(policy: str, slice_name: str, protocol: EvalProtocol, manifests: list[Manifest]) -> dict[str, Any]:
@@ -56,7 +47,9 @@ def evaluate_repeats(
 ) -> list[Manifest]:
     """Run ``repeats`` evaluations into ``out/repeat-NN`` and index them (module docstring).
     A folder holding a single run, or repeats of another experiment, is refused unless
-    ``overwrite`` (then each repeat folder is replaced as ``evaluate`` replaces a run)."""
+    ``overwrite`` (then each repeat folder is replaced as ``evaluate`` replaces a run).
+    With ``require_success``, when every episode of every repeat failed, AllEpisodesFailed
+    (exit 3, as for one run) is raised after all of them and the index are written."""
     from pipeline.jobs.evaluate import evaluate
 
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 2 <= repeats <= MAX_REPEATS:
@@ -77,12 +70,19 @@ def evaluate_repeats(
             raise SpecError(f"{out} holds repeats of another experiment: use another --out, or --overwrite")
     manifests = []
     name = policy_ref
+    failed: list[AllEpisodesFailed] = []
     for r in range(repeats):
-        manifest = evaluate(policy_ref, slice_name, out / repeat_folder(r), protocol=dataclasses.replace(protocol, repeat=r),
-                            **options)
+        try:
+            manifest = evaluate(policy_ref, slice_name, out / repeat_folder(r),
+                                protocol=dataclasses.replace(protocol, repeat=r), **options)
+        except AllEpisodesFailed as exc:  # written all the same: its manifest is read back below
+            failed.append(exc)
+            manifest = load_manifest(out / repeat_folder(r))
         name = str(manifest.extra.get("policy", policy_ref))
         manifests.append(manifest)
     out.mkdir(parents=True, exist_ok=True)
     with atomic_open(index_path, "w") as handle:
         handle.write(json.dumps(repeats_index(name, slice_name, protocol, manifests), indent=2, sort_keys=True) + "\n")
+    if len(failed) == repeats:
+        raise AllEpisodesFailed(f"in each of the {repeats} repeats {failed[0]}")
     return manifests

@@ -265,7 +265,7 @@ class VLMPolicy:
         outcome, detail, answer = reply.outcome, reply.detail, None
         if outcome == "answered":
             try:
-                answer = parse_answer(reply.content, reply.refusal, reply.finish_reason)
+                answer = parse_answer(reply.content, reply.refusal, reply.finish_reason, reply.content_chars)
                 outcome = "ok"
             except AnswerError as exc:
                 outcome, detail = exc.kind, exc.detail

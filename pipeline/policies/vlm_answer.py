@@ -11,6 +11,9 @@ instead give ``"joint_angles": [15 numbers]`` (radians), which are used as they 
 
 Reading is lenient (:func:`parse_answer`): code fences and prose around the object are
 ignored, the first balanced ``{...}`` is read, a closure outside [0, 1] is clipped.
+It is bounded and linear in the answer's length (one pass, no rescans): at most
+:data:`MAX_ANSWER_CHARS` characters and :data:`MAX_ANSWER_DEPTH` levels of nesting are
+read, so no answer can hold an episode (no deadline thread is needed).
 What cannot be read raises :class:`AnswerError` with its kind: ``refusal`` when the
 model declined (the API's ``refusal`` field, a ``content_filter`` finish, or a reply
 with no JSON that reads as a refusal), ``parse_error`` otherwise.
@@ -36,6 +39,11 @@ OUTPUT_SCHEMA = {
 }
 _REFUSAL = re.compile(r"\b(i can(?:no|')t|i am unable|i'm unable|i'm sorry|i am sorry|unable to help|cannot assist)\b", re.I)
 _FENCE = re.compile(r"```(?:json)?", re.I)
+#: Longest answer read (characters): the answer is one small object (~50 tokens), and
+#: ``max_tokens`` is at most 4,096 tokens; a longer text is a parse_error, not read.
+MAX_ANSWER_CHARS = 65_536
+#: Deepest nesting of braces and brackets read (the answer's object holds one list).
+MAX_ANSWER_DEPTH = 32
 
 
 class AnswerError(Exception):
@@ -65,26 +73,42 @@ class Answer:
 
 
 def _first_object(text: str) -> str | None:
+    """The first balanced ``{...}`` of ``text`` (the outermost one completed first), in one
+    pass: a stack of open braces, string-aware; AnswerError when braces and brackets nest
+    deeper than :data:`MAX_ANSWER_DEPTH` (the answer is two levels deep)."""
     start = text.find("{")
-    while start >= 0:
-        depth, in_string, escaped = 0, False, False
-        for k in range(start, len(text)):
-            ch = text[k]
-            if in_string:
-                escaped = ch == "\\" and not escaped
-                if ch == '"' and not escaped:
-                    in_string = False
-                continue
-            if ch == '"':
-                in_string = True
-            elif ch == "{":
-                depth += 1
-            elif ch == "}":
-                depth -= 1
-                if depth == 0:
-                    return text[start : k + 1]
-        start = text.find("{", start + 1)
-    return None
+    if start < 0:
+        return None
+    opened: list[int] = []
+    brackets, in_string, escaped = 0, False, False
+    best: tuple[int, int] | None = None
+    for k in range(start, len(text)):
+        ch = text[k]
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "{[":
+            if ch == "{":
+                opened.append(k)
+            else:
+                brackets += 1
+            if len(opened) + brackets > MAX_ANSWER_DEPTH:
+                raise AnswerError("parse_error", f"the answer nests deeper than {MAX_ANSWER_DEPTH} levels")
+        elif ch == "]":
+            brackets = max(brackets - 1, 0)
+        elif ch == "}" and opened:
+            first = opened.pop()
+            if best is None or first < best[0]:
+                best = (first, k)
+            if not opened:  # the outermost object is complete: nothing later starts earlier
+                break
+    return None if best is None else text[best[0] : best[1] + 1]
 
 
 def _numbers(value: object, count: int, name: str) -> np.ndarray:
@@ -98,12 +122,18 @@ def _numbers(value: object, count: int, name: str) -> np.ndarray:
     return np.array(out, dtype=np.float64)
 
 
-def parse_answer(content: str | None, refusal: str | None = None, finish_reason: str | None = None) -> Answer:
-    """Read a chat completion's message (see the module docstring)."""
+def parse_answer(
+    content: str | None, refusal: str | None = None, finish_reason: str | None = None, length: int | None = None
+) -> Answer:
+    """Read a chat completion's message (see the module docstring). ``length``: the whole
+    answer's length when ``content`` is only its stored prefix."""
     if refusal:
         raise AnswerError("refusal", f"the model refused: {refusal[:120]}")
     if finish_reason == "content_filter":
         raise AnswerError("refusal", "the answer was withheld by the server's content filter")
+    chars = len(content or "") if length is None else length
+    if chars > MAX_ANSWER_CHARS:
+        raise AnswerError("parse_error", f"the answer is {chars:,} characters; at most {MAX_ANSWER_CHARS:,} are read")
     text = _FENCE.sub("", content or "")
     block = _first_object(text)
     if block is None:
@@ -113,6 +143,8 @@ def parse_answer(content: str | None, refusal: str | None = None, finish_reason:
         data = json.loads(block)
     except json.JSONDecodeError as exc:
         raise AnswerError("parse_error", f"the answer's JSON does not parse ({exc.msg}): {block[:120]!r}") from None
+    except RecursionError:  # unreachable below MAX_ANSWER_DEPTH; kept as the last guard
+        raise AnswerError("parse_error", "the answer's JSON nests too deep") from None
     if not isinstance(data, dict):
         raise AnswerError("parse_error", f"the answer is not a JSON object: {block[:120]!r}")
     palm = _numbers(data.get("palm_target"), 3, "palm_target")

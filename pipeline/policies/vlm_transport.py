@@ -4,15 +4,18 @@
 Both return a :class:`Reply`; transport faults come back as replies with ``outcome``
 ``http_error`` or ``timeout``, never as exceptions, so that the policy decides what a
 fault does to its episode. The client makes no retries of its own (one request, one
-answer: what the audit trail shows is what happened). The API key comes from the
+answer: what the audit trail shows is what happened), over :mod:`pipeline.policies.vlm_http`,
+which bounds the whole exchange by the timeout and the reply's bytes. The API key comes from the
 environment variable the run names, never from a flag or a file, and never reaches what
 the run stores: every text of a reply (answer, refusal, error detail) has the key and any
 ``Bearer ...`` credential replaced by ``[redacted]`` (an endpoint may echo its headers),
-and token counts that are not whole numbers (NaN from a broken endpoint) are dropped.
+token counts that are not whole numbers (NaN from a broken endpoint) are dropped, and an
+answer longer than the parser reads is kept as a prefix with its length and sha256.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import time
@@ -20,10 +23,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
+from pipeline.policies.vlm_answer import MAX_ANSWER_CHARS
 from schemas.errors import PolicyError
 
 REDACTED = "[redacted]"
 _BEARER = re.compile(r"(?i)bearer\s+[^\s\"',;]+")
+#: Longest refusal or finish reason kept (characters; the rest is cut).
+MAX_NOTE_CHARS = 1000
 #: Largest token count kept from a reply's ``usage`` (anything else is recorded as unknown).
 MAX_TOKENS_COUNTED = 10**9
 
@@ -40,51 +46,65 @@ class Reply:
     prompt_tokens: int | None = None
     completion_tokens: int | None = None
     latency_ms: float = 0.0
+    #: When ``content`` is a prefix (a longer answer than is kept): the whole's length and sha256.
+    content_chars: int | None = None
+    content_sha256: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out = {
             "outcome": self.outcome, "content": self.content, "refusal": self.refusal,
             "finish_reason": self.finish_reason, "detail": self.detail,
             "usage": {"prompt_tokens": self.prompt_tokens, "completion_tokens": self.completion_tokens},
             "latency_ms": round(self.latency_ms, 2),
         }
+        if self.content_chars is not None:
+            out |= {"content_chars": self.content_chars, "content_sha256": self.content_sha256}
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Reply:
         usage = data.get("usage") or {}
         return cls(data["outcome"], data.get("content"), data.get("refusal"), data.get("finish_reason"),
                    data.get("detail", ""), usage.get("prompt_tokens"), usage.get("completion_tokens"),
-                   float(data.get("latency_ms", 0.0)))
+                   float(data.get("latency_ms", 0.0)), data.get("content_chars"), data.get("content_sha256"))
 
 
 class HttpTransport:
     """Chat completions over HTTP with the ``openai`` client (base URL, timeout, no retries)."""
 
     def __init__(self, url: str, api_key_env: str, timeout_s: float) -> None:
-        try:
+        try:  # lazy: the client and its HTTP stack load when a VLM run needs them
             import openai
+
+            from pipeline.policies import vlm_http
         except ImportError:  # pragma: no cover - openai is a dependency
             raise PolicyError("VLM policies need the openai package: pip install openai") from None
-        self._openai = openai
+        self._openai, self._http = openai, vlm_http
         key = os.environ.get(api_key_env) or "not-needed"  # local servers accept any key
         self._key = key
-        self.client = openai.OpenAI(base_url=url, api_key=key, timeout=timeout_s, max_retries=0)
+        self.client = openai.OpenAI(base_url=url, api_key=key, timeout=timeout_s, max_retries=0,
+                                    http_client=vlm_http.bounded_client(timeout_s))
 
     def complete(self, request: dict[str, Any]) -> Reply:
         """One request; the reply as stored (secrets redacted, usage checked)."""
         return stored_reply(self._exchange(request), self._key)
 
     def _exchange(self, request: dict[str, Any]) -> Reply:
-        openai = self._openai
+        openai, http = self._openai, self._http
         start = time.perf_counter()
         try:
             response = self.client.chat.completions.create(**request)
+        except http.ReplyTooLarge as exc:
+            return Reply("http_error", detail=f"reply too large: {exc}", latency_ms=_ms(start))
         except openai.APITimeoutError:
-            return Reply("timeout", detail="no answer within the timeout", latency_ms=_ms(start))
+            return Reply("timeout", detail="no whole answer within the timeout", latency_ms=_ms(start))
         except openai.APIStatusError as exc:
             return Reply("http_error", detail=f"HTTP {exc.status_code}: {str(exc.message)[:160]}", latency_ms=_ms(start))
         except openai.APIConnectionError as exc:
-            return Reply("http_error", detail=f"connection failed: {str(exc)[:160]}", latency_ms=_ms(start))
+            cause = exc.__cause__
+            if isinstance(cause, http.UnreadableReply):
+                return Reply("http_error", detail=f"unreadable reply ({str(cause)[:160]})", latency_ms=_ms(start))
+            return Reply("http_error", detail=f"connection failed: {str(cause or exc)[:160]}", latency_ms=_ms(start))
         except openai.OpenAIError as exc:
             return Reply("http_error", detail=f"{type(exc).__name__}: {str(exc)[:160]}", latency_ms=_ms(start))
         except (ValueError, RecursionError) as exc:  # a body that is not JSON, or nested past the parser's depth
@@ -146,16 +166,24 @@ def _count(value: object) -> int | None:
 
 
 def stored_reply(reply: Reply, key: str) -> Reply:
-    """``reply`` as the run may store it: every text redacted, token counts whole numbers or None."""
+    """``reply`` as the run may store it: every text redacted, token counts whole numbers or
+    None, and an answer longer than the parser reads (:data:`MAX_ANSWER_CHARS`) kept as its
+    prefix with the whole's length and sha256 (the policy reads the stored reply, so a replay
+    sees what the run saw); a refusal or finish reason is cut to :data:`MAX_NOTE_CHARS`."""
 
-    def clean(value: str | None) -> str | None:
-        return None if value is None else redact(str(value), key)
+    def clean(value: str | None, limit: int) -> str | None:
+        return None if value is None else redact(str(value)[:limit], key)
 
+    content, chars, digest = clean(reply.content, len(reply.content or "")), None, None
+    if content is not None and len(content) > MAX_ANSWER_CHARS:
+        chars, digest = len(content), hashlib.sha256(content.encode("utf-8", "surrogatepass")).hexdigest()
+        content = content[:MAX_ANSWER_CHARS]
     return replace(
         reply,
-        content=clean(reply.content), refusal=clean(reply.refusal), finish_reason=clean(reply.finish_reason),
-        detail=redact(reply.detail, key),
+        content=content, refusal=clean(reply.refusal, MAX_NOTE_CHARS),
+        finish_reason=clean(reply.finish_reason, MAX_NOTE_CHARS), detail=redact(reply.detail, key),
         prompt_tokens=_count(reply.prompt_tokens), completion_tokens=_count(reply.completion_tokens),
+        content_chars=chars, content_sha256=digest,
     )
 
 

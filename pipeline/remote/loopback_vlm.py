@@ -19,11 +19,13 @@ from __future__ import annotations
 
 import argparse
 import base64
+import functools
 import json
 import re
 import sys
 import threading
 import time
+import zlib
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
@@ -34,7 +36,10 @@ from generators.hand import REST_JOINTS, forward_kinematics
 from pipeline.policies.perception import ObjectLocator
 from schemas.scene import LOC_TOLERANCE, PALM_HOVER
 
-MODES = ("ok", "malformed", "prose", "error", "slow", "refuse", "flaky")
+MODES = ("ok", "malformed", "prose", "error", "slow", "refuse", "flaky", "drip", "huge", "bomb", "long")
+LONG_CHARS = 2**20
+HUGE_BYTES = 64 * 2**20
+BOMB_BYTES = 100 * 2**20
 MODEL = "loopback-perception"
 _PALM = re.compile(r"palm centre at \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]")
 _TASK = re.compile(r"Task: (.*)")
@@ -80,6 +85,14 @@ def perceive(text: str, images: list[np.ndarray]) -> dict[str, Any]:
     return {"palm_target": target, "closure": 1.0 if close else 0.0}
 
 
+@functools.cache
+def _bomb() -> bytes:
+    """A gzip body of :data:`BOMB_BYTES` of spaces (it compresses ~1000:1)."""
+    packer = zlib.compressobj(9, zlib.DEFLATED, 16 + zlib.MAX_WBITS)
+    block = b" " * 2**20
+    return b"".join([*(packer.compress(block) for _ in range(BOMB_BYTES // len(block))), packer.flush()])
+
+
 class _Handler(BaseHTTPRequestHandler):
     server: LoopbackServer
 
@@ -88,11 +101,32 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _send(self, status: int, body: dict[str, Any]) -> None:
         data = json.dumps(body).encode()
+        mode = self.server.mode
+        if mode == "huge" and status == 200:
+            data = data[:-1] + b" " * HUGE_BYTES + b"}"
+        encoding = None
+        if mode == "bomb" and status == 200:
+            data, encoding = _bomb(), "gzip"
+        if mode == "drip":
+            head = f"HTTP/1.0 {status} OK\r\nContent-Type: application/json\r\nContent-Length: {len(data)}\r\n\r\n"
+            for byte in head.encode() + data:
+                self.wfile.write(bytes([byte]))
+                self.wfile.flush()
+                time.sleep(self.server.delay)
+            return
         self.send_response(status)
         self.send_header("Content-Type", "application/json")
+        if encoding:
+            self.send_header("Content-Encoding", encoding)
         self.send_header("Content-Length", str(len(data)))
         self.end_headers()
         self.wfile.write(data)
+
+    def handle_one_request(self) -> None:
+        try:
+            super().handle_one_request()
+        except (BrokenPipeError, ConnectionResetError):  # a client that stopped reading (a bounded one)
+            self.close_connection = True
 
     def do_GET(self) -> None:  # noqa: N802 - http.server's name
         if self.path.rstrip("/").endswith("/models"):
@@ -127,6 +161,8 @@ class _Handler(BaseHTTPRequestHandler):
         else:
             answer = json.dumps(perceive(text, images))
             content = f"Here is my plan.\n```json\n{answer}\n```\nGood luck." if mode == "prose" else answer
+            if mode == "long":
+                content = "Let me think. " * (LONG_CHARS // 13) + answer
         usage = {"prompt_tokens": len(text.split()) + 85 * len(images), "completion_tokens": len((content or "").split())}
         usage["total_tokens"] = usage["prompt_tokens"] + usage["completion_tokens"]
         self._send(200, {

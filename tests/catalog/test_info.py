@@ -134,7 +134,7 @@ def _edited(root: Path) -> None:
     [
         (None, "missing", "missing: no such folder"),
         (lambda root: root.mkdir(), "empty", "no catalog.json (not a built slice or run folder"),
-        (_repeats, "repeats", "a run of repeats (repeats.json), not one folder: run `catalog info "),
+        (_repeats, "repeats", "is a folder of 1 repeat (repeat-00, indexed by repeats.json), not one run: pass one"),
         (lambda root: write_slice(root / "linear-fast"), "out",
          "no catalog.json here; it holds Dyana folders (linear-fast): run `catalog info "),
         (_edited, "edited", "does not match the slice, seed, settings"),

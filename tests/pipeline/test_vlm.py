@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import io
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,25 +21,6 @@ from scoring.cli import main as scoring_main
 
 RESOLUTION = 64
 SECRET = "sk-dyana-test-secret-never-written"
-
-
-@pytest.fixture
-def serve():
-    """Start the loopback server in a separate process; returns its base URL."""
-    started: list[subprocess.Popen] = []
-
-    def start(mode: str = "ok", delay: float = 5.0) -> str:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "pipeline.remote.loopback_vlm", "--mode", mode, "--delay", str(delay)],
-            stdout=subprocess.PIPE, text=True,
-        )
-        started.append(process)
-        return process.stdout.readline().strip()
-
-    yield start
-    for process in started:
-        process.terminate()
-        process.wait(timeout=10)
 
 
 def _eval(url: str, out: Path, episodes: int = 2, **vlm) -> None:
