@@ -98,7 +98,7 @@ def load_repeats(folder: str | os.PathLike[str]) -> RepeatSet:
 
 def _per_episode(run: RunData) -> EpisodeMetrics:
     return episode_metrics(run.offsets, run.palm_xyz, run.object_xyz, run.joint_angles, run.fingertip_distance,
-                           run.grasp_angles, run.acting_budget, run.hover_offset)
+                           run.grasp_angles, run.acting_budget, run.hover_offset, run.top_offset)
 
 
 def _consistency(success: np.ndarray) -> dict[str, int]:

@@ -25,7 +25,9 @@ def closing(k: int, at: int) -> np.ndarray:
 
 
 def xs(*values):
-    return [[v, 2.0, 0.0] for v in values]
+    """Palm points along X at y = 0.9: 0.4 over the top of the fixtures' objects (size 1, centre
+    at y = 0), inside the ``paper`` reading's height band for S_loc."""
+    return [[v, 0.9, 0.0] for v in values]
 
 
 # Observe frames sit right on the object (d = 0) and are closed: they must not count.
@@ -63,12 +65,14 @@ def test_json_keys_and_values(capsys, run):
     assert result["episodes"] == 3 and result["errors"] == 1
     assert result["label"] == "oracle" and result["policy"] == "oracle" and not result["ground_truth"]
     m = result["metrics"]
-    assert list(m) == ["S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time", "S_grasp_contact"]
+    assert list(m) == ["S_grasp_contact", "S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time"]  # headline first
     # the error episode is a failure although its frames equal GOOD's
     assert m["S_loc"] == pytest.approx(100 / 3)
     assert m["S_gra"] == pytest.approx(100 / 3)
     assert m["E_loc"] == pytest.approx((0.1 + 1.0 + 0.1) / 3, rel=1e-6)
-    assert m["E_gra"] == pytest.approx((0.05 + 0.6 + 0.05) / 3, rel=1e-6)
+    # E_gra at completion (the paper reading): GOOD completes at its 0.05 frame; MISS never
+    # completes, so its last acting frame's 0.7 counts (the lenient reading's minimum was 0.6)
+    assert m["E_gra"] == pytest.approx((0.05 + 0.7 + 0.05) / 3, rel=1e-6)
     steps = np.array([1.0, 0.8])  # palm 2 -> 1 -> 0.2
     assert m["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()), rel=1e-6)
     assert m["Q_line"] == pytest.approx(1.0)
@@ -377,7 +381,7 @@ def test_outputs_to_a_device_and_a_fifo_are_written_as_such(tmp_path, capsys, ru
     try:
         code, _, err = run_main(capsys, "eval", str(run), "--markdown", str(device), "--csv", str(fifo))
         assert code == 0, err
-        assert os.read(reader, 1 << 16).startswith(b"label,run,slice,policy,breakdown")
+        assert os.read(reader, 1 << 16).startswith(b"label,run,slice,policy,reading,breakdown")
     finally:
         os.close(reader)
     assert stat.S_ISCHR(device.lstat().st_mode) and stat.S_ISFIFO(fifo.lstat().st_mode)
