@@ -44,7 +44,7 @@ def chance_row(runs: Sequence[tuple[str, Summary]]) -> ChanceRow:
     metrics: dict[str, float | None] = {}
     best_of: dict[str, str | None] = {}
     for name in METRIC_NAMES:
-        given = [(s.metrics[name], label) for label, s in runs if s.metrics[name] is not None]
+        given = [(value, label) for label, s in runs if (value := s.metrics[name]) is not None]
         if not given:
             metrics[name] = best_of[name] = None
             continue

@@ -140,9 +140,9 @@ def path_quality(offsets: np.ndarray, points: np.ndarray, steps: str = "keep") -
     owner = np.repeat(np.arange(n), counts)
 
     same = owner[1:] == owner[:-1]
-    steps = (points[1:] - points[:-1])[same]
+    moves = (points[1:] - points[:-1])[same]
     step_owner = owner[1:][same]
-    length = np.linalg.norm(steps, axis=1)
+    length = np.linalg.norm(moves, axis=1)
 
     kept = length > STEP_MIN if drop else np.ones(len(length), dtype=bool)
     kept_owner = step_owner[kept]
@@ -162,7 +162,7 @@ def path_quality(offsets: np.ndarray, points: np.ndarray, steps: str = "keep") -
     directed = chord_length >= SEGMENT_MIN
     seg = (length > SEGMENT_MIN) & directed[step_owner]
     seg_owner = step_owner[seg]
-    cosine = np.einsum("ij,ij->i", steps[seg], chord[seg_owner]) / (length[seg] * chord_length[seg_owner])
+    cosine = np.einsum("ij,ij->i", moves[seg], chord[seg_owner]) / (length[seg] * chord_length[seg_owner])
     # keep: every step counts in the denominator (a directionless one adds 0); drop: only segments
     seg_count = np.bincount(seg_owner, minlength=n) if drop else np.bincount(step_owner, minlength=n) * directed
     q_line = np.zeros(n)

@@ -394,3 +394,53 @@ def test_csv_to_dev_null_leaves_dev_null_a_device(capsys, run):
     code, _, err = run_main(capsys, "eval", str(run), "--csv", "/dev/null", "--markdown", "/dev/null")
     assert code == 0, err
     assert stat.S_ISCHR(os.lstat("/dev/null").st_mode)
+
+
+# --- readings and the chance row ---------------------------------------------------------
+
+
+def test_reading_flag_switches_the_ambiguous_rules(capsys, run):
+    _, out, _ = run_main(capsys, "eval", str(run), "--json")
+    paper = json.loads(out)
+    _, out, _ = run_main(capsys, "eval", str(run), "--json", "--reading", "lenient")
+    lenient = json.loads(out)
+    assert (paper["reading"], lenient["reading"]) == ("paper", "lenient")
+    # MISS never completes its grasp: at its last frame 0.7, its minimum 0.6
+    assert lenient["metrics"]["E_gra"] == pytest.approx((0.05 + 0.6 + 0.05) / 3, rel=1e-6)
+    assert paper["metrics"]["E_gra"] == pytest.approx((0.05 + 0.7 + 0.05) / 3, rel=1e-6)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["eval", str(run), "--reading", "median"])
+    assert exit_info.value.code == 2 and "median" in capsys.readouterr().err
+
+
+def test_headline_is_the_first_metric_column_everywhere(tmp_path, capsys, run):
+    md, table = tmp_path / "t.md", tmp_path / "t.csv"
+    _, out, _ = run_main(capsys, "eval", str(run), "--markdown", str(md), "--csv", str(table))
+    assert out.splitlines()[0].split()[3] == "S_grasp_contact"
+    assert md.read_text().split("| Errors | ", 1)[1].startswith("S_grasp_contact (%)")
+    header = table.read_text().splitlines()[0].split(",")
+    assert header[header.index("grasped") + 1] == "S_grasp_contact"
+
+
+def test_chance_row_is_the_best_blind_value_per_metric(tmp_path, capsys, run):
+    # two blind runs on the run's three episodes: one localizes the first, the other never
+    hit = write_run(tmp_path / "hit", [Ep(**GOOD), Ep(**MISS), Ep(**MISS)], policy="blind-centre")
+    miss = write_run(tmp_path / "miss", [Ep(**MISS), Ep(**MISS), Ep(**MISS)], policy="blind-sweep")
+    table = tmp_path / "t.csv"
+    code, out, err = run_main(capsys, "eval", str(run), "--chance", str(hit), str(miss), "--csv", str(table))
+    assert code == 0, err
+    row = next(line for line in out.splitlines() if line.startswith("chance (best blind)"))
+    assert "33.33" in row  # S_grasp_contact, S_loc and S_gra of the "hit" run
+    _, out, _ = run_main(capsys, "eval", str(run), "--chance", str(hit), str(miss), "--json")
+    chance = json.loads(out)["chance"]
+    assert chance["metrics"]["S_loc"] == pytest.approx(100 / 3) and chance["best_of"]["S_loc"] == "blind-centre"
+    assert chance["metrics"]["E_loc"] == pytest.approx((0.1 + 1.0 + 1.0) / 3, rel=1e-6)  # the lower
+    assert chance["runs"] == ["blind-centre", "blind-sweep"]
+    assert table.read_text().splitlines()[-1].startswith("chance (best blind)")
+
+
+def test_chance_runs_on_other_episodes_are_refused(tmp_path, capsys, run):
+    short = write_run(tmp_path / "short", [Ep(**MISS), Ep(**MISS)], policy="blind-centre")
+    code, out, err = run_main(capsys, "eval", str(run), "--chance", str(short))
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "--chance short" in err and "other episodes" in err
