@@ -133,7 +133,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     check_outputs(args)
     reports = evaluate(args.runs, args.obstacle_contact, args.reading)
     chance = None if not args.chance else chance_of(args.chance, reports, args.obstacle_contact, args.reading)
-    robust = [robustness(load_repeats(run)) for run in args.runs if is_repeats_folder(run)]
+    robust = [robustness(load_repeats(run), args.reading) for run in args.runs if is_repeats_folder(run)]
     if args.json:
         payload = [report_dict(r) for r in reports]
         if robust or chance:
