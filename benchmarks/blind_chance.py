@@ -7,8 +7,10 @@ on test-1k episodes ``0..--episodes-1``, scores the recordings as ``scoring eval
 and ``lenient`` readings, builds the chance row (best blind value per metric), and writes
 ``benchmarks/results/blind_chance.json``: per policy and reading the eight metrics and the
 headline's count, the chance row per reading, and whether the headline check holds (each
-blind policy <= 5% S_grasp_contact, the oracle 100%). CPU-heavy (about 1 episode/s):
-run it alone, e.g. ``nice python benchmarks/blind_chance.py``; tiny check:
+blind policy <= 5% S_grasp_contact, the oracle 100%); and beside it ``blind_chance.md``, the
+table of the ``paper`` reading with its chance row (the results page shows it;
+``--table-only`` rewrites it from the JSON). CPU-heavy (about 1 episode/s): run it alone,
+e.g. ``nice python benchmarks/blind_chance.py``; tiny check:
 ``python benchmarks/blind_chance.py --episodes 3 --out /tmp/chance.json``.
 """
 
@@ -25,7 +27,7 @@ from generators.recipe import spec_for  # noqa: E402
 from pipeline.loop.rollout import run_episode  # noqa: E402
 from pipeline.loop.wrappers import loop_env  # noqa: E402
 from pipeline.policies.base import BLIND, make_policy  # noqa: E402
-from scoring.chance import chance_row  # noqa: E402
+from scoring.chance import CHANCE_LABEL, chance_row  # noqa: E402
 from scoring.io import from_recordings  # noqa: E402
 from scoring.metrics import HEADLINE, READINGS  # noqa: E402
 from scoring.report import score_run  # noqa: E402
@@ -35,12 +37,38 @@ OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "blind
 BLIND_BOUND = 5.0
 
 
+def _cell(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
+def write_table(result: dict, json_path: str) -> None:
+    """The ``paper`` reading's scores and chance row as Markdown, beside the JSON (``.md``)."""
+    names = list(result["scores"]["oracle"]["paper"]["metrics"])
+    lines = ["## Chance levels", "",
+             f"test-1k episodes 0-{result['episodes'] - 1}, {result['resolution']} px, `paper` reading. "
+             "The chance row is the best blind value per metric.", "",
+             "| Policy | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    rows = [(name, result["scores"][name]["paper"]["metrics"]) for name in result["policies"]]
+    rows.append((CHANCE_LABEL, result["chance"]["paper"]["metrics"]))
+    lines += [f"| {name} | " + " | ".join(_cell(m[k]) for k in names) + " |" for name, m in rows]
+    holds = "holds" if result["headline"]["holds"] else "FAILS"
+    lines += ["", f"Headline check ({result['headline']['metric']} <= {result['headline']['blind_bound_percent']:g}% "
+              f"for every blind policy, 100% for the oracle): {holds}.", ""]
+    with open(os.path.splitext(json_path)[0] + ".md", "w") as handle:
+        handle.write("\n".join(lines))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--resolution", type=int, default=224)
     parser.add_argument("--out", default=OUT)
+    parser.add_argument("--table-only", action="store_true", help="rewrite the .md table from the --out JSON")
     args = parser.parse_args()
+    if args.table_only:
+        with open(args.out) as handle:
+            write_table(json.load(handle), args.out)
+        return
     start = time.perf_counter()
     load_start = [round(v, 2) for v in os.getloadavg()]
     specs = [spec_for("test-1k", i) for i in range(args.episodes)]
@@ -77,6 +105,7 @@ def main() -> None:
     with open(args.out, "w") as handle:
         json.dump(result, handle, indent=1)
         handle.write("\n")
+    write_table(result, args.out)
     print(json.dumps({name: scores[name]["paper"]["metrics"][HEADLINE] for name in scores}), "holds:", holds)
 
 
