@@ -115,6 +115,13 @@ def _segment_min(values: np.ndarray, offsets: np.ndarray, empty: float) -> np.nd
     return out
 
 
+def _at_rows(values: np.ndarray, rows: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``values[rows]`` where ``valid`` (one row per episode), NaN elsewhere."""
+    out = np.full(len(rows), np.nan)
+    out[valid] = values[rows[valid]]
+    return out
+
+
 def path_quality(offsets: np.ndarray, points: np.ndarray, steps: str = "keep") -> tuple[np.ndarray, np.ndarray]:
     """``(Q_smooth, Q_line)`` of each path (points ``offsets[i]:offsets[i + 1]``, shape (m, 3)).
 
@@ -279,13 +286,12 @@ def episode_metrics(
     has_frames = counts > 0
     if reading.e_loc == "minimum":
         e_loc = _segment_min(d_xz, offsets, np.nan)
-    else:
-        e_loc = np.where(has_frames, d_xz[np.where(has_frames, last, 0)] if m else np.nan, np.nan)
+    else:  # the endpoint: the last acting frame
+        e_loc = _at_rows(d_xz, last, has_frames)
     if reading.e_gra == "minimum":
         e_gra = _segment_min(tips, offsets, np.nan)
-    else:
-        at = np.where(t_gra >= 0, offsets[:-1] + t_gra, last)
-        e_gra = np.where(has_frames, tips[np.where(has_frames, at, 0)] if m else np.nan, np.nan)
+    else:  # at completion (t_gra), else where the episode ended
+        e_gra = _at_rows(tips, np.where(t_gra >= 0, offsets[:-1] + t_gra, last), has_frames)
     held = events.contact_grasp(over, closed, tips)
     first_contact = _segment_min(np.where(held, local, never), offsets, never)
     t_contact = np.where(first_contact == never, -1, first_contact)
