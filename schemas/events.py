@@ -9,7 +9,10 @@ over it. *Grasp*: every finger joint has reached
 
 The closed-loop environment (which labels phases and ends an episode on grasp), the
 evaluation's quick counts and every metric in :mod:`scoring` call these functions, so
-an episode localizes in the loop exactly when its recording scores as localized.
+an episode localizes in the loop exactly when its recording scores as localized under
+``scoring``'s ``lenient`` reading; its default ``paper`` reading also asks for the palm
+above the object's top (:func:`scoring.metrics.above_top`), which the loop's phase labels
+do not.
 Inputs are converted to float64 first: recorded float32 values give the same decision
 wherever they are read.
 """
@@ -88,9 +91,10 @@ def touching(fingertip_distance: np.ndarray) -> np.ndarray:
 
 
 def contact_grasp(localized_now: np.ndarray, closed_now: np.ndarray, fingertip_distance: np.ndarray) -> np.ndarray:
-    """The contact-grounded grasp of paper A.8, per frame: the joint criterion, the palm
-    localized and a fingertip touching the object, all at the same frame (so a fist closed
-    away from the object never counts, unlike the joint-only S_gra)."""
+    """Dyana's contact-grounded grasp, per frame: the joint criterion, the palm localized
+    and a fingertip touching the object's surface, all at the same frame, so a fist closed
+    away from the object never counts, unlike the joint-only S_gra. (Paper A.8 asks for a
+    fingertip near the object's centre only: the joint and palm conjuncts are Dyana's.)"""
     return np.asarray(localized_now) & np.asarray(closed_now) & touching(fingertip_distance)
 
 

@@ -39,10 +39,11 @@ PALM_HOVER = 0.35
 #: Localization tolerance in the XZ plane (paper A.5) and the grasp ratio.
 LOC_TOLERANCE = 0.3
 GRASP_RATIO = 0.8
-#: Contact tolerance of the paper's formal grasp (A.8: a fingertip within eps_gras of the
-#: object's surface). 0.15 units = 1.5 cm: the ground truth's closest fingertip at its
-#: grasp frames is 0.070 units at the median and 0.085 at worst (420 recipe episodes),
-#: and its E_gra is 0.057, so the ground truth passes with margin while a fist closed
+#: Contact tolerance of Dyana's contact-grounded grasp: a fingertip within it of the object's
+#: surface (paper A.8 has a tolerance eps_gras to the object's centre, without a value).
+#: 0.15 units = 1.5 cm: the ground truth's closest fingertip at its grasp frames is 0.070
+#: units at the median and 0.085 at worst (420 recipe episodes), and its minimum E_gra is
+#: 0.057, so the ground truth passes with margin while a fist closed
 #: beside the object does not.
 GRASP_CONTACT_TOLERANCE = 0.15
 

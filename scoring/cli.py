@@ -1,5 +1,6 @@
 """The ``scoring`` command: ``scoring eval RUN [RUN ...] [--json] [--plot FILE.png]
-[--markdown FILE.md] [--csv FILE.csv] [--episodes FILE.parquet|.csv] [--paper]``.
+[--markdown FILE.md] [--csv FILE.csv] [--episodes FILE.parquet|.csv] [--paper]
+[--reading NAME] [--chance RUN [RUN ...]]``.
 
 Reads recorded shards only (never the simulator). Bad input (not a run folder, a
 missing column, an empty run, a run missing some of its episodes 0..N-1) prints one line
@@ -20,8 +21,10 @@ from catalog.outputs import check_output, open_output
 from schemas import cli
 from schemas.errors import DyanaError
 from schemas.names import shorten
+from scoring.chance import ChanceRow, chance_row, check_same_episodes
 from scoring.episodes import check_episodes_path, write_episodes
 from scoring.io import RunData, load_run
+from scoring.metrics import DEFAULT_READING, READINGS
 from scoring.report import (
     CONTACT_MODES,
     RunReport,
@@ -53,6 +56,17 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
         help="an episode whose hand touched an obstacle: 'report' it in the collision rate (default) "
         "or also score it as a 'fail'ure",
     )
+    p.add_argument(
+        "--reading", choices=sorted(READINGS), default=DEFAULT_READING,
+        help="how the paper's ambiguous metrics are read: 'paper' (default: E_loc at the endpoint, E_gra at "
+        "completion, every step in Q_smooth/Q_line, S_loc above the object's top) or 'lenient' (minimum "
+        "errors, zero steps dropped, S_loc in XZ only); docs/reference/metrics.md",
+    )
+    p.add_argument(
+        "--chance", nargs="+", metavar="RUN",
+        help="runs of blind reference policies on the same episodes (pipeline eval --policy blind-...): "
+        "add a 'chance' row, the best blind score per metric",
+    )
     p.add_argument("--latency-plot", type=cli.output_path, metavar="FILE.png",
                    help="write S_loc and E_loc against the runs' --latency-frames, one line per policy")
     p.add_argument(
@@ -61,17 +75,34 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def evaluate(runs: Sequence[str], obstacle_contact: str = "report") -> list[RunReport]:
-    """Load and score each run (a folder of repeats gives one run per repeat); labels are
-    made unique across the runs."""
+def load_runs(runs: Sequence[str]) -> list[RunData]:
+    """Load each run (a folder of repeats gives one run per repeat)."""
     data: list[RunData] = []
     for run in runs:
         if is_repeats_folder(run):
             data.extend(load_repeats(run).runs)
         else:
             data.append(load_run(run))
+    return data
+
+
+def score_all(data: Sequence[RunData], obstacle_contact: str = "report", reading: str = DEFAULT_READING) -> list[RunReport]:
+    """Score loaded runs; labels are made unique across them."""
     labels = unique_labels([default_label(d) for d in data], [d.name for d in data])
-    return [score_run(d, label, obstacle_contact) for d, label in zip(data, labels)]
+    return [score_run(d, label, obstacle_contact, reading) for d, label in zip(data, labels)]
+
+
+def evaluate(runs: Sequence[str], obstacle_contact: str = "report", reading: str = DEFAULT_READING) -> list[RunReport]:
+    """Load and score each run (a folder of repeats gives one run per repeat); labels are
+    made unique across the runs."""
+    return score_all(load_runs(runs), obstacle_contact, reading)
+
+
+def chance_of(blind_runs: Sequence[str], scored: Sequence[RunReport], obstacle_contact: str, reading: str) -> ChanceRow:
+    """The chance row of the blind runs, refused unless they hold the scored runs' episodes."""
+    data = load_runs(blind_runs)
+    check_same_episodes([(d.name, d.episode_id) for d in data], [(r.name, r.data.episode_id) for r in scored])
+    return chance_row([(r.label, r.overall) for r in score_all(data, obstacle_contact, reading)])
 
 
 #: The output flags of ``scoring eval`` (attribute, flag).
@@ -93,29 +124,35 @@ def check_outputs(args: argparse.Namespace) -> None:
     for name, flag in OUTPUTS:
         path = getattr(args, name)
         if path is not None:
-            check_output(path, args.runs, flag)
+            check_output(path, list(args.runs) + list(args.chance or []), flag)
     if args.episodes is not None:
         check_episodes_path(args.episodes)
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
     check_outputs(args)
-    reports = evaluate(args.runs, args.obstacle_contact)
-    robust = [robustness(load_repeats(run)) for run in args.runs if is_repeats_folder(run)]
+    reports = evaluate(args.runs, args.obstacle_contact, args.reading)
+    chance = None if not args.chance else chance_of(args.chance, reports, args.obstacle_contact, args.reading)
+    robust = [robustness(load_repeats(run), args.reading) for run in args.runs if is_repeats_folder(run)]
     if args.json:
         payload = [report_dict(r) for r in reports]
-        if robust:
-            print(json.dumps({"runs": payload, "robustness": robust}, indent=2, allow_nan=False))
+        if robust or chance:
+            wrapped: dict = {"runs": payload}
+            if robust:
+                wrapped["robustness"] = robust
+            if chance:
+                wrapped["chance"] = chance.as_dict()
+            print(json.dumps(wrapped, indent=2, allow_nan=False))
         else:
             print(json.dumps(payload[0] if len(payload) == 1 else payload, indent=2, allow_nan=False))
     else:
-        sys.stdout.write(format_table(reports, paper=args.paper))
+        sys.stdout.write(format_table(reports, paper=args.paper, chance=chance))
         for report in robust:
             sys.stdout.write("\n" + "\n".join(robustness_lines(report)) + "\n")
     if args.markdown is not None:
-        _write(args.markdown, markdown(reports, paper=args.paper))
+        _write(args.markdown, markdown(reports, paper=args.paper, chance=chance))
     if args.csv is not None:
-        _write(args.csv, csv_text(reports))
+        _write(args.csv, csv_text(reports, chance))
     if args.episodes is not None:
         write_episodes(reports, args.episodes)
     if args.latency_plot is not None:

@@ -24,6 +24,7 @@ from schemas.errors import ShardError, SpecError
 from schemas.events import PROJECTILE_MARK, acting, acting_budget, hover_offset, spec_hover_offset
 from schemas.frames import EpisodeFrames
 from schemas.names import shorten
+from schemas.objects import object_category
 from schemas.scene import PHASES
 from schemas.spec import EpisodeSpec
 from schemas.tables import OBSTACLE_CLEARANCE
@@ -73,6 +74,9 @@ class RunData:
     #: (n,) the hover point's height above the object's centre for a flying object,
     #: NaN for one on the table (:func:`schemas.events.hover_offset`).
     hover_offset: np.ndarray | None = None
+    #: (n,) the height of each object's top above its centre (its half height), for the
+    #: ``top`` localization rule (:func:`top_offsets`).
+    top_offset: np.ndarray | None = None
     #: (n,) the hand's smallest obstacle clearance over each episode's acting frames (+inf
     #: where the episode has no obstacle); None when the run records no clearance.
     min_clearance: np.ndarray | None = None
@@ -234,6 +238,7 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
         rollout_format=_strings(episodes.column("rollout_format")),
         privileged=privileged,
         min_clearance=min_clearance,
+        top_offset=top_offsets(episodes.column("object").to_pylist(), episodes.column("object_size").to_pylist()),
         hover_offset=np.array(
             [
                 hover_offset(name, size, PROJECTILE_MARK in tokens)
@@ -335,8 +340,14 @@ def from_recordings(
         hand=np.array([s.hand for s in specs], dtype=object),
         rollout_format=np.array([s.rollout_format for s in specs], dtype=object),
         hover_offset=np.array([spec_hover_offset(s) for s in specs], dtype=np.float64),
+        top_offset=top_offsets([s.object for s in specs], [s.object_size for s in specs]),
         min_clearance=_recorded_clearance(recordings, picks, counts) if any(s.obstacles for s in specs) else None,
     )
+
+
+def top_offsets(objects: Sequence[str], sizes: Sequence[float]) -> np.ndarray:
+    """(n,) each object's top above its centre: its category's half height at its size."""
+    return np.array([object_category(o).half_height(float(z)) for o, z in zip(objects, sizes)], dtype=np.float64)
 
 
 def episode_minimum(values: np.ndarray, offsets: np.ndarray) -> np.ndarray:

@@ -16,18 +16,84 @@ import numpy as np
 
 from schemas import events
 from schemas.obstacles import CONTACT_CLEARANCE
+from schemas.scene import LOC_TOLERANCE, PALM_HOVER
 
-#: Steps no longer than this are dropped before measuring smoothness.
+#: Steps no longer than this are dropped before measuring smoothness (the ``lenient`` reading).
 STEP_MIN = 1e-4
 #: Segments (and chords) no longer than this have no direction.
 SEGMENT_MIN = 1e-8
-#: The eight metrics: the seven of the paper's Table 3 in its column order, then Dyana's own
-#: ``S_grasp_contact`` (success of the contact-grounded grasp, :func:`schemas.events.contact_grasp`).
-METRIC_NAMES = ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time", "S_grasp_contact")
+#: The eight metrics: Dyana's headline ``S_grasp_contact`` (success of the contact-grounded
+#: grasp, :func:`schemas.events.contact_grasp`), then the seven of the paper's Table 3 in its
+#: column order.
+METRIC_NAMES = ("S_grasp_contact", "S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
+#: The headline success, first in every table: the one a blind policy cannot win.
+HEADLINE = "S_grasp_contact"
 #: The success rates among them (percent, with Wilson intervals).
-SUCCESS_RATE_NAMES = ("S_loc", "S_gra", "S_grasp_contact")
+SUCCESS_RATE_NAMES = ("S_grasp_contact", "S_loc", "S_gra")
+#: Metrics where lower is better (the rest: higher is better).
+LOWER_IS_BETTER = ("E_loc", "E_gra")
 #: Two-sided 95% normal quantile.
 Z95 = 1.959963984540054
+
+
+#: The choices of :class:`Reading` (the first of each is the ``paper`` reading's).
+E_LOC_RULES = ("endpoint", "minimum")
+E_GRA_RULES = ("completion", "minimum")
+STEP_RULES = ("keep", "drop")
+S_LOC_RULES = ("top", "xz")
+
+
+@dataclass(frozen=True)
+class Reading:
+    """How the paper's ambiguous metrics are read (docs/reference/metrics.md, "Readings").
+
+    ``e_loc``: the palm distance at the last acting frame (``endpoint``) or its minimum
+    over the acting frames (``minimum``); ``e_gra``: the closest fingertip's distance at
+    grasp completion, the last acting frame if none (``completion``), or its minimum
+    (``minimum``); ``steps``: Q_smooth/Q_line over every step of the path (``keep``) or
+    without the steps of at most :data:`STEP_MIN` (``drop``); ``s_loc``: localization
+    also needs the palm above the object's top by at most :data:`TOP_BAND` (``top``), or
+    the XZ distance only (``xz``).
+    """
+
+    name: str
+    e_loc: str = "endpoint"
+    e_gra: str = "completion"
+    steps: str = "keep"
+    s_loc: str = "top"
+
+    def __post_init__(self) -> None:
+        for field, rules in (("e_loc", E_LOC_RULES), ("e_gra", E_GRA_RULES), ("steps", STEP_RULES), ("s_loc", S_LOC_RULES)):
+            if getattr(self, field) not in rules:
+                raise ValueError(f"Reading.{field} must be one of {rules}, got {getattr(self, field)!r}")
+
+
+#: The paper's text read literally where it is ambiguous: the default.
+PAPER = Reading("paper")
+#: Dyana's rules before the readings were made explicit: minimum errors, zero steps
+#: dropped, S_loc in the XZ plane only (each kinder to a policy that games it).
+LENIENT = Reading("lenient", e_loc="minimum", e_gra="minimum", steps="drop", s_loc="xz")
+READINGS = {r.name: r for r in (PAPER, LENIENT)}
+DEFAULT_READING = PAPER.name
+#: The ``top`` rule: the palm centre's height above the object's top surface lies in
+#: [0, TOP_BAND]: above it, and within the localization tolerance of the ground truth's
+#: hover height (the ground truth hovers at PALM_HOVER = 0.35 over the top).
+TOP_BAND = PALM_HOVER + LOC_TOLERANCE
+
+
+def reading_named(name: str) -> Reading:
+    """The registered reading ``name``; ValueError listing the known ones."""
+    if name not in READINGS:
+        raise ValueError(f"unknown reading {name!r}: expected one of {sorted(READINGS)}")
+    return READINGS[name]
+
+
+def above_top(palm_xyz: np.ndarray, object_xyz: np.ndarray, top_offset: np.ndarray) -> np.ndarray:
+    """Whether the palm centre is above the object's top (centre + ``top_offset``) by at most
+    :data:`TOP_BAND` (per frame)."""
+    height = np.asarray(palm_xyz, dtype=np.float64)[..., 1] - np.asarray(object_xyz, dtype=np.float64)[..., 1]
+    height = height - np.asarray(top_offset, dtype=np.float64)
+    return (height >= 0.0) & (height <= TOP_BAND)
 
 
 def _check_offsets(offsets: np.ndarray, rows: int) -> np.ndarray:
@@ -49,16 +115,31 @@ def _segment_min(values: np.ndarray, offsets: np.ndarray, empty: float) -> np.nd
     return out
 
 
-def path_quality(offsets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _at_rows(values: np.ndarray, rows: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``values[rows]`` where ``valid`` (one row per episode), NaN elsewhere."""
+    out = np.full(len(rows), np.nan)
+    out[valid] = values[rows[valid]]
+    return out
+
+
+def path_quality(offsets: np.ndarray, points: np.ndarray, steps: str = "keep") -> tuple[np.ndarray, np.ndarray]:
     """``(Q_smooth, Q_line)`` of each path (points ``offsets[i]:offsets[i + 1]``, shape (m, 3)).
 
-    Steps ``|P[k+1] - P[k]|`` longer than :data:`STEP_MIN` give
-    ``Q_smooth = 1 / (1 + std / mean)`` (population std; 1 if no step remains).
-    ``Q_line`` is the mean cosine between each segment longer than :data:`SEGMENT_MIN`
-    and the chord ``P[-1] - P[0]``; 0 when the chord is shorter than that or no
-    segment is long enough. Hence a path of 0 or 1 point gets (1, 0) and one of 2
-    points (1, 1), or (1, 0) if they coincide.
+    ``steps="keep"`` (the paper's formula): every step ``|P[k+1] - P[k]|`` counts;
+    ``Q_smooth = 1 / (1 + std / mean)`` (population std), 0 when the mean step is 0 (no
+    step, or the palm never moved: no motion to call smooth); ``Q_line`` is the sum over
+    the steps of the cosine between the step and the chord ``P[-1] - P[0]``, divided by
+    the number of steps, a step of at most :data:`SEGMENT_MIN` adding 0 (it has no
+    direction); 0 when the chord is shorter than that or there is no step.
+
+    ``steps="drop"`` (the ``lenient`` reading): only steps longer than :data:`STEP_MIN`
+    count for Q_smooth (1 if none remains), and Q_line is the mean over the segments
+    longer than :data:`SEGMENT_MIN` only (0 if none, or the chord is that short). A path
+    of 0 or 1 point gets (1, 0), one of 2 points (1, 1), or (1, 0) if they coincide.
     """
+    if steps not in STEP_RULES:
+        raise ValueError(f"steps must be one of {STEP_RULES}, got {steps!r}")
+    drop = steps == "drop"
     points = np.asarray(points, dtype=np.float64)
     offsets = _check_offsets(offsets, len(points))
     n = len(offsets) - 1
@@ -66,19 +147,19 @@ def path_quality(offsets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, n
     owner = np.repeat(np.arange(n), counts)
 
     same = owner[1:] == owner[:-1]
-    steps = (points[1:] - points[:-1])[same]
+    moves = (points[1:] - points[:-1])[same]
     step_owner = owner[1:][same]
-    length = np.linalg.norm(steps, axis=1)
+    length = np.linalg.norm(moves, axis=1)
 
-    kept = length > STEP_MIN
+    kept = length > STEP_MIN if drop else np.ones(len(length), dtype=bool)
     kept_owner = step_owner[kept]
     kept_count = np.bincount(kept_owner, minlength=n)
     safe_count = np.maximum(kept_count, 1)
     mean = np.bincount(kept_owner, weights=length[kept], minlength=n) / safe_count
     spread = length[kept] - mean[kept_owner]
     std = np.sqrt(np.bincount(kept_owner, weights=spread * spread, minlength=n) / safe_count)
-    q_smooth = np.ones(n)
-    has_steps = kept_count > 0
+    q_smooth = np.ones(n) if drop else np.zeros(n)
+    has_steps = (kept_count > 0) & (mean > 0)
     q_smooth[has_steps] = 1.0 / (1.0 + std[has_steps] / mean[has_steps])
 
     chord = np.zeros((n, 3))
@@ -88,8 +169,9 @@ def path_quality(offsets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, n
     directed = chord_length >= SEGMENT_MIN
     seg = (length > SEGMENT_MIN) & directed[step_owner]
     seg_owner = step_owner[seg]
-    cosine = np.einsum("ij,ij->i", steps[seg], chord[seg_owner]) / (length[seg] * chord_length[seg_owner])
-    seg_count = np.bincount(seg_owner, minlength=n)
+    cosine = np.einsum("ij,ij->i", moves[seg], chord[seg_owner]) / (length[seg] * chord_length[seg_owner])
+    # keep: every step counts in the denominator (a directionless one adds 0); drop: only segments
+    seg_count = np.bincount(seg_owner, minlength=n) if drop else np.bincount(step_owner, minlength=n) * directed
     q_line = np.zeros(n)
     has_segments = seg_count > 0
     q_line[has_segments] = np.bincount(seg_owner, weights=cosine, minlength=n)[has_segments] / seg_count[has_segments]
@@ -142,6 +224,8 @@ def episode_metrics(
     grasp_angles: np.ndarray,
     acting_budget: np.ndarray | None = None,
     hover_offset: np.ndarray | None = None,
+    top_offset: np.ndarray | None = None,
+    reading: Reading = PAPER,
 ) -> EpisodeMetrics:
     """Per-episode metrics from the acting frames of ``n`` episodes.
 
@@ -152,7 +236,12 @@ def episode_metrics(
     (rollouts stop at grasp completion, so their recorded count would always give 0);
     by default the recorded acting frames. ``hover_offset`` (n,) makes localization 3D
     for flying objects (:func:`schemas.events.palm_distance`; NaN: in XZ, the default).
+    ``top_offset`` (n,) is the height of each object's top above its centre, for the
+    ``top`` localization rule (default 0: the top at the centre); ``reading`` chooses
+    the rules where the paper is ambiguous (:class:`Reading`).
     """
+    if not isinstance(reading, Reading):
+        raise ValueError(f"reading must be a scoring.metrics.Reading, got {type(reading).__name__}")
     palm = np.asarray(palm_xyz, dtype=np.float64)
     obj = np.asarray(object_xyz, dtype=np.float64)
     joints = np.asarray(joint_angles, dtype=np.float64)
@@ -173,6 +262,7 @@ def episode_metrics(
     local = np.arange(m, dtype=np.int64) - offsets[:-1][owner]
     never = np.iinfo(np.int64).max
 
+    airborne = np.zeros(n, dtype=bool)
     if hover_offset is None:
         d_xz = events.palm_xz_distance(palm, obj)
     else:
@@ -180,14 +270,29 @@ def episode_metrics(
         if offset.shape != (n,):
             raise ValueError(f"hover_offset must have shape ({n},), got {offset.shape}")
         d_xz = events.palm_distance(palm, obj, offset[owner])
-    e_loc = _segment_min(d_xz, offsets, np.nan)
-    e_gra = _segment_min(tips, offsets, np.nan)
-    first_loc = _segment_min(np.where(events.within_tolerance(d_xz), local, never), offsets, never)
+        airborne = ~np.isnan(offset)
+    top = np.zeros(n) if top_offset is None else np.asarray(top_offset, dtype=np.float64)
+    if top.shape != (n,):
+        raise ValueError(f"top_offset must have shape ({n},), got {top.shape}")
+    over = events.within_tolerance(d_xz)
+    if reading.s_loc == "top":  # a flying object's 3D distance to its hover point already bounds the height
+        over = over & (airborne[owner] | above_top(palm, obj, top[owner]))
+    first_loc = _segment_min(np.where(over, local, never), offsets, never)
     closed = events.grasp_closed(joints, grasp[owner])
     first_gra = _segment_min(np.where(closed, local, never), offsets, never)
     t_loc = np.where(first_loc == never, -1, first_loc)
     t_gra = np.where(first_gra == never, -1, first_gra)
-    held = events.contact_grasp(events.within_tolerance(d_xz), closed, tips)
+    last = offsets[1:] - 1
+    has_frames = counts > 0
+    if reading.e_loc == "minimum":
+        e_loc = _segment_min(d_xz, offsets, np.nan)
+    else:  # the endpoint: the last acting frame
+        e_loc = _at_rows(d_xz, last, has_frames)
+    if reading.e_gra == "minimum":
+        e_gra = _segment_min(tips, offsets, np.nan)
+    else:  # at completion (t_gra), else where the episode ended
+        e_gra = _at_rows(tips, np.where(t_gra >= 0, offsets[:-1] + t_gra, last), has_frames)
+    held = events.contact_grasp(over, closed, tips)
     first_contact = _segment_min(np.where(held, local, never), offsets, never)
     t_contact = np.where(first_contact == never, -1, first_contact)
 
@@ -195,7 +300,7 @@ def episode_metrics(
     on_path = local <= t_loc[owner]
     path_counts = np.bincount(owner[on_path], minlength=n)
     path_offsets = np.concatenate([[0], np.cumsum(path_counts)])
-    q_smooth, q_line = path_quality(path_offsets, palm[on_path])
+    q_smooth, q_line = path_quality(path_offsets, palm[on_path], reading.steps)
     q_smooth = np.where(localized, q_smooth, np.nan)
     q_line = np.where(localized, q_line, np.nan)
 

@@ -18,14 +18,18 @@ import numpy as np
 
 from schemas.objects import OBJECTS
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
+from scoring.chance import CHANCE_LABEL, ChanceRow
 from scoring.io import RunData
 from scoring.metrics import (
+    DEFAULT_READING,
+    LOWER_IS_BETTER,
     METRIC_NAMES,
     SUCCESS_RATE_NAMES,
     EpisodeMetrics,
     Summary,
     aggregate,
     episode_metrics,
+    reading_named,
     wilson_interval,
 )
 from scoring.paper import PAPER_ROWS, paper_label
@@ -59,6 +63,8 @@ class RunReport:
     failures: Failures = field(repr=False, compare=False)
     #: ``report`` or ``fail`` (:data:`CONTACT_MODES`): how obstacle contacts were scored.
     obstacle_contact: str = "report"
+    #: The metric reading applied (:data:`scoring.metrics.READINGS`).
+    reading: str = DEFAULT_READING
 
     @property
     def ground_truth(self) -> bool:
@@ -75,17 +81,20 @@ def _groups(values: np.ndarray, canonical: Sequence[str], always: bool) -> list[
 CONTACT_MODES = ("report", "fail")
 
 
-def score_run(data: RunData, label: str | None = None, obstacle_contact: str = "report") -> RunReport:
+def score_run(
+    data: RunData, label: str | None = None, obstacle_contact: str = "report", reading: str = DEFAULT_READING
+) -> RunReport:
     """Per-episode metrics of every episode, then the overall and grouped summaries.
 
     ``obstacle_contact``: ``report`` counts episodes whose hand touched an obstacle (the
-    collision rate) and scores them as usual; ``fail`` also counts them as failures."""
+    collision rate) and scores them as usual; ``fail`` also counts them as failures.
+    ``reading`` names the rules for the paper's ambiguous metrics (:data:`scoring.metrics.READINGS`)."""
     if obstacle_contact not in CONTACT_MODES:
         raise ValueError(f"obstacle_contact must be one of {CONTACT_MODES}, got {obstacle_contact!r}")
     fails = obstacle_contact == "fail"
     per: EpisodeMetrics = episode_metrics(
         data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles,
-        data.acting_budget, data.hover_offset,
+        data.acting_budget, data.hover_offset, data.top_offset, reading_named(reading),
     )
     breakdowns: dict[str, dict[str, Summary]] = {}
     for key, attribute, canonical, _ in BREAKDOWNS:
@@ -105,6 +114,7 @@ def score_run(data: RunData, label: str | None = None, obstacle_contact: str = "
         privileged=data.privileged,
         overall=aggregate(per, data.error, min_clearance=data.min_clearance, contact_fails=fails),
         obstacle_contact=obstacle_contact,
+        reading=reading,
         breakdowns=breakdowns,
         data=data,
         per_episode=per,
@@ -203,6 +213,7 @@ def report_dict(report: RunReport) -> dict[str, Any]:
         "ground_truth": report.ground_truth,
         "privileged": report.privileged,
         "protocol": report.data.protocol,
+        "reading": report.reading,
         "episodes": overall.episodes,
         "errors": overall.errors,
         "localized": overall.localized,
@@ -221,9 +232,17 @@ def report_dict(report: RunReport) -> dict[str, Any]:
 
 # --- tables -----------------------------------------------------------------------
 
-MAIN_HEADERS = (
-    "Run", "Episodes", "Errors", "S_loc (%) ^", "S_loc 95% CI", "E_loc v", "S_gra (%) ^", "S_gra 95% CI",
-    "E_gra v", "Q_smooth ^", "Q_line ^", "R_time ^", "S_grasp_contact (%) ^", "S_grasp_contact 95% CI",
+def _arrow(name: str) -> str:
+    return "v" if name in LOWER_IS_BETTER else "^"
+
+
+#: The main table: the headline (S_grasp_contact) first, then the paper's seven.
+MAIN_HEADERS = ("Run", "Episodes", "Errors") + tuple(
+    header
+    for name in METRIC_NAMES
+    for header in (
+        (f"{name} (%) ^", f"{name} 95% CI") if name in SUCCESS_RATE_NAMES else (f"{name} {_arrow(name)}",)
+    )
 )
 #: One column per metric, in :data:`METRIC_NAMES` order.
 GROUP_HEADERS = ("Run", "Group", "Episodes", "Errors") + tuple(
@@ -231,7 +250,8 @@ GROUP_HEADERS = ("Run", "Group", "Episodes", "Errors") + tuple(
 )
 LEGEND = (
     "^ higher is better, v lower is better; CI: 95% Wilson interval; - : nothing to average over; "
-    "(privileged): the policy read the ground-truth spec (an upper bound, not a fair entry)."
+    "(privileged): the policy read the ground-truth spec (an upper bound, not a fair entry). "
+    "S_grasp_contact, the contact-grounded grasp, is the headline: blind play cannot win it."
 )
 
 
@@ -239,6 +259,16 @@ PAPER_NOTE = (
     " paper T3/T4: the paper's published rows (Tables 3 and 4, its Unity suite), for reference; "
     "the paper has no S_grasp_contact."
 )
+CHANCE_NOTE = (
+    " chance (best blind): per metric, the best score of the --chance runs (blind policies on the same "
+    "episodes); a score at or below it does not show that a model sees."
+)
+
+
+def reading_note(reports: Sequence[RunReport]) -> str:
+    """The line saying which metric reading the rows follow (docs/reference/metrics.md)."""
+    names = sorted({r.reading for r in reports})
+    return f"Reading: {', '.join(names)} (scoring eval --reading; docs/reference/metrics.md, Readings)."
 
 
 def _num(value: float | None) -> str:
@@ -249,28 +279,34 @@ def _ci(value: tuple[float, float] | None) -> str:
     return "-" if value is None else f"[{value[0]:.1f}, {value[1]:.1f}]"
 
 
+def _cells(metrics: dict[str, float | None], intervals: dict[str, tuple[float, float] | None] | None) -> list[str]:
+    """The metric cells of a main-table row (intervals None: "-" for every CI)."""
+    cells = []
+    for name in METRIC_NAMES:
+        cells.append(_num(metrics[name]))
+        if name in SUCCESS_RATE_NAMES:
+            cells.append(_ci(None if intervals is None else intervals[name]))
+    return cells
+
+
 def _main_row(report: RunReport) -> list[str]:
     s = report.overall
-    m = s.metrics
-    return [
-        report.label, str(s.episodes), str(s.errors),
-        _num(m["S_loc"]), _ci(s.intervals["S_loc"]), _num(m["E_loc"]),
-        _num(m["S_gra"]), _ci(s.intervals["S_gra"]), _num(m["E_gra"]),
-        _num(m["Q_smooth"]), _num(m["Q_line"]), _num(m["R_time"]),
-        _num(m["S_grasp_contact"]), _ci(s.intervals["S_grasp_contact"]),
-    ]
+    return [report.label, str(s.episodes), str(s.errors)] + _cells(s.metrics, s.intervals)
 
 
 def _paper_rows() -> list[list[str]]:
     """The paper's published rows (Tables 3 and 4) in the main table's columns."""
-    rows = []
-    for row in PAPER_ROWS:
-        m = row.metrics
-        rows.append([
-            paper_label(row), "-", "-", _num(m["S_loc"]), "-", _num(m["E_loc"]), _num(m["S_gra"]), "-",
-            _num(m["E_gra"]), _num(m["Q_smooth"]), _num(m["Q_line"]), _num(m["R_time"]), "-", "-",
-        ])
-    return rows
+    return [[paper_label(row), "-", "-"] + _cells(row.metrics, None) for row in PAPER_ROWS]
+
+
+def _chance_rows(chance: ChanceRow | None) -> list[list[str]]:
+    if chance is None:
+        return []
+    return [[CHANCE_LABEL, str(chance.episodes), "-"] + _cells(chance.metrics, None)]
+
+
+def _main_rows(reports: Sequence[RunReport], paper: bool, chance: ChanceRow | None) -> list[list[str]]:
+    return [_main_row(r) for r in reports] + _chance_rows(chance) + (_paper_rows() if paper else [])
 
 
 def _group_rows(reports: Sequence[RunReport], key: str) -> list[list[str]]:
@@ -332,12 +368,13 @@ def _failure_rows(reports: Sequence[RunReport]) -> list[list[str]]:
     return rows
 
 
-def format_table(reports: Sequence[RunReport], paper: bool = False) -> str:
-    """The terminal report: one row per run (the paper's Table 3; with ``paper`` its
-    published rows follow), then by motion and by interception, and obstacle contacts
-    for runs with obstacles."""
-    main_rows = [_main_row(r) for r in reports] + (_paper_rows() if paper else [])
-    parts = [_aligned(MAIN_HEADERS, main_rows), LEGEND + (PAPER_NOTE if paper else "")]
+def format_table(reports: Sequence[RunReport], paper: bool = False, chance: ChanceRow | None = None) -> str:
+    """The terminal report: one row per run (the headline, then the paper's Table 3; with
+    ``chance`` the chance row follows, with ``paper`` the published rows), then by motion
+    and by interception, and obstacle contacts for runs with obstacles."""
+    main_rows = _main_rows(reports, paper, chance)
+    parts = [_aligned(MAIN_HEADERS, main_rows),
+             LEGEND + (CHANCE_NOTE if chance else "") + (PAPER_NOTE if paper else ""), reading_note(reports)]
     for key, _, _, title in BREAKDOWNS[:2]:
         parts += ["", f"By {title}:", _aligned(GROUP_HEADERS, _group_rows(reports, key), text_columns=2)]
     obstacle_rows = _obstacle_rows(reports)
@@ -355,13 +392,15 @@ def _markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> st
     return "\n".join([line(headers), "|" + "|".join(align) + "|", *(line(r) for r in rows)])
 
 
-def markdown(reports: Sequence[RunReport], paper: bool = False) -> str:
-    """Markdown export: the main table (with ``paper``, the paper's rows after ours) and every breakdown."""
+def markdown(reports: Sequence[RunReport], paper: bool = False, chance: ChanceRow | None = None) -> str:
+    """Markdown export: the main table (the chance row, then with ``paper`` the paper's rows,
+    after ours) and every breakdown."""
     headers = [h.replace(" ^", " ↑").replace(" v", " ↓") for h in MAIN_HEADERS]
-    main_rows = [_main_row(r) for r in reports] + (_paper_rows() if paper else [])
+    main_rows = _main_rows(reports, paper, chance)
     parts = ["## Scores", "", _markdown_table(headers, main_rows), "",
-             "↑ higher is better, ↓ lower is better. CI: 95% Wilson interval. -: nothing to average over."
-             + (PAPER_NOTE if paper else ""), ""]
+             "↑ higher is better, ↓ lower is better. CI: 95% Wilson interval. -: nothing to average over. "
+             "S_grasp_contact, the contact-grounded grasp, is the headline: blind play cannot win it."
+             + (CHANCE_NOTE if chance else "") + (PAPER_NOTE if paper else ""), "", reading_note(reports), ""]
     for key, _, _, title in BREAKDOWNS:
         parts += [f"### By {title}", "", _markdown_table(GROUP_HEADERS, _group_rows(reports, key)), ""]
     obstacle_rows = _obstacle_rows(reports)
@@ -372,7 +411,8 @@ def markdown(reports: Sequence[RunReport], paper: bool = False) -> str:
     return "\n".join(parts)
 
 
-CSV_FIELDS = ["label", "run", "slice", "policy", "breakdown", "group", "episodes", "errors", "localized", "grasped"] + [
+CSV_FIELDS = ["label", "run", "slice", "policy", "reading", "breakdown", "group", "episodes", "errors", "localized",
+              "grasped"] + [
     f"{name}{suffix}" for name in METRIC_NAMES for suffix in ("", "_low", "_high")
 ]
 
@@ -386,7 +426,7 @@ def _csv_value(value: Any) -> Any:
 def _csv_row(report: RunReport, breakdown: str, group: str, s: Summary) -> dict[str, Any]:
     row: dict[str, Any] = {
         "label": report.label, "run": report.name, "slice": report.slice, "policy": report.policy or "",
-        "breakdown": breakdown, "group": group, "episodes": s.episodes, "errors": s.errors,
+        "reading": report.reading, "breakdown": breakdown, "group": group, "episodes": s.episodes, "errors": s.errors,
         "localized": s.localized, "grasped": s.grasped,
     }
     for name in METRIC_NAMES:
@@ -397,8 +437,10 @@ def _csv_row(report: RunReport, breakdown: str, group: str, s: Summary) -> dict[
     return row
 
 
-def csv_text(reports: Sequence[RunReport]) -> str:
-    """CSV export in long form: one row per (run, breakdown, group), ``all`` for the overall row."""
+def csv_text(reports: Sequence[RunReport], chance: ChanceRow | None = None) -> str:
+    """CSV export in long form: one row per (run, breakdown, group), ``all`` for the overall
+    row; with ``chance`` a last row labelled :data:`~scoring.chance.CHANCE_LABEL` (overall
+    only, no intervals)."""
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=CSV_FIELDS, lineterminator="\n")
     writer.writeheader()
@@ -407,4 +449,11 @@ def csv_text(reports: Sequence[RunReport]) -> str:
         for key, *_ in BREAKDOWNS:
             for group, s in report.breakdowns[key].items():
                 writer.writerow(_csv_row(report, key.removeprefix("by_"), group, s))
+    if chance is not None:
+        row: dict[str, Any] = {name: "" for name in CSV_FIELDS}
+        row.update({"label": CHANCE_LABEL, "run": " ".join(chance.runs), "slice": reports[0].slice if reports else "",
+                    "reading": reports[0].reading if reports else "", "breakdown": "all", "group": "all",
+                    "episodes": chance.episodes})
+        row.update({name: _csv_value(chance.metrics[name]) for name in METRIC_NAMES})
+        writer.writerow(row)
     return buffer.getvalue()

@@ -34,7 +34,7 @@ from catalog.storage import as_location
 from schemas.errors import ShardError
 from schemas.scene import LOC_TOLERANCE
 from scoring.io import RunData, load_run
-from scoring.metrics import EpisodeMetrics, episode_metrics
+from scoring.metrics import DEFAULT_READING, EpisodeMetrics, episode_metrics, reading_named
 
 REPEATS_FILE = "repeats.json"
 MEASURES = ("E_loc", "E_gra", "Q_smooth", "Q_line", "R_time")
@@ -96,9 +96,9 @@ def load_repeats(folder: str | os.PathLike[str]) -> RepeatSet:
     return RepeatSet(root, index, tuple(runs), tuple(targets))
 
 
-def _per_episode(run: RunData) -> EpisodeMetrics:
+def _per_episode(run: RunData, reading: str) -> EpisodeMetrics:
     return episode_metrics(run.offsets, run.palm_xyz, run.object_xyz, run.joint_angles, run.fingertip_distance,
-                           run.grasp_angles, run.acting_budget, run.hover_offset)
+                           run.grasp_angles, run.acting_budget, run.hover_offset, run.top_offset, reading_named(reading))
 
 
 def _consistency(success: np.ndarray) -> dict[str, int]:
@@ -149,9 +149,10 @@ def _summary(repeats: RepeatSet, per: list[EpisodeMetrics], select: np.ndarray) 
     }
 
 
-def robustness(repeats: RepeatSet) -> dict[str, Any]:
-    """The robustness report (module docstring): overall and by motion type."""
-    per = [_per_episode(run) for run in repeats.runs]
+def robustness(repeats: RepeatSet, reading: str = DEFAULT_READING) -> dict[str, Any]:
+    """The robustness report (module docstring): overall and by motion type, under the
+    metric ``reading`` (:data:`scoring.metrics.READINGS`)."""
+    per = [_per_episode(run, reading) for run in repeats.runs]
     n = repeats.runs[0].episodes
     out = {
         "run": repeats.folder.name,

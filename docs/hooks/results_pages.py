@@ -36,6 +36,7 @@ TEST_1K = (
     Source("table.md", "closed_loop_results.py", "Scores"),
     Source("radar.png", "closed_loop_results.py", "Radar and per-motion success rates"),
     Source("latency.png", "scoring eval RUN ... --latency-plot", "S_loc and E_loc against latency (predictive)"),
+    Source("blind_chance.md", "blind_chance.py", "Chance levels: blind reference policies"),
 )
 TEST_COMPLEX = (
     Source("test_complex_table.md", "scoring eval ... --markdown", "Scores"),

@@ -38,7 +38,14 @@ BUILTIN = {
     "still": "pipeline.policies.still:StillPolicy",
     "chase": "pipeline.policies.chase:ChasePolicy",
     "predictive": "pipeline.policies.predictive:PredictivePolicy",
+    # blind reference policies (chance levels): pipeline.policies.blind
+    "blind-centre": "pipeline.policies.blind:CentrePolicy",
+    "blind-sweep": "pipeline.policies.blind:SweepPolicy",
+    "blind-first-seen": "pipeline.policies.blind:FirstSeenPolicy",
+    "blind-fitted": "pipeline.policies.blind:FittedPolicy",
 }
+#: The blind reference policies among them (their scores are chance levels).
+BLIND = ("blind-centre", "blind-sweep", "blind-first-seen", "blind-fitted")
 #: The task keys every policy receives (``intercept_time_s`` and ``spec`` may be added).
 TASK_KEYS = ("text", "fps", "observe_frames", "horizon", "resolution", "hand")
 #: The interception time a policy assumes when the task does not say (the medium setting).

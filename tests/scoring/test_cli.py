@@ -25,7 +25,9 @@ def closing(k: int, at: int) -> np.ndarray:
 
 
 def xs(*values):
-    return [[v, 2.0, 0.0] for v in values]
+    """Palm points along X at y = 0.9: 0.4 over the top of the fixtures' objects (size 1, centre
+    at y = 0), inside the ``paper`` reading's height band for S_loc."""
+    return [[v, 0.9, 0.0] for v in values]
 
 
 # Observe frames sit right on the object (d = 0) and are closed: they must not count.
@@ -63,12 +65,14 @@ def test_json_keys_and_values(capsys, run):
     assert result["episodes"] == 3 and result["errors"] == 1
     assert result["label"] == "oracle" and result["policy"] == "oracle" and not result["ground_truth"]
     m = result["metrics"]
-    assert list(m) == ["S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time", "S_grasp_contact"]
+    assert list(m) == ["S_grasp_contact", "S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time"]  # headline first
     # the error episode is a failure although its frames equal GOOD's
     assert m["S_loc"] == pytest.approx(100 / 3)
     assert m["S_gra"] == pytest.approx(100 / 3)
     assert m["E_loc"] == pytest.approx((0.1 + 1.0 + 0.1) / 3, rel=1e-6)
-    assert m["E_gra"] == pytest.approx((0.05 + 0.6 + 0.05) / 3, rel=1e-6)
+    # E_gra at completion (the paper reading): GOOD completes at its 0.05 frame; MISS never
+    # completes, so its last acting frame's 0.7 counts (the lenient reading's minimum was 0.6)
+    assert m["E_gra"] == pytest.approx((0.05 + 0.7 + 0.05) / 3, rel=1e-6)
     steps = np.array([1.0, 0.8])  # palm 2 -> 1 -> 0.2
     assert m["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()), rel=1e-6)
     assert m["Q_line"] == pytest.approx(1.0)
@@ -377,7 +381,7 @@ def test_outputs_to_a_device_and_a_fifo_are_written_as_such(tmp_path, capsys, ru
     try:
         code, _, err = run_main(capsys, "eval", str(run), "--markdown", str(device), "--csv", str(fifo))
         assert code == 0, err
-        assert os.read(reader, 1 << 16).startswith(b"label,run,slice,policy,breakdown")
+        assert os.read(reader, 1 << 16).startswith(b"label,run,slice,policy,reading,breakdown")
     finally:
         os.close(reader)
     assert stat.S_ISCHR(device.lstat().st_mode) and stat.S_ISFIFO(fifo.lstat().st_mode)
@@ -399,3 +403,53 @@ def test_an_output_url_is_refused_in_one_line_without_a_local_folder(tmp_path, c
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{flag} 's3://bucket/out.parquet': is a URL" in err
     assert not (tmp_path / "s3:").exists()
+
+
+# --- readings and the chance row ---------------------------------------------------------
+
+
+def test_reading_flag_switches_the_ambiguous_rules(capsys, run):
+    _, out, _ = run_main(capsys, "eval", str(run), "--json")
+    paper = json.loads(out)
+    _, out, _ = run_main(capsys, "eval", str(run), "--json", "--reading", "lenient")
+    lenient = json.loads(out)
+    assert (paper["reading"], lenient["reading"]) == ("paper", "lenient")
+    # MISS never completes its grasp: at its last frame 0.7, its minimum 0.6
+    assert lenient["metrics"]["E_gra"] == pytest.approx((0.05 + 0.6 + 0.05) / 3, rel=1e-6)
+    assert paper["metrics"]["E_gra"] == pytest.approx((0.05 + 0.7 + 0.05) / 3, rel=1e-6)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["eval", str(run), "--reading", "median"])
+    assert exit_info.value.code == 2 and "median" in capsys.readouterr().err
+
+
+def test_headline_is_the_first_metric_column_everywhere(tmp_path, capsys, run):
+    md, table = tmp_path / "t.md", tmp_path / "t.csv"
+    _, out, _ = run_main(capsys, "eval", str(run), "--markdown", str(md), "--csv", str(table))
+    assert out.splitlines()[0].split()[3] == "S_grasp_contact"
+    assert md.read_text().split("| Errors | ", 1)[1].startswith("S_grasp_contact (%)")
+    header = table.read_text().splitlines()[0].split(",")
+    assert header[header.index("grasped") + 1] == "S_grasp_contact"
+
+
+def test_chance_row_is_the_best_blind_value_per_metric(tmp_path, capsys, run):
+    # two blind runs on the run's three episodes: one localizes the first, the other never
+    hit = write_run(tmp_path / "hit", [Ep(**GOOD), Ep(**MISS), Ep(**MISS)], policy="blind-centre")
+    miss = write_run(tmp_path / "miss", [Ep(**MISS), Ep(**MISS), Ep(**MISS)], policy="blind-sweep")
+    table = tmp_path / "t.csv"
+    code, out, err = run_main(capsys, "eval", str(run), "--chance", str(hit), str(miss), "--csv", str(table))
+    assert code == 0, err
+    row = next(line for line in out.splitlines() if line.startswith("chance (best blind)"))
+    assert "33.33" in row  # S_grasp_contact, S_loc and S_gra of the "hit" run
+    _, out, _ = run_main(capsys, "eval", str(run), "--chance", str(hit), str(miss), "--json")
+    chance = json.loads(out)["chance"]
+    assert chance["metrics"]["S_loc"] == pytest.approx(100 / 3) and chance["best_of"]["S_loc"] == "blind-centre"
+    assert chance["metrics"]["E_loc"] == pytest.approx((0.1 + 1.0 + 1.0) / 3, rel=1e-6)  # the lower
+    assert chance["runs"] == ["blind-centre", "blind-sweep"]
+    assert table.read_text().splitlines()[-1].startswith("chance (best blind)")
+
+
+def test_chance_runs_on_other_episodes_are_refused(tmp_path, capsys, run):
+    short = write_run(tmp_path / "short", [Ep(**MISS), Ep(**MISS)], policy="blind-centre")
+    code, out, err = run_main(capsys, "eval", str(run), "--chance", str(short))
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "--chance short" in err and "other episodes" in err

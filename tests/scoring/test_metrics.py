@@ -10,7 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from scoring.metrics import (
+    LENIENT,
     METRIC_NAMES,
+    PAPER,
+    TOP_BAND,
+    Reading,
     aggregate,
     episode_metrics,
     mean_interval,
@@ -32,12 +36,17 @@ def episode(palm, obj=None, joints=None, tips=None):
     return palm, obj, joints, tips
 
 
-def score(*episodes, grasp=None):
-    """episode_metrics over the given episodes, all with grasp_angles CLOSED by default."""
+def score(*episodes, grasp=None, reading=LENIENT, top=None):
+    """episode_metrics over the given episodes, all with grasp_angles CLOSED by default.
+
+    The hand-made answers below were worked out for the ``lenient`` reading (minimum errors,
+    zero steps dropped, S_loc in XZ), Dyana's only rules before readings existed; the
+    ``paper`` reading's differences are tested after them."""
     offsets = np.concatenate([[0], np.cumsum([len(e[0]) for e in episodes])])
     cat = [np.concatenate([e[i] for e in episodes]) if episodes else np.zeros((0, 3)) for i in range(4)]
     grasp = np.tile(CLOSED, (len(episodes), 1)) if grasp is None else np.asarray(grasp)
-    return episode_metrics(offsets, cat[0], cat[1], cat[2].reshape(-1, 15), cat[3].reshape(-1), grasp)
+    return episode_metrics(offsets, cat[0], cat[1], cat[2].reshape(-1, 15), cat[3].reshape(-1), grasp,
+                           top_offset=top, reading=reading)
 
 
 def xs(*values, y=2.0):
@@ -45,8 +54,9 @@ def xs(*values, y=2.0):
     return [[v, y, 0.0] for v in values]
 
 
-def quality(points):
-    q_smooth, q_line = path_quality(np.array([0, len(points)]), np.asarray(points, dtype=np.float64).reshape(-1, 3))
+def quality(points, steps="drop"):
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    q_smooth, q_line = path_quality(np.array([0, len(points)]), points, steps)
     return q_smooth[0], q_line[0]
 
 
@@ -210,25 +220,41 @@ def test_episode_without_acting_frames():
     assert list(per.r_time) == [0.0, 0.0, 0.0]
 
 
-def naive(palm, obj, joints, tips, grasp):
-    """Frame-by-frame reference implementation of the written definitions."""
+def naive(palm, obj, joints, tips, grasp, reading=LENIENT, top=0.0):
+    """Frame-by-frame reference implementation of the written definitions (either reading)."""
     n = len(palm)
     d = [float(np.hypot(palm[t][0] - obj[t][0], palm[t][2] - obj[t][2])) for t in range(n)]
-    t_loc = next((t for t in range(n) if d[t] <= 0.3), -1)
+
+    def over(t):
+        height = palm[t][1] - obj[t][1] - top
+        return d[t] <= 0.3 and (reading.s_loc == "xz" or 0.0 <= height <= 0.65)
+
+    t_loc = next((t for t in range(n) if over(t)), -1)
     t_gra = next((t for t in range(n) if all(joints[t][j] >= 0.8 * grasp[j] for j in range(15))), -1)
     q_smooth = q_line = float("nan")
     if t_loc >= 0:
         p = [np.asarray(palm[t], dtype=float) for t in range(t_loc + 1)]
         segs = [p[k + 1] - p[k] for k in range(len(p) - 1)]
-        steps = [float(np.linalg.norm(s)) for s in segs if np.linalg.norm(s) > 1e-4]
-        q_smooth = 1.0 / (1.0 + float(np.std(steps)) / float(np.mean(steps))) if steps else 1.0
         chord = p[-1] - p[0]
         cn = float(np.linalg.norm(chord))
-        cos = [float(s @ chord) / (float(np.linalg.norm(s)) * cn) for s in segs if np.linalg.norm(s) > 1e-8]
-        q_line = float(np.mean(cos)) if cn >= 1e-8 and cos else 0.0
+        if reading.steps == "drop":
+            steps = [float(np.linalg.norm(s)) for s in segs if np.linalg.norm(s) > 1e-4]
+            q_smooth = 1.0 / (1.0 + float(np.std(steps)) / float(np.mean(steps))) if steps else 1.0
+            cos = [float(s @ chord) / (float(np.linalg.norm(s)) * cn) for s in segs if np.linalg.norm(s) > 1e-8]
+            q_line = float(np.mean(cos)) if cn >= 1e-8 and cos else 0.0
+        else:
+            steps = [float(np.linalg.norm(s)) for s in segs]
+            mean = float(np.mean(steps)) if steps else 0.0
+            q_smooth = 1.0 / (1.0 + float(np.std(steps)) / mean) if mean > 0 else 0.0
+            cos = [float(s @ chord) / (float(np.linalg.norm(s)) * cn) if np.linalg.norm(s) > 1e-8 else 0.0
+                   for s in segs]
+            q_line = sum(cos) / len(cos) if cn >= 1e-8 and cos else 0.0
     r_time = 1 - (max(t_loc, t_gra) + 1) / n if t_loc >= 0 and t_gra >= 0 else 0.0
-    e_loc = min(d) if n else float("nan")
-    e_gra = float(min(tips)) if n else float("nan")
+    if not n:
+        e_loc = e_gra = float("nan")
+    else:
+        e_loc = min(d) if reading.e_loc == "minimum" else d[-1]
+        e_gra = float(min(tips)) if reading.e_gra == "minimum" else float(tips[t_gra if t_gra >= 0 else -1])
     return t_loc, t_gra, e_loc, e_gra, q_smooth, q_line, r_time
 
 
@@ -247,16 +273,16 @@ def episodes(draw):
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(episodes(), min_size=1, max_size=6))
-def test_vectorised_matches_the_frame_by_frame_definitions(eps):
+@given(st.lists(episodes(), min_size=1, max_size=6), st.sampled_from([LENIENT, PAPER]))
+def test_vectorised_matches_the_frame_by_frame_definitions(eps, reading):
     arrays = [
         episode(np.asarray(p).reshape(-1, 3), obj=np.asarray(o).reshape(-1, 3),
                 joints=np.asarray(j).reshape(-1, 15), tips=np.asarray(t).reshape(-1))
         for p, o, j, t, _ in eps
     ]
-    per = score(*arrays, grasp=np.stack([g for *_, g in eps]))
+    per = score(*arrays, grasp=np.stack([g for *_, g in eps]), reading=reading)
     for i, (p, o, j, t, g) in enumerate(eps):
-        expected = naive(p, o, j, t, g)
+        expected = naive(p, o, j, t, g, reading)
         got = (per.t_loc[i], per.t_gra[i], per.e_loc[i], per.e_gra[i], per.q_smooth[i], per.q_line[i], per.r_time[i])
         assert got[:2] == expected[:2]
         np.testing.assert_allclose(got[2:], expected[2:], rtol=1e-9, atol=1e-12, equal_nan=True)
@@ -401,3 +427,64 @@ def test_the_ground_truth_grasps_with_contact_and_a_blind_fist_does_not():
     blind = score_run(from_recordings("fist", "test-1k", specs, recordings, policy="fist")).overall
     assert blind.metrics["S_gra"] > 0 and blind.metrics["S_loc"] == 0
     assert blind.metrics["S_grasp_contact"] == 0.0
+
+
+# --- the paper reading (the default): where it differs from the lenient one ---------
+
+
+def test_paper_reading_is_the_default():
+    per = episode_metrics(np.array([0, 2]), np.array(xs(1.0, 0.2, y=0.3)), np.zeros((2, 3)), np.zeros((2, 15)),
+                          np.array([0.1, 0.5]), np.ones((1, 15)))
+    assert per.e_loc[0] == pytest.approx(0.2) and per.e_gra[0] == pytest.approx(0.5)  # the last frame's
+
+
+def test_e_loc_at_the_endpoint_and_e_gra_at_completion():
+    joints = np.tile(OPEN, (4, 1))
+    joints[2:] = CLOSED
+    palm = episode(xs(1.0, 0.1, 0.5, 2.0, y=0.3), joints=joints, tips=[0.05, 0.2, 0.4, 0.9])
+    lenient, paper = score(palm), score(palm, reading=PAPER)
+    assert (lenient.e_loc[0], lenient.e_gra[0]) == (pytest.approx(0.1), pytest.approx(0.05))
+    assert paper.e_loc[0] == pytest.approx(2.0)  # where the palm ended
+    assert paper.e_gra[0] == pytest.approx(0.4)  # at t_gra = 2, the grasp's completion
+    never = score(episode(xs(1.0, 0.1, y=0.3), tips=[0.05, 0.7]), reading=PAPER)
+    assert never.e_gra[0] == pytest.approx(0.7)  # no completion: the last frame
+
+
+def test_paper_reading_keeps_zero_steps():
+    # jump once, then hold: the lenient reading sees one step (1.0, 1.0)
+    points = xs(0, 3, 3, 3, 3, 3)
+    assert quality(points) == (1.0, 1.0)
+    steps = np.array([3.0, 0, 0, 0, 0])
+    q_smooth, q_line = quality(points, "keep")
+    assert q_smooth == pytest.approx(1 / (1 + steps.std() / steps.mean()))
+    assert q_line == pytest.approx(1 / 5)  # one step along the chord, four without direction
+    assert quality(xs(2, 2, 2), "keep") == (0.0, 0.0)  # never moved: no motion to call smooth
+    assert quality(xs(2), "keep") == (0.0, 0.0)
+    assert quality(xs(0, 1, 2, 3), "keep") == (1.0, 1.0)
+
+
+def test_s_loc_needs_the_palm_above_the_top_surface():
+    obj = [[0.0, 1.0, 0.0]] * 4
+    top = np.array([0.5])  # the object's top at y = 1.5
+    inside = episode(xs(1, 0.1, 0.1, 0.1, y=1.2), obj=obj)  # over it in XZ, but below its top
+    assert score(inside, top=top).localized[0]
+    assert not score(inside, top=top, reading=PAPER).localized[0]
+    hover = episode([[1, 1.85, 0], [0.1, 2.3, 0], [0.1, 1.85, 0], [0.1, 1.5, 0]], obj=obj)
+    per = score(hover, top=top, reading=PAPER)
+    assert per.t_loc[0] == 2  # 0.8 above the top is too high; 0.35 (the ground truth's hover) is in
+    edge = episode([[0.1, 1.5 + TOP_BAND, 0]], obj=obj[:1])
+    assert score(edge, top=top, reading=PAPER).localized[0]  # both ends of the band are inclusive
+
+
+def test_contact_grasp_follows_the_reading_s_loc():
+    obj = [[0.0, 1.0, 0.0]] * 2
+    fist_inside = episode(xs(0.1, 0.1, y=1.0), obj=obj, joints=np.tile(CLOSED, (2, 1)), tips=[0.05, 0.05])
+    assert score(fist_inside, top=np.array([0.5])).contact_grasped[0]
+    assert not score(fist_inside, top=np.array([0.5]), reading=PAPER).contact_grasped[0]
+
+
+def test_reading_rejects_unknown_rules():
+    with pytest.raises(ValueError, match="e_loc"):
+        Reading("odd", e_loc="median")
+    with pytest.raises(ValueError, match="steps"):
+        path_quality(np.array([0, 1]), np.zeros((1, 3)), "skip")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from scoring.cli import main
-from scoring.metrics import episode_metrics
+from scoring.metrics import LENIENT, PAPER, episode_metrics
 from scoring.taxonomy import (
     CROSSING_WINDOW,
     FAILURE_CLASSES,
@@ -46,7 +46,7 @@ def episode(palm, obj=PATH, close_at: int | None = None, tip: float = 0.05) -> d
             "tips": tips}
 
 
-def classify(*episodes, error=None, hover=None, clearance=None, contact_fails=False) -> Failures:
+def classify(*episodes, error=None, hover=None, clearance=None, contact_fails=False, reading=PAPER) -> Failures:
     counts = [len(e["palm"]) for e in episodes]
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     palm = np.concatenate([e["palm"] for e in episodes]).reshape(-1, 3)
@@ -54,7 +54,7 @@ def classify(*episodes, error=None, hover=None, clearance=None, contact_fails=Fa
     joints = np.concatenate([e["joints"] for e in episodes]).reshape(-1, 15)
     tips = np.concatenate([e["tips"] for e in episodes])
     grasp = np.tile(CLOSED, (len(episodes), 1))
-    per = episode_metrics(offsets, palm, obj, joints, tips, grasp, hover_offset=hover)
+    per = episode_metrics(offsets, palm, obj, joints, tips, grasp, hover_offset=hover, reading=reading)
     error = np.zeros(len(episodes), bool) if error is None else np.asarray(error)
     return episode_failures(per, offsets, palm, obj, error, hover, clearance, contact_fails)
 
@@ -162,7 +162,8 @@ def test_a_flying_object_is_reached_in_3d_at_its_hover_point():
     failures = classify(over_xz, too_high, hover=np.array([hover, hover]))
     assert failures.failure.tolist() == ["success", "perception_prediction"]
     assert failures.path_miss[1] == pytest.approx(1.0)
-    assert only(classify(too_high)) == "success"  # on the table: XZ only
+    assert only(classify(too_high, reading=LENIENT)) == "success"  # on the table, lenient reading: XZ only
+    assert only(classify(too_high)) != "success"  # paper reading: 1.5 over the top is not "above" it
 
 
 def test_an_episode_without_acting_frames_did_not_move_and_has_no_evidence():
@@ -225,7 +226,7 @@ def _ep(palm: np.ndarray, closed_from: int | None = None, **kwargs) -> Ep:
 
 
 def test_scoring_eval_counts_classes_per_run_and_motion_and_lists_them_per_episode(tmp_path, capsys):
-    target = [0.0, 0.3, 2.0]
+    target = [0.0, 1.15, 2.0]  # the hover point: the object's top (0.3 + 0.5) + 0.35
     toward = np.array([REST, REST, [0.0, 0.8, 0.5], target, target, target])
     episodes = [
         _ep(toward, closed_from=4, motion_type="linear"),
