@@ -58,11 +58,12 @@ def remove_unlisted_audit(root: Path, audit_dir: str, manifest: Manifest) -> Non
             path.unlink()
 
 
-def read_audit(root: Path, records: Sequence[FileRecord]) -> list[dict[str, Any]]:
-    """Every record of the trail files ``records`` (the manifest's ``audit``), in order."""
+def read_audit(root: Path, records: Sequence[FileRecord] | None = None) -> list[dict[str, Any]]:
+    """Every record of the trail files ``records`` (the manifest's ``audit``, paths relative
+    to ``root``), in order; without ``records``, of every trail file in the folder ``root``."""
     out: list[dict[str, Any]] = []
-    for record in records:
-        path = root / record.path
+    paths = sorted(Path(root).glob("audit-*.jsonl")) if records is None else [Path(root) / r.path for r in records]
+    for path in paths:
         try:
             out += [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line]
         except (OSError, ValueError) as exc:

@@ -303,7 +303,10 @@ def replay(
     manifest, rollout = folder.manifest, folder.rollout
     check_rebuildable(folder.root, manifest)
     for record in manifest.audit or ():
-        check_file(folder.root, record, "sha256")
+        try:
+            check_file(folder.root, record, "sha256")
+        except ShardError as exc:
+            raise ShardError(f"{exc} (the audit trail changed since the run)") from None
     raise_first(path, stray_files(folder.root, manifest))
     settings = dict(manifest.settings)
     chosen = list(folder.shards)
