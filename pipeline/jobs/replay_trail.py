@@ -26,6 +26,7 @@ from pipeline.loop.wrappers import RecordEpisode
 from pipeline.policies.base import Policy
 from pipeline.policy_registry import KINDS, Audited, Config, PolicyKind
 from schemas.errors import ShardError
+from schemas.names import printable
 from schemas.spec import EpisodeSpec
 
 Record = dict[str, Any]
@@ -77,6 +78,13 @@ def audited_replay(root: Path, manifest: Manifest) -> AuditedReplay | None:
                 raise ShardError(f"{root}/{MANIFEST_NAME}: {key} must be an object, got {type(config).__name__}")
             if manifest.audit is None:
                 raise ShardError(f"{root}/{MANIFEST_NAME}: a {kind.name} run whose manifest lists no audit trail")
+            expected = [audit_path(root / kind.audit_dir, s.first, s.end).relative_to(root).as_posix()
+                        for s in manifest.shards]
+            listed = [record.path for record in manifest.audit]
+            if sorted(listed) != sorted(expected):
+                odd = sorted(set(listed) ^ set(expected))
+                raise ShardError(f"{root}/{MANIFEST_NAME}: audit lists {len(listed)} trail file(s), one per shard expected "
+                                 f"({len(expected)}); differs at {printable(', '.join(odd), 120)}")
             return AuditedReplay(kind, dict(config), root, manifest)
     return None
 
@@ -86,16 +94,27 @@ def _plain(value: Any) -> Any:
     return json.loads(json.dumps(value, sort_keys=True, allow_nan=False))
 
 
+def _first_path(old: Any, new: Any, path: str) -> tuple[str, Any, Any] | None:
+    """The dotted path of the first (sorted) key where two JSON values differ, with both values."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(set(old) | set(new), key=str):
+            found = _first_path(old.get(key, "(absent)"), new.get(key, "(absent)"), f"{path}.{key}")
+            if found is not None:
+                return found
+        return None
+    return None if old == new else (path, old, new)
+
+
 def trail_difference(recorded: list[Record], replayed: list[Record]) -> str | None:
     """The first difference between an episode's recorded and re-derived exchanges:
     ``record N (query Q), field F: recorded X, replay gives Y``, or a count; None if equal."""
     replayed = _plain(replayed)
     for i, (old, new) in enumerate(zip(recorded, replayed)):
-        for key in sorted(set(old) | set(new)):
-            if old.get(key, "(absent)") != new.get(key, "(absent)"):
-                return (f"record {i + 1} (query {old.get('query')!r:.20}), field {key}: "
-                        f"recorded {json.dumps(old.get(key, '(absent)'))[:120]}, "
-                        f"replay gives {json.dumps(new.get(key, '(absent)'))[:120]}")
+        found = _first_path(old, new, "")
+        if found is not None:
+            field, was, now = found
+            return (f"record {i + 1} (query {printable(old.get('query'), 20)}), field {printable(field[1:], 60)}: "
+                    f"recorded {printable(json.dumps(was), 120)}, replay gives {printable(json.dumps(now), 120)}")
     if len(recorded) != len(replayed):
         return f"the trail holds {len(recorded)} record(s), replay asks {len(replayed)}"
     return None

@@ -3,6 +3,7 @@ can notice (the manifest's hashes and seal are updated to match, with Dyana's ow
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import numpy as np
 import pyarrow as pa
 
 from catalog.hashing import sha256_file
-from catalog.manifest import Manifest, load_manifest, write_manifest
+from catalog.manifest import SEAL_KEY, Manifest, load_manifest, write_manifest
 from catalog.parquet_io import read_episodes, read_frames, write_table
 from catalog.records import FileRecord, ShardRecord
 
@@ -48,6 +49,14 @@ def reseal(folder: Path, **changes: object) -> Manifest:
                               extra={**manifest.extra, **changes}, stats=manifest.stats, audit=audit)
     write_manifest(folder, updated)
     return updated
+
+
+def unseal(folder: Path) -> None:
+    """``folder``'s catalog.json as the previous release wrote it: without its seal."""
+    path = folder / "catalog.json"
+    data = json.loads(path.read_text())
+    del data[SEAL_KEY]
+    path.write_text(json.dumps(data, sort_keys=True, indent=2) + "\n")
 
 
 def rehash(folder: Path, shard_index: int, kind: str) -> ShardRecord:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import shutil
 import subprocess
 import sys
@@ -12,13 +11,15 @@ import pandas as pd
 import pytest
 
 from catalog.integrity import verify_files
-from catalog.manifest import SEAL_KEY, Manifest, load_manifest, write_manifest
+from catalog.manifest import Manifest, load_manifest, write_manifest
 from catalog.reader import open_folder
 from catalog.records import LEGACY_LAYOUT, FileRecord, ShardRecord, shard_paths
 from pipeline.jobs.build import build
 from pipeline.jobs.migrate import migrate
 from schemas.errors import SettingsMismatch, ShardError
 from tests.shard_files import shard_bytes, shard_names
+
+from .tamper import unseal
 
 BIN = Path(sys.executable).parent
 
@@ -52,14 +53,6 @@ def _as_legacy(source: Path, target: Path, version: str = "2.0.0", sealed: bool 
     if not sealed:
         unseal(target)
     return legacy
-
-
-def unseal(folder: Path) -> None:
-    """``folder``'s catalog.json as the previous release wrote it: without its seal."""
-    path = folder / "catalog.json"
-    data = json.loads(path.read_text())
-    del data[SEAL_KEY]
-    path.write_text(json.dumps(data, sort_keys=True, indent=2) + "\n")
 
 
 def test_each_table_has_its_folder_and_the_records_name_them(built):
