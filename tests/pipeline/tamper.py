@@ -4,6 +4,7 @@ can notice (the manifest's hashes and seal are updated to match, with Dyana's ow
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -49,6 +50,13 @@ def reseal(folder: Path, **changes: object) -> Manifest:
                               extra={**manifest.extra, **changes}, stats=manifest.stats, audit=audit)
     write_manifest(folder, updated)
     return updated
+
+
+def copy_of(folder: Path, parent: Path) -> Path:
+    """A copy of a module-scoped folder for one test to tamper with: ``parent/run``."""
+    target = parent / "run"
+    shutil.copytree(folder, target)
+    return target
 
 
 def unseal(folder: Path) -> None:

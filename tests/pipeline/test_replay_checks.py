@@ -20,7 +20,7 @@ from pipeline.jobs.verify import verify
 from schemas.errors import ReplayMismatch, ShardError
 from scoring.io import load_run
 
-from .tamper import reseal, rewrite_episodes, set_column
+from .tamper import copy_of, reseal, rewrite_episodes, set_column
 
 BIN = Path(sys.executable).parent
 RESOLUTION = 32
@@ -36,9 +36,7 @@ def run(tmp_path_factory):
 
 @pytest.fixture
 def copy(run, tmp_path):
-    target = tmp_path / "run"
-    shutil.copytree(run, target)
-    return target
+    return copy_of(run, tmp_path)
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:

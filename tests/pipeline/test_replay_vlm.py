@@ -23,7 +23,7 @@ from pipeline.jobs.migrate import migrate
 from pipeline.jobs.replay import replay
 from schemas.errors import ReplayMismatch, ShardError
 
-from .tamper import reseal, unseal
+from .tamper import copy_of, reseal, unseal
 
 RESOLUTION = 48
 
@@ -46,9 +46,7 @@ def vlm_run(tmp_path_factory):
 
 @pytest.fixture
 def run(vlm_run, tmp_path):
-    target = tmp_path / "run"
-    shutil.copytree(vlm_run, target)
-    return target
+    return copy_of(vlm_run, tmp_path)
 
 
 def rewrite_trail(folder: Path, mutate) -> None:
