@@ -7,7 +7,15 @@
   acting frame but the last). No policy is needed: what the policy saw is the
   decoded JPEG of the recorded image bytes, which replay re-renders and compares.
   A policy kind that keeps an audit trail (:mod:`pipeline.policy_registry`: the VLM's)
-  is run again instead, its answers read from the trail, after checking its hashes.
+  is run again instead, its answers read from the trail, after checking its hashes,
+  and every exchange it re-derives is compared with the trail's
+  (:mod:`pipeline.jobs.replay_trail`).
+
+Nothing recorded is taken on trust where it can be re-derived: a run's ``status`` comes
+from the re-execution (``ok`` when the last recorded step ends the episode, ``error``
+when the recording stops before), ``policy`` and ``privileged`` from the manifest,
+checked against the policy where replay can make it. Unlisted files in the data
+folders are refused first (:func:`catalog.integrity.stray_files`).
 
 Every column of every frame (state arrays bit for bit, the JPEG bytes) and of the
 episodes table is compared, then the shard is rewritten into a scratch folder and
