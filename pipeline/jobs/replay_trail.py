@@ -116,5 +116,5 @@ def trail_difference(recorded: list[Record], replayed: list[Record]) -> str | No
             return (f"record {i + 1} (query {printable(old.get('query'), 20)}), field {printable(field[1:], 60)}: "
                     f"recorded {printable(json.dumps(was), 120)}, replay gives {printable(json.dumps(now), 120)}")
     if len(recorded) != len(replayed):
-        return f"the trail holds {len(recorded)} record(s), replay asks {len(replayed)}"
+        return f"the trail holds {len(recorded)} record(s) of this episode, replay re-derives {len(replayed)}"
     return None
