@@ -1,6 +1,7 @@
 """The integrity half of ``catalog verify``: every file a manifest lists is present,
 has its recorded size and sha256, and opens as what it claims to be; no temp file
-of an unfinished write and no unlisted shard file lies in the folder.
+of an unfinished write and no unlisted file (of any name, hidden ones too) lies in a
+data folder: the table folders and the folders of the audit files the manifest lists.
 
 (The other half, rebuilding shards and comparing bytes, lives in the pipeline.)
 """
@@ -105,21 +106,46 @@ def check_files(
             problem = _check_file(root, shard, kind, full)
             if problem is not None:
                 problems.append(problem)
-    if manifest.stats is not None:
-        problem = _file_problem(root, manifest.stats)
+    for record in [*([] if manifest.stats is None else [manifest.stats]), *(manifest.audit or ())]:
+        problem = _file_problem(root, record)
         if problem is not None:
             problems.append(problem)
-    for temp in () if is_remote(root) else find_stray_temps(root):  # object stores have no temporaries
+    return problems + stray_files(root, manifest)
+
+
+def data_folders(manifest: Manifest) -> list[str]:
+    """The folders that hold only files the manifest lists: the table folders (both
+    layouts) and the folders of its audit files."""
+    audit = {record.path.rpartition("/")[0] for record in manifest.audit or ()}
+    return sorted({*SHARD_DIRS, *(folder for folder in audit if folder)})
+
+
+def stray_files(directory: str | os.PathLike[str], manifest: Manifest) -> list[Problem]:
+    """Temporaries of unfinished writes anywhere in the folder, and anything in a data
+    folder (:func:`data_folders`) that the manifest does not list, sorted by path."""
+    root = as_location(directory)
+    problems = []
+    temps = set() if is_remote(root) else set(find_stray_temps(root))  # object stores have no temporaries
+    for temp in sorted(temps):
         rel = temp.relative_to(root).as_posix()
         problems.append(Problem(rel, "stray-temp", "temporary file of an unfinished write (remove it or rebuild)"))
-    listed = {path for path, _, _ in manifest.files()}
-    for folder in SHARD_DIRS:
+    listed = {path for path, _, _ in manifest.files()} | {record.path for record in manifest.audit or ()}
+    for folder in data_folders(manifest):
         shard_dir = root / folder
         for path in sorted(shard_dir.iterdir()) if shard_dir.is_dir() else ():
             rel = path.relative_to(root).as_posix()
-            if rel not in listed and not path.name.startswith("."):
+            if rel not in listed and path not in temps:
                 problems.append(Problem(rel, "unlisted", f"not listed in {MANIFEST_NAME}"))
     return problems
+
+
+def raise_first(directory: str | os.PathLike[str], problems: list[Problem]) -> None:
+    """ShardError naming the first problem's file (and how many more there are), if any."""
+    if problems:
+        first = problems[0]
+        more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
+        where = str(directory).rstrip("/") + "/" + first.path
+        raise ShardError(f"{where}: {first.detail}{more}")
 
 
 def verify_files(
@@ -137,10 +163,5 @@ def verify_files(
     """
     manifest = load_manifest(directory)
     check_settings(as_location(directory), manifest.settings)  # fps, image format: named in catalog.json
-    problems = check_files(directory, manifest, sample, rng, full=full)
-    if problems:
-        first = problems[0]
-        more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
-        where = str(directory).rstrip("/") + "/" + first.path
-        raise ShardError(f"{where}: {first.detail}{more}")
+    raise_first(directory, check_files(directory, manifest, sample, rng, full=full))
     return manifest

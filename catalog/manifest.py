@@ -3,9 +3,12 @@
 Written last, atomically, as canonical JSON with sorted keys, 2-space indent and a
 trailing newline, so its presence marks a complete folder and its bytes depend only
 on its content. Its ``hash`` is the slice hash (``catalog.hashing.slice_hash``) over
-the settings and the ordered file hashes; loading checks it, so a hand-edited
-manifest is refused. Keys beyond the contract's (``policy`` for rollouts, ...) are
-kept in :attr:`Manifest.extra` and written at the top level.
+the settings and the ordered file hashes: the content's identity. ``key_sha256`` seals
+the rest: the sha256 of the canonical JSON of every other top-level key, so an edit of
+any key (``policy``, ``privileged``, ``code``, a VLM setting, an added key) is refused
+on load naming the key. Keys beyond the contract's (``policy`` for rollouts, ...) are
+kept in :attr:`Manifest.extra` and written at the top level; ``audit`` lists files kept
+beside the shards that no reader reads but replay checks (a VLM run's exchanges).
 """
 
 from __future__ import annotations
@@ -21,18 +24,22 @@ from types import MappingProxyType
 from typing import Any
 
 from catalog.atomic import atomic_write_text
-from catalog.hashing import canonical_json, is_sha256, slice_hash
+from catalog.hashing import canonical_json, is_sha256, sha256_bytes, slice_hash
 from catalog.records import FileRecord, ShardRecord
 from catalog.repeat_sets import repeats_hint
 from catalog.storage import as_location
 from schemas.errors import ShardError, SpecError
 from schemas.formats import stored_formats
+from schemas.names import printable
 from schemas.versions import CODE_VERSION
 
 MANIFEST_NAME = "catalog.json"
 CORE_KEYS = ("slice", "seed", "episodes", "frames", "code", "settings", "shards", "hash")
-#: Keys of the contract a manifest may lack: ``stats`` (the statistics file's record).
-OPTIONAL_KEYS = ("stats",)
+#: Keys of the contract a manifest may lack: ``stats`` (the statistics file's record) and
+#: ``audit`` (a policy's audit trail files).
+OPTIONAL_KEYS = ("stats", "audit")
+#: The seal: every other top-level key's sha256 (:func:`seal_of`), checked on load.
+SEAL_KEY = "key_sha256"
 _COMMIT = re.compile(r"^[0-9a-f]{40}([0-9a-f]{24})?$")
 
 
@@ -94,6 +101,7 @@ class Manifest:
     hash: str
     extra: Mapping[str, Any] = field(default_factory=dict)
     stats: FileRecord | None = None
+    audit: tuple[FileRecord, ...] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.slice, str) or not self.slice:
@@ -139,7 +147,7 @@ class Manifest:
             raise ShardError(f"episodes is {self.episodes!r} but the shards hold {episodes}")
         if self.frames != frames:
             raise ShardError(f"frames is {self.frames!r} but the shards hold {frames}")
-        clash = sorted(set(self.extra) & {*CORE_KEYS, *OPTIONAL_KEYS})
+        clash = sorted(set(self.extra) & {*CORE_KEYS, *OPTIONAL_KEYS, SEAL_KEY})
         if clash:
             raise ShardError(f"extra keys must not redefine {clash}")
         extra = dict(self.extra)
@@ -152,6 +160,14 @@ class Manifest:
             raise ShardError(f"hash must be a sha256 hex digest, got {self.hash!r}")
         if self.stats is not None and not isinstance(self.stats, FileRecord):
             raise ShardError(f"stats must be a file record, got {self.stats!r}")
+        if self.audit is not None:
+            audit = tuple(self.audit)
+            if not all(isinstance(r, FileRecord) for r in audit):
+                raise ShardError(f"audit must be a list of file records, got {audit!r:.120}")
+            paths = [r.path for r in audit]
+            if paths != sorted(set(paths)):
+                raise ShardError(f"audit must list each file once, sorted by path, got {paths!r:.120}")
+            object.__setattr__(self, "audit", audit)
         expected = compute_hash(settings, shards, self.slice, self.seed, self.stats)
         if self.hash != expected:
             raise ShardError(
@@ -169,8 +185,10 @@ class Manifest:
         code: CodeInfo | None = None,
         extra: Mapping[str, Any] | None = None,
         stats: FileRecord | None = None,
+        audit: Sequence[FileRecord] | None = None,
     ) -> Manifest:
-        """Totals and hash computed; shards sorted by first episode; ``code`` defaults to this installation."""
+        """Totals and hash computed; shards sorted by first episode, ``audit`` by path;
+        ``code`` defaults to this installation."""
         ordered = tuple(sorted(shards, key=lambda s: s.first))
         return cls(
             slice=slice,
@@ -183,9 +201,11 @@ class Manifest:
             hash=compute_hash(settings, ordered, slice, seed, stats),
             extra=dict(extra or {}),
             stats=stats,
+            audit=None if audit is None else tuple(sorted(audit, key=lambda r: r.path)),
         )
 
     def to_dict(self) -> dict[str, Any]:
+        """Every key as written, the seal (``key_sha256``) included."""
         out = {
             "slice": self.slice,
             "seed": self.seed,
@@ -198,7 +218,10 @@ class Manifest:
         }
         if self.stats is not None:
             out["stats"] = self.stats.to_dict()
+        if self.audit is not None:
+            out["audit"] = [r.to_dict() for r in self.audit]
         out.update(self.extra)
+        out[SEAL_KEY] = seal_of(json.loads(canonical_json(out)))  # over the values as a reader gets them back
         return out
 
     def to_json(self) -> str:
@@ -227,13 +250,54 @@ class Manifest:
             settings=data["settings"],
             shards=shards,
             hash=data["hash"],
-            extra={k: v for k, v in data.items() if k not in CORE_KEYS and k not in OPTIONAL_KEYS},
+            extra={k: v for k, v in data.items() if k not in {*CORE_KEYS, *OPTIONAL_KEYS, SEAL_KEY}},
             stats=None if data.get("stats") is None else FileRecord.from_dict(data["stats"], "stats"),
+            audit=_audit_records(data.get("audit")),
         )
 
     def files(self) -> list[tuple[str, str, int]]:
         """(path, sha256, size) of every listed file, in hashing order."""
         return [(f.path, f.sha256, f.size) for s in self.shards for f in s.files.values()]
+
+
+def _audit_records(raw: Any) -> tuple[FileRecord, ...] | None:
+    if raw is None:
+        return None
+    if not isinstance(raw, list):
+        raise ShardError(f"audit must be a list of file records, got {printable(raw)}")
+    return tuple(FileRecord.from_dict(r, f"audit[{i}]") for i, r in enumerate(raw))
+
+
+def seal_of(data: Mapping[str, Any]) -> dict[str, str]:
+    """The seal of a manifest's keys: each key but the seal itself mapped to the sha256
+    of its value's canonical JSON (``catalog.hashing.canonical_json``)."""
+    return {k: sha256_bytes(canonical_json(v).encode("utf-8")) for k, v in data.items() if k != SEAL_KEY}
+
+
+def check_seal(data: Mapping[str, Any], *, required: bool = True) -> bool:
+    """ShardError naming the keys edited, added or removed since the manifest was written;
+    a manifest without a seal (written before Dyana sealed its manifests) is refused
+    unless ``required`` is false. Returns whether it had one."""
+    seal = data.get(SEAL_KEY)
+    if seal is None:
+        if required:
+            raise ShardError(
+                f"written before Dyana sealed every key of its manifests (no {SEAL_KEY}): run `catalog migrate DIR` "
+                "on its folder (it verifies every file, then seals the manifest)"
+            )
+        return False
+    if not isinstance(seal, dict) or not all(isinstance(v, str) for v in seal.values()):
+        raise ShardError(f"{SEAL_KEY} must be an object of sha256 digests, got {printable(seal)}")
+    now = seal_of(data)
+    changed = sorted(k for k in now if k in seal and seal[k] != now[k])
+    added = sorted(k for k in now if k not in seal)
+    removed = sorted(k for k in seal if k not in now)
+    if changed or added or removed:
+        parts = [f"{what} {printable(', '.join(keys), 80)}" for what, keys in
+                 (("changed:", changed), ("added:", added), ("removed:", removed)) if keys]
+        raise ShardError(f"edited after it was written ({'; '.join(parts)}; {SEAL_KEY} differs): "
+                         "restore it, or rebuild the folder")
+    return True
 
 
 def manifest_path(directory: str | os.PathLike[str]) -> Path:
@@ -245,8 +309,10 @@ def write_manifest(directory: str | os.PathLike[str], manifest: Manifest) -> Pat
     return atomic_write_text(manifest_path(directory), manifest.to_json())
 
 
-def load_manifest(directory: str | os.PathLike[str]) -> Manifest:
-    """Read and validate ``DIR/catalog.json``; ShardError naming the file on any problem."""
+def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> Manifest:
+    """Read and validate ``DIR/catalog.json``, its seal first; ShardError naming the file
+    on any problem. ``sealed=False`` accepts a manifest without a seal (``catalog migrate``
+    reads the previous release's so; a seal present is still checked)."""
     path = manifest_path(directory)
     try:
         text = path.read_text(encoding="utf-8")
@@ -262,6 +328,12 @@ def load_manifest(directory: str | os.PathLike[str]) -> Manifest:
     except json.JSONDecodeError as exc:
         raise ShardError(f"{path}: not valid JSON: {exc}") from None
     try:
+        if not isinstance(data, dict):
+            raise ShardError(f"manifest must be a JSON object, got {type(data).__name__}")
+        try:
+            check_seal(data, required=sealed)
+        except ShardError as exc:
+            raise ShardError(str(exc).replace("catalog migrate DIR", f"catalog migrate {printable(str(directory))}")) from None
         return Manifest.from_dict(data)
     except ShardError as exc:
         raise ShardError(f"{path}: {exc}") from None

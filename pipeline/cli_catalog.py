@@ -147,15 +147,19 @@ def cmd_migrate(args: argparse.Namespace) -> int:
 
     for report in migrate(args.dir):
         if report.already:
-            print(f"{report.folder}: already in the frames/, episodes/, mcap/ layout ({report.shards} shards)")
-        else:
+            print(f"{report.folder}: already migrated ({report.shards} shards in frames/, episodes/, mcap/; "
+                  "catalog.json sealed)")
+        elif report.moved:
+            sealed = "; every file checked, catalog.json sealed" if report.sealed else ""
             print(f"{report.folder}: moved {report.moved} files of {report.shards} shards into frames/, episodes/, "
-                  "mcap/ (files and hash unchanged)")
+                  f"mcap/ (files and hash unchanged{sealed})")
+        else:
+            print(f"{report.folder}: every file checked, catalog.json sealed ({report.shards} shards, hash unchanged)")
     return 0
 
 
 def _migrate_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dir", metavar="DIR", help="a dataset 2.0.0 slice or run folder (shards/ layout), or a run of repeats")
+    p.add_argument("dir", metavar="DIR", help="a slice or run folder of a previous release, or a run of repeats")
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -247,7 +251,8 @@ COMMANDS = (
         "specs", "print a slice's episode specs as JSONL (edit, then `pipeline build --specs`)", _specs_arguments, cmd_specs
     ),
     cli.Command("verify", "check every file's sha256 and rebuild shards to compare bytes", _verify_arguments, cmd_verify),
-    cli.Command("migrate", "move a dataset 2.0.0 folder's shards/ into frames/, episodes/, mcap/", _migrate_arguments,
+    cli.Command("migrate", "bring a previous release's folder up to date: check it, seal catalog.json, move a 2.0.0 "
+                "folder's shards/ into frames/, episodes/, mcap/", _migrate_arguments,
                 cmd_migrate),
     cli.Command("export", "export a slice or run as a LeRobot dataset (v3.0, or v2.1 for GR00T)", _export_arguments,
                 cmd_export),

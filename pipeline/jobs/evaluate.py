@@ -29,7 +29,7 @@ import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
 from catalog.storage import as_location, is_url
-from pipeline.jobs.audit import read_audit, write_audit, write_audit_index
+from pipeline.jobs.audit import read_audit, write_audit
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
@@ -344,6 +344,7 @@ def evaluate(
         payload=settings,
         verb="evaluated",
         key_prefix="eval",
+        audit_dir=kind.audit_dir,
     )
     timing: dict[str, Any] = {"episodes": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
 
@@ -366,8 +367,6 @@ def evaluate(
     )
     manifest, up_to_date = result.manifest, result.up_to_date
     elapsed = time.monotonic() - start
-    if kind.audit_dir is not None:
-        write_audit_index(run_dir / kind.audit_dir)
     counts = summarize(run_dir) if summary or require_success else None
     if summary and counts is not None:
         out_stream = sys.stdout if stream is None else stream
@@ -376,8 +375,8 @@ def evaluate(
         for line in counts.lines(tracebacks=not isolate):
             print(line, file=out_stream)
         if kind.audit_dir is not None:
-            trail = run_dir / kind.audit_dir
-            summary_line = kind.summarize_audit(read_audit(trail)) if kind.summarize_audit else f"{len(read_audit(trail))} records"
+            trail, records = run_dir / kind.audit_dir, read_audit(run_dir, manifest.audit or ())
+            summary_line = kind.summarize_audit(records) if kind.summarize_audit else f"{len(records)} records"
             print(f"  {kind.name}: {summary_line}; trail in {trail}", file=out_stream)
         for line in _timing_lines(timing, elapsed):
             print(line, file=out_stream)

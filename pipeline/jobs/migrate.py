@@ -1,5 +1,12 @@
-"""`catalog migrate`: move a dataset 2.0.0 folder (all three files of a shard in ``shards/``)
-into the table folders (``frames/``, ``episodes/``, ``mcap/``) without rewriting any file.
+"""`catalog migrate`: bring a folder of a previous release up to this one's manifest:
+move a dataset 2.0.0 folder (all three files of a shard in ``shards/``) into the table
+folders (``frames/``, ``episodes/``, ``mcap/``) without rewriting any file, and seal a
+manifest written before Dyana sealed every key (``key_sha256``, :mod:`catalog.manifest`).
+
+Sealing comes after checking every file the manifest lists (size, sha256, readable) and
+that no unlisted file lies in a data folder; a VLM run's ``vlm/index.json`` is checked
+and moved into the manifest (``audit``). The keys outside the slice hash are sealed as
+found: migrate a folder you trust (a hand edit made before migrating is not detectable).
 
 Paths are not part of the slice hash, so the folder keeps its hash and its dataset version
 (its bytes are still 2.0.0's: it reads and scores, it is not rebuilt by this code). Files
@@ -15,9 +22,12 @@ import dataclasses
 import os
 from pathlib import Path
 
-from catalog.manifest import Manifest, load_manifest, write_manifest
+from catalog.integrity import check_files, raise_first
+from catalog.manifest import Manifest, load_manifest, manifest_path, write_manifest
 from catalog.records import TABLE_LAYOUT, FileRecord, ShardRecord, is_legacy, shard_paths
+from pipeline.jobs.audit import LEGACY_INDEX, legacy_trail
 from pipeline.jobs.lock import folder_lock
+from pipeline.policy_registry import KINDS
 from schemas.errors import ShardError
 
 
@@ -29,6 +39,7 @@ class MigrationReport:
     shards: int
     moved: int
     already: bool
+    sealed: bool = False
 
 
 def _move(root: Path, old: FileRecord, new_path: str) -> bool:
@@ -62,8 +73,10 @@ def migrate_folder(directory: str | os.PathLike[str]) -> MigrationReport:
     if not root.is_dir():
         raise ShardError(f"{os.fspath(directory)}: no such folder")
     with folder_lock(root):
-        manifest = load_manifest(root)
-        if not any(is_legacy(shard) for shard in manifest.shards):
+        manifest = load_manifest(root, sealed=False)
+        trail = _legacy_trail(root, manifest)
+        current = manifest_path(root).read_text(encoding="utf-8") == manifest.to_json()
+        if current and trail is None and not any(is_legacy(shard) for shard in manifest.shards):
             return MigrationReport(os.fspath(root), len(manifest.shards), 0, True)
         moved, shards = 0, []
         for shard in manifest.shards:
@@ -73,13 +86,31 @@ def migrate_folder(directory: str | os.PathLike[str]) -> MigrationReport:
         migrated = Manifest(
             slice=manifest.slice, seed=manifest.seed, episodes=manifest.episodes, frames=manifest.frames,
             code=manifest.code, settings=manifest.settings, shards=tuple(shards), hash=manifest.hash,
-            extra=manifest.extra, stats=manifest.stats,
+            extra=manifest.extra, stats=manifest.stats, audit=manifest.audit if trail is None else trail[1],
         )
+        raise_first(root, [p for p in check_files(root, migrated) if trail is None or p.path != trail[0]])
         write_manifest(root, migrated)
+        if trail is not None:
+            (root / trail[0]).unlink(missing_ok=True)
         legacy = root / "shards"
         if legacy.is_dir() and not any(legacy.iterdir()):
             legacy.rmdir()
-    return MigrationReport(os.fspath(root), len(shards), moved, False)
+    return MigrationReport(os.fspath(root), len(shards), moved, False, sealed=not current)
+
+
+def _legacy_trail(root: Path, manifest: Manifest) -> tuple[str, tuple[FileRecord, ...]] | None:
+    """A previous release's audit index (path) and the trail records it vouches for, for a
+    run of an audited kind whose manifest lists no trail yet; None otherwise."""
+    for kind in KINDS:
+        if kind.manifest_key in manifest.extra and kind.audit_dir is not None:
+            index = f"{kind.audit_dir}/{LEGACY_INDEX}"
+            if manifest.audit is not None:
+                return (index, manifest.audit) if (root / index).is_file() else None
+            records = legacy_trail(root, kind.audit_dir)
+            if records is None:
+                raise ShardError(f"{root / kind.audit_dir}: a {kind.name} run without {LEGACY_INDEX}: its trail cannot be checked")
+            return index, tuple(records)
+    return None
 
 
 def migrate(directory: str | os.PathLike[str]) -> list[MigrationReport]:

@@ -7,7 +7,15 @@
   acting frame but the last). No policy is needed: what the policy saw is the
   decoded JPEG of the recorded image bytes, which replay re-renders and compares.
   A policy kind that keeps an audit trail (:mod:`pipeline.policy_registry`: the VLM's)
-  is run again instead, its answers read from the trail, after checking its hashes.
+  is run again instead, its answers read from the trail, after checking its hashes,
+  and every exchange it re-derives is compared with the trail's
+  (:mod:`pipeline.jobs.replay_trail`).
+
+Nothing recorded is taken on trust where it can be re-derived: a run's ``status`` comes
+from the re-execution (``ok`` when the last recorded step ends the episode, ``error``
+when the recording stops before), ``policy`` and ``privileged`` from the manifest,
+checked against the policy where replay can make it. Unlisted files in the data
+folders are refused first (:func:`catalog.integrity.stray_files`).
 
 Every column of every frame (state arrays bit for bit, the JPEG bytes) and of the
 episodes table is compared, then the shard is rewritten into a scratch folder and
@@ -32,22 +40,21 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from catalog.manifest import Manifest
+from catalog.integrity import raise_first, stray_files
+from catalog.manifest import MANIFEST_NAME, Manifest
 from catalog.parquet_io import episode_row, episodes_table, frames_table
-from catalog.reader import ShardReader, open_folder
+from catalog.reader import ShardReader, check_file, open_folder
 from catalog.records import ShardRecord, shard_stem
-from pipeline.jobs.audit import check_audit_index, read_audit
 from pipeline.jobs.progress import EpisodeReport, report_quietly
+from pipeline.jobs.replay_trail import AuditedReplay, audited_replay, trail_difference
 from pipeline.loop.conditions import EvalProtocol
-from pipeline.loop.rollout import RolloutResult, run_episode
 from pipeline.loop.wrappers import RecordEpisode, loop_env
-from pipeline.policy_registry import KINDS, Config, PolicyKind
+from pipeline.policies.base import BUILTIN, make_policy
 from schemas.errors import PolicyError, ReplayMismatch, ShardError
 from schemas.frames import EpisodeFrames
+from schemas.names import printable
 from schemas.spec import EpisodeSpec
 from schemas.versions import DATASET_VERSION, FPS
-
-ROLLOUT_COLUMNS = ("policy", "privileged", "status", "error")
 
 
 @dataclass(frozen=True)
@@ -144,9 +151,12 @@ def _first_difference(recorded: pa.Table, expected: pa.Table, columns: Sequence[
 
 
 def _rollout_recording(
-    env: RecordEpisode, spec: EpisodeSpec, actions: np.ndarray, status: str, where: dict
-) -> tuple[EpisodeFrames, list[bytes]]:
-    """Reset with the spec and step with the recorded actions of frames observe_frames .. n-2."""
+    env: RecordEpisode, spec: EpisodeSpec, actions: np.ndarray, where: dict
+) -> tuple[EpisodeFrames, list[bytes], str]:
+    """Reset with the spec and step with the recorded actions of frames observe_frames .. n-2;
+    the frames, the images and the status the re-execution gives: ``ok`` when the last
+    recorded step ends the episode (grasp complete or horizon), ``error`` when the recording
+    stops before (only a failing policy ends an episode early)."""
     env.reset(options={"spec": spec})
     n = len(actions)
     ended = None
@@ -167,42 +177,35 @@ def _rollout_recording(
             frame=ended + 1, column="frame_index", **where["ids"],
         )
     frames, images = env.recording()
-    if status == "ok" and ended is None and frames.num_frames == n:
-        raise _mismatch(
-            f"{where['prefix']}: status ok but the recording stops at frame {n - 1} before grasp completion or the horizon",
-            frame=n - 1, column="status", **where["ids"],
-        )
-    return frames, list(images)
+    return frames, list(images), "ok" if ended is not None else "error"
 
 
-@dataclass(frozen=True)
-class AuditedReplay:
-    """A run whose policy kind keeps an audit trail: the policy is run again on the
-    re-rendered frames, its answers read from the trail (:attr:`PolicyKind.replay`)."""
-
-    kind: PolicyKind
-    config: Config
-    records: dict[str, list[dict[str, Any]]]
-
-    def recording(self, env: RecordEpisode, spec: EpisodeSpec) -> RolloutResult:
-        assert self.kind.replay is not None  # only kinds with a replay are chosen
-        policy = self.kind.replay(self.config, self.records.get(spec.episode_id, []))
-        return run_episode(env, policy, spec, None)
+def _replayed_error(status: str, recorded: str | None, last_frame: int) -> str:
+    """The error column replay expects: empty for ``ok``; for ``error`` the recorded text
+    when it names the frame the recording stops at (the policy's message itself is not
+    re-derivable without the policy), else that frame alone."""
+    if status == "ok":
+        return ""
+    prefix = f"frame {last_frame}: "
+    return recorded if isinstance(recorded, str) and recorded.startswith(prefix) else prefix + "(the policy's error)"
 
 
-def audited_replay(root: Path, extra: Mapping[str, Any]) -> AuditedReplay | None:
-    """The audited replay of a run whose manifest names an audited kind's configuration
-    (after checking its trail's hashes), else None."""
-    for kind in KINDS:
-        key = kind.manifest_key
-        if key is not None and key in extra and kind.audit_dir is not None and kind.replay is not None:
-            folder = root / kind.audit_dir
-            check_audit_index(folder)
-            records: dict[str, list[dict[str, Any]]] = {}
-            for record in read_audit(folder):
-                records.setdefault(record["episode_id"], []).append(record)
-            return AuditedReplay(kind, dict(extra[key]), records)
-    return None
+def rollout_columns(root: Path, manifest: Manifest, audited: AuditedReplay | None) -> dict[str, Any]:
+    """The ``policy`` and ``privileged`` columns every episode of a run must hold, from the
+    manifest, after checking them against the policy where replay can make it (a built-in
+    name, an audited kind's configuration): ShardError naming catalog.json otherwise."""
+    policy, privileged = manifest.extra.get("policy"), manifest.extra.get("privileged")
+    where = f"{root}/{MANIFEST_NAME}"
+    if not isinstance(policy, str) or not isinstance(privileged, bool):
+        raise ShardError(f"{where}: policy must be a name and privileged true or false, got "
+                         f"{printable(policy, 60)} and {printable(privileged, 20)}")
+    made = audited.policy([]) if audited is not None else (make_policy(policy) if policy in BUILTIN else None)
+    if made is not None:
+        name, flag = getattr(made, "name", None), bool(getattr(made, "privileged", False))
+        if name != policy or flag != privileged:
+            raise ShardError(f"{where}: says policy {printable(policy, 60)} (privileged {privileged}), but its "
+                             f"configuration makes {printable(name, 60)} (privileged {flag})")
+    return {"policy": policy, "privileged": privileged}
 
 
 def replay_shard(
@@ -211,10 +214,12 @@ def replay_shard(
     env: RecordEpisode | None,
     audited: AuditedReplay | None = None,
     report: EpisodeReport | None = None,
+    columns: Mapping[str, Any] | None = None,
 ) -> int:
     """Re-execute one shard (``env``: the environment for rollouts, None for ground truth),
     compare every column and the rewritten files' sha256, and return its frame count;
-    ``report`` hears each episode re-executed. The first difference is a ReplayMismatch."""
+    ``report`` hears each episode re-executed; ``columns``: a run's ``policy`` and
+    ``privileged`` columns (:func:`rollout_columns`). The first difference is a ReplayMismatch."""
     from catalog.shard import ShardWriter
 
     root, shard, rollout = reader.root, reader.record, reader.rollout
@@ -226,20 +231,29 @@ def replay_shard(
     resolution, quality = settings["resolution"], settings["jpeg_quality"]
     fps = settings.get("fps", FPS)
     replayed: list[tuple[EpisodeSpec, EpisodeFrames, list[bytes], dict]] = []
+    if rollout and columns is None:
+        raise ShardError(f"{root}: replaying a run needs its policy columns (rollout_columns)")
+    trail_path, trail = audited.shard_trail(shard) if rollout and audited is not None else ("", {})
     for row in episodes.to_pylist():
         index = row["episode_index"]
         spec = EpisodeSpec.from_json(row["spec"])
         ids = {"shard": stem, "episode": index, "file": shard.files["frames"].path}
         prefix = f"{root}: shard {stem}, episode {index} ({spec.episode_id})"
         recorded = frames.filter(pa.array(frame_episode == index))
-        replayed_status: dict[str, Any] = {}
+        extra: dict[str, Any] = {}
         if rollout and audited is not None and env is not None:
-            result = audited.recording(env, spec)
+            records = trail.pop(spec.episode_id, [])
+            result, asked = audited.recording(env, spec, records)
             ep_frames, images = result.frames, list(result.images)
-            replayed_status = {"status": result.status, "error": result.error or ""}
+            extra = {"status": result.status, "error": result.error or ""}
+            differs = trail_difference(records, asked)
+            if differs is not None:
+                why = f" (replay: {printable(result.error, 160)})" if result.error else ""
+                raise _mismatch(f"{prefix}, audit trail {trail_path}: {differs}{why}", column="audit", **{**ids, "file": trail_path})
         elif rollout and env is not None:
             actions = _column_values(recorded.column("action"))
-            ep_frames, images = _rollout_recording(env, spec, actions, row["status"], {"prefix": prefix, "ids": ids})
+            ep_frames, images, status = _rollout_recording(env, spec, actions, {"prefix": prefix, "ids": ids})
+            extra = {"status": status, "error": _replayed_error(status, row["error"], len(actions) - 1)}
         else:
             from pipeline.stages.episode import episode
             from pipeline.stages.record import encoded_frames
@@ -254,8 +268,8 @@ def replay_shard(
         if found is not None:
             frame, column, detail = found
             raise _mismatch(f"{prefix}, frame {frame}, column {column}{detail}", frame=frame, column=column, **ids)
-        extra = {k: row[k] for k in ROLLOUT_COLUMNS} if rollout else {}
-        extra.update(replayed_status)
+        if rollout:
+            extra = {**(columns or {}), **extra}
         expected_row = episodes_table([episode_row(spec, ep_frames.grasp_angles, **extra)], rollout)
         recorded_row = episodes.filter(pa.array(episodes.column("episode_index").to_numpy() == index))
         found = _first_difference(recorded_row, expected_row, expected_row.column_names)
@@ -265,6 +279,11 @@ def replay_shard(
                             **{**ids, "file": shard.files["episodes"].path})
         replayed.append((spec, ep_frames, images, extra))
         report_quietly(report, shard.first, shard.end, len(replayed), sum(f.num_frames for _, f, _, _ in replayed))
+    if trail:
+        episode_id = next(iter(trail))
+        raise _mismatch(f"{root}: shard {stem}, audit trail {trail_path}: {len(trail[episode_id])} record(s) of episode "
+                        f"{printable(episode_id, 60)}, which the shard does not hold", shard=stem, column="audit",
+                        file=trail_path)
 
     with tempfile.TemporaryDirectory(prefix="dyana-replay-") as scratch:
         with ShardWriter(scratch, shard.first, shard.end, settings, rollout=rollout) as writer:
@@ -291,6 +310,12 @@ def replay(
     folder = open_folder(path, verify="sha256")
     manifest, rollout = folder.manifest, folder.rollout
     check_rebuildable(folder.root, manifest)
+    for record in manifest.audit or ():
+        try:
+            check_file(folder.root, record, "sha256")
+        except ShardError as exc:
+            raise ShardError(f"{exc} (the audit trail changed since the run)") from None
+    raise_first(path, stray_files(folder.root, manifest))
     settings = dict(manifest.settings)
     chosen = list(folder.shards)
     if shards is not None:
@@ -306,11 +331,12 @@ def replay(
             )
         # the recorded specs are the disturbed ones already: no second disturbance
         env = loop_env(settings["resolution"], settings["jpeg_quality"], dataclasses.replace(protocol, disturb=False))
-    audited = audited_replay(folder.root, manifest.extra) if rollout else None
+    audited = audited_replay(folder.root, manifest) if rollout else None
+    columns = rollout_columns(folder.root, manifest, audited) if rollout else None
     episodes = frames = 0
     try:
         for shard in chosen:
-            frames += replay_shard(shard, settings, env, audited)
+            frames += replay_shard(shard, settings, env, audited, columns=columns)
             episodes += shard.record.num_episodes
             if on_shard is not None:
                 on_shard(shard.record)

@@ -34,6 +34,7 @@ from typing import Any, Generic
 from catalog.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
 from catalog.records import ShardRecord, shard_like_files
 from catalog.stats import compute_stats, write_stats
+from pipeline.jobs.audit import audit_records, remove_unlisted_audit
 from pipeline.jobs.engine import Destination, Execution, LocalFolder, Previous, run_folder_job
 from pipeline.jobs.progress import to_stderr
 from pipeline.jobs.state import STATE_FILE, Identity, Range, identity_of, previous_work, save_state
@@ -49,7 +50,8 @@ class Job(Generic[Payload]):
     dict with the shard's ``record`` (a ShardRecord dict) and anything else the caller's
     ``on_result`` wants (timing). ``extra`` are the manifest's top-level keys beyond the
     contract's; with ``settings``, ``slice``, ``seed`` and the shard ranges they say what
-    the folder holds."""
+    the folder holds. ``audit_dir``: the folder of the tasks' audit trail files (one per
+    shard, :func:`pipeline.jobs.audit.audit_path`), listed in the manifest's ``audit``."""
 
     folder: Path
     slice_name: str
@@ -62,6 +64,7 @@ class Job(Generic[Payload]):
     verb: str = "built"
     key_prefix: str = "shard"
     with_stats: bool = True
+    audit_dir: str | None = None
     ranges: tuple[Range, ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -123,16 +126,20 @@ class ManifestProduct:
 
     def result_files(self, result: Manifest) -> list[str]:
         stats = [] if result.stats is None else [result.stats.path]
-        return [path for path, _, _ in result.files()] + stats + [MANIFEST_NAME]
+        audit = [record.path for record in result.audit or ()]
+        return [path for path, _, _ in result.files()] + stats + audit + [MANIFEST_NAME]
 
     def finish(self, folder: Path, commit: str | None, units: Sequence[ShardRecord]) -> Manifest:
         """``stats.json``, then ``catalog.json``, then the files of a replaced job go."""
         job = self.job
         stats = write_stats(folder, compute_stats(folder, units)) if job.with_stats else None
+        audit = None if job.audit_dir is None else audit_records(folder, job.audit_dir, [u.episodes for u in units])
         manifest = Manifest.create(job.slice_name, job.seed, job.settings, list(units),
-                                   code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats)
+                                   code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats, audit=audit)
         write_manifest(folder, manifest)
         remove_unlisted_shards(folder, manifest)
+        if job.audit_dir is not None:
+            remove_unlisted_audit(folder, job.audit_dir, manifest)
         (folder / STATE_FILE).unlink(missing_ok=True)
         return manifest
 

@@ -4,8 +4,8 @@ A folder holds one job, described by its identity (slice, seed, episodes, shard 
 settings and the extra manifest keys): a finished job's ``catalog.json``, or the
 ``.build-state.json`` an interrupted run leaves (identity, code, finished shards). A
 shard is kept only when the same code (version and commit) wrote it and every one of
-its files still has its size and sha256; a folder is "up to date" only when every shard
-and the statistics file pass that check.
+its files still has its size and sha256; a folder is "up to date" only when every shard,
+the statistics file and the audit trail files pass that check.
 """
 
 from __future__ import annotations
@@ -104,6 +104,7 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
         else:
             held, records = manifest_identity(manifest), list(manifest.shards)
             complete = file_intact(folder, manifest.stats) if manifest.stats is not None else not with_stats
+            complete = complete and all(file_intact(folder, record) for record in manifest.audit or ())
             code = (manifest.code.version, manifest.code.commit)
     if held is None and state_path.exists():
         try:

@@ -137,7 +137,7 @@ def _edited(root: Path) -> None:
         (_repeats, "repeats", "is a folder of 1 repeat (repeat-00, indexed by repeats.json), not one run: pass one"),
         (lambda root: write_slice(root / "linear-fast"), "out",
          "no catalog.json here; it holds Dyana folders (linear-fast): run `catalog info "),
-        (_edited, "edited", "does not match the slice, seed, settings"),
+        (_edited, "edited", "catalog.json: edited after it was written (changed: seed;"),
     ],
     ids=["missing", "not-dyana", "repeats", "build-output", "edited"],
 )

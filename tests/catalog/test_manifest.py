@@ -7,11 +7,13 @@ import pytest
 
 from catalog.hashing import canonical_json, sha256_bytes, sha256_file, slice_hash
 from catalog.manifest import (
+    SEAL_KEY,
     CodeInfo,
     Manifest,
     compute_hash,
     git_commit,
     load_manifest,
+    seal_of,
     write_manifest,
 )
 from catalog.records import FileRecord, ShardRecord, shard_paths
@@ -110,10 +112,54 @@ def test_manifest_accepts_code_as_dict():
 def test_load_refuses_bad_manifest_naming_it(tmp_path, mutate, message):
     data = Manifest.create("linear-fast", 7, SETTINGS, SHARDS, code=CODE).to_dict()
     mutate(data)
+    data[SEAL_KEY] = seal_of(data)  # re-sealed: what the checks beyond the seal refuse
     (tmp_path / "catalog.json").write_text(json.dumps(data))
     with pytest.raises(ShardError, match=message) as info:
         load_manifest(tmp_path)
     assert str(tmp_path / "catalog.json") in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "mutate, keys",
+    [
+        (lambda d: d.update(policy="oracle"), "changed: policy"),
+        (lambda d: d.update(privileged=False), "changed: privileged"),
+        (lambda d: d.update(deadline_s=5.0), "changed: deadline_s"),
+        (lambda d: d["code"].update(commit="f" * 40), "changed: code"),
+        (lambda d: d["vlm"].update(temperature=0.7), "changed: vlm"),
+        (lambda d: d["vlm"].update(model="other"), "changed: vlm"),
+        (lambda d: d["shards"][0]["files"]["frames"].update(size=11), "changed: shards"),
+        (lambda d: d.update(note="hello"), "added: note"),
+        (lambda d: d.pop("deadline_s"), "removed: deadline_s"),
+        (lambda d: d.update(hash="0" * 64), "changed: hash"),
+    ],
+)
+def test_an_edit_of_any_key_is_refused_naming_it(tmp_path, mutate, keys):
+    extra = {"policy": "predictive", "privileged": True, "deadline_s": None, "vlm": {"model": "m", "temperature": 0.0}}
+    data = Manifest.create("linear-fast", 7, SETTINGS, SHARDS, code=CODE, extra=extra).to_dict()
+    mutate(data)
+    (tmp_path / "catalog.json").write_text(json.dumps(data))
+    with pytest.raises(ShardError, match=re.escape(keys)) as info:
+        load_manifest(tmp_path)
+    assert str(info.value).startswith(f"{tmp_path / 'catalog.json'}: edited after it was written")
+
+
+def test_the_seal_covers_every_other_key_and_leaves_the_hash_alone(tmp_path):
+    manifest = Manifest.create("linear-fast", 7, SETTINGS, SHARDS, code=CODE, extra={"policy": "p"})
+    data = manifest.to_dict()
+    assert set(data[SEAL_KEY]) == set(data) - {SEAL_KEY}
+    assert data[SEAL_KEY]["policy"] == sha256_bytes(canonical_json("p").encode())
+    assert data["hash"] == compute_hash(SETTINGS, manifest.shards, "linear-fast", 7)
+    assert Manifest.from_dict(data) == manifest  # the seal is no extra key
+
+
+def test_a_manifest_without_a_seal_is_refused_with_the_migrate_command(tmp_path):
+    data = Manifest.create("linear-fast", 7, SETTINGS, SHARDS, code=CODE).to_dict()
+    del data[SEAL_KEY]
+    (tmp_path / "catalog.json").write_text(json.dumps(data))
+    with pytest.raises(ShardError, match=f"no {SEAL_KEY}.*run `catalog migrate {re.escape(str(tmp_path))}`"):
+        load_manifest(tmp_path)
+    assert load_manifest(tmp_path, sealed=False).hash == data["hash"]
 
 
 def test_load_missing_or_invalid_json(tmp_path):

@@ -1,8 +1,10 @@
 """Tampering helpers for the replay tests: rewrite a shard file the way only replay
-can notice (the manifest's hashes are updated to match)."""
+can notice (the manifest's hashes and seal are updated to match, with Dyana's own writer)."""
 
 from __future__ import annotations
 
+import json
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -10,8 +12,8 @@ import numpy as np
 import pyarrow as pa
 
 from catalog.hashing import sha256_file
-from catalog.manifest import Manifest, load_manifest, write_manifest
-from catalog.parquet_io import read_frames, write_table
+from catalog.manifest import SEAL_KEY, Manifest, load_manifest, write_manifest
+from catalog.parquet_io import read_episodes, read_frames, write_table
 from catalog.records import FileRecord, ShardRecord
 
 
@@ -21,6 +23,48 @@ def rewrite_frames(folder: Path, shard_index: int, mutate: Callable[[pa.Table], 
     path = folder / load_manifest(folder).shards[shard_index].files["frames"].path
     write_table(path, mutate(read_frames(path)), "frames")
     return rehash(folder, shard_index, "frames")
+
+
+def rewrite_episodes(folder: Path, shard_index: int, mutate: Callable[[pa.Table], pa.Table]) -> ShardRecord:
+    """Rewrite one shard's episodes table through ``mutate`` (the rollout writer's options),
+    then re-hash and re-seal the manifest like :func:`rewrite_frames`."""
+    path = folder / load_manifest(folder).shards[shard_index].files["episodes"].path
+    write_table(path, mutate(read_episodes(path)), "rollout_episodes")
+    return rehash(folder, shard_index, "episodes")
+
+
+def set_column(table: pa.Table, column: str, row: int, value: object) -> pa.Table:
+    """``table`` with one value of a column replaced."""
+    values = table.column(column).to_pylist()
+    values[row] = value
+    index = table.schema.get_field_index(column)
+    return table.set_column(index, table.schema.field(column), pa.array(values, type=table.schema.field(column).type))
+
+
+def reseal(folder: Path, **changes: object) -> Manifest:
+    """Rewrite the manifest with Dyana's writer: ``changes`` to its extra keys (``audit``:
+    the trail records) and every other key as it was; hash and seal recomputed."""
+    manifest = load_manifest(folder)
+    audit = changes.pop("audit", manifest.audit)
+    updated = Manifest.create(manifest.slice, manifest.seed, manifest.settings, manifest.shards, code=manifest.code,
+                              extra={**manifest.extra, **changes}, stats=manifest.stats, audit=audit)
+    write_manifest(folder, updated)
+    return updated
+
+
+def copy_of(folder: Path, parent: Path) -> Path:
+    """A copy of a module-scoped folder for one test to tamper with: ``parent/run``."""
+    target = parent / "run"
+    shutil.copytree(folder, target)
+    return target
+
+
+def unseal(folder: Path) -> None:
+    """``folder``'s catalog.json as the previous release wrote it: without its seal."""
+    path = folder / "catalog.json"
+    data = json.loads(path.read_text())
+    del data[SEAL_KEY]
+    path.write_text(json.dumps(data, sort_keys=True, indent=2) + "\n")
 
 
 def rehash(folder: Path, shard_index: int, kind: str) -> ShardRecord:
@@ -34,7 +78,8 @@ def rehash(folder: Path, shard_index: int, kind: str) -> ShardRecord:
     shards = list(manifest.shards)
     shards[shard_index] = ShardRecord(shard.episodes, shard.frames, files)
     updated = Manifest.create(
-        manifest.slice, manifest.seed, manifest.settings, shards, code=manifest.code, extra=manifest.extra
+        manifest.slice, manifest.seed, manifest.settings, shards, code=manifest.code, extra=manifest.extra,
+        stats=manifest.stats, audit=manifest.audit,
     )
     write_manifest(folder, updated)
     return shards[shard_index]
