@@ -27,6 +27,7 @@ from scoring.io import RunData, load_run
 from scoring.metrics import DEFAULT_READING, READINGS
 from scoring.report import (
     CONTACT_MODES,
+    DEFAULT_CONTACT,
     RunReport,
     csv_text,
     default_label,
@@ -52,9 +53,9 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
         help="add the paper's published rows (Tables 3 and 4) to the table, Markdown and plot",
     )
     p.add_argument(
-        "--obstacle-contact", choices=CONTACT_MODES, default="report",
-        help="an episode whose hand touched an obstacle: 'report' it in the collision rate (default) "
-        "or also score it as a 'fail'ure",
+        "--obstacle-contact", choices=CONTACT_MODES, default=DEFAULT_CONTACT,
+        help="an episode whose hand touched an obstacle: score it as a 'fail'ure (default) "
+        "or only 'report' it in the collision rate",
     )
     p.add_argument(
         "--reading", choices=sorted(READINGS), default=DEFAULT_READING,
@@ -86,13 +87,13 @@ def load_runs(runs: Sequence[str]) -> list[RunData]:
     return data
 
 
-def score_all(data: Sequence[RunData], obstacle_contact: str = "report", reading: str = DEFAULT_READING) -> list[RunReport]:
+def score_all(data: Sequence[RunData], obstacle_contact: str = DEFAULT_CONTACT, reading: str = DEFAULT_READING) -> list[RunReport]:
     """Score loaded runs; labels are made unique across them."""
     labels = unique_labels([default_label(d) for d in data], [d.name for d in data])
     return [score_run(d, label, obstacle_contact, reading) for d, label in zip(data, labels)]
 
 
-def evaluate(runs: Sequence[str], obstacle_contact: str = "report", reading: str = DEFAULT_READING) -> list[RunReport]:
+def evaluate(runs: Sequence[str], obstacle_contact: str = DEFAULT_CONTACT, reading: str = DEFAULT_READING) -> list[RunReport]:
     """Load and score each run (a folder of repeats gives one run per repeat); labels are
     made unique across the runs."""
     return score_all(load_runs(runs), obstacle_contact, reading)

@@ -377,7 +377,7 @@ def aggregate(
     select: np.ndarray | None = None,
     z: float = Z95,
     min_clearance: np.ndarray | None = None,
-    contact_fails: bool = False,
+    contact_fails: bool = True,
 ) -> Summary:
     """Summarise episodes (all, or those where ``select`` is true).
 

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from schemas.errors import SpecError
+from schemas.names import shorten
 from schemas.objects import OBJECTS
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
 from scoring.chance import CHANCE_LABEL, ChanceRow
@@ -45,6 +47,12 @@ BREAKDOWNS = (
 ALWAYS_LISTED = {"by_motion", "by_speed"}
 
 
+#: What an obstacle contact means for an episode's score (``scoring eval --obstacle-contact``):
+#: ``fail`` (the default) scores it as a failure, ``report`` only counts it.
+CONTACT_MODES = ("fail", "report")
+DEFAULT_CONTACT = "fail"
+
+
 @dataclass(frozen=True)
 class RunReport:
     """A scored run: its label, overall summary and one summary per group of each breakdown."""
@@ -62,7 +70,7 @@ class RunReport:
     #: Each episode's failure class and evidence (:mod:`scoring.taxonomy`).
     failures: Failures = field(repr=False, compare=False)
     #: ``report`` or ``fail`` (:data:`CONTACT_MODES`): how obstacle contacts were scored.
-    obstacle_contact: str = "report"
+    obstacle_contact: str = DEFAULT_CONTACT
     #: The metric reading applied (:data:`scoring.metrics.READINGS`).
     reading: str = DEFAULT_READING
 
@@ -77,20 +85,16 @@ def _groups(values: np.ndarray, canonical: Sequence[str], always: bool) -> list[
     return ordered + sorted(present - set(canonical))
 
 
-#: What an obstacle contact means for an episode's score (``scoring eval --obstacle-contact``).
-CONTACT_MODES = ("report", "fail")
-
-
 def score_run(
-    data: RunData, label: str | None = None, obstacle_contact: str = "report", reading: str = DEFAULT_READING
+    data: RunData, label: str | None = None, obstacle_contact: str = DEFAULT_CONTACT, reading: str = DEFAULT_READING
 ) -> RunReport:
     """Per-episode metrics of every episode, then the overall and grouped summaries.
 
-    ``obstacle_contact``: ``report`` counts episodes whose hand touched an obstacle (the
-    collision rate) and scores them as usual; ``fail`` also counts them as failures.
+    ``obstacle_contact``: ``fail`` (default) counts episodes whose hand touched an obstacle
+    (the collision rate) and scores them as failures; ``report`` only counts them.
     ``reading`` names the rules for the paper's ambiguous metrics (:data:`scoring.metrics.READINGS`)."""
     if obstacle_contact not in CONTACT_MODES:
-        raise ValueError(f"obstacle_contact must be one of {CONTACT_MODES}, got {obstacle_contact!r}")
+        raise SpecError(f"obstacle_contact must be one of {CONTACT_MODES}, got {shorten(repr(obstacle_contact))}")
     fails = obstacle_contact == "fail"
     per: EpisodeMetrics = episode_metrics(
         data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles,
@@ -332,7 +336,7 @@ def _aligned(headers: Sequence[str], rows: Sequence[Sequence[str]], text_columns
 OBSTACLE_HEADERS = ("Run", "Episodes with obstacles", "Obstacle contacts", "Collision rate (%) v", "95% CI", "Contact")
 OBSTACLE_NOTE = (
     "Obstacle contact: the hand's surface came within 0 units of an obstacle in an acting frame. "
-    "Contact 'report': scored as usual; 'fail': the episode counts as a failure (--obstacle-contact fail)."
+    "Contact 'fail' (default): the episode counts as a failure; 'report': scored as usual (--obstacle-contact report)."
 )
 
 
@@ -350,7 +354,7 @@ def _obstacle_rows(reports: Sequence[RunReport]) -> list[list[str]]:
 FAILURE_HEADERS = ("Run", "Group", "Episodes") + FAILURE_CLASSES
 FAILURE_NOTE = (
     "Failures: one class per episode, the first that holds: success (contact grasp), policy_error, "
-    "obstacle_contact (--obstacle-contact fail only), no_motion (palm moved <= 0.1), grasp_only (localized), "
+    "obstacle_contact (unless --obstacle-contact report), no_motion (palm moved <= 0.1), grasp_only (localized), "
     "timing (within 0.3 of the object's path 1-10 frames early or late), near_miss (within 0.6), "
     "perception_prediction (elsewhere). docs/reference/metrics.md, \"Why did it fail?\"."
 )

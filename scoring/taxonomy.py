@@ -5,14 +5,15 @@ the palm localized and a fingertip on the surface at one frame), the strictest o
 three successes; every other episode gets exactly one failure class. The first rule
 that holds, in this order, names it (:data:`FAILURE_CLASSES`):
 
-1. ``success``: a contact grasp, status ``ok`` (and, with ``--obstacle-contact fail``,
-   no obstacle touched).
+1. ``success``: a contact grasp, status ``ok``, no obstacle touched (unless
+   ``--obstacle-contact report``).
 2. ``policy_error``: status ``error`` (the policy raised, hung, dropped its connection
    or returned a bad action); the recorded message says which.
-3. ``obstacle_contact``: only with ``--obstacle-contact fail``: the hand touched an
-   obstacle (smallest clearance <= 0). By default contact is a flag (the collision rate,
-   the per-episode ``obstacle_contact`` column), not a class: the hand is posed
-   kinematically and passes through boxes, so contact never changes what it does next.
+3. ``obstacle_contact``: the hand touched an obstacle (smallest clearance <= 0). The
+   hand is posed kinematically and would pass through boxes, so a touch fails the
+   episode rather than letting it go on as if nothing were there. With
+   ``--obstacle-contact report`` contact is only a flag (the collision rate, the
+   per-episode ``obstacle_contact`` column), not a class.
 4. ``no_motion``: the palm never moved more than :data:`NO_MOTION_DISPLACEMENT` (0.1
    units, 1 cm) from its position at the first acting frame (or there is no acting frame).
 5. ``grasp_only``: the palm was localized (S_loc) but no frame had the contact grasp:
@@ -170,7 +171,7 @@ def classify(
     displacement: np.ndarray,
     crossed: np.ndarray,
     min_clearance: np.ndarray | None = None,
-    contact_fails: bool = False,
+    contact_fails: bool = True,
 ) -> np.ndarray:
     """(n,) each episode's class name, the first rule of the module docstring that holds."""
     n = len(per)
@@ -206,7 +207,7 @@ def episode_failures(
     error: np.ndarray,
     hover_offset: np.ndarray | None = None,
     min_clearance: np.ndarray | None = None,
-    contact_fails: bool = False,
+    contact_fails: bool = True,
 ) -> Failures:
     """Classes and evidence of ``n`` episodes (their acting frames, as for
     :func:`scoring.metrics.episode_metrics`, whose result ``per`` is)."""

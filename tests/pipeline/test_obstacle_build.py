@@ -70,7 +70,7 @@ def test_verify_replay_view_and_score(built, tmp_path):
     scored = run("scoring", "eval", str(built), "--json")
     assert scored.returncode == 0, scored.stderr
     assert json.loads(scored.stdout)["obstacles"] == {"episodes": 3, "collisions": 0, "collision_rate": 0.0,
-                                                     "contact": "report"}
+                                                     "contact": "fail"}
 
 
 def test_a_closed_loop_run_on_test_complex_records_clearance_and_scores_contacts(tmp_path):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pipeline.stages.episode import episode, obstacle_clearance
+from schemas.errors import SpecError
 from schemas.obstacles import Obstacle
 from scoring.io import from_recordings
 from scoring.report import format_table, markdown, report_dict, score_run
@@ -49,12 +50,14 @@ def test_a_hand_through_an_obstacle_is_a_collision_and_the_rate_counts_episodes_
     assert np.isinf(per[0]) and per[1] > 0.0 >= per[2]
 
 
-def test_with_contact_failing_the_colliding_episode_is_a_failure_not_an_error():
-    report, _ = _run("fail")
-    s = report.overall
-    assert s.metrics["S_loc"] == pytest.approx(200.0 / 3.0)
-    assert s.errors == 0 and s.collisions == 1
-    assert report_dict(report)["obstacles"]["contact"] == "fail"
+def test_by_default_the_colliding_episode_is_a_failure_not_an_error():
+    for report in (_run("fail")[0], score_run(_run("report")[0].data, "gt")):
+        s = report.overall
+        assert s.metrics["S_loc"] == pytest.approx(200.0 / 3.0)
+        assert s.metrics["S_grasp_contact"] == pytest.approx(200.0 / 3.0)
+        assert s.errors == 0 and s.collisions == 1
+        assert report_dict(report)["obstacles"]["contact"] == "fail"
+        assert report.failures.failure.tolist() == ["success", "success", "obstacle_contact"]
 
 
 def test_runs_without_obstacles_report_no_obstacle_section():
@@ -63,5 +66,5 @@ def test_runs_without_obstacles_report_no_obstacle_section():
     assert spec.obstacles == ()
     assert report.data.min_clearance is None and "obstacles" not in report_dict(report)
     assert "Obstacles:" not in format_table([report])
-    with pytest.raises(ValueError, match="obstacle_contact"):
+    with pytest.raises(SpecError, match="obstacle_contact"):
         score_run(report.data, "gt", "ignore")

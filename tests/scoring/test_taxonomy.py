@@ -46,7 +46,7 @@ def episode(palm, obj=PATH, close_at: int | None = None, tip: float = 0.05) -> d
             "tips": tips}
 
 
-def classify(*episodes, error=None, hover=None, clearance=None, contact_fails=False, reading=PAPER) -> Failures:
+def classify(*episodes, error=None, hover=None, clearance=None, contact_fails=True, reading=PAPER) -> Failures:
     counts = [len(e["palm"]) for e in episodes]
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     palm = np.concatenate([e["palm"] for e in episodes]).reshape(-1, 3)
@@ -129,11 +129,11 @@ def test_a_crossing_beyond_the_window_is_not_timing():
     assert only(classify(episode(parked))) == "perception_prediction"
 
 
-def test_obstacle_contact_is_a_class_only_when_contact_fails():
+def test_obstacle_contact_is_a_class_unless_contact_is_only_reported():
     touched = np.array([-0.01, -0.01, np.inf])
-    report = classify(GRASP, ELSEWHERE, GRASP, clearance=touched)
+    report = classify(GRASP, ELSEWHERE, GRASP, clearance=touched, contact_fails=False)
     assert report.failure.tolist() == ["success", "perception_prediction", "success"]
-    fail = classify(GRASP, ELSEWHERE, GRASP, clearance=touched, contact_fails=True)
+    fail = classify(GRASP, ELSEWHERE, GRASP, clearance=touched)
     assert fail.failure.tolist() == ["obstacle_contact", "obstacle_contact", "success"]
     errored = classify(GRASP, clearance=touched[:1], contact_fails=True, error=[True])
     assert only(errored) == "policy_error"
