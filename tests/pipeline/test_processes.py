@@ -125,6 +125,47 @@ def policies(tmp_path):
     made.kill_all()
 
 
+def test_closing_a_launched_command_ends_its_whole_process_group(tmp_path):
+    """The worker's side of the launcher, without an eval: the command's own child ends too."""
+    from pipeline.remote.launcher import Launched
+
+    child_file = tmp_path / "child"
+    launched = Launched(["sh", "-c", f"sleep 600 & echo $! > {child_file}; wait"], dict(os.environ))
+    pids: list[int] = []
+    try:
+        pids.append(launched.started() or 0)
+        deadline = time.monotonic() + 20
+        while not child_file.exists() or not child_file.read_text().strip():
+            assert time.monotonic() < deadline, "the command never started its child"
+            time.sleep(0.02)
+        pids.append(int(child_file.read_text()))
+        assert launched.check() is None and all(_alive(pid) for pid in pids)
+        launched.close()
+        assert not any(_alive(pid) for pid in pids)
+    finally:
+        for pid in pids:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+
+
+def test_a_launched_command_that_signals_its_parent_is_stopped_and_named(tmp_path):
+    from pipeline.remote.launcher import Launched
+
+    launched = Launched(["sh", "-c", "kill -TERM $PPID; sleep 600"], dict(os.environ))
+    try:
+        pid = launched.started()
+        assert pid is not None
+        deadline = time.monotonic() + 20
+        while (stop := launched.check()) is None:
+            assert time.monotonic() < deadline, "the signal was never seen"
+            time.sleep(0.02)
+        assert stop.by_parent and stop.text == (
+            "sent SIGTERM to its parent process, which a policy must not do; it was stopped")
+        assert not _alive(pid)
+    finally:
+        launched.close()
+
+
 def _eval(policies: Policies, policy: str, workers: int, episodes: int, **env: str) -> subprocess.Popen:
     """``pipeline eval`` in a process group of its own: ``--workers N`` (a local Dask cluster),
     or 0 for the library's run in this process, without Dask."""
