@@ -295,7 +295,7 @@ def _free_port() -> int:
 
 
 @pytest.mark.slow
-def test_killing_the_scheduler_mid_build_is_one_line(tmp_path):
+def test_killing_the_scheduler_mid_build_is_one_line_and_the_rerun_resumes_to_the_same_bytes(tmp_path):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
@@ -305,10 +305,9 @@ def test_killing_the_scheduler_mid_build_is_one_line(tmp_path):
                                "--no-dashboard", "--host", "127.0.0.1"], **quiet)
     build = None
     try:
-        build = subprocess.Popen(
-            [str(BIN / "pipeline"), "build", "--slice", "linear-fast", "--episodes", "6", "--shard-size", "1",
-             "--resolution", str(RESOLUTION), "--scheduler", address, "--out", str(tmp_path), "--quiet"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        command = [str(BIN / "pipeline"), "build", "--slice", "linear-fast", "--episodes", "6", "--shard-size", "1",
+                   "--resolution", str(RESOLUTION), "--scheduler", address, "--out", str(tmp_path), "--quiet"]
+        build = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         state = tmp_path / "linear-fast" / ".build-state.json"
         deadline = time.monotonic() + 120
         while not state.exists() and build.poll() is None and time.monotonic() < deadline:
@@ -317,8 +316,37 @@ def test_killing_the_scheduler_mid_build_is_one_line(tmp_path):
         _, err = build.communicate(timeout=120)
         assert build.returncode == 2 and err.count("\n") == 1 and "Traceback" not in err, err
         assert f"--scheduler '{address}': lost the connection to the Dask scheduler" in err, err
+        resumed = subprocess.run([*command[:-5], "--workers", "1", "--out", str(tmp_path), "--quiet"],
+                                 capture_output=True, text=True, timeout=300)
+        reference = subprocess.run([*command[:-5], "--workers", "1", "--out", str(tmp_path / "ref"), "--quiet"],
+                                   capture_output=True, text=True, timeout=300)
+        assert resumed.returncode == 0 and reference.returncode == 0, resumed.stderr + reference.stderr
+        assert resumed.stdout.split("(hash ")[1] == reference.stdout.split("(hash ")[1]
     finally:
         for proc in (build, worker, scheduler):
             if proc is not None and proc.poll() is None:
                 proc.kill()
                 proc.wait(30)
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_a_build_into_object_storage_is_one_line(tmp_path):
+    from tests.s3_server import s3_server
+
+    with s3_server("dyana-interrupted") as env:
+        command = [str(BIN / "pipeline"), "build", "--slice", "linear-fast", "--episodes", "8", "--shard-size", "2",
+                   "--workers", "1", "--resolution", str(RESOLUTION), "--out", "s3://dyana-interrupted/data"]
+        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True, env={**os.environ, **env, "DYANA_STAGING": str(tmp_path)})
+        lines, reader = _lines(proc)
+        try:
+            deadline = time.monotonic() + 120
+            while not lines and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            os.killpg(proc.pid, signal.SIGINT)
+            proc.wait(timeout=60)
+            reader.join(10)
+        finally:
+            _stop(proc)
+    said = [line for line in lines if not line.startswith("[")]
+    assert proc.returncode == 130 and said == [f"pipeline build: {INTERRUPTED}\n"], "".join(lines)
