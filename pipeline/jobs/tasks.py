@@ -6,6 +6,11 @@ A task is ``task_fn(task, payload, folder)``; it returns a plain dict with the s
 the driver through :attr:`ShardTask.report`: in this process the driver's own callback,
 in a Dask worker a function sending a Dask event (``Worker.log_event``) on a topic of
 this run that the driver's client subscribes to.
+
+Ctrl-C is the driver's: local workers start with SIGINT blocked and then ignore it
+(:func:`sigint_held`, :func:`dask_setup`), the driver closes the cluster, and a lost
+scheduler or a task whose every worker died is one :class:`~schemas.errors.DyanaError`
+(:func:`dask_failure`), not Dask's tracebacks.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The parent of an isolated policy's process: all a policy can signal is this, not Dyana.
+"""The parent of an isolated policy's process: the parent a policy sees (and may signal), not Dyana.
 
 :class:`Launched` (the eval worker's side) starts ``python -m pipeline.remote.launcher
 COMMAND...`` in a session of its own; the launcher starts COMMAND (``pipeline serve``)
@@ -20,8 +20,9 @@ the kernel (``PR_SET_PDEATHSIG``, Linux) and the worker ends what is left of its
 The launcher speaks to the worker on its stdout: ``pid N`` (the policy's process) first,
 one ``+`` for each ``?`` read from stdin (the worker asks after every policy call, and a
 signal the policy sent during the call is seen before the answer, so the episode fails
-at that call on every run), and ``!`` plus how it stopped, last. It imports only the
-standard library, so it starts in a few tens of milliseconds.
+at that call on every run), and last ``!exit HOW`` (the policy's process ended by itself)
+or ``!parent WHY`` (the launcher stopped it), nothing when the worker closed it. It
+imports only the standard library, so it starts in a few tens of milliseconds.
 """
 
 from __future__ import annotations
