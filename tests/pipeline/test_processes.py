@@ -277,7 +277,8 @@ def test_ctrl_c_during_build_is_one_line(tmp_path):
     assert proc.returncode == 130 and said == [f"pipeline build: {INTERRUPTED}\n"], "".join(lines)
 
 
-def test_a_lost_scheduler_is_one_line_naming_it():
+def test_a_lost_scheduler_or_a_task_whose_workers_died_is_one_error():
+    from distributed import KilledWorker
     from distributed.client import FutureCancelledError
 
     from pipeline.jobs.tasks import dask_failure
@@ -286,6 +287,8 @@ def test_a_lost_scheduler_is_one_line_naming_it():
     assert failure is not None
     assert str(failure).startswith("--scheduler 'tcp://10.0.0.9:8786': lost the connection to the Dask scheduler")
     assert dask_failure(ValueError("a task's own error"), "tcp://10.0.0.9:8786") is None
+    died = dask_failure(KilledWorker("shard-000000-000002", None, 2), None)
+    assert died is not None and str(died).startswith("task 'shard-000000-000002': each Dask worker that ran it died (3 tries")
 
 
 def _free_port() -> int:
