@@ -189,7 +189,8 @@ def _stop(proc: subprocess.Popen) -> None:
     proc.communicate(timeout=30)
 
 
-@pytest.mark.parametrize(("sig", "workers"), [(signal.SIGKILL, 0), (signal.SIGTERM, 1)])
+@pytest.mark.parametrize("workers", [0, 1])
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_a_killed_eval_leaves_no_process_behind(policies, sig, workers):
     """SIGKILL runs no clean-up, yet the policy's process and its own child end with the run."""
     proc = _eval(policies, "Lingering", workers, episodes=2)
