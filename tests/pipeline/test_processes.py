@@ -260,10 +260,13 @@ def test_ctrl_c_during_eval_is_one_line_and_ends_every_process(policies):
     assert policies.wait_gone() == []
 
 
-def test_ctrl_c_during_build_is_one_line(tmp_path):
+def _interrupted_build(out: str, env: dict[str, str] | None = None) -> tuple[int | None, list[str]]:
+    """``pipeline build`` into ``out`` given Ctrl-C (SIGINT to its group) once it reported an
+    episode: its exit code and the lines it printed other than progress."""
     command = [str(BIN / "pipeline"), "build", "--slice", "linear-fast", "--episodes", "8", "--shard-size", "2",
-               "--workers", "1", "--resolution", str(RESOLUTION), "--out", str(tmp_path)]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+               "--workers", "1", "--resolution", str(RESOLUTION), "--out", out]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, env={**os.environ, **(env or {})})
     lines, reader = _lines(proc)
     try:
         deadline = time.monotonic() + 120
@@ -274,8 +277,12 @@ def test_ctrl_c_during_build_is_one_line(tmp_path):
         reader.join(10)
     finally:
         _stop(proc)
-    said = [line for line in lines if not line.startswith("[")]  # not the progress lines
-    assert proc.returncode == 130 and said == [f"pipeline build: {INTERRUPTED}\n"], "".join(lines)
+    return proc.returncode, [line for line in lines if not line.startswith("[")]  # not the progress lines
+
+
+def test_ctrl_c_during_build_is_one_line(tmp_path):
+    code, said = _interrupted_build(str(tmp_path))
+    assert code == 130 and said == [f"pipeline build: {INTERRUPTED}\n"], said
 
 
 def test_a_lost_scheduler_or_a_task_whose_workers_died_is_one_error():
@@ -338,19 +345,5 @@ def test_ctrl_c_during_a_build_into_object_storage_is_one_line(tmp_path):
     from tests.s3_server import s3_server
 
     with s3_server("dyana-interrupted") as env:
-        command = [str(BIN / "pipeline"), "build", "--slice", "linear-fast", "--episodes", "8", "--shard-size", "2",
-                   "--workers", "1", "--resolution", str(RESOLUTION), "--out", "s3://dyana-interrupted/data"]
-        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                start_new_session=True, env={**os.environ, **env, "DYANA_STAGING": str(tmp_path)})
-        lines, reader = _lines(proc)
-        try:
-            deadline = time.monotonic() + 120
-            while not lines and proc.poll() is None and time.monotonic() < deadline:
-                time.sleep(0.05)
-            os.killpg(proc.pid, signal.SIGINT)
-            proc.wait(timeout=60)
-            reader.join(10)
-        finally:
-            _stop(proc)
-    said = [line for line in lines if not line.startswith("[")]
-    assert proc.returncode == 130 and said == [f"pipeline build: {INTERRUPTED}\n"], "".join(lines)
+        code, said = _interrupted_build("s3://dyana-interrupted/data", {**env, "DYANA_STAGING": str(tmp_path)})
+    assert code == 130 and said == [f"pipeline build: {INTERRUPTED}\n"], said
