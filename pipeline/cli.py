@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -14,6 +15,21 @@ from schemas.errors import DyanaError, SpecError
 if TYPE_CHECKING:  # the commands import their modules when run, so --help stays fast
     from catalog.records import ShardRecord
     from pipeline.loop.conditions import EvalProtocol
+
+
+def _resumable(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """A folder job's command whose Ctrl-C is one line saying how to resume: the shards it
+    finished are kept, and its workers and policy processes end with it."""
+
+    def interruptible(args: argparse.Namespace) -> int:
+        try:
+            return run(args)
+        except KeyboardInterrupt:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)  # exiting: a second Ctrl-C adds no traceback
+            print(f"pipeline {args.command}: interrupted; rerun the same command to resume", file=sys.stderr)
+            return cli.EXIT_INTERRUPTED
+
+    return interruptible
 
 
 def _build_arguments(p: argparse.ArgumentParser) -> None:
@@ -234,9 +250,9 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 COMMANDS = (
-    cli.Command("build", "build a slice's shards (Parquet + MCAP) and its catalog.json", _build_arguments, cmd_build),
+    cli.Command("build", "build a slice's shards (Parquet + MCAP) and its catalog.json", _build_arguments, _resumable(cmd_build)),
     cli.Command("view", "write one episode of a slice or run as a rerun recording (.rrd)", _view_arguments, cmd_view),
-    cli.Command("eval", "run a policy in the loop on a slice's episodes and record the rollouts", _eval_arguments, cmd_eval),
+    cli.Command("eval", "run a policy in the loop on a slice's episodes and record the rollouts", _eval_arguments, _resumable(cmd_eval)),
     cli.Command("serve", "serve a policy over WebSocket (protocol dyana/1: docs/reference/wire-protocol.md)", _serve_arguments, cmd_serve),
     cli.Command("replay", "re-execute a built slice or a run and check it byte for byte", _replay_arguments, cmd_replay),
 )

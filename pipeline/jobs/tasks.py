@@ -6,6 +6,11 @@ A task is ``task_fn(task, payload, folder)``; it returns a plain dict with the s
 the driver through :attr:`ShardTask.report`: in this process the driver's own callback,
 in a Dask worker a function sending a Dask event (``Worker.log_event``) on a topic of
 this run that the driver's client subscribes to.
+
+Ctrl-C is the driver's: local workers start with SIGINT blocked and then ignore it
+(:func:`sigint_held`, :func:`dask_setup`), the driver closes the cluster, and a lost
+scheduler or a task whose every worker died is one :class:`~schemas.errors.DyanaError`
+(:func:`dask_failure`), not Dask's tracebacks.
 """
 
 from __future__ import annotations
@@ -14,10 +19,13 @@ import contextlib
 import dataclasses
 import logging
 import os
+import signal
 import threading
 import uuid
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import CancelledError
 from dataclasses import dataclass, field
+from multiprocessing import resource_tracker
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -98,15 +106,76 @@ TaskFn = Callable[[ShardTask, Payload, str], dict[str, Any]]
 
 @contextlib.contextmanager
 def quiet_dask() -> Iterator[None]:
-    """Keep Dask's own log lines (a task's traceback, shutdown chatter) out of the
-    driver's output: a failure reaches the user once, as Dyana's one-line error."""
-    logger = logging.getLogger("distributed")
-    level = logger.level
-    logger.setLevel(logging.CRITICAL)
+    """Keep Dask's own log lines (a task's traceback, a lost scheduler's, shutdown chatter)
+    out of the driver's output: a failure reaches the user once, as Dyana's one-line error.
+    Dask sets the level of some of its loggers (``distributed.client``), so each is quieted."""
+    names = ["distributed", *(name for name in logging.root.manager.loggerDict if name.startswith("distributed."))]
+    loggers = [logging.getLogger(name) for name in names]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL)
     try:
         yield
     finally:
-        logger.setLevel(level)
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
+
+
+def dask_setup(worker: object) -> None:
+    """Dask's preload hook, run in each local worker process as it starts: Ctrl-C (SIGINT to
+    the terminal's whole process group) is the driver's to handle, by closing the cluster;
+    a worker that took it would print its own KeyboardInterrupt traceback. The worker was
+    started with SIGINT blocked (:func:`sigint_held`); ignoring it drops one pending since."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+@contextlib.contextmanager
+def sigint_held() -> Iterator[None]:
+    """SIGINT blocked in this (main) thread for the block: the threads and processes started
+    meanwhile (Dask's event loop, the local workers) inherit it blocked, so a Ctrl-C while a
+    cluster starts reaches no worker, and takes effect in the driver when the block ends."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    resource_tracker.ensure_running()  # now: starting it later would unblock SIGINT in the thread that does
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+@contextlib.contextmanager
+def uninterrupted() -> Iterator[None]:
+    """SIGINT ignored for the block (in the main thread): a second Ctrl-C does not cut
+    short the closing of a cluster after the first."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def dask_failure(exc: BaseException, scheduler: str | None) -> DyanaError | None:
+    """Dask's own failures as one DyanaError: the scheduler lost, or a task whose every worker
+    died (a crash in native code, a kill for memory); None for any other exception."""
+    from distributed import KilledWorker  # loaded: only runs that use Dask get here
+    from distributed.comm.core import CommClosedError
+
+    where = f"--scheduler {shorten(scheduler)!r}" if scheduler else "the local Dask cluster"
+    if isinstance(exc, (CancelledError, CommClosedError)):
+        return DyanaError(f"{where}: lost the connection to the Dask scheduler; the shards finished so far are "
+                          "kept: rerun the same command to resume")
+    if isinstance(exc, KilledWorker):
+        return DyanaError(f"task {shorten(str(exc.task))!r}: each Dask worker that ran it died "
+                          f"({exc.allowed_failures + 1} tries: killed, out of memory or a crash in native code); "
+                          "rerun the same command to resume")
+    return None
 
 
 def connect(client_class: Callable[..., Any], scheduler: str) -> Any:
@@ -162,22 +231,7 @@ def run_tasks(
     from dask.distributed import Client, LocalCluster, as_completed
 
     with dask.config.set(LEAN_WORKERS), quiet_dask():
-        cluster = None
-        if scheduler:
-            client = connect(Client, scheduler)
-        else:
-            cluster = LocalCluster(
-                n_workers=min(workers, len(tasks)),
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address="127.0.0.1:0",  # None still starts one on 8787 (dask/distributed#8136)
-                silence_logs=logging.CRITICAL,
-            )
-            try:
-                client = Client(cluster)
-            except BaseException:
-                cluster.close()
-                raise
+        cluster = client = None
         listening = on_episode is not None
         topic = f"dyana-progress-{uuid.uuid4().hex}"  # this run's alone, on a shared scheduler too
 
@@ -188,6 +242,19 @@ def run_tasks(
                     on_episode(int(msg["first"]), int(msg["end"]), int(msg["done"]), int(msg["frames"]))
 
         try:
+            with sigint_held():
+                if scheduler:
+                    client = connect(Client, scheduler)
+                else:
+                    cluster = LocalCluster(
+                        n_workers=min(workers, len(tasks)),
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address="127.0.0.1:0",  # None still starts one on 8787 (dask/distributed#8136)
+                        silence_logs=logging.CRITICAL,
+                        preload=[__name__],  # dask_setup above: Ctrl-C is the driver's
+                    )
+                    client = Client(cluster)
             if on_episode is not None:
                 client.subscribe_topic(topic, heard)
             futures = [
@@ -205,11 +272,18 @@ def run_tasks(
             ]
             for future in as_completed(futures):
                 on_done(future.result())
+        except Exception as exc:
+            failure = dask_failure(exc, scheduler)
+            if failure is None:
+                raise
+            raise failure from None
         finally:
             listening = False
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            with uninterrupted():
+                if client is not None:
+                    client.close()
+                if cluster is not None:
+                    cluster.close()
 
 
 def reporting_task(

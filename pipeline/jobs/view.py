@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,11 +28,11 @@ import pyarrow as pa
 
 from catalog.manifest import Manifest
 from catalog.mcap_layout import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
-from catalog.outputs import check_output, staged_output
+from catalog.outputs import DESCRIPTOR_ALIAS, check_output, staged_output
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import open_folder
 from catalog.storage import as_location
-from schemas.errors import DyanaError, SpecError
+from schemas.errors import DyanaError, OutputError, SpecError
 from schemas.names import shorten
 from schemas.scene import LOC_TOLERANCE, PHASES
 from schemas.spec import EpisodeSpec
@@ -67,6 +68,24 @@ def _skeleton(joint_poses: np.ndarray, keypoints: np.ndarray) -> list[np.ndarray
 FLUSH_TIMEOUT_S = 60.0
 
 
+def check_writable(out: Path) -> None:
+    """OutputError naming the folder when no file can be made beside ``out`` (its nearest
+    existing folder): found before any work, not by rerun's writer after it. A device, a
+    FIFO or a descriptor alias (``/dev/stdout``) is written in place: nothing to check."""
+    if DESCRIPTOR_ALIAS.match(os.path.abspath(out)) or (out.exists() and not out.is_file()):
+        return
+    folder = Path(os.path.realpath(out)).parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        handle, probe = tempfile.mkstemp(dir=folder, prefix=".dyana-probe-")
+    except OSError as exc:
+        raise OutputError(f"--out: cannot write into the folder {shorten(repr(str(folder)))} "
+                          f"({exc.strerror or exc})") from None
+    os.close(handle)
+    os.unlink(probe)
+
+
 def write_recording(directory: str | Path, episode: int, out: str | Path) -> Path:
     """Write episode ``episode`` of a slice or rollout folder to ``out`` (.rrd).
 
@@ -80,6 +99,7 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     if out.suffix != ".rrd":
         raise SpecError(f"--out must end in .rrd, got {str(out)!r}")
     check_output(out, [directory], "--out")  # never over a device or a file of the folder read
+    check_writable(out)
     manifest, rows, meta = _episode_rows(directory, episode)
     images = rows.column("image").to_pylist()
     phases = rows.column("phase").to_pylist()
@@ -100,7 +120,10 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     with staged_output(out, [directory], "--out") as temp:
         rec = rr.RecordingStream("dyana", recording_id=meta["spec_hash"])
         try:
-            rec.save(str(temp))
+            try:
+                rec.save(str(temp))
+            except RuntimeError as exc:  # rerun cannot create the file (the folder changed since the check)
+                raise DyanaError(f"{out}: cannot write the recording ({shorten(str(exc), 200)})") from None
             _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz,
                          dict(manifest.settings))
         except BaseException:

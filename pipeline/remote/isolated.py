@@ -7,13 +7,17 @@ to its own process (``os._exit``, ``sys.exit``, an uncaught ``KeyboardInterrupt`
 kill for memory, a segfault in native code) ends that process only: the episode is
 recorded as an error naming how the process ended, and the next episode gets a fresh
 process. What the policy prints goes nowhere near eval's output.
+
+The child's parent is a small launcher (:mod:`pipeline.remote.launcher`), not the eval
+worker, and the child runs in a session of its own: a policy that signals its parent
+(``os.kill(os.getppid(), SIGKILL)``) or its process group reaches no Dyana process; its
+episode fails at that call, naming the signal. The policy's process group (its own
+children too) ends when the policy is closed, and when the eval dies, even by SIGKILL.
 """
 
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
 import sys
 import threading
 from collections import deque
@@ -22,20 +26,12 @@ import numpy as np
 
 from pipeline.policies.base import Observation, Task
 from pipeline.remote.client import RemotePolicy, ServerError
+from pipeline.remote.launcher import Launched
 from schemas.errors import PolicyError
 from schemas.names import printable
 
 #: Seconds a child process has to import the policy and start listening.
 START_TIMEOUT_S = 120.0
-
-
-def _ended(code: int) -> str:
-    if code < 0:
-        try:
-            return f"was killed by {signal.Signals(-code).name}"
-        except ValueError:
-            return f"was killed by signal {-code}"
-    return f"exited with code {code}"
 
 
 class IsolatedPolicy:
@@ -46,10 +42,7 @@ class IsolatedPolicy:
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(p or os.getcwd() for p in sys.path)}
         command = [sys.executable, "-m", "pipeline.cli", "serve", "--policy", ref, "--host", "127.0.0.1",
                    "--port", "0", "--max-connections", "1"]
-        self._process = subprocess.Popen(
-            command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
-            start_new_session=True,
-        )
+        self._process = Launched(command, env)
         self._last_lines: deque[str] = deque(maxlen=3)
         url = self._wait_for_url()
         self._drain = threading.Thread(target=self._drain_stderr, name="dyana-policy-stderr", daemon=True)
@@ -64,26 +57,25 @@ class IsolatedPolicy:
         self.privileged = self._remote.privileged
 
     def _wait_for_url(self) -> str:
-        stderr = self._process.stderr
-        assert stderr is not None
         timer = threading.Timer(START_TIMEOUT_S, self._process.kill)
         timer.start()
         try:
-            for raw in stderr:
-                line = raw.decode("utf-8", "replace").strip()
-                self._last_lines.append(line)
-                if line.startswith("serving ") and " on ws://" in line:
-                    return line.split(" on ", 1)[1].split()[0]
+            if self._process.started() is not None:
+                for raw in self._process.stderr:
+                    line = raw.decode("utf-8", "replace").strip()
+                    self._last_lines.append(line)
+                    if line.startswith("serving ") and " on ws://" in line:
+                        return line.split(" on ", 1)[1].split()[0]
         finally:
             timer.cancel()
-        code = self._process.wait()
+        stop = self._process.end(START_TIMEOUT_S)
+        self._process.close()
         detail = printable(self._last_lines[-1], 200) if self._last_lines else "no output"
-        raise PolicyError(f"the policy process for {self.ref!r} {_ended(code)} before serving: {detail}")
+        ended = "did not start" if stop is None else stop.text
+        raise PolicyError(f"the policy process for {self.ref!r} {ended} before serving: {detail}")
 
     def _drain_stderr(self) -> None:
-        stderr = self._process.stderr
-        assert stderr is not None
-        for raw in stderr:
+        for raw in self._process.stderr:
             self._last_lines.append(raw.decode("utf-8", "replace").strip()[:200])
 
     def _failure(self, exc: PolicyError) -> PolicyError:
@@ -92,36 +84,40 @@ class IsolatedPolicy:
         if isinstance(exc, ServerError):
             return PolicyError(exc.message)
         text = str(exc).removeprefix("remote policy: ")
-        try:
-            code = self._process.wait(timeout=2.0)
-        except subprocess.TimeoutExpired:
+        stop = self._process.end(2.0)
+        if stop is None:
             return PolicyError(f"policy process: {text}")
-        return PolicyError(f"policy process {_ended(code)} ({text})")
+        if stop.by_parent:  # the cause, in the same words whether the call or the check failed
+            return PolicyError(f"policy process {stop.text}")
+        return PolicyError(f"policy process {stop.text} ({text})")
+
+    def _checked(self) -> None:
+        """PolicyError when the policy signalled its parent (or its process ended) during the call."""
+        stop = self._process.check()
+        if stop is not None:
+            raise PolicyError(f"policy process {stop.text}")
 
     def reset(self, task: Task) -> None:
         try:
             self._remote.reset(task)
         except PolicyError as exc:
             raise self._failure(exc) from None
+        self._checked()
 
     def act(self, obs: Observation) -> np.ndarray:
         try:
-            return self._remote.act(obs)
+            action = self._remote.act(obs)
         except PolicyError as exc:
             raise self._failure(exc) from None
+        self._checked()
+        return action
 
     def timing(self) -> dict[str, float]:
         return self._remote.timing()
 
     def close(self) -> None:
-        """Close the connection and end the child process (killed if it does not stop)."""
+        """Close the connection, then end the child process and its process group (see the launcher)."""
         remote = getattr(self, "_remote", None)
         if remote is not None:
             remote.close()
-        if self._process.poll() is None:
-            self._process.terminate()
-            try:
-                self._process.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                self._process.kill()
-                self._process.wait()
+        self._process.close()

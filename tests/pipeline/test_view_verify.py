@@ -3,6 +3,7 @@ byte for byte and names a tampered file."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -305,3 +306,42 @@ def test_view_refuses_an_output_url_without_a_local_folder(built, tmp_path, monk
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--out 's3://bucket/e0.rrd': is a URL" in err
     assert not (tmp_path / "s3:").exists()
+
+
+@pytest.fixture
+def unwritable(tmp_path):
+    """A folder no file can be made in: read-only to a user, a read-only tmpfs to root."""
+    folder = tmp_path / "unwritable"
+    folder.mkdir()
+    if os.geteuid() != 0:
+        folder.chmod(0o555)
+        yield folder
+        folder.chmod(0o755)
+        return
+    made = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(folder)], capture_output=True)
+    if made.returncode != 0:
+        pytest.skip("cannot mount a read-only tmpfs here")
+    yield folder
+    subprocess.run(["umount", str(folder)], check=True)
+
+
+def test_view_into_an_unwritable_folder_is_one_line_naming_it(built, unwritable):
+    for out in (unwritable / "ep.rrd", unwritable / "new" / "ep.rrd"):
+        result = _run("pipeline", "view", str(built), "--out", str(out))
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+        assert f"cannot write into the folder '{unwritable}'" in result.stderr and ".tmp-" not in result.stderr
+
+
+def test_view_turns_a_recording_rerun_cannot_create_into_one_error(built, tmp_path, monkeypatch):
+    import rerun as rr
+
+    from pipeline.jobs.view import write_recording
+    from schemas.errors import DyanaError
+
+    def refused(self, path, *args, **kwargs):
+        raise RuntimeError(f"Failed to create file: Permission denied (os error 13), path: {path}")
+
+    monkeypatch.setattr(rr.RecordingStream, "save", refused)
+    with pytest.raises(DyanaError, match=r"ep\.rrd: cannot write the recording \(Failed to create file"):
+        write_recording(built, 0, tmp_path / "ep.rrd")
+    assert list(tmp_path.iterdir()) == []
