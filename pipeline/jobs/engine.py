@@ -176,7 +176,9 @@ def run_folder_job(
     prepare_folder(folder)
     ranges = [(task.first, task.end) for task in tasks]
     with folder_lock(folder):
-        remove_stray_temps(folder)
+        # under the lock, before this process writes anything: a temp named with our pid is a
+        # dead writer's whose pid was reused (a fresh container rerun gets the same pid)
+        remove_stray_temps(folder, keep_own=False)
         commit = git_commit()
         previous = product.previous(folder, commit, overwrite)
         if previous.finished is not None:

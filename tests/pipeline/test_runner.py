@@ -56,6 +56,17 @@ def test_a_complete_identical_job_is_up_to_date(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "catalog.json", "episodes", "frames", "mcap"]
 
 
+def test_a_rerun_removes_a_temp_named_with_its_own_pid(tmp_path):
+    """A job killed mid-write leaves ``.<file>.tmp-PID``; a rerun in a fresh container may get
+    that very pid (planted here as this process's own): it is a dead writer's, not ours."""
+    run_job(job(tmp_path), workers=0, progress=False)
+    stray = [tmp_path / "frames" / f".000000-000002.parquet.tmp-{os.getpid()}", tmp_path / f".catalog.json.tmp-{os.getpid()}"]
+    for path in stray:
+        path.write_bytes(b"half")
+    again = run_job(job(tmp_path), workers=0, progress=False)
+    assert again.up_to_date and not any(path.exists() for path in stray)
+
+
 def test_a_damaged_shard_alone_is_redone(tmp_path):
     manifest = run_job(job(tmp_path), workers=0, progress=False).manifest
     (tmp_path / manifest.shards[1].files["mcap"].path).write_bytes(b"tampered")
