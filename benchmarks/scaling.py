@@ -1,4 +1,5 @@
-"""Build scaling: throughput with 1 and 2 local Dask workers, the scheduler's and an upload's cost per shard, and a projection of dyana-12m's wall time on 8, 32 and 128 cores.
+"""Build scaling: throughput with 1 and 2 local Dask workers, the scheduler's and an upload's
+cost per shard, and a projection of dyana-12m's wall time on 8, 32 and 128 cores.
 
 Every build below is a real ``pipeline.jobs.build.build`` of the same episodes:
 
@@ -40,8 +41,6 @@ line. Run it on a quiet machine, under the shared lock
 
 from __future__ import annotations
 
-import bench_setup  # noqa: F401  (first: this checkout's code)
-
 import argparse
 import contextlib
 import datetime
@@ -56,6 +55,8 @@ import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
+
+import bench_setup  # noqa: F401  (first: this checkout's code)
 
 RESULT = Path(bench_setup.ROOT) / "benchmarks" / "results" / "scaling.json"
 CORES = (8, 32, 128)
@@ -234,7 +235,7 @@ def measure(args: argparse.Namespace, scratch: Path) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--slice", default="circular-medium")
     parser.add_argument("--episodes", type=int, default=64, help="episodes of the 1- and 2-worker builds (default: 64)")
     parser.add_argument("--shard-size", type=int, default=8, help="their shard size (default: 8)")
