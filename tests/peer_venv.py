@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-#: Seconds a build may take (pip from PyPI; about 90 s with a warm pip cache on 2 busy cores).
+#: Seconds a build may take (pip from PyPI: 90-145 s measured with a warm pip cache on 2 busy cores).
 BUILD_TIMEOUT_S = 900
 
 

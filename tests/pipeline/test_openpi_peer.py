@@ -4,7 +4,7 @@ the in-process policy's actions byte for byte, and its error frame as openpi's R
 (b) an openpi server packing with openpi_client's msgpack_numpy (openpi's own server lives
 in the openpi training package, not the client) is evaluated with `pipeline eval --policy
 openpi:ws://...` and rolls out byte-identical to the built-in `still`.
-Marked ``peer``: deselected by default, run by .ci/run (the venv build takes ~90 s once)."""
+Marked ``peer``: deselected by default, run by .ci/run (the venv build takes 90-145 s once, warm pip cache)."""
 
 from __future__ import annotations
 
@@ -87,3 +87,24 @@ def test_pipeline_eval_drives_an_openpi_server(python, tmp_path):
         proc.wait(timeout=20)
     assert shard_bytes(tmp_path / "remote") == shard_bytes(tmp_path / "local")
     assert remote.hash == local.hash and remote.extra["openpi"]["steps"] == 1
+
+
+def test_the_guides_openpi_client_snippet_runs_with_the_real_client(python, tmp_path):
+    """The guide's `needs openpi_client` block (skipped by the docs tests: Dyana's env has no
+    openpi-client) runs here, in the peer venv, against `pipeline serve --protocol openpi`."""
+    page = (Path(__file__).parents[2] / "docs" / "guides" / "openpi.md").read_text()
+    block = page.split("<!-- docs-test: needs openpi_client -->\n```python\n", 1)[1].split("\n```", 1)[0]
+    (tmp_path / "snippet.py").write_text(block)
+    proc, url = start_server(POLICY, "--protocol", "openpi")
+    try:
+        (tmp_path / "openpi.url").write_text(url + "\n")
+        ran = subprocess.run([str(python), "snippet.py"], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    finally:
+        proc.terminate()
+        assert proc.wait(timeout=20) == 0
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stdout.splitlines() == [
+        "{'policy': 'predictive', 'action_horizon': 1, 'keys': {'image': 'observation/image', 'state': "
+        "'observation/state', 'prompt': 'prompt', 'actions': 'actions'}}",
+        "(1, 18)",
+    ]
