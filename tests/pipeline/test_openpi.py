@@ -10,6 +10,7 @@ import asyncio
 import re
 import subprocess
 import threading
+import time
 
 import msgpack
 import numpy as np
@@ -20,6 +21,7 @@ from catalog.manifest import load_manifest
 from catalog.parquet_io import read_episodes
 from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate
+from pipeline.jobs.replay import replay
 from pipeline.loop.env import horizon
 from pipeline.loop.rollout import task_for
 from pipeline.loop.wrappers import loop_env
@@ -128,6 +130,7 @@ def test_openpi_both_ways_gives_the_in_process_rollouts(server, tmp_path):
     assert shard_bytes(tmp_path / "remote") == shard_bytes(tmp_path / "local")
     assert remote.extra["policy"] == POLICY and remote.extra["openpi"]["state"] == "observation/state"
     assert remote.hash == local.hash
+    replay(tmp_path / "remote")  # the recorded actions reproduce every frame, without the server
 
 
 def test_the_client_reads_metadata_and_times_its_calls(server):
@@ -198,7 +201,7 @@ def test_serve_refuses_what_openpi_cannot_carry_in_one_line():
 # --- a misbehaving openpi server ----------------------------------------------------------
 
 #: Episode index -> what the server replies to that episode's first request.
-FAULTS = {0: "keys", 1: "huge", 2: "shape", 3: "traceback"}
+FAULTS = {0: "keys", 1: "huge", 2: "shape", 3: "traceback", 8: "hang", 9: "twice"}
 
 
 async def _misbehave(ws) -> None:
@@ -215,6 +218,10 @@ async def _misbehave(ws) -> None:
             await ws.close(1011, "Internal server error. Traceback included in previous frame.")
             return
         reply = {"actions": action, "server_timing": {"infer_ms": 0.5}}
+        if fault == "hang":
+            continue
+        if fault == "twice":
+            await ws.send(openpi_wire.encode(reply))
         if fault == "keys":
             reply = {"action": action}
         elif fault == "huge":
@@ -260,6 +267,28 @@ def test_bad_openpi_replies_fail_only_their_episode(flaky_server, tmp_path):
     assert "openpi reply 'actions' has shape (50, 7); Dyana needs (H, 18)" in errors[2]
     assert errors[3].endswith("openpi policy: server error: RuntimeError: CUDA out of memory")
     assert not any("127.0.0.1" in e for e in errors)
+
+
+def test_a_late_reply_or_one_that_answers_nothing_fails_the_call(flaky_server):
+    def task(index: int) -> dict:
+        spec = spec_for("test-1k", index)
+        return task_for(spec, RESOLUTION, False, horizon(spec))
+
+    obs, _ = loop_env(resolution=RESOLUTION).reset(options={"spec": spec_for("test-1k", 8)})
+    with OpenpiPolicy(flaky_server, OpenpiConfig(), timeout_s=0.5) as late:
+        late.reset(task(8))
+        with pytest.raises(PolicyError, match=r"^openpi policy: no reply within 0.5 s$"):
+            late.act(obs)
+        with pytest.raises(PolicyError, match="unusable after an earlier failure"):
+            late.act(obs)
+    with OpenpiPolicy(flaky_server, OpenpiConfig(), timeout_s=10) as twice:
+        twice.reset(task(9))
+        assert twice.act(obs).shape == (2, 18)
+        deadline = time.monotonic() + 10
+        with pytest.raises(PolicyError, match="a reply that answers no request"):
+            while time.monotonic() < deadline:  # the spare reply arrives soon after the first
+                twice.act(obs)
+                time.sleep(0.05)
 
 
 def test_an_unreachable_or_misnamed_openpi_server_is_one_line(tmp_path):
