@@ -188,6 +188,23 @@ def test_the_server_refuses_bad_requests_with_an_error_frame_and_closes(server):
         assert openpi_wire.decode(ws.recv(timeout=30))["actions"].shape[1] == 18
 
 
+def test_a_connection_beyond_the_limit_gets_openpis_error_frame_and_1013():
+    proc, url = start_server("still", "--protocol", "openpi", "--max-connections", "1")
+    try:
+        with connect(url, compression=None, max_size=None) as first:
+            assert openpi_wire.decode(first.recv(timeout=10))["policy"] == "still"
+            with connect(url, compression=None, max_size=None) as second:
+                assert second.recv(timeout=10) == "server busy: at most 1 connections at once"
+                with pytest.raises(Exception) as closed:
+                    second.recv(timeout=10)
+                assert closed.value.rcvd.code == 1013
+    finally:
+        proc.terminate()
+        assert proc.wait(timeout=20) == 0
+        proc.drain.join(timeout=10)
+        proc.stderr.close()
+
+
 def test_serve_refuses_what_openpi_cannot_carry_in_one_line():
     for extra, reason in [(["--policy", "oracle"], "privileged"),
                           (["--policy", "still", "--openpi-key", "steps=3"], "is a client setting"),

@@ -62,6 +62,8 @@ def test_openpi_client_drives_pipeline_serve(python, tmp_path):
     finally:
         proc.terminate()
         assert proc.wait(timeout=20) == 0
+        proc.drain.join(timeout=10)
+        proc.stderr.close()
     assert ran.returncode == 0, ran.stderr
     out = openpi_wire.decode((tmp_path / "out.msgpack").read_bytes())
     assert out["metadata"]["policy"] == POLICY and out["metadata"]["keys"]["state"] == "observation/state"
@@ -102,6 +104,8 @@ def test_the_guides_openpi_client_snippet_runs_with_the_real_client(python, tmp_
     finally:
         proc.terminate()
         assert proc.wait(timeout=20) == 0
+        proc.drain.join(timeout=10)
+        proc.stderr.close()
     assert ran.returncode == 0, ran.stderr
     assert ran.stdout.splitlines() == [
         "{'policy': 'predictive', 'action_horizon': 1, 'keys': {'image': 'observation/image', 'state': "
