@@ -7,8 +7,9 @@ per host). Hosts: ``s3`` (moto's S3 server), ``sched`` (``dask scheduler``), ``w
 Checked: the workers write the shards straight to the store (the driver's disk never
 holds one); a build whose worker host is killed mid-shard finishes on the other with the
 local build's hash; a driver killed mid-build resumes on another host from the store
-alone (shards already there are not written again: the bucket keeps object versions) to
-the same hash; an eval whose policy is served from its own host has the local eval's hash.
+alone (shards already recorded there are not written again: the bucket keeps object
+versions) to the same hash; an eval whose policy is served from its own host survives
+both kills in one run and has the local eval's hash.
 Marked ``multihost`` (not in the default run; ``.ci/run`` runs it explicitly).
 """
 
@@ -30,7 +31,7 @@ pytestmark = pytest.mark.multihost
 
 BIN = Path(sys.executable).parent
 BUCKET = "dyana-multihost"
-EPISODES, EVAL_EPISODES, RESOLUTION = 6, 4, 32
+EPISODES, EVAL_EPISODES, RESOLUTION = 6, 6, 32
 BUILD = ["build", "--slice", "linear-fast", "--episodes", str(EPISODES), "--shard-size", "1",
          "--resolution", str(RESOLUTION)]
 EVAL = ["eval", "--policy", "ws://{pol}:8765", "--slice", "test-1k", "--episodes", str(EVAL_EPISODES),
@@ -150,17 +151,23 @@ def _shards(objects: dict[str, dict]) -> set[str]:
     return {path for path in objects if path.split("/")[0] in ("frames", "episodes", "mcap")}
 
 
+def _kill_worker_mid_shard(cluster: Cluster, proc, name: str) -> None:
+    """Kill every process of worker host ``name`` while it writes a shard (its scratch
+    folder exists); meanwhile the driver's disk never holds a shard file."""
+    deadline = time.monotonic() + 240
+    while True:
+        assert proc.poll() is None, f"the job ended before worker {name} wrote a shard"
+        assert time.monotonic() < deadline, f"worker {name} never started a shard"
+        assert not [p for p in cluster.private_tmp("drv") if p.suffix in (".parquet", ".mcap")]
+        if any(p.name.startswith("dyana-shard-") for p in cluster.private_tmp(name)):
+            break
+        time.sleep(0.05)
+    assert cluster.hosts.kill(name)
+
+
 def test_a_worker_host_killed_mid_shard_and_the_build_has_the_local_hash(cluster, local_build):
     proc = cluster.driver("drv", [*BUILD, "--out", f"s3://{BUCKET}/a"], "build-a.log")
-    killed = []
-    deadline = time.monotonic() + 240
-    while proc.poll() is None and not killed:
-        assert time.monotonic() < deadline, "worker b never started a shard"
-        assert not [p for p in cluster.private_tmp("drv") if p.suffix in (".parquet", ".mcap")]  # driver: no shard
-        if any(p.name.startswith("dyana-shard-") for p in cluster.private_tmp("wb")):  # writing a shard now
-            killed = cluster.hosts.kill("wb")
-        time.sleep(0.05)
-    assert killed, "the build ended before worker b wrote a shard"
+    _kill_worker_mid_shard(cluster, proc, "wb")
     out = cluster.finish(proc, "build-a.log")
     objects = cluster.objects("a/linear-fast")
     assert objects["catalog.json"]["catalog"] == local_build, out
@@ -169,11 +176,12 @@ def test_a_worker_host_killed_mid_shard_and_the_build_has_the_local_hash(cluster
     cluster.start_worker("wb")  # back for the next tests
 
 
-def test_a_driver_killed_mid_build_resumes_on_another_host(cluster, local_build):
-    proc = cluster.driver("drv", [*BUILD, "--out", f"s3://{BUCKET}/b"], "build-b.log")
+def _kill_driver_after_two_shards(cluster: Cluster, proc, prefix: str) -> list[str]:
+    """Kill host ``drv`` once its own state (in its private /tmp) records two shards; the
+    files of the shards the store's state then lists."""
     deadline = time.monotonic() + 240
-    while True:  # the driver's own state (in its private /tmp): two shards recorded
-        assert proc.poll() is None and time.monotonic() < deadline, "the build ended before two shards"
+    while True:
+        assert proc.poll() is None and time.monotonic() < deadline, "the job ended before two shards"
         states = [p for p in cluster.private_tmp("drv") if p.name == ".build-state.json"]
         try:
             if states and len(json.loads(states[0].read_text())["shards"]) >= 2:
@@ -182,24 +190,37 @@ def test_a_driver_killed_mid_build_resumes_on_another_host(cluster, local_build)
             pass
         time.sleep(0.05)
     cluster.hosts.kill("drv")  # its second shard's record may or may not have reached the store
-    before = cluster.objects("b/linear-fast")
-    recorded = [file["path"] for shard in before[".build-state.json"]["state"] for file in shard["files"].values()]
-    resumed = cluster.driver("drv2", [*BUILD, "--out", f"s3://{BUCKET}/b"], "build-b2.log")
-    out = cluster.finish(resumed, "build-b2.log")
-    found = re.search(r"resuming: (\d+) of (\d+) shards already built", out)
-    assert found and (int(found.group(1)), int(found.group(2))) == (len(recorded) // 3, EPISODES), out
-    assert 1 <= len(recorded) // 3 < EPISODES
-    objects = cluster.objects("b/linear-fast")
-    assert objects["catalog.json"]["catalog"] == local_build, out
-    assert len(_shards(objects)) == 3 * EPISODES and ".build-state.json" not in objects
-    # the shards the first driver recorded in the store were kept there, not written again
+    before = cluster.objects(prefix)
+    return [file["path"] for shard in before[".build-state.json"]["state"] for file in shard["files"].values()]
+
+
+def _check_resumed(out: str, recorded: list[str], objects: dict[str, dict], shards: int, verb: str) -> None:
+    """The resumed job kept exactly the shards the store's state listed (each object written once)."""
+    found = re.search(rf"resuming: (\d+) of (\d+) shards already {verb}", out)
+    assert found and (int(found.group(1)), int(found.group(2))) == (len(recorded) // 3, shards), out
+    assert 1 <= len(recorded) // 3 < shards
+    assert len(_shards(objects)) == 3 * shards and ".build-state.json" not in objects
     assert all(objects[path]["versions"] == 1 for path in recorded), (objects, recorded)
 
 
-def test_an_eval_with_the_policy_on_its_own_host_has_the_local_hash(cluster, tmp_path):
+def test_a_driver_killed_mid_build_resumes_on_another_host(cluster, local_build):
+    proc = cluster.driver("drv", [*BUILD, "--out", f"s3://{BUCKET}/b"], "build-b.log")
+    recorded = _kill_driver_after_two_shards(cluster, proc, "b/linear-fast")
+    out = cluster.finish(cluster.driver("drv2", [*BUILD, "--out", f"s3://{BUCKET}/b"], "build-b2.log"), "build-b2.log")
+    objects = cluster.objects("b/linear-fast")
+    assert objects["catalog.json"]["catalog"] == local_build, out
+    _check_resumed(out, recorded, objects, EPISODES, "built")
+
+
+def test_an_eval_with_the_policy_on_its_own_host_survives_both_kills_with_the_local_hash(cluster, tmp_path):
+    """The policy served by ``pipeline serve`` on host ``pol`` to the workers; worker host
+    ``wb`` killed mid-shard, then the driver killed and the run resumed on ``drv2``."""
     local = evaluate("predictive", "test-1k", tmp_path / "run", episodes=EVAL_EPISODES, resolution=RESOLUTION,
                      shard_size=1, workers=0, progress=False, summary=False)
-    proc = cluster.driver("drv2", [*EVAL, "--out", f"s3://{BUCKET}/eval"], "eval.log")
-    out = cluster.finish(proc, "eval.log")
+    proc = cluster.driver("drv", [*EVAL, "--out", f"s3://{BUCKET}/eval"], "eval.log")
+    _kill_worker_mid_shard(cluster, proc, "wb")
+    recorded = _kill_driver_after_two_shards(cluster, proc, "eval")
+    out = cluster.finish(cluster.driver("drv2", [*EVAL, "--out", f"s3://{BUCKET}/eval"], "eval2.log"), "eval2.log")
     objects = cluster.objects("eval")
     assert objects["catalog.json"]["catalog"] == local.hash, out
+    _check_resumed(out, recorded, objects, EVAL_EPISODES, "evaluated")
