@@ -87,8 +87,8 @@ def cluster(tmp_path_factory):
         made = hosts.run("drv", [str(BIN / "python"), "-c", MAKE_BUCKET, BUCKET], store, 60)
         assert made.returncode == 0, made.stderr
         cluster = Cluster(hosts, at, store)
-        for name in ("wa", "wb"):
-            cluster.start_worker(name)
+        for wait in [cluster.start_worker(name) for name in ("wa", "wb")]:  # both start at once
+            wait()
         hosts.wait_for_log("pol.log", r"serving \S+ on ws://", pol, 60)
         yield cluster
     finally:
@@ -102,12 +102,13 @@ class Cluster:
     def __init__(self, hosts: Hosts, at: dict[str, str], store: dict[str, str]) -> None:
         self.hosts, self.at, self.store = hosts, at, store
 
-    def start_worker(self, name: str) -> None:
+    def start_worker(self, name: str):
+        """Start a Dask worker on host ``name``; returns the wait for its registration."""
         log = f"{name}-{time.monotonic_ns()}.log"
         proc = self.hosts.start(name, [str(BIN / "dask"), "worker", f"tcp://{self.at['sched']}:8786",
                                        "--host", self.at[name], "--nworkers", "1", "--nthreads", "1",
                                        "--no-dashboard", "--name", name], self.store, log)
-        self.hosts.wait_for_log(log, r"Registered to", proc, 90)
+        return lambda: self.hosts.wait_for_log(log, r"Registered to", proc, 90)
 
     def driver(self, name: str, argv: list[str], log: str):
         args = [arg.format(pol=self.at["pol"]) for arg in argv]
@@ -173,7 +174,7 @@ def test_a_worker_host_killed_mid_shard_and_the_build_has_the_local_hash(cluster
     assert objects["catalog.json"]["catalog"] == local_build, out
     assert len(_shards(objects)) == 3 * EPISODES and ".build-state.json" not in objects
     assert f"(hash {local_build[:16]})" in out
-    cluster.start_worker("wb")  # back for the next tests
+    cluster.start_worker("wb")()  # back for the next tests
 
 
 def _kill_driver_after_two_shards(cluster: Cluster, proc, prefix: str) -> list[str]:
