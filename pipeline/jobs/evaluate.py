@@ -34,6 +34,7 @@ from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
+from pipeline.jobs.sink import ShardSink
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.fault_text import split_reason
 from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
@@ -123,8 +124,14 @@ def fresh_policy(settings: EvalSettings) -> Policy:
         return Unavailable(settings.policy_name, f"cannot make the policy: {type(exc).__name__}: {exc}")
 
 
-def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[str, Any]:
-    """Worker side: roll out one shard's episodes and write them; the record and timing."""
+def eval_shard(task: ShardTask, settings: EvalSettings, sink: ShardSink) -> dict[str, Any]:
+    """Worker side: roll out one shard's episodes and write them where the run's output is
+    (:mod:`pipeline.jobs.sink`); the record and timing."""
+    with sink.writing() as run_dir:
+        return _eval_shard(task, settings, run_dir)
+
+
+def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[str, Any]:
     from catalog.shard import ShardWriter
 
     env = loop_env(settings.build.resolution, settings.build.jpeg_quality, settings.protocol)
@@ -133,7 +140,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
     audit: list[dict[str, Any]] = []
     start = time.perf_counter()
     try:
-        with ShardWriter(Path(run_dir), task.first, task.end, settings.build.as_dict(), rollout=True) as writer:
+        with ShardWriter(run_dir, task.first, task.end, settings.build.as_dict(), rollout=True) as writer:
             for spec in task.specs():
                 if policy is None:
                     policy = fresh_policy(settings)
@@ -162,7 +169,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
         env.close()
     audit_dir = settings.policy_kind.audit_dir
     if audit_dir is not None:
-        write_audit(Path(run_dir) / audit_dir, task.first, task.end, audit)
+        write_audit(run_dir / audit_dir, task.first, task.end, audit)
     stats["seconds"] = time.perf_counter() - start
     return {"record": writer.result.to_dict(), "stats": stats}
 

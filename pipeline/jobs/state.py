@@ -11,7 +11,7 @@ the statistics file and the audit trail files pass that check.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,8 +85,11 @@ class PreviousWork:
     complete: bool = False
 
 
-def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str | None, overwrite: bool) -> PreviousWork:
-    """What ``folder`` holds of the job ``wanted`` (see the module docstring).
+def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str | None, overwrite: bool,
+                  intact: Callable[[ShardRecord], bool] | None = None) -> PreviousWork:
+    """What ``folder`` holds of the job ``wanted`` (see the module docstring); ``intact``
+    says whether a finished shard's files are still there (default: their sizes and sha256
+    in ``folder``; an object store's job checks its objects instead).
 
     Refuses (SpecError) a folder holding another job unless ``overwrite``, which then
     forgets it (its files are removed once the new job is finished)."""
@@ -133,7 +136,8 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
         )
     if code != (CODE_VERSION, commit):
         return PreviousWork()
-    done = {(r.first, r.end): r for r in records if shard_intact(folder, r)}
+    kept = (lambda record: shard_intact(folder, record)) if intact is None else intact
+    done = {(r.first, r.end): r for r in records if kept(r)}
     return PreviousWork(done, complete and len(done) == len(records))
 
 

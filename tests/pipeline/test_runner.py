@@ -17,6 +17,7 @@ from catalog.records import shard_paths
 from pipeline.jobs import tasks as task_module
 from pipeline.jobs.lock import FolderBusy, folder_lock
 from pipeline.jobs.runner import Job, run_job
+from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.state import STATE_FILE
 from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import SpecError
@@ -25,14 +26,15 @@ from tests.shard_files import shard_names
 CALLS: list[int] = []
 
 
-def fake_shard(task: ShardTask, payload: str, folder: str) -> dict:
+def fake_shard(task: ShardTask, payload: str, sink: ShardSink) -> dict:
     CALLS.append(task.first)
     files = {}
-    for kind, rel in shard_paths(task.first, task.end).items():
-        data = f"{payload}:{kind}:{task.first}".encode()
-        (Path(folder) / rel).parent.mkdir(exist_ok=True)
-        (Path(folder) / rel).write_bytes(data)
-        files[kind] = {"path": rel, "sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
+    with sink.writing() as folder:
+        for kind, rel in shard_paths(task.first, task.end).items():
+            data = f"{payload}:{kind}:{task.first}".encode()
+            (folder / rel).parent.mkdir(exist_ok=True)
+            (folder / rel).write_bytes(data)
+            files[kind] = {"path": rel, "sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
     return {"record": {"episodes": [task.first, task.end], "frames": task.end - task.first, "files": files}}
 
 
@@ -147,11 +149,11 @@ def test_a_scheduler_address_that_is_not_a_scheduler_is_one_error(monkeypatch):
 # --- progress ------------------------------------------------------------------------------
 
 
-def spec_shard(task: ShardTask, payload: str, folder: str) -> dict:
+def spec_shard(task: ShardTask, payload: str, sink: ShardSink) -> dict:
     """A fake shard that walks its specs the way build and eval do."""
     for _spec in task.specs():
         pass
-    return fake_shard(task, payload, folder)
+    return fake_shard(task, payload, sink)
 
 
 def test_progress_is_per_episode_in_process(tmp_path, capsys):
