@@ -115,6 +115,33 @@ def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):
     assert CALLS == [2]  # the same job resumes
 
 
+def test_a_run_resumed_under_other_library_versions_rebuilds_every_shard(tmp_path, monkeypatch):
+    """Shards of two installations never mix in one folder: the manifest records one set of
+    versions, so a finished or interrupted run resumed with another pyarrow rebuilds all."""
+    from catalog.versions import installed_versions
+    from pipeline.jobs import runner, state
+
+    def dies(task, payload, folder):
+        if task.first == 2:
+            raise KeyboardInterrupt
+        return fake_shard(task, payload, folder)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, job(tmp_path).tasks, dies, "a", with_stats=False),
+                workers=0, progress=False)
+    other = {**installed_versions(), "pyarrow": "0.0.1"}
+    monkeypatch.setattr(state, "installed_versions", lambda: other)
+    monkeypatch.setattr(runner, "installed_versions", lambda: other)
+    CALLS.clear()
+    finished = run_job(job(tmp_path), workers=0, progress=False)
+    assert CALLS == [0, 2] and finished.shards_resumed == 0 and finished.manifest.versions["pyarrow"] == "0.0.1"
+    CALLS.clear()
+    assert run_job(job(tmp_path), workers=0, progress=False).up_to_date and CALLS == []
+    monkeypatch.undo()
+    again = run_job(job(tmp_path), workers=0, progress=False)
+    assert not again.up_to_date and CALLS == [0, 2] and again.manifest.versions == installed_versions()
+
+
 def test_a_second_process_on_the_folder_is_refused(tmp_path):
     with folder_lock(tmp_path):
         with pytest.raises(FolderBusy, match="another process"):
