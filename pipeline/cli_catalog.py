@@ -128,7 +128,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
     def progress(shard: ShardRecord) -> None:
         print(f"rebuilt shard episodes [{shard.first}, {shard.end}): identical", file=sys.stderr, flush=True)
 
-    report = verify(args.dir, sample=args.sample, on_shard=None if args.quiet else progress)
+    report = verify(args.dir, sample=args.sample, on_shard=None if args.quiet else progress,
+                    test_seed=cli.read_test_seed(args))
     print(
         f"{args.dir}: OK: {report.shards_checked} shards intact, "
         f"{report.shards_rebuilt} rebuilt byte for byte"
@@ -140,6 +141,7 @@ def _verify_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", metavar="DIR", help="a built slice or rollout folder (holding catalog.json)")
     p.add_argument("--sample", type=cli.positive_int, default=None, metavar="K", help="rebuild only K shards (default: all)")
     cli.add_quiet(p)
+    cli.add_test_seed(p, "the secret a run drawn from a private test seed was made with (needed to re-execute it)")
 
 
 def cmd_migrate(args: argparse.Namespace) -> int:
