@@ -28,9 +28,9 @@ from typing import Any, TextIO
 import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
+from catalog.storage import as_location, is_url
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, derive, private_specs
-from catalog.storage import as_location, is_url
 from pipeline.jobs.audit import read_audit, stamped, write_audit
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.engine import refuse_export_folder

@@ -19,9 +19,9 @@ from pipeline.jobs.replay import replay
 from pipeline.jobs.verify import verify
 from pipeline.loop.rollout import run_episode
 from pipeline.loop.wrappers import loop_env
+from schemas.errors import SpecError
 from scoring.io import load_run
 from scoring.report import score_run
-from schemas.errors import SpecError
 from tests.pipeline.spy_policy import OUT_ENV, SpyPolicy
 from tests.pipeline.test_remote import start_server
 
