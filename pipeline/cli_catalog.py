@@ -122,6 +122,21 @@ def _specs_arguments(p: argparse.ArgumentParser) -> None:
     cli.add_episodes(p)
 
 
+def _seed_text(location: str, seed: int | None) -> str:
+    """A folder's seed as ``catalog info`` shows it: a private test seed by its hash only."""
+    from catalog.manifest import MANIFEST_NAME, load_manifest
+    from catalog.storage import as_location
+    from generators.heldout import MANIFEST_KEY
+
+    if seed is not None:
+        return str(seed)
+    root = as_location(location)
+    record = load_manifest(root.parent if root.name == MANIFEST_NAME else root).extra.get(MANIFEST_KEY)
+    if isinstance(record, dict):
+        return f"private (scrypt hash {str(record.get('hash'))[:12]}...; replaying it needs --test-seed)"
+    return "none (specs file)"
+
+
 def cmd_verify(args: argparse.Namespace) -> int:
     from pipeline.jobs.verify import verify
 
@@ -228,7 +243,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         ("kind", kind),
         ("dataset", f"{info.dataset_version} (this code writes {DATASET_VERSION})"),
         ("code", f"{info.code_version}, commit {info.commit or 'unknown (not written from a git checkout)'}"),
-        ("slice", f"{info.slice}, seed {'none (specs file)' if info.seed is None else info.seed}"),
+        ("slice", f"{info.slice}, seed {_seed_text(args.dir, info.seed)}"),
         ("settings", settings),
         ("episodes", f"{info.episodes:,} in {info.shards:,} shard{'s' if info.shards != 1 else ''}"),
         ("frames", f"{info.frames:,}"),

@@ -201,6 +201,8 @@ def test_the_cli_takes_the_seed_from_a_file_and_says_one_line_without_it(tmp_pat
     good = subprocess.run([str(BIN / "pipeline"), "replay", str(run), "--test-seed-file", str(secret_file), "--quiet"],
                           capture_output=True, text=True)
     assert good.returncode == 0, good.stderr
+    info = subprocess.run([str(BIN / "catalog"), "info", str(run)], capture_output=True, text=True)
+    assert info.returncode == 0 and "seed private (scrypt hash" in info.stdout and SECRET not in info.stdout
     weak = subprocess.run([str(BIN / "pipeline"), "eval", "--policy", "still", "--out", str(tmp_path / "weak"), *common,
                            "--test-seed", "x" * (MIN_SECRET_CHARS - 1)], capture_output=True, text=True)
     assert weak.returncode == 2 and len(weak.stderr.strip().splitlines()) == 1 and HOW_TO_MAKE in weak.stderr
