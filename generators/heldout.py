@@ -66,6 +66,8 @@ class TestSeed:
     """A private seed for one held-out slice: the generator seed (never printed) and the
     manifest record (:meth:`record`)."""
 
+    __test__ = False  # not a pytest test class, whatever its name
+
     slice_name: str
     generator_seed: int = field(repr=False)
     digest: str

@@ -12,8 +12,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from generators.heldout import HOW_TO_MAKE, MIN_SECRET_CHARS, PRIVATE_SEED, derive, private_specs
-from generators.recipe import slice_specs, spec_for
+from generators.heldout import HOW_TO_MAKE, MIN_SECRET_CHARS, PRIVATE_SEED, derive
+from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.replay import replay
 from pipeline.jobs.verify import verify
@@ -104,22 +104,6 @@ def test_a_lookup_policy_falls_to_chance_on_a_private_split_at_scale(tmp_path):
     public, private = _lookup_scores(tmp_path, 36, 96)  # four episodes of each of the nine cells
     assert public >= 95.0
     assert private <= 5.0
-
-
-def test_a_private_split_has_the_public_cells_and_is_deterministic():
-    public = list(slice_specs("test-1k", 18))
-    seed = derive(SECRET, "test-1k")
-    private = private_specs(seed, 0, 18)
-    assert private_specs(derive(SECRET, "test-1k"), 0, 18) == private
-    assert [(s.motion_type, s.intercept_setting) for s in private] == [(s.motion_type, s.intercept_setting) for s in public]
-    assert [s.episode_id for s in private] == [s.episode_id for s in public]  # ids say nothing of the seed
-    assert {s.seed for s in private} == {PRIVATE_SEED}
-    assert all(a.motion != b.motion for a, b in zip(private, public))
-    assert private_specs(derive(OTHER, "test-1k"), 0, 18) != private
-    complex_private = private_specs(derive(SECRET, "test-complex"), 0, 6)
-    complex_public = list(slice_specs("test-complex", 6))
-    assert [s.motion_type for s in complex_private] == [s.motion_type for s in complex_public]
-    assert all(a.motion != b.motion for a, b in zip(complex_private, complex_public))
 
 
 @pytest.mark.parametrize("secret", ["short-secret", "aaaaaaaabbbbbbbbcccc", "has a space in it 0123456789"])
