@@ -203,15 +203,32 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
         "--max-connections", type=cli.positive_int, default=4,
         help="connections served at once; more are told the server is busy (default: 4)",
     )
+    p.add_argument(
+        "--protocol", choices=("dyana", "openpi"), default="dyana",
+        help="wire protocol: dyana (dyana/1, default) or openpi (for openpi_client; docs/guides/openpi.md)",
+    )
+    p.add_argument(
+        "--openpi-key", action="append", default=[], type=_setting, metavar="NAME=KEY",
+        help="with --protocol openpi: a request/reply key name (image, state, prompt, actions); repeatable",
+    )
+
+
+def _setting(text: str) -> tuple[str, str]:
+    name, sep, value = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME=KEY, got {text[:60]!r}")
+    return name, value
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from pipeline.remote.serve import serve
+    from pipeline.remote.wires import wire_for
 
+    wire = wire_for(args.protocol, args.openpi_key)
     _importable_cwd(args.policy)
     serve(
         args.policy, args.host, args.port,
-        max_message_bytes=args.max_message_mb << 20, max_connections=args.max_connections,
+        max_message_bytes=args.max_message_mb << 20, max_connections=args.max_connections, wire=wire,
     )
     return 0
 
@@ -256,7 +273,7 @@ COMMANDS = (
     cli.Command("build", "build a slice's shards (Parquet + MCAP) and its catalog.json", _build_arguments, _resumable(cmd_build)),
     cli.Command("view", "write one episode of a slice or run as a rerun recording (.rrd)", _view_arguments, cmd_view),
     cli.Command("eval", "run a policy in the loop on a slice's episodes and record the rollouts", _eval_arguments, _resumable(cmd_eval)),
-    cli.Command("serve", "serve a policy over WebSocket (protocol dyana/1: docs/reference/wire-protocol.md)", _serve_arguments, cmd_serve),
+    cli.Command("serve", "serve a policy over WebSocket (dyana/1 or openpi: docs/reference/wire-protocol.md)", _serve_arguments, cmd_serve),
     cli.Command("replay", "re-execute a built slice or a run and check it byte for byte", _replay_arguments, cmd_replay),
 )
 

@@ -249,6 +249,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         ("frames", f"{info.frames:,}"),
         ("size", f"{_size(info.size)} in {info.files} files"),
         ("hash", info.hash[:16]),
+        ("versions", "not recorded (written before Dyana recorded them)" if info.versions is None else
+         " ".join(f"{k}={v or '(none)'}" for k, v in sorted(info.versions.items()))),
         ("rebuild", f"{'yes' if info.rebuild.possible else 'no'}: {info.rebuild.reason}"),
     ]
     for name, value in rows:

@@ -9,6 +9,8 @@ kind           reference           makes
 ``vlm``        ``vlm:URL``         :class:`pipeline.policies.vlm.VLMPolicy` (an OpenAI-compatible
                                    endpoint; its configuration comes from ``--model`` and the
                                    ``--vlm-*`` flags, its exchanges are kept as an audit trail)
+``openpi``     ``openpi:ws://...`` :class:`pipeline.remote.openpi_client.OpenpiPolicy` (an openpi
+                                   policy server; key names in the URL's query)
 ``remote``     ``ws://HOST:PORT``  :class:`pipeline.remote.client.RemotePolicy` (``pipeline serve``)
 ``module``     ``module:callable`` a user's policy, in a child process unless ``isolate`` is off
                                    (:class:`pipeline.remote.isolated.IsolatedPolicy`)
@@ -257,3 +259,29 @@ register(PolicyKind("remote", lambda ref: ref.startswith(("ws://", "wss://")), m
 register(PolicyKind("vlm", lambda ref: ref.startswith(VLM_PREFIX), make_vlm, configure=configure_vlm,
                     manifest_key="vlm", audit_dir="vlm", replay=replay_vlm, summarize_audit=summarize_vlm,
                     check=check_vlm))
+
+
+# openpi policy servers: openpi:ws://HOST:PORT[?key=value...] ---------------------------------
+
+
+def configure_openpi(ref: str, config: Config | None) -> Config:
+    """The key mapping the ref's query sets (recorded in the manifest; the URL is not, so
+    that a server restarted on another port resumes the same run)."""
+    from pipeline.remote.openpi_client import split_ref
+
+    no_config(ref, config)
+    return split_ref(ref)[1].to_dict()
+
+
+def make_openpi(ref: str, options: OpenOptions) -> Policy:
+    from pipeline.remote.openpi_client import OpenpiPolicy, split_ref
+    from pipeline.remote.openpi_keys import OpenpiConfig
+
+    url, config = split_ref(ref)
+    if options.config is not None:
+        config = OpenpiConfig.from_dict(options.config)
+    return OpenpiPolicy(url, config, timeout_s=options.timeout_s + REMOTE_SLACK_S)
+
+
+register(PolicyKind("openpi", lambda ref: ref.startswith("openpi:"), make_openpi, configure=configure_openpi,
+                    manifest_key="openpi", names_ref=True))

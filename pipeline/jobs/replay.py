@@ -21,7 +21,9 @@ Every column of every frame (state arrays bit for bit, the JPEG bytes) and of th
 episodes table is compared, then the shard is rewritten into a scratch folder and
 its three files' sha256 are compared with the manifest (which also covers the MCAP
 and the Parquet metadata). The first difference raises :class:`ReplayMismatch`
-naming the shard, episode, frame and column, with both values.
+naming the shard, episode, frame and column, with both values; :func:`replay` (and
+``catalog verify``) add each library version the folder records that differs from the
+installed one (:mod:`catalog.versions`), the likeliest cause of such a difference.
 
 :func:`replay_shard` is the one place a recorded shard is re-executed: ``catalog verify``
 (:mod:`pipeline.jobs.verify`) rebuilds its sampled shards through it too.
@@ -45,6 +47,7 @@ from catalog.manifest import MANIFEST_NAME, Manifest
 from catalog.parquet_io import episode_row, episodes_table, frames_table
 from catalog.reader import ShardReader, check_file, open_folder
 from catalog.records import ShardRecord, shard_stem
+from catalog.versions import mismatch_note
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, matching, private_specs
 from pipeline.jobs.progress import EpisodeReport, report_quietly
@@ -84,11 +87,15 @@ def check_rebuildable(directory: object, manifest: Manifest) -> None:
         )
 
 
+#: Where a :class:`ReplayMismatch` happened: its attributes.
+MISMATCH_WHERE = ("shard", "episode", "frame", "column", "file")
+
+
 def _mismatch(message: str, **where: Any) -> ReplayMismatch:
     """A ReplayMismatch carrying ``shard``, ``episode``, ``frame``, ``column`` attributes and
     ``file``, the folder-relative path of the file that differs."""
     exc = ReplayMismatch(message)
-    for key in ("shard", "episode", "frame", "column", "file"):
+    for key in MISMATCH_WHERE:
         setattr(exc, key, where.get(key))
     return exc
 
@@ -373,7 +380,11 @@ def replay(
     try:
         for shard in chosen:
             drawn = None if seed is None else drawn_specs(seed, protocol, shard.record.first, shard.record.end)
-            frames += replay_shard(shard, settings, env, audited, columns=columns, drawn=drawn)
+            try:
+                frames += replay_shard(shard, settings, env, audited, columns=columns, drawn=drawn)
+            except ReplayMismatch as exc:
+                raise _mismatch(f"{exc}{mismatch_note(manifest.versions)}",
+                                **{key: getattr(exc, key, None) for key in MISMATCH_WHERE}) from None
             episodes += shard.record.num_episodes
             if on_shard is not None:
                 on_shard(shard.record)

@@ -34,6 +34,7 @@ from typing import Any, Generic
 from catalog.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
 from catalog.records import ShardRecord, shard_like_files
 from catalog.stats import compute_stats, write_stats
+from catalog.versions import installed_versions
 from pipeline.jobs.audit import audit_records, remove_unlisted_audit
 from pipeline.jobs.engine import Destination, Execution, LocalFolder, Previous, run_folder_job
 from pipeline.jobs.progress import to_stderr
@@ -135,7 +136,8 @@ class ManifestProduct:
         stats = write_stats(folder, compute_stats(folder, units)) if job.with_stats else None
         audit = None if job.audit_dir is None else audit_records(folder, job.audit_dir, [u.episodes for u in units])
         manifest = Manifest.create(job.slice_name, job.seed, job.settings, list(units),
-                                   code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats, audit=audit)
+                                   code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats, audit=audit,
+                                   versions=installed_versions())
         write_manifest(folder, manifest)
         remove_unlisted_shards(folder, manifest)
         if job.audit_dir is not None:

@@ -25,6 +25,7 @@ from catalog.manifest import Manifest, load_manifest
 from catalog.reader import open_folder
 from catalog.records import ShardRecord
 from catalog.storage import as_location
+from catalog.versions import mismatch_note
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.replay import check_rebuildable, private_seed, replay, replay_shard
 from schemas.cli import ProgressMeter
@@ -92,7 +93,8 @@ def verify(
         try:
             replay_shard(readers[shard.first], dict(manifest.settings), None, report=report)
         except ReplayMismatch as exc:
-            raise ShardError(f"{directory / str(getattr(exc, 'file', ''))}: rebuilding gives different bytes ({exc})") from None
+            raise ShardError(f"{directory / str(getattr(exc, 'file', ''))}: rebuilding gives different bytes ({exc})"
+                             f"{mismatch_note(manifest.versions)}") from None
         compared += len(shard.files)
         finished[0] += shard.end - shard.first
         finished[1] += shard.frames
