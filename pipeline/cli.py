@@ -107,6 +107,8 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     cli.add_overwrite(p)
     cli.add_quiet(p)
+    cli.add_test_seed(p, "draw the held-out slice (test-1k, test-irregular, test-complex) from this secret instead of "
+                      "its public seed; the run's manifest keeps only a hash of it")
     protocol = p.add_argument_group("protocols (recorded in the run's manifest, settings.protocol)")
     protocol.add_argument("--latency-frames", type=int, default=0, metavar="N",
                           help="an action computed from frame t's observation takes effect at frame t + N; "
@@ -181,7 +183,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if vlm is None:
         _importable_cwd(args.policy)
     options = dict(deadline_s=args.deadline, isolate=not args.in_process, vlm=vlm, require_success=True,
-                   **cli.job_options(args))
+                   test_seed=cli.read_test_seed(args), **cli.job_options(args))
     if args.repeats != 1:
         evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
     else:
@@ -234,6 +236,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def _replay_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("path", metavar="RUN|DIR", help="a run folder or a built slice folder (holding catalog.json)")
     cli.add_quiet(p, "no per-shard lines")
+    cli.add_test_seed(p, "the secret a run drawn from a private test seed was made with (needed to replay it)")
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -243,7 +246,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"shard {shard.first}-{shard.end - 1}: identical", file=sys.stderr, flush=True)
 
-    report = replay(args.path, on_shard=progress)
+    report = replay(args.path, on_shard=progress, test_seed=cli.read_test_seed(args))
     what = "rollouts of" if report.kind == "rollouts" else "built slice"
     print(
         f"replayed {what} {report.slice}: {report.episodes} episodes, {report.frames} frames in "

@@ -69,7 +69,8 @@ class Timed(Protocol):
 
 @runtime_checkable
 class Audited(Protocol):
-    """A policy that keeps a record of its exchanges (JSON objects with ``episode_id``)."""
+    """A policy that keeps a record of its exchanges (JSON objects; the job adds each
+    record's ``episode_id``, which the policy is never told)."""
 
     def take_audit(self) -> list[dict[str, Any]]: ...
 

@@ -114,7 +114,7 @@ def test_a_request_carries_the_state_as_the_lerobot_export_and_the_task_once():
     assert request["observation/state"].dtype == np.float32
     assert request["observation/state"].tolist() == list(obs["palm_pose"]) + list(obs["joint_angles"])
     assert request["observation/image"].shape == (RESOLUTION, RESOLUTION, 3) and request["prompt"] == spec.text
-    assert request["dyana/task"]["episode_id"] == spec.episode_id
+    assert request["dyana/task"]["text"] == spec.text and "episode_id" not in request["dyana/task"]  # test_no_lookup
     assert request["dyana/observe_images"].shape[0] == spec.observe_frames
     bare = request_for(obs, None, OpenpiConfig(extras=False))
     assert sorted(bare) == ["observation/image", "observation/state", "prompt"]
@@ -221,13 +221,23 @@ def test_serve_refuses_what_openpi_cannot_carry_in_one_line():
 FAULTS = {0: "keys", 1: "huge", 2: "shape", 3: "traceback", 8: "hang", 9: "twice"}
 
 
+def _task_key(task: dict) -> tuple:
+    """What a task shows of its episode (no task names it): unique among test-1k's first ten."""
+    return task["text"], task["observe_frames"], task["hand"], task["horizon"]
+
+
+#: The server tells the episodes apart by their tasks.
+FAULT_BY_TASK = {(s.text, s.observe_frames, s.hand, s.acting_horizon): FAULTS[i]
+                 for i, s in ((i, spec_for("test-1k", i)) for i in FAULTS)}
+
+
 async def _misbehave(ws) -> None:
     await ws.send(openpi_wire.encode({}))  # openpi's default metadata: an empty map
     fault = None
     async for data in ws:
         request = openpi_wire.decode(data)
         if "dyana/task" in request:
-            fault = FAULTS.get(int(request["dyana/task"]["episode_id"].split(":")[1]))
+            fault = FAULT_BY_TASK.get(_task_key(request["dyana/task"]))
         obs = {"palm_pose": request["observation/state"][:6], "joint_angles": request["observation/state"][6:]}
         action = np.tile(state_action(obs), (2, 1))
         if fault == "traceback":
