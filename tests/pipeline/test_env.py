@@ -336,7 +336,7 @@ def test_the_gymnasium_entry_point_registers_the_environment():
     print(json.dumps({"plugins": plugins, "ids": [k for k in gymnasium.registry if k.startswith("Dyana")],
                       "registered": [registered, again], "frame": obs["frame_index"]}))
     """)
-    assert out["plugins"] == [["Dyana", "pipeline.loop.env:register"]]
+    assert out["plugins"] == [["Dyana", "pipeline.loop.registration:register"]]
     assert out["ids"] == [ENV_ID] and out["registered"] == [True, True] and out["frame"] == 0
 
 
