@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -38,8 +38,9 @@ STATE_WIDTH = 6 + 15 + 90 + 36 + 1
 def state_space(resolution: int) -> spaces.Box:
     """The ``state`` view's float32 Box, its bounds those of the full space's keys."""
     full = observation_space(resolution)
-    low = np.concatenate([full[k].low for k in STATE_KEYS] + [np.atleast_1d(full["timestamp"].low)])
-    high = np.concatenate([full[k].high for k in STATE_KEYS] + [np.atleast_1d(full["timestamp"].high)])
+    boxes = [cast(spaces.Box, full[k]) for k in (*STATE_KEYS, "timestamp")]
+    low = np.concatenate([np.atleast_1d(b.low) for b in boxes])
+    high = np.concatenate([np.atleast_1d(b.high) for b in boxes])
     return spaces.Box(low.astype(np.float32), high.astype(np.float32), (STATE_WIDTH,), np.float32)
 
 
