@@ -46,8 +46,9 @@ silent):
   longest chain from the palm centre, finger root plus segments, is 1.42 units), the
   Euler angles (roll, pitch, yaw) by [-pi, pi] x [-pi/2, pi/2] x [-pi, pi] (the range
   of ``schemas.rotations.matrix_to_euler``), ``frame_index`` by
-  ``Discrete(MAX_FRAMES)`` and the timestamp by ``(MAX_FRAMES - 1) / 20``; ``text``
-  is ``Text`` of printable ASCII up to ``schemas.spec.MAX_TEXT`` characters (all the
+  :class:`~pipeline.loop.spaces.FrameIndex` (a ``Discrete(MAX_FRAMES)``) and the timestamp by
+  ``(MAX_FRAMES - 1) / 20``; ``text`` is an :class:`~pipeline.loop.spaces.Instruction` (a
+  ``Text``) of printable ASCII up to ``schemas.spec.MAX_TEXT`` characters (all the
   built-in slices' instructions are; a custom spec with other characters is outside
   it, and Gymnasium's checker says so).
 * The action space is the Box [palm box, joint limits], deliberately NOT normalised
@@ -56,8 +57,9 @@ silent):
   recorded ones, the ground truth's and a replay's are the same numbers. Values
   outside the Box are accepted and clipped, never rescaled. A learner that wants
   [-1, 1] wraps the env in ``gymnasium.wrappers.RescaleAction(env, np.float32(-1),
-  np.float32(1))``, a linear map onto this finite Box. Gymnasium's ``check_env``
-  recommends a normalised action space: that one warning is this choice.
+  np.float32(1))``, a linear map onto this finite Box, or is made with
+  ``normalize_actions=True``, the same map inside. Gymnasium's ``check_env`` recommends
+  a normalised action space: with the default, that one warning is this choice.
 * ``observe_images`` is an :class:`~pipeline.loop.spaces.ObserveWindow`, a stacked ``Sequence`` of images:
   its length is the episode's ``observe_frames`` at reset (0 for direct-act, up to
   100 in the built-in slices) and 0 afterwards. It stays in the observation because
@@ -67,10 +69,17 @@ silent):
   per step at 224 px) with padding every policy would have to know to skip.
   Instead, an ``ObserveWindow`` flattens to zero entries, so the observation is
   flattenable: ``gymnasium.wrappers.FlattenObservation`` gives the current frame's
-  state (image, poses, text, frame index, timestamp) on every step, reset included,
+  state (image, poses, frame index, timestamp) on every step, reset included,
   without the window; an agent that needs the window reads the unflattened
-  observation. Flattened, ``frame_index`` is one-hot (``MAX_FRAMES`` entries) and
-  ``text`` ``MAX_TEXT`` character indices.
+  observation. Flattened, ``frame_index`` is one entry (its value) and ``text`` none
+  (it is constant over an episode): 12,437 numbers at 64 px, 12,288 of them the image.
+
+Options (keyword arguments of the constructor and of ``gymnasium.make``):
+``obs="image" | "state" | "both"`` observes a fixed-shape view instead of the full dict
+and ``normalize_actions=True`` takes actions in [-1, 1] (:mod:`pipeline.loop.views`), so
+learning libraries (Stable-Baselines3's ``check_env`` and ``PPO``) and vector
+environments with their defaults take the environment as it is. The recorder and the
+protocol wrappers need the defaults: they read the full observation and issue real actions.
 
 Events are checked on every acting frame from the recorded float32 values with the
 functions ``scoring`` uses (:mod:`schemas.events`: localization when the palm's XZ
@@ -117,15 +126,9 @@ from generators.motion import object_pose
 from generators.recipe import spec_for
 from generators.render import Renderer, check_resolution
 from pipeline.loop.actions import as_action
-from pipeline.loop.spaces import (
-    PALM_HIGH,
-    PALM_LOW,
-    REST_STATE,
-    Observation,
-    action_space,
-    empty_window,
-    observation_space,
-)
+from pipeline.loop.registration import ENV_ID, register
+from pipeline.loop.spaces import PALM_HIGH, PALM_LOW, REST_STATE, Observation, action_space, empty_window
+from pipeline.loop.views import VIEWS, absolute_action, normalized_action_space
 from pipeline.stages.episode import measure_hand
 from schemas.errors import DyanaError, SpecError
 from schemas.events import grasp_closed, localized, spec_hover_offset
@@ -135,7 +138,7 @@ from schemas.slices import get_slice
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
-ENV_ID = "Dyana/Grasp-v0"
+__all__ = ["ENV_ID", "DyanaEnv", "EpisodeSource", "SimFrame", "SliceEpisodes", "as_spec", "horizon", "register"]
 PHASE = {name: i for i, name in enumerate(PHASES)}
 
 
@@ -205,8 +208,13 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         renderer: the :class:`~generators.render.Renderer` to draw with, at ``resolution``
             (the caller keeps and closes it); None: the env makes its own on first use
             and closes it in :meth:`close`.
-        episodes: where ``reset`` without a spec takes its episode (:class:`EpisodeSource`);
-            None: such a reset is refused.
+        episodes: where ``reset`` without a spec takes its episode (:class:`EpisodeSource`,
+            or a built-in slice's name for its :class:`SliceEpisodes`); None: such a reset
+            is refused.
+        obs: the observation's view (:mod:`pipeline.loop.views`): ``"full"`` (the policy
+            contract, module docstring), ``"image"``, ``"state"`` or ``"both"``.
+        normalize_actions: actions in [-1, 1], mapped linearly onto the real action Box
+            (False: the dataset's absolute targets).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}
@@ -217,7 +225,9 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         jpeg_quality: int = JPEG_QUALITY,
         render_mode: str | None = None,
         renderer: Renderer | None = None,
-        episodes: EpisodeSource | None = None,
+        episodes: EpisodeSource | str | None = None,
+        obs: str = "full",
+        normalize_actions: bool = False,
     ):
         check_resolution("resolution", resolution)
         if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, (int, np.integer)) or not 1 <= jpeg_quality <= 100:
@@ -226,13 +236,21 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             raise SpecError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if renderer is not None and not isinstance(renderer, Renderer):
             raise SpecError(f"renderer must be a generators.render.Renderer, got {type(renderer).__name__}")
+        if not isinstance(obs, str) or obs not in VIEWS:
+            raise SpecError(f"obs must be one of {', '.join(map(repr, VIEWS))}, got {obs!r:.80}")
+        if not isinstance(normalize_actions, (bool, np.bool_)):
+            raise SpecError(f"normalize_actions must be True or False, got {normalize_actions!r:.80}")
+        if isinstance(episodes, str):
+            episodes = SliceEpisodes(episodes)  # an unknown name fails here, naming it
         self.resolution = int(resolution)
         self.jpeg_quality = int(jpeg_quality)
         self.render_mode = render_mode
         self.episodes = episodes
-        # a Dict space whose samples are Observation dicts (Gymnasium types it Space[dict])
-        self.observation_space = cast("spaces.Space[Observation]", observation_space(self.resolution))
-        self.action_space = action_space()
+        self.obs, self.normalize_actions = obs, bool(normalize_actions)
+        self._view = VIEWS[obs]
+        # "full": a Dict space whose samples are Observation dicts (Gymnasium types it Space[dict])
+        self.observation_space = cast("spaces.Space[Observation]", self._view.space(self.resolution))
+        self.action_space = normalized_action_space() if self.normalize_actions else action_space()
         self.episode_spec: EpisodeSpec | None = None
         #: The frames the last ``reset`` (the observe window and the first acting frame)
         #: or ``step`` (one) made: what a recorder reads.
@@ -295,7 +313,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         observe = (
             np.stack([decode_jpeg(f.jpeg) for f in frames[:-1]]) if len(frames) > 1 else empty_window(self.resolution)
         )
-        return self._observation(frames[-1], observe), self._info(frames[-1])
+        return self._view.show(self._observation(frames[-1], observe)), self._info(frames[-1])
 
     def step(self, action: np.ndarray) -> tuple[Observation, float, bool, bool, dict[str, Any]]:
         """Apply one action for one frame (1/20 s); returns ``(observation, reward,
@@ -316,7 +334,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             raise DyanaError("step() before reset(): call reset() first")
         if self._done:
             raise DyanaError("step() after the episode ended (grasp complete or horizon): call reset()")
-        act = as_action(action)
+        act = absolute_action(action) if self.normalize_actions else as_action(action)
         frame = self._frame
         palm = np.clip(act[:3].astype(np.float64), PALM_LOW, PALM_HIGH).astype(np.float32)
         joints = np.clip(act[3:].astype(np.float64), JOINT_LOWER, JOINT_UPPER).astype(np.float32)
@@ -327,7 +345,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         truncated = not terminated and frame + 2 >= self._limit
         self._done = terminated or truncated
         reward = 1.0 if terminated else 0.0
-        return self._observation(made, empty_window(self.resolution)), reward, terminated, truncated, self._info(made)
+        obs = self._view.show(self._observation(made, empty_window(self.resolution)))
+        return obs, reward, terminated, truncated, self._info(made)
 
     @property
     def current_frame(self) -> int:
@@ -422,24 +441,4 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         }
 
 
-def register() -> bool:
-    """Register :data:`ENV_ID` with Gymnasium (idempotent), its episodes source test-1k.
-
-    Runs on import, so ``gymnasium.make("pipeline.loop.env:Dyana/Grasp-v0")`` works in
-    a fresh interpreter (Gymnasium imports the module named before the colon), and
-    ``gymnasium.make("Dyana/Grasp-v0")`` once this module is imported. It is also the
-    ``gymnasium.envs`` entry point in pyproject.toml (named ``Dyana``, the namespace),
-    which Gymnasium 0.26-0.29 call on ``import gymnasium``; Gymnasium 1.x no longer
-    loads such plugins. The passive env checker stays on: observations match their
-    spaces exactly.
-    """
-    # from the submodule: a plugin runs while ``gymnasium`` itself is still importing
-    from gymnasium.envs.registration import register as register_env
-    from gymnasium.envs.registration import registry
-
-    if ENV_ID not in registry:
-        register_env(id=ENV_ID, entry_point="pipeline.loop.env:DyanaEnv", kwargs={"episodes": SliceEpisodes("test-1k")})
-    return True
-
-
-register()
+register()  # gymnasium.make("pipeline.loop.env:Dyana/Grasp-v0") imports this module, then makes the id

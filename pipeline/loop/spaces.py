@@ -32,7 +32,8 @@ from schemas.versions import FPS
 
 __all__ = [
     "ACTION_WIDTH", "HAND_REACH", "INFO_KEYS", "MAX_FRAMES", "OBSERVATION_KEYS", "PALM_BOX", "PALM_HIGH", "PALM_LOW",
-    "REST_STATE", "Observation", "ObserveWindow", "StepInfo", "action_space", "empty_window", "observation_space",
+    "REST_STATE", "FrameIndex", "Instruction", "Observation", "ObserveWindow", "StepInfo", "action_space", "empty_window",
+    "observation_space",
 ]
 
 #: Where the palm may go (x, y, z ranges): above the table, up to 6 units high, from
@@ -128,6 +129,62 @@ def unflatten_window(space: ObserveWindow, x: object) -> np.ndarray:  # type: ig
     return np.zeros((0, *(space.feature_space.shape or ())), dtype=np.uint8)
 
 
+class FrameIndex(spaces.Discrete):
+    """``frame_index``: a ``Discrete(MAX_FRAMES)`` that flattens to one entry, the index
+    itself (a plain ``Discrete`` flattens to a one-hot vector of MAX_FRAMES entries)."""
+
+    def __repr__(self) -> str:
+        return f"FrameIndex({self.n})"
+
+
+@space_utils.flatdim.register(FrameIndex)
+def flatdim_frame(space: FrameIndex) -> int:
+    return 1
+
+
+@space_utils.flatten_space.register(FrameIndex)
+def flatten_space_frame(space: FrameIndex) -> spaces.Box:
+    return spaces.Box(int(space.start), int(space.start + space.n - 1), (1,), np.int64)
+
+
+@space_utils.flatten.register(FrameIndex)
+def flatten_frame(space: FrameIndex, x: object) -> np.ndarray:  # type: ignore[misc]  # mypy cannot match a generic Space[T] fallback
+    return np.array([x], dtype=np.int64)
+
+
+@space_utils.unflatten.register(FrameIndex)
+def unflatten_frame(space: FrameIndex, x: np.ndarray) -> np.int64:  # type: ignore[misc]  # mypy cannot match a generic Space[T] fallback
+    return np.int64(x[0])
+
+
+class Instruction(spaces.Text):
+    """``text``: a ``Text`` space that flattens to zero entries, like the observe window
+    (a plain ``Text`` flattens to MAX_TEXT character indices); ``unflatten`` gives ""."""
+
+    def __repr__(self) -> str:
+        return f"Instruction({self.min_length}, {self.max_length})"
+
+
+@space_utils.flatdim.register(Instruction)
+def flatdim_text(space: Instruction) -> int:
+    return 0
+
+
+@space_utils.flatten_space.register(Instruction)
+def flatten_space_text(space: Instruction) -> spaces.Box:
+    return spaces.Box(0, 0, (0,), np.int32)
+
+
+@space_utils.flatten.register(Instruction)
+def flatten_text(space: Instruction, x: object) -> np.ndarray:  # type: ignore[misc]  # mypy cannot match a generic Space[T] fallback
+    return np.zeros(0, dtype=np.int32)
+
+
+@space_utils.unflatten.register(Instruction)
+def unflatten_text(space: Instruction, x: object) -> str:  # type: ignore[misc]  # mypy cannot match a generic Space[T] fallback
+    return ""
+
+
 def box(low: np.ndarray, high: np.ndarray) -> spaces.Box:
     """A float32 Box between two arrays of the same shape."""
     return spaces.Box(low.astype(np.float32), high.astype(np.float32), low.shape, np.float32)
@@ -146,8 +203,8 @@ def observation_space(resolution: int) -> spaces.Dict:
             "joint_angles": box(JOINT_LOWER, JOINT_UPPER),
             "joint_poses": box(joint_poses_low, joint_poses_high),
             "keypoints": box(keypoints_low, keypoints_high),
-            "text": spaces.Text(max_length=MAX_TEXT, min_length=0, charset=string.printable),
-            "frame_index": spaces.Discrete(MAX_FRAMES),
+            "text": Instruction(max_length=MAX_TEXT, min_length=0, charset=string.printable),
+            "frame_index": FrameIndex(MAX_FRAMES),
             "timestamp": spaces.Box(0.0, (MAX_FRAMES - 1) / FPS, (), np.float64),
             "observe_images": ObserveWindow(image),
         }

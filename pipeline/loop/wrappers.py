@@ -50,7 +50,18 @@ def simulator(env: LoopEnv) -> DyanaEnv:
 
 
 class LoopWrapper(gymnasium.Wrapper[Observation, np.ndarray, Observation, np.ndarray]):
-    """A wrapper of the closed loop's environment, with the simulator's facts at hand."""
+    """A wrapper of the closed loop's environment, with the simulator's facts at hand.
+    It needs the simulator's defaults (``obs="full"``, real actions): it reads the full
+    observation and issues real actions."""
+
+    def __init__(self, env: LoopEnv):
+        inner = simulator(env)
+        if inner.obs != "full" or inner.normalize_actions:
+            raise SpecError(
+                f"{type(self).__name__} needs DyanaEnv(obs='full', normalize_actions=False), "
+                f"got obs={inner.obs!r}, normalize_actions={inner.normalize_actions}"
+            )
+        super().__init__(env)
 
     @property
     def simulator(self) -> DyanaEnv:

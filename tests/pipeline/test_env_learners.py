@@ -1,0 +1,201 @@
+"""The environment in the Gymnasium ecosystem: its options (observation views, normalised
+actions), Stable-Baselines3 and vector environments taking it with no glue, and
+Gymnasium 0.29 (which loads plugins on import) with Dyana imported first."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import sysconfig
+import warnings
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+
+from generators.hand import JOINT_LOWER, JOINT_UPPER
+from pipeline.loop.env import ENV_ID, DyanaEnv
+from pipeline.loop.spaces import PALM_HIGH, PALM_LOW
+from pipeline.loop.views import STATE_WIDTH, VIEWS, state_vector
+from pipeline.loop.wrappers import RecordEpisode
+from schemas.errors import DyanaError, PolicyError
+
+#: Stable-Baselines3's NatureCNN needs images of at least 36 px.
+RES = 40
+SEED = 4  # test-1k episode 4: an observe window of 25 frames
+
+
+def learner_env(**options) -> gymnasium.Env:
+    return gymnasium.make(ENV_ID, resolution=RES, obs="both", normalize_actions=True, **options)
+
+
+def test_each_view_shows_the_full_observation_in_its_own_space():
+    full = DyanaEnv(RES, episodes="test-1k")
+    envs = {name: DyanaEnv(RES, episodes="test-1k", obs=name) for name in VIEWS if name != "full"}
+    action = np.concatenate([[0.0, 2.0, 4.0], np.full(15, 0.2)]).astype(np.float32)
+    seen = {name: [env.reset(seed=SEED)[0], env.step(action)[0]] for name, env in envs.items()}
+    truth = [full.reset(seed=SEED)[0], full.step(action)[0]]
+    for k, obs in enumerate(truth):
+        state = np.concatenate([obs["palm_pose"], obs["joint_angles"], obs["joint_poses"], obs["keypoints"],
+                                [np.float32(obs["timestamp"])]])
+        assert state.dtype == np.float32 and state.shape == (STATE_WIDTH,)
+        np.testing.assert_array_equal(state_vector(obs), state)
+        np.testing.assert_array_equal(seen["image"][k], obs["image"])
+        np.testing.assert_array_equal(seen["state"][k], state)
+        np.testing.assert_array_equal(seen["both"][k]["image"], obs["image"])
+        np.testing.assert_array_equal(seen["both"][k]["state"], state)
+        for name, env in envs.items():
+            assert seen[name][k] in env.observation_space, name
+    assert envs["image"].observation_space.shape == (RES, RES, 3)
+    assert envs["state"].observation_space.shape == (STATE_WIDTH,)
+    assert set(envs["both"].observation_space.spaces) == {"image", "state"}
+
+
+def test_normalized_actions_map_minus_one_and_one_onto_the_real_bounds():
+    env = DyanaEnv(RES, episodes="test-1k", normalize_actions=True)
+    assert env.action_space == gymnasium.spaces.Box(-1.0, 1.0, (18,), np.float32)
+    env.reset(seed=SEED)
+    for value, palm, joints in ((-1.0, PALM_LOW, JOINT_LOWER), (1.0, PALM_HIGH, JOINT_UPPER), (5.0, PALM_HIGH, JOINT_UPPER),
+                                (0.0, (PALM_LOW + PALM_HIGH) / 2, (JOINT_LOWER + JOINT_UPPER) / 2)):
+        obs, _, terminated, truncated, _ = env.step(np.full(18, value, dtype=np.float32))
+        np.testing.assert_allclose(obs["palm_pose"][:3], palm, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(obs["joint_angles"], joints, rtol=1e-6, atol=1e-6)
+        if terminated or truncated:  # the joints at their upper limits complete the grasp
+            env.reset(seed=SEED)
+    frame = env.current_frame
+    with pytest.raises(PolicyError, match="NaN"):
+        env.step(np.full(18, np.nan))
+    assert env.current_frame == frame
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"obs": "rgb"}, "obs must be one of 'full', 'image', 'state', 'both', got 'rgb'"),
+    ({"obs": None}, "obs must be one of .* got None"),
+    ({"normalize_actions": "yes"}, "normalize_actions must be True or False, got 'yes'"),
+    ({"episodes": "no-such-slice"}, "no-such-slice"),
+])
+def test_bad_options_name_the_argument(options, message):
+    with pytest.raises(DyanaError, match=message):
+        gymnasium.make(ENV_ID, resolution=RES, **options)
+
+
+def test_the_recorder_needs_the_full_observation_and_real_actions():
+    for options in ({"obs": "image"}, {"normalize_actions": True}):
+        with pytest.raises(DyanaError, match=r"RecordEpisode needs DyanaEnv\(obs='full', normalize_actions=False\)"):
+            RecordEpisode(DyanaEnv(RES, **options))
+
+
+def test_gymnasium_check_env_gives_no_warning_with_the_learner_options():
+    from gymnasium.utils.env_checker import check_env
+
+    env = learner_env()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    assert [str(w.message) for w in caught] == []
+
+
+def test_async_vector_env_with_its_defaults():
+    """Shared memory and the default start method: the views are fixed-shape Boxes."""
+    vec = gymnasium.vector.AsyncVectorEnv([learner_env, learner_env])
+    try:
+        obs, _ = vec.reset(seed=SEED)
+        assert obs["image"].shape == (2, RES, RES, 3) and obs["state"].shape == (2, STATE_WIDTH)
+        action = np.zeros((2, 18), dtype=np.float32)
+        after, *_ = vec.step(action)
+    finally:
+        vec.close()
+    single = learner_env()
+    for k in range(2):  # each sub-environment is the single one seeded SEED + k
+        first, _ = single.reset(seed=SEED + k)
+        then = single.step(action[k])[0]
+        for key in ("image", "state"):
+            np.testing.assert_array_equal(obs[key][k], first[key])
+            np.testing.assert_array_equal(after[key][k], then[key])
+
+
+@pytest.mark.torch
+def test_stable_baselines3_checks_and_learns_with_no_wrapper():
+    """SB3's check_env takes every view as it is (silently); PPO learns on the image and
+    state view (the dearest policy; the others share its code paths in SB3)."""
+    pytest.importorskip("torch")
+    sb3 = pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.env_checker import check_env
+
+    for obs in ("image", "state", "both"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            check_env(gymnasium.make(ENV_ID, resolution=RES, obs=obs, normalize_actions=True))
+        assert [str(w.message) for w in caught] == [], obs
+    env = learner_env()
+    model = sb3.PPO("MultiInputPolicy", env, n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    model.learn(128)
+    assert model.num_timesteps == 128
+    action, _ = model.predict(env.reset(seed=SEED)[0], deterministic=True)
+    assert action.shape == (18,) and env.action_space.contains(action)
+
+
+@pytest.fixture(scope="module")
+def gymnasium_029(tmp_path_factory) -> Path:
+    """A Python with Gymnasium 0.29.1 (the last release that loads plugins on import) in a
+    venv of its own that sees this checkout and this interpreter's packages behind it."""
+    venv = tmp_path_factory.mktemp("g29")
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
+    python = venv / "bin" / "python"
+    install = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps",
+                              "gymnasium==0.29.1", "farama-notifications", "cloudpickle"],
+                             capture_output=True, text=True, timeout=300)
+    if install.returncode != 0:
+        pytest.skip(f"gymnasium 0.29.1 is not installable here: {install.stderr.strip()[-200:]}")
+    site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    root = __file__.rsplit("/tests/", 1)[0]
+    (Path(site) / "zz_dyana.pth").write_text(f"{root}\n{sysconfig.get_paths()['purelib']}\n")
+    return python
+
+
+CHECK_IN_FRESH_GYMNASIUM = """
+import json, sys, warnings
+import gymnasium
+from gymnasium.utils.env_checker import check_env
+
+env = gymnasium.make("Dyana/Grasp-v0", resolution=64)
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    check_env(env.unwrapped)
+print(json.dumps({"version": gymnasium.__version__, "warnings": [str(w.message) for w in caught]}))
+"""
+
+
+def test_plain_make_and_check_env_in_a_fresh_gymnasium_0_29_interpreter(gymnasium_029):
+    """``gymnasium.make("Dyana/Grasp-v0")`` works without importing Dyana (the entry point),
+    and Gymnasium's own ``check_env`` passes with only its advice to normalise the action space."""
+    result = subprocess.run([str(gymnasium_029), "-c", CHECK_IN_FRESH_GYMNASIUM], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    out = json.loads(result.stdout.splitlines()[-1])
+    assert out["version"] == "0.29.1"
+    assert len(out["warnings"]) == 1 and "symmetric and normalized" in out["warnings"][0], out["warnings"]
+
+
+#: Dyana imported first: its own ``import gymnasium`` runs the plugins, Dyana's included.
+DYANA_FIRST = """
+import json, sys
+import {module}
+import gymnasium
+
+env = gymnasium.make("Dyana/Grasp-v0", resolution=40, obs="state", normalize_actions=True)
+obs, _ = env.reset(seed=2)
+print(json.dumps({{"version": gymnasium.__version__, "shape": obs.shape}}))
+"""
+
+
+@pytest.mark.parametrize("module", ["pipeline.loop.env", "pipeline.loop.actions", "pipeline.cli"])
+def test_dyana_imported_before_gymnasium_0_29(gymnasium_029, module):
+    """The way ``pipeline eval`` starts: a Dyana module whose imports reach Gymnasium, which
+    then calls Dyana's entry point while that module is still importing."""
+    result = subprocess.run([str(gymnasium_029), "-c", DYANA_FIRST.format(module=module)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert json.loads(result.stdout.splitlines()[-1]) == {"version": "0.29.1", "shape": [STATE_WIDTH]}
