@@ -40,16 +40,19 @@ def test_a_checkpoint_runs_in_the_loop_with_its_own_normalisation(tmp_path, monk
     assert config["normalisation"] == ("processors" if processors else "model")
     with catalog.open(run) as ds:
         assert ds.episodes[0].status == "ok" and ds.episodes[0].policy.startswith("lerobot-fake-")
-        acting = [ds[i] for i in range(len(ds)) if ds[i]["phase"] != "observe"]
+        frames = [ds[i] for i in range(len(ds))]
+        acting = [f for f in frames if f["phase"] != "observe"]
         first = acting[0]
     # un-normalised: the model's own (0.3) or the saved postprocessor's (0.4)
     np.testing.assert_allclose(first["action"], TARGET.numpy(), rtol=0, atol=1e-6)
     batch = FakePolicy.calls[0]
     assert batch[IMAGE_KEY].shape == (1, 3, 32, 32)  # Dyana's 64 px frame, resized to the declared feature
-    palm = np.concatenate([first["palm_pose"], first["joint_angles"]]).astype(np.float32)
-    expected = (palm - fake_lerobot.STATE_MEAN) / fake_lerobot.STATE_STD if processors else palm
-    assert len(FakePolicy.calls) == len(acting)  # one call per acting frame, the first on the first
-    np.testing.assert_allclose(batch["observation.state"][0].numpy(), expected, rtol=1e-6, atol=1e-6)
+    # a call per recorded frame but the last: the policy saw that frame's state
+    assert len(FakePolicy.calls) == len(frames) - 1
+    for call, frame in zip(FakePolicy.calls, frames):
+        palm = np.concatenate([frame["palm_pose"], frame["joint_angles"]]).astype(np.float32)
+        expected = (palm - fake_lerobot.STATE_MEAN) / fake_lerobot.STATE_STD if processors else palm
+        np.testing.assert_allclose(call["observation.state"][0].numpy(), expected, rtol=1e-6, atol=1e-6)
     assert isinstance(batch["task"][0], str) and batch["task"][0]
 
 
