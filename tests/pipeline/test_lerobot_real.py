@@ -21,6 +21,7 @@ import pytest
 
 import catalog
 from catalog.export.lerobot import ExportSettings
+from catalog.manifest import load_manifest
 from pipeline.jobs.export import export
 
 VENVS = Path(os.environ.get("DYANA_LEROBOT_VENVS", Path.home() / ".cache" / "dyana" / "lerobot-venvs"))
@@ -78,8 +79,7 @@ def test_lerobot_trains_act_on_the_export_and_the_checkpoint_runs_in_the_loop(so
     _run([str(venv / "bin" / "pipeline"), "eval", "--policy", f"lerobot:{train}", "--slice", "test-1k",
           "--episodes", "2", "--resolution", str(RESOLUTION), "--workers", "1", "--quiet", "--out", str(run)],
          tmp_path, 1800)
-    manifest = json.loads((run / "catalog.json").read_text())
-    lerobot = manifest["extra"]["lerobot"]
+    lerobot = load_manifest(run).extra["lerobot"]
     assert lerobot["normalisation"] == ("model" if legacy else "processors") and lerobot["device"] == "cpu"
     with catalog.open(source) as ds:
         trained = np.stack([ds[i]["action"] for i in range(len(ds))])
