@@ -26,7 +26,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-COMMAND_1 = ("python3 -m venv .venv && .venv/bin/pip install -e . && "
+COMMAND_1 = ("python3 -m venv .venv && .venv/bin/pip install -c .ci/constraints.txt -e . && "
              ".venv/bin/pipeline build --slice linear-fast --episodes 32 --shard-size 16 --out out")
 COMMAND_2 = ".ci/run"
 README_MARK = re.compile(r"(<!-- first-screen -->\n).*?(\n<!-- /first-screen -->)", re.S)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.storage import as_location, is_remote
+from catalog.versions import installed_versions, version_differences
 from schemas.errors import ShardError
 from schemas.versions import DATASET_VERSION, READABLE_DATASET_VERSIONS
 
@@ -28,9 +29,12 @@ class Rebuild:
         return {"possible": self.possible, "reason": self.reason}
 
 
-def rebuild_verdict(manifest: Manifest) -> Rebuild:
+def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | None = None) -> Rebuild:
     """Only the dataset version this code writes is rebuilt byte for byte (an older one is
-    read, scored and exported); a real-time run depends on the machine's timing."""
+    read, scored and exported); a real-time run depends on the machine's timing; and the
+    bytes are the same only with the library versions the folder records
+    (:func:`catalog.versions.version_differences` against ``installed``, default this
+    installation's)."""
     version = manifest.settings.get("dataset_version")
     if version != DATASET_VERSION:
         readable = "readable, not re-executable" if version in READABLE_DATASET_VERSIONS else (
@@ -41,7 +45,15 @@ def rebuild_verdict(manifest: Manifest) -> Rebuild:
     protocol = manifest.settings.get("protocol")
     if isinstance(protocol, Mapping) and protocol.get("realtime"):
         return Rebuild(False, "a real-time run (settings.protocol.realtime) depends on the machine's timing")
-    return Rebuild(True, f"this code writes dataset {DATASET_VERSION}, as the folder records")
+    same = f"this code writes dataset {DATASET_VERSION}, as the folder records"
+    if manifest.versions is None:
+        return Rebuild(True, f"{same} (it records no library versions: written before Dyana recorded them)")
+    differ = version_differences(manifest.versions, installed_versions() if installed is None else installed)
+    if differ:
+        return Rebuild(False, f"{same}, but with other libraries ({'; '.join(differ)}): the rebuilt bytes may "
+                              "differ; install the versions the folder records (.ci/constraints.txt) to rebuild "
+                              "it byte for byte")
+    return Rebuild(True, f"{same}, with the library versions it records")
 
 
 @dataclass(frozen=True)
@@ -64,6 +76,7 @@ class FolderInfo:
     size: int  # their bytes, as catalog.json records them (catalog.json's own as read)
     hash: str
     rebuild: Rebuild
+    versions: Mapping[str, str | None] | None  # Python's and the byte-determining libraries' (None: not recorded)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -87,6 +100,7 @@ class FolderInfo:
             "bytes": self.size,
             "hash": self.hash,
             "rebuild": self.rebuild.to_dict(),
+            "versions": None if self.versions is None else dict(self.versions),
         }
 
 
@@ -137,4 +151,5 @@ def folder_info(location: str) -> FolderInfo:
         size=manifest_bytes + sum(f.size for f in recorded),
         hash=manifest.hash,
         rebuild=rebuild_verdict(manifest),
+        versions=manifest.versions,
     )

@@ -8,7 +8,9 @@ the rest: the sha256 of the canonical JSON of every other top-level key, so an e
 any key (``policy``, ``privileged``, ``code``, a VLM setting, an added key) is refused
 on load naming the key. Keys beyond the contract's (``policy`` for rollouts, ...) are
 kept in :attr:`Manifest.extra` and written at the top level; ``audit`` lists files kept
-beside the shards that no reader reads but replay checks (a VLM run's exchanges).
+beside the shards that no reader reads but replay checks (a VLM run's exchanges);
+``versions`` records Python's and the byte-determining libraries' versions
+(:mod:`catalog.versions`; absent from folders written before Dyana recorded them).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from catalog.hashing import canonical_json, is_sha256, sha256_bytes, slice_hash
 from catalog.records import FileRecord, ShardRecord
 from catalog.repeat_sets import repeats_hint
 from catalog.storage import as_location
+from catalog.versions import VERSIONS_KEY, checked_versions
 from schemas.errors import ShardError, SpecError
 from schemas.formats import stored_formats
 from schemas.names import printable
@@ -35,9 +38,9 @@ from schemas.versions import CODE_VERSION
 
 MANIFEST_NAME = "catalog.json"
 CORE_KEYS = ("slice", "seed", "episodes", "frames", "code", "settings", "shards", "hash")
-#: Keys of the contract a manifest may lack: ``stats`` (the statistics file's record) and
-#: ``audit`` (a policy's audit trail files).
-OPTIONAL_KEYS = ("stats", "audit")
+#: Keys of the contract a manifest may lack: ``stats`` (the statistics file's record),
+#: ``audit`` (a policy's audit trail files) and ``versions`` (the libraries that wrote it).
+OPTIONAL_KEYS = ("stats", "audit", VERSIONS_KEY)
 #: The seal: every other top-level key's sha256 (:func:`seal_of`), checked on load.
 SEAL_KEY = "key_sha256"
 _COMMIT = re.compile(r"^[0-9a-f]{40}([0-9a-f]{24})?$")
@@ -102,6 +105,7 @@ class Manifest:
     extra: Mapping[str, Any] = field(default_factory=dict)
     stats: FileRecord | None = None
     audit: tuple[FileRecord, ...] | None = None
+    versions: Mapping[str, str | None] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.slice, str) or not self.slice:
@@ -168,6 +172,8 @@ class Manifest:
             if paths != sorted(set(paths)):
                 raise ShardError(f"audit must list each file once, sorted by path, got {paths!r:.120}")
             object.__setattr__(self, "audit", audit)
+        if self.versions is not None:
+            object.__setattr__(self, "versions", checked_versions(self.versions))
         expected = compute_hash(settings, shards, self.slice, self.seed, self.stats)
         if self.hash != expected:
             raise ShardError(
@@ -186,9 +192,11 @@ class Manifest:
         extra: Mapping[str, Any] | None = None,
         stats: FileRecord | None = None,
         audit: Sequence[FileRecord] | None = None,
+        versions: Mapping[str, str | None] | None = None,
     ) -> Manifest:
         """Totals and hash computed; shards sorted by first episode, ``audit`` by path;
-        ``code`` defaults to this installation."""
+        ``code`` defaults to this installation's; ``versions`` is recorded as given (a build
+        passes :func:`catalog.versions.installed_versions`)."""
         ordered = tuple(sorted(shards, key=lambda s: s.first))
         return cls(
             slice=slice,
@@ -202,6 +210,7 @@ class Manifest:
             extra=dict(extra or {}),
             stats=stats,
             audit=None if audit is None else tuple(sorted(audit, key=lambda r: r.path)),
+            versions=versions,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -220,6 +229,8 @@ class Manifest:
             out["stats"] = self.stats.to_dict()
         if self.audit is not None:
             out["audit"] = [r.to_dict() for r in self.audit]
+        if self.versions is not None:
+            out[VERSIONS_KEY] = dict(self.versions)
         out.update(self.extra)
         out[SEAL_KEY] = seal_of(json.loads(canonical_json(out)))  # over the values as a reader gets them back
         return out
@@ -253,6 +264,7 @@ class Manifest:
             extra={k: v for k, v in data.items() if k not in {*CORE_KEYS, *OPTIONAL_KEYS, SEAL_KEY}},
             stats=None if data.get("stats") is None else FileRecord.from_dict(data["stats"], "stats"),
             audit=_audit_records(data.get("audit")),
+            versions=data.get(VERSIONS_KEY),
         )
 
     def files(self) -> list[tuple[str, str, int]]:

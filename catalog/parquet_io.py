@@ -19,7 +19,8 @@ schema, ``dyana.table`` and ``dyana.schema_version``.
 Not pinnable: pyarrow writes ``created_by = "parquet-cpp-arrow version X.Y.Z"``
 into the footer and offers no option to set it, and the zstd bytes come from the
 zstd library bundled in the pyarrow wheel. The bytes therefore depend on the
-pyarrow version, which the lock file pins.
+pyarrow version, which ``.ci/constraints.txt`` pins and every ``catalog.json`` records
+(:mod:`catalog.versions`).
 """
 
 from __future__ import annotations

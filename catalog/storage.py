@@ -123,3 +123,15 @@ def check_writable(remote: Any) -> None:
             raise StorageError(f"{where(remote)}: not writable with these credentials ({shorten(exc)})") from None
         except OSError as exc:
             raise StorageError(f"{where(remote)}: cannot write ({type(exc).__name__}: {shorten(exc)})") from None
+
+
+def listed_sizes(remote: Any) -> dict[str, int]:
+    """``{relative path: size}`` of every object under the URL ``remote`` (a UPath), listed
+    afresh (not from the filesystem's cache); empty when nothing is there."""
+    fs, root = remote.fs, remote.path.rstrip("/")
+    fs.invalidate_cache()
+    try:
+        found = fs.find(root, detail=True)
+    except FileNotFoundError:
+        return {}
+    return {name[len(root) + 1:]: int(info["size"]) for name, info in found.items() if name.startswith(root + "/")}

@@ -364,6 +364,17 @@ def spec_for(slice_name: str, index: int) -> EpisodeSpec:
     return _spec(_table(definition, np.array([int(index)], dtype=np.int64)), 0)
 
 
+def definition_specs(definition: SliceDef, first: int, end: int) -> list[EpisodeSpec]:
+    """Episodes ``[first, end)`` of a slice definition (a registered one, or one whose seed
+    was replaced: :mod:`generators.heldout`)."""
+    if definition.generator != "recipe":
+        from generators.appendix import appendix_spec
+
+        return [appendix_spec(definition, i) for i in range(first, end)]
+    table = _table(definition, np.arange(first, end, dtype=np.int64))
+    return [_spec(table, k) for k in range(len(table))]
+
+
 def slice_specs(slice_name: str, episodes: int | None = None) -> Iterator[EpisodeSpec]:
     """The first ``episodes`` specs of a slice (all by default), in order, lazily.
 

@@ -110,6 +110,8 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     cli.add_overwrite(p)
     cli.add_quiet(p)
+    cli.add_test_seed(p, "draw the held-out slice (test-1k, test-irregular, test-complex) from this secret instead of "
+                      "its public seed; the run's manifest keeps only a hash of it")
     protocol = p.add_argument_group("protocols (recorded in the run's manifest, settings.protocol)")
     protocol.add_argument("--latency-frames", type=int, default=0, metavar="N",
                           help="an action computed from frame t's observation takes effect at frame t + N; "
@@ -194,7 +196,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if vlm is None:
         _importable_cwd(args.policy)
     options = dict(deadline_s=args.deadline, isolate=not args.in_process, vlm=vlm, require_success=True,
-                   **cli.job_options(args))
+                   test_seed=cli.read_test_seed(args), **cli.job_options(args))
     if args.repeats != 1:
         evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
     else:
@@ -214,15 +216,32 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
         "--max-connections", type=cli.positive_int, default=4,
         help="connections served at once; more are told the server is busy (default: 4)",
     )
+    p.add_argument(
+        "--protocol", choices=("dyana", "openpi"), default="dyana",
+        help="wire protocol: dyana (dyana/1, default) or openpi (for openpi_client; docs/guides/openpi.md)",
+    )
+    p.add_argument(
+        "--openpi-key", action="append", default=[], type=_setting, metavar="NAME=KEY",
+        help="with --protocol openpi: a request/reply key name (image, state, prompt, actions); repeatable",
+    )
+
+
+def _setting(text: str) -> tuple[str, str]:
+    name, sep, value = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME=KEY, got {text[:60]!r}")
+    return name, value
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
     from pipeline.remote.serve import serve
+    from pipeline.remote.wires import wire_for
 
+    wire = wire_for(args.protocol, args.openpi_key)
     _importable_cwd(args.policy)
     serve(
         args.policy, args.host, args.port,
-        max_message_bytes=args.max_message_mb << 20, max_connections=args.max_connections,
+        max_message_bytes=args.max_message_mb << 20, max_connections=args.max_connections, wire=wire,
     )
     return 0
 
@@ -230,6 +249,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def _replay_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("path", metavar="RUN|DIR", help="a run folder or a built slice folder (holding catalog.json)")
     cli.add_quiet(p, "no per-shard lines")
+    cli.add_test_seed(p, "the secret a run drawn from a private test seed was made with (needed to replay it)")
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -239,7 +259,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"shard {shard.first}-{shard.end - 1}: identical", file=sys.stderr, flush=True)
 
-    report = replay(args.path, on_shard=progress)
+    report = replay(args.path, on_shard=progress, test_seed=cli.read_test_seed(args))
     what = "rollouts of" if report.kind == "rollouts" else "built slice"
     print(
         f"replayed {what} {report.slice}: {report.episodes} episodes, {report.frames} frames in "
@@ -266,7 +286,7 @@ COMMANDS = (
     cli.Command("build", "build a slice's shards (Parquet + MCAP) and its catalog.json", _build_arguments, _resumable(cmd_build)),
     cli.Command("view", "write one episode of a slice or run as a rerun recording (.rrd)", _view_arguments, cmd_view),
     cli.Command("eval", "run a policy in the loop on a slice's episodes and record the rollouts", _eval_arguments, _resumable(cmd_eval)),
-    cli.Command("serve", "serve a policy over WebSocket (protocol dyana/1: docs/reference/wire-protocol.md)", _serve_arguments, cmd_serve),
+    cli.Command("serve", "serve a policy over WebSocket (dyana/1 or openpi: docs/reference/wire-protocol.md)", _serve_arguments, cmd_serve),
     cli.Command("replay", "re-execute a built slice or a run and check it byte for byte", _replay_arguments, cmd_replay),
 )
 

@@ -122,13 +122,29 @@ def _specs_arguments(p: argparse.ArgumentParser) -> None:
     cli.add_episodes(p)
 
 
+def _seed_text(location: str, seed: int | None) -> str:
+    """A folder's seed as ``catalog info`` shows it: a private test seed by its hash only."""
+    from catalog.manifest import MANIFEST_NAME, load_manifest
+    from catalog.storage import as_location
+    from generators.heldout import MANIFEST_KEY
+
+    if seed is not None:
+        return str(seed)
+    root = as_location(location)
+    record = load_manifest(root.parent if root.name == MANIFEST_NAME else root).extra.get(MANIFEST_KEY)
+    if isinstance(record, dict):
+        return f"private (scrypt hash {str(record.get('hash'))[:12]}...; replaying it needs --test-seed)"
+    return "none (specs file)"
+
+
 def cmd_verify(args: argparse.Namespace) -> int:
     from pipeline.jobs.verify import verify
 
     def progress(shard: ShardRecord) -> None:
         print(f"rebuilt shard episodes [{shard.first}, {shard.end}): identical", file=sys.stderr, flush=True)
 
-    report = verify(args.dir, sample=args.sample, on_shard=None if args.quiet else progress)
+    report = verify(args.dir, sample=args.sample, on_shard=None if args.quiet else progress,
+                    test_seed=cli.read_test_seed(args))
     print(
         f"{args.dir}: OK: {report.shards_checked} shards intact, "
         f"{report.shards_rebuilt} rebuilt byte for byte"
@@ -140,6 +156,7 @@ def _verify_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", metavar="DIR", help="a built slice or rollout folder (holding catalog.json)")
     p.add_argument("--sample", type=cli.positive_int, default=None, metavar="K", help="rebuild only K shards (default: all)")
     cli.add_quiet(p)
+    cli.add_test_seed(p, "the secret a run drawn from a private test seed was made with (needed to re-execute it)")
 
 
 def cmd_migrate(args: argparse.Namespace) -> int:
@@ -230,12 +247,14 @@ def cmd_info(args: argparse.Namespace) -> int:
         ("kind", kind),
         ("dataset", f"{info.dataset_version} (this code writes {DATASET_VERSION})"),
         ("code", f"{info.code_version}, commit {info.commit or 'unknown (not written from a git checkout)'}"),
-        ("slice", f"{info.slice}, seed {'none (specs file)' if info.seed is None else info.seed}"),
+        ("slice", f"{info.slice}, seed {_seed_text(args.dir, info.seed)}"),
         ("settings", settings),
         ("episodes", f"{info.episodes:,} in {info.shards:,} shard{'s' if info.shards != 1 else ''}"),
         ("frames", f"{info.frames:,}"),
         ("size", f"{_size(info.size)} in {info.files} files"),
         ("hash", info.hash[:16]),
+        ("versions", "not recorded (written before Dyana recorded them)" if info.versions is None else
+         " ".join(f"{k}={v or '(none)'}" for k, v in sorted(info.versions.items()))),
         ("rebuild", f"{'yes' if info.rebuild.possible else 'no'}: {info.rebuild.reason}"),
     ]
     for name, value in rows:

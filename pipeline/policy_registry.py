@@ -12,6 +12,8 @@ kind           reference           makes
 ``lerobot``    ``lerobot:PATH``    :class:`pipeline.policies.lerobot_checkpoint.CheckpointPolicy` (a
                                    LeRobot checkpoint folder, loaded with the installed lerobot on
                                    ``--policy-device``; its features are checked up front)
+``openpi``     ``openpi:ws://...`` :class:`pipeline.remote.openpi_client.OpenpiPolicy` (an openpi
+                                   policy server; key names in the URL's query)
 ``remote``     ``ws://HOST:PORT``  :class:`pipeline.remote.client.RemotePolicy` (``pipeline serve``)
 ``module``     ``module:callable`` a user's policy, in a child process unless ``isolate`` is off
                                    (:class:`pipeline.remote.isolated.IsolatedPolicy`)
@@ -70,7 +72,8 @@ class Timed(Protocol):
 
 @runtime_checkable
 class Audited(Protocol):
-    """A policy that keeps a record of its exchanges (JSON objects with ``episode_id``)."""
+    """A policy that keeps a record of its exchanges (JSON objects; the job adds each
+    record's ``episode_id``, which the policy is never told)."""
 
     def take_audit(self) -> list[dict[str, Any]]: ...
 
@@ -275,3 +278,29 @@ def configure_lerobot(ref: str, config: Config | None) -> Config:
 
 register(PolicyKind("lerobot", lambda ref: ref.startswith("lerobot:"), make_lerobot, configure=configure_lerobot,
                     manifest_key="lerobot"))
+
+
+# openpi policy servers: openpi:ws://HOST:PORT[?key=value...] ---------------------------------
+
+
+def configure_openpi(ref: str, config: Config | None) -> Config:
+    """The key mapping the ref's query sets (recorded in the manifest; the URL is not, so
+    that a server restarted on another port resumes the same run)."""
+    from pipeline.remote.openpi_client import split_ref
+
+    no_config(ref, config)
+    return split_ref(ref)[1].to_dict()
+
+
+def make_openpi(ref: str, options: OpenOptions) -> Policy:
+    from pipeline.remote.openpi_client import OpenpiPolicy, split_ref
+    from pipeline.remote.openpi_keys import OpenpiConfig
+
+    url, config = split_ref(ref)
+    if options.config is not None:
+        config = OpenpiConfig.from_dict(options.config)
+    return OpenpiPolicy(url, config, timeout_s=options.timeout_s + REMOTE_SLACK_S)
+
+
+register(PolicyKind("openpi", lambda ref: ref.startswith("openpi:"), make_openpi, configure=configure_openpi,
+                    manifest_key="openpi", names_ref=True))

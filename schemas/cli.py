@@ -35,7 +35,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from schemas.errors import AllEpisodesFailed, DyanaError, ReplayMismatch
+from schemas.errors import AllEpisodesFailed, DyanaError, ReplayMismatch, SpecError
 from schemas.names import printable, shorten
 from schemas.storage_faults import describe_storage_fault, is_storage_fault
 from schemas.versions import CODE_VERSION, DATASET_VERSION
@@ -160,6 +160,40 @@ def add_overwrite(parser: argparse.ArgumentParser) -> None:
 
 def add_quiet(parser: argparse.ArgumentParser, what: str = "no progress lines") -> None:
     parser.add_argument("--quiet", action="store_true", help=what)
+
+
+def add_test_seed(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--test-seed SECRET`` / ``--test-seed-file FILE`` (read with :func:`read_test_seed`)."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--test-seed", metavar="SECRET", help=f"{what} (>= 16 characters; "
+                       "make one with: python -c \"import secrets; print(secrets.token_hex(16))\")")
+    group.add_argument("--test-seed-file", metavar="FILE",
+                       help="the same secret read from FILE's first line (keeps it out of the shell's history)")
+
+
+#: The most bytes a --test-seed-file is read for (a secret is one short line).
+TEST_SEED_FILE_BYTES = 4096
+
+
+def read_test_seed(args: argparse.Namespace) -> str | None:
+    """The secret of ``--test-seed`` or ``--test-seed-file`` (its first line), or None;
+    an unreadable file is a SpecError naming it (never the secret)."""
+    if getattr(args, "test_seed_file", None) is None:
+        return getattr(args, "test_seed", None)
+    path = args.test_seed_file
+    try:
+        with open(path, "rb") as handle:
+            data = handle.read(TEST_SEED_FILE_BYTES + 1)
+    except OSError as exc:
+        raise SpecError(f"--test-seed-file {shorten(path, 80)}: cannot read it ({exc.strerror or exc})") from None
+    if len(data) > TEST_SEED_FILE_BYTES:
+        raise SpecError(f"--test-seed-file {shorten(path, 80)}: longer than {TEST_SEED_FILE_BYTES} bytes, not a secret")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SpecError(f"--test-seed-file {shorten(path, 80)}: not UTF-8 text") from None
+    lines = text.splitlines()
+    return lines[0] if lines else ""
 
 
 #: The shortest time between two progress lines (the last one is always printed).

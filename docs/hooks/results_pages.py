@@ -52,6 +52,7 @@ TIMINGS = (
     Source("window_render.txt", "window_render.py", "Window rendering (not used)"),
     Source("visibility.txt", "visibility.py", "Visibility of the object"),
 )
+SCALING = Source("scaling.json", "scaling.py", "Scaling and a projection of dyana-12m")
 
 
 def json_records(text: str) -> list[dict]:
@@ -187,7 +188,7 @@ def _kept(root: Path, script: str) -> str:
     pages = {**{s.name: "results/test-1k.md" for s in (*TEST_1K, BASELINE)},
              **{s.name: "results/test-complex.md" for s in TEST_COMPLEX}}
     shown = []
-    for source in (*TIMINGS, *TEST_1K, BASELINE, *TEST_COMPLEX):
+    for source in (*TIMINGS, SCALING, *TEST_1K, BASELINE, *TEST_COMPLEX):
         if source.script == script and (root / RESULTS / source.name).exists():
             page = pages.get(source.name, "")
             anchor = re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", source.title.lower()).strip())  # as toc's slugify
@@ -216,7 +217,47 @@ def benchmarks_page(root: Path) -> str:
     ]
     for source in TIMINGS:
         lines += _section(root, source, FILES_URI)
+    lines += scaling_section(root, FILES_URI)
     return "\n".join(lines)
+
+
+def _seconds(value: float | None) -> str:
+    if value is None:
+        return "not measured"
+    return f"{value * 1000:.1f} ms" if abs(value) < 1 else f"{value:.2f} s"
+
+
+def scaling_section(root: Path, files: str) -> list[str]:
+    """The scaling measurement and the projection it gives, from ``scaling.json`` alone (or
+    a line saying it is not measured yet)."""
+    path = root / RESULTS / SCALING.name
+    lines = [f"## {SCALING.title}", ""]
+    if not path.exists():
+        return lines + [f"Not measured yet: run {_script_link(SCALING.script)} on a quiet machine to write "
+                        f"`benchmarks/results/{SCALING.name}`; this section then shows the projection.", ""]
+    record = json.loads(path.read_text(encoding="utf-8"))
+    m, runs, target = record["measured"], record["runs"], record["target"]
+    tiny = " **A `--tiny` check run: its numbers mean nothing.**" if record.get("tiny") else ""
+    lines += [_source_line(root, SCALING, files), "", load_note(json.dumps(record)) + tiny, "",
+              f"Measured on {record['date_utc']} UTC (commit {str(record.get('commit'))[:7]}, {record['cores']} cores), "
+              f"{record['episodes']} episodes of `{record['slice']}` at {record['resolution']} px in shards of "
+              f"{record['shard_size']} ({runs['workers_1']['frames']:,} frames), the overheads on "
+              f"{record['tiny_shards']} one-episode shards:", "",
+              "| quantity | value |", "|---|---|",
+              f"| CPU per frame, in process | {_seconds(m['cpu_s_per_frame'])} |",
+              f"| 1 local worker | {m['fps_1_worker']:.1f} frames/s |",
+              f"| 2 local workers | {m['fps_2_workers']:.1f} frames/s |",
+              f"| parallel efficiency at 2 workers | {m['parallel_efficiency']:.2f} |",
+              f"| cluster start-up and shut-down | {_seconds(m['cluster_start_s'])} |",
+              f"| scheduler, per shard | {_seconds(m['scheduler_s_per_shard'])} |",
+              f"| upload to S3 on loopback (moto), per shard | {_seconds(m['upload_s_per_shard'])} |", "",
+              f"Projected wall time of `{target['slice']}` ({target['episodes']:,} episodes, "
+              f"{target['frames']:,} frames, {target['shards']:,} shards of {target['shard_size']}), "
+              f"`{record['projection']['model']}`:", "",
+              "| cores | projected wall time |", "|---|---|",
+              *[f"| {cores} | {hours:.1f} h |" for cores, hours in record["projection"]["hours"].items()], "",
+              f"What the model assumes is in the docstring of `benchmarks/{SCALING.script}`.", ""]
+    return lines
 
 
 def _headline(root: Path, name: str) -> list[str]:

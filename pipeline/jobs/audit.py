@@ -24,6 +24,12 @@ from schemas.errors import ShardError
 LEGACY_INDEX = "index.json"
 
 
+def stamped(records: Sequence[dict[str, Any]], episode_id: str) -> list[dict[str, Any]]:
+    """An episode's records with its id, added on Dyana's side: the policy that made them
+    was never told which episode it played."""
+    return [{**record, "episode_id": episode_id} for record in records]
+
+
 def audit_path(folder: Path, first: int, end: int) -> Path:
     """The trail file of shard ``[first, end)``."""
     return folder / f"audit-{first:06d}-{end:06d}.jsonl"

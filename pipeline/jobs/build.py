@@ -1,7 +1,8 @@
 """`pipeline build`: a slice's shards, resumable and byte-reproducible.
 
 Each shard task (:func:`build_shard`) runs the episode stage, renders, JPEG-encodes and
-writes Parquet + MCAP under temporary names, then renames. Everything around the shards
+writes Parquet + MCAP under temporary names, then renames, where the job's output is (a
+folder, or uploaded to the object store from the worker: :mod:`pipeline.jobs.sink`). Everything around the shards
 (the folder's one-job rule, resume, progress, Dask, statistics, the manifest) is
 :func:`pipeline.jobs.runner.run_job`'s.
 """
@@ -18,6 +19,7 @@ from catalog.storage import is_url
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, JobResult
+from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
@@ -63,11 +65,12 @@ class BuildSettings:
         return out
 
 
-def build_shard(task: ShardTask, settings: BuildSettings, slice_dir: str) -> dict:
-    """Worker side: write one shard; its record as a plain dict."""
+def build_shard(task: ShardTask, settings: BuildSettings, sink: ShardSink) -> dict:
+    """Worker side: write one shard where the job's output is; its record as a plain dict."""
     from pipeline.stages.record import write_ground_truth_shard
 
-    record = write_ground_truth_shard(task.specs(), task.first, task.end, settings, Path(slice_dir))
+    with sink.writing() as folder:
+        record = write_ground_truth_shard(task.specs(), task.first, task.end, settings, folder)
     return {"record": record.to_dict()}
 
 

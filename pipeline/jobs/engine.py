@@ -1,9 +1,11 @@
 """The job engine: everything around the shard tasks of a job that writes a folder.
 
 Where the folder ends up is a :class:`Destination`: a local folder written in place
-(:class:`LocalFolder`), or a local staging folder published as it goes (an object store:
-:mod:`pipeline.jobs.object_store`); the engine writes into ``destination.folder`` and tells
-the destination which files each finished unit and the finished job left there.
+(:class:`LocalFolder`), or an object store (:mod:`pipeline.jobs.object_store`). The tasks
+write their units' files where the output is, through the destination's ``sink`` (a
+:class:`~pipeline.jobs.sink.ShardSink`, which a worker on any host can open); the engine
+keeps the job's own files (lock, resume state, metadata) in ``destination.folder`` and
+tells the destination which files each finished unit and the finished job left.
 
 Build and eval (:mod:`pipeline.jobs.runner`) and the LeRobot export
 (:mod:`pipeline.jobs.export`) differ only in what their folder holds when finished, a
@@ -33,6 +35,7 @@ from catalog.export.layout import DYANA_META
 from catalog.manifest import git_commit
 from pipeline.jobs.lock import folder_lock
 from pipeline.jobs.progress import Progress, Unit
+from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, check_workers, run_tasks
 from schemas.errors import SpecError
 
@@ -85,7 +88,12 @@ class Destination(Protocol):
 
     @property
     def folder(self) -> Path:
-        """The local folder the job writes."""
+        """The local folder of the job's own files (for a local destination, the output)."""
+        ...
+
+    @property
+    def sink(self) -> ShardSink:
+        """Where the tasks write their units' files (sent with every task)."""
         ...
 
     def unit_done(self, paths: Sequence[str]) -> None:
@@ -102,6 +110,11 @@ class LocalFolder:
     """A local folder, written in place: nothing to publish."""
 
     folder: Path
+
+    @property
+    def sink(self) -> ShardSink:
+        """The folder itself, by its absolute path."""
+        return ShardSink.folder(self.folder)
 
     def unit_done(self, paths: Sequence[str]) -> None:
         """Nothing: the files are where they belong."""
@@ -205,7 +218,7 @@ def run_folder_job(
                 meter.update(unit)
 
         try:
-            run_tasks(todo, task_fn, payload, folder, execution.workers, execution.scheduler, on_done, key_prefix,
+            run_tasks(todo, task_fn, payload, destination.sink, execution.workers, execution.scheduler, on_done, key_prefix,
                       on_episode=None if meter is None else meter.episode)
         finally:
             remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind

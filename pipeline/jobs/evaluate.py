@@ -29,11 +29,14 @@ import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
 from catalog.storage import as_location, is_url
-from pipeline.jobs.audit import read_audit, write_audit
+from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
+from generators.heldout import TestSeed, derive, private_specs
+from pipeline.jobs.audit import read_audit, stamped, write_audit
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
+from pipeline.jobs.sink import ShardSink
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.fault_text import split_reason
 from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
@@ -123,8 +126,14 @@ def fresh_policy(settings: EvalSettings) -> Policy:
         return Unavailable(settings.policy_name, f"cannot make the policy: {type(exc).__name__}: {exc}")
 
 
-def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[str, Any]:
-    """Worker side: roll out one shard's episodes and write them; the record and timing."""
+def eval_shard(task: ShardTask, settings: EvalSettings, sink: ShardSink) -> dict[str, Any]:
+    """Worker side: roll out one shard's episodes and write them where the run's output is
+    (:mod:`pipeline.jobs.sink`); the record and timing."""
+    with sink.writing() as run_dir:
+        return _eval_shard(task, settings, run_dir)
+
+
+def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[str, Any]:
     from catalog.shard import ShardWriter
 
     env = loop_env(settings.build.resolution, settings.build.jpeg_quality, settings.protocol)
@@ -133,13 +142,13 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
     audit: list[dict[str, Any]] = []
     start = time.perf_counter()
     try:
-        with ShardWriter(Path(run_dir), task.first, task.end, settings.build.as_dict(), rollout=True) as writer:
+        with ShardWriter(run_dir, task.first, task.end, settings.build.as_dict(), rollout=True) as writer:
             for spec in task.specs():
                 if policy is None:
                     policy = fresh_policy(settings)
                 result = run_episode(env, policy, spec, settings.deadline_s)
                 if isinstance(policy, Audited):
-                    audit.extend(policy.take_audit())
+                    audit.extend(stamped(policy.take_audit(), result.spec.episode_id))
                 writer.add_episode(
                     result.spec,
                     result.frames,
@@ -162,7 +171,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, run_dir: str) -> dict[st
         env.close()
     audit_dir = settings.policy_kind.audit_dir
     if audit_dir is not None:
-        write_audit(Path(run_dir) / audit_dir, task.first, task.end, audit)
+        write_audit(run_dir / audit_dir, task.first, task.end, audit)
     stats["seconds"] = time.perf_counter() - start
     return {"record": writer.result.to_dict(), "stats": stats}
 
@@ -256,7 +265,7 @@ def summarize(run_dir: str | Path) -> EvalSummary:
     ]
     return EvalSummary(
         policy=str(manifest.extra["policy"]),
-        slice=manifest.slice,
+        slice=manifest.slice + (" (drawn from a private test seed)" if HELD_OUT_KEY in manifest.extra else ""),
         episodes=manifest.episodes,
         frames=manifest.frames,
         errors=overall.errors,
@@ -286,6 +295,7 @@ def evaluate(
     protocol: EvalProtocol | None = None,
     formats: str | tuple[str, ...] = ALL_FORMATS,
     require_success: bool = False,
+    test_seed: str | None = None,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
@@ -299,7 +309,9 @@ def evaluate(
     holds the ``--model`` and ``--vlm-*`` settings of a ``vlm:URL`` policy (its kind's
     configuration, :mod:`pipeline.policy_registry`); other kinds refuse it. With
     ``require_success``, a run in which every episode failed raises AllEpisodesFailed after
-    it is written and summarised (the run is read once for both)."""
+    it is written and summarised (the run is read once for both). ``test_seed`` (a secret)
+    draws a held-out slice's episodes from it instead of the public seed
+    (:mod:`generators.heldout`): the manifest keeps its hash only (key ``test_seed``)."""
     from generators.encode import JPEG_QUALITY
     from schemas.slices import get_slice
 
@@ -310,6 +322,7 @@ def evaluate(
         except PolicyError as exc:
             raise SpecError(str(exc)) from None
     definition = get_slice(slice_name)
+    private = None if test_seed is None else derive(test_seed, slice_name)
     if definition.union:
         raise SpecError(f"{slice_name} is the union of {', '.join(definition.parts)}: evaluate on one of them or test-1k")
     total = definition.episodes if episodes is None else episodes
@@ -336,10 +349,10 @@ def evaluate(
     job = Job(
         folder=Path("/nonexistent-remote-job") if is_url(out) else run_dir,
         slice_name=slice_name,
-        seed=definition.seed,
+        seed=definition.seed if private is None else None,
         settings=build_settings.as_dict(),
-        extra=settings.extra(),
-        tasks=tuple(ShardTask(slice_name, first, end) for first, end in ranges),
+        extra=settings.extra() | ({} if private is None else {HELD_OUT_KEY: private.record()}),
+        tasks=tuple(_shard_task(slice_name, first, end, private) for first, end in ranges),
         task_fn=eval_shard,
         payload=settings,
         verb="evaluated",
@@ -384,6 +397,14 @@ def evaluate(
     if require_success and counts is not None:
         check_some_episode_ran(counts)
     return manifest
+
+
+def _shard_task(slice_name: str, first: int, end: int, private: TestSeed | None) -> ShardTask:
+    """A shard of the public slice (its workers draw the specs), or of the privately drawn
+    one (drawn here: the workers never see the seed)."""
+    if private is None:
+        return ShardTask(slice_name, first, end)
+    return ShardTask(slice_name, first, end, tuple(spec.to_json() for spec in private_specs(private, first, end)))
 
 
 def _timing_lines(timing: dict[str, Any], elapsed: float) -> Sequence[str]:

@@ -50,6 +50,7 @@ from catalog.records import FileRecord
 from catalog.storage import is_remote
 from pipeline.jobs.engine import Execution, LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
+from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.state import file_intact
 from pipeline.jobs.tasks import ShardTask, check_workers
 from schemas.errors import DyanaError
@@ -188,8 +189,8 @@ class LeRobotProduct:
         return Exported(sum(len(p.episodes) for p in units), sum(p.frames for p in units))
 
 
-def export_shard(task: ShardTask, plan: ExportPlan, folder: str) -> dict[str, Any]:
-    """Worker side: export the source shard of ``task``; its part record."""
+def export_shard(task: ShardTask, plan: ExportPlan, sink: ShardSink) -> dict[str, Any]:
+    """Worker side: export the source shard of ``task`` (into the plan's folder); its part record."""
     return {"part": export_unit(plan, task.first, task.report).to_dict()}
 
 

@@ -87,6 +87,7 @@ def migrate_folder(directory: str | os.PathLike[str]) -> MigrationReport:
             slice=manifest.slice, seed=manifest.seed, episodes=manifest.episodes, frames=manifest.frames,
             code=manifest.code, settings=manifest.settings, shards=tuple(shards), hash=manifest.hash,
             extra=manifest.extra, stats=manifest.stats, audit=manifest.audit if trail is None else trail[1],
+            versions=manifest.versions,
         )
         raise_first(root, [p for p in check_files(root, migrated) if trail is None or p.path != trail[0]])
         write_manifest(root, migrated)

@@ -1,28 +1,34 @@
 """Sharded jobs whose output folder is an object-store URL (``--out s3://bucket/prefix``).
 
-Object stores have no rename and no lock, so the job runs in a local staging folder
-(``$DYANA_STAGING/<sha256 of the URL>``, default ``~/.cache/dyana/staging``) exactly as a
-local job (:func:`pipeline.jobs.runner.run_job`: same bytes, same refusals), and is
-published to the URL as it goes:
+The workers write the shards straight to the store, from whichever host they run on
+(:class:`pipeline.jobs.sink.ShardSink`: each task writes its shard in a scratch folder of
+its own host, then uploads every file as one object); the driver only schedules, collects
+the shards' records and writes the job's own files. It keeps those (its lock, the resume
+state, the statistics) in a small local folder (``$DYANA_STAGING/<sha256 of the URL>``,
+default ``~/.cache/dyana/staging``) and publishes them as it goes:
 
-- each finished shard's files are uploaded, then the job's state (``.build-state.json``),
-  so the remote state only ever lists shards whose objects are complete (an object
-  appears whole or not at all);
-- at the end ``stats.json``, then ``catalog.json`` last, then objects of a replaced job
-  are deleted and the remote state removed; the staging folder is emptied (its lock file
-  stays, as every lock file does: :mod:`pipeline.jobs.lock`).
+- a shard counts once its record is in the job's state in the store
+  (``.build-state.json``), which the driver uploads after the task returned, i.e. after
+  every object of the shard was uploaded whole: an object appears whole or not at all,
+  and a shard cut short (its worker killed, its host gone) is listed nowhere, is run again
+  on another worker and overwrites what it left with the same bytes;
+- at the end every listed object is checked present at its size, ``stats.json`` (computed
+  from the shards' float columns, read from the store) is uploaded, then ``catalog.json``
+  last; then objects of a replaced job and the remote state are deleted and the local
+  folder is emptied (its lock file stays, as every lock file does: :mod:`pipeline.jobs.lock`).
 
 Before starting, the URL is checked writable (a tiny probe object written and removed:
 the bucket exists, the credentials and endpoint work), and the client's failures are one
 :class:`~schemas.errors.StorageError` naming the URL (:mod:`catalog.storage`). Then a
 remote ``catalog.json`` describing this job with every listed object
 present at its size means "up to date" (nothing is downloaded); one describing another job
-is refused unless ``overwrite``, as locally; otherwise the shards the remote state or
-manifest lists are downloaded into staging (on any machine), so a killed job resumes there.
+is refused unless ``overwrite``, as locally; otherwise the shards the remote state lists
+whose objects are all present at their sizes are kept (nothing is downloaded), so a job
+killed on one machine resumes on any other from the store alone.
 Two processes of one machine writing one URL are refused (FolderBusy) by a lock beside
-the staging folder (``<staging>.lock``), held for the whole job; two machines writing
-one URL at once are not prevented (object stores have no locks). "Up to date" checks the
-objects' sizes (an object store gives no sha256 without downloading every byte).
+the local folder (``<staging>.lock``), held for the whole job; two machines writing
+one URL at once are not prevented (object stores have no locks). "Up to date" and resume
+check the objects' sizes (an object store gives no sha256 without downloading every byte).
 """
 
 from __future__ import annotations
@@ -38,10 +44,10 @@ from typing import Any, TypedDict, Unpack
 
 from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
 from catalog.records import ShardRecord
-from catalog.stats import STATS_NAME
-from catalog.storage import as_location, check_writable, is_url, reaching
+from catalog.storage import as_location, check_writable, is_url, listed_sizes, reaching
 from pipeline.jobs.lock import LOCK_FILE, held
 from pipeline.jobs.runner import Job, JobResult, run_job
+from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.state import STATE_FILE, Identity, describe_difference, manifest_identity
 from pipeline.jobs.tasks import Payload
 from schemas.errors import ShardError, SpecError
@@ -65,27 +71,8 @@ def _remote_json(remote: Any, name: str) -> dict | None:
         raise ShardError(f"{path}: unreadable ({type(exc).__name__}: {str(exc)[:80]})") from None
 
 
-def _remote_sizes(remote: Any) -> dict[str, int]:
-    """``{relative path: size}`` of every object under ``remote`` (listed afresh, not cached)."""
-    fs, root = remote.fs, remote.path.rstrip("/")
-    fs.invalidate_cache()
-    try:
-        found = fs.find(root, detail=True)
-    except FileNotFoundError:
-        return {}
-    return {name[len(root) + 1:]: int(info["size"]) for name, info in found.items() if name.startswith(root + "/")}
-
-
 def _upload(local: Path, remote: Any, rel: str) -> None:
     remote.fs.put_file(os.fspath(local / rel), f"{remote.path.rstrip('/')}/{rel}")
-
-
-def _download(remote: Any, local: Path, rel: str) -> None:
-    target = local / rel
-    target.parent.mkdir(parents=True, exist_ok=True)
-    partial = target.with_name(f".{target.name}.download")
-    remote.fs.get_file(f"{remote.path.rstrip('/')}/{rel}", os.fspath(partial))
-    os.replace(partial, target)
 
 
 def _empty(staging: Path) -> None:
@@ -96,9 +83,8 @@ def _empty(staging: Path) -> None:
 
 
 def _clear_foreign_staging(staging: Path, wanted: Identity) -> None:
-    """Empty the staging folder if it holds another job's work (or unreadable state): it is
-    this tool's cache, whose finished shards went to the URL as they were done, never a
-    user's folder."""
+    """Empty the staging folder if it holds another job's state (or unreadable state): it is
+    this tool's cache, never a user's folder."""
     try:
         state = json.loads((staging / STATE_FILE).read_text())
         held = state["identity"]
@@ -156,7 +142,7 @@ def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, op
     local_job = dataclasses.replace(job, folder=staging)
     wanted = local_job.identity()
     manifest_data = _remote_json(remote, MANIFEST_NAME)
-    sizes = _remote_sizes(remote)
+    sizes = listed_sizes(remote)
     held = None
     if manifest_data is not None:
         try:
@@ -181,42 +167,43 @@ def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, op
     _clear_foreign_staging(staging, wanted)
     staging.mkdir(parents=True, exist_ok=True)
     if state is not None and state.get("identity") == wanted:
-        for record in _records_of(state, "shards"):
-            for file in record.files.values():
-                if sizes.get(file.path) == file.size and not (staging / file.path).is_file():
-                    _download(remote, staging, file.path)
+        _records_of(state, "shards")  # unreadable records: one error naming the remote state
         (staging / STATE_FILE).write_text(json.dumps(state, sort_keys=True, indent=2) + "\n")
 
     result = run_job(local_job, workers=workers, scheduler=options.get("scheduler"),
                      progress=options.get("progress", True), overwrite=overwrite, on_result=options.get("on_result"),
-                     destination=ObjectStore(staging, remote))
+                     destination=ObjectStore(staging, remote, url), store=remote)
     return dataclasses.replace(result, up_to_date=False)  # the URL did not hold it: it was published now
 
 
 @dataclasses.dataclass(frozen=True)
 class ObjectStore:
-    """The engine's destination for a URL: the job writes ``folder`` (the staging folder),
-    each finished shard's files are uploaded, then the job's state; at the end every file
-    the remote lacks (by size), the statistics, then ``catalog.json`` last; then objects of
-    a replaced job and the remote state are deleted and the staging folder is emptied."""
+    """The engine's destination for a URL: the tasks write their shards to ``url`` from their
+    own hosts (:attr:`sink`); the driver keeps the job's own files in ``folder`` (the
+    staging folder) and uploads the state after each finished shard; at the end the files
+    ``folder`` holds (the statistics), then ``catalog.json`` last; then objects of a
+    replaced job and the remote state are deleted and the staging folder is emptied."""
 
     folder: Path
     remote: Any
+    url: str
+
+    @property
+    def sink(self) -> ShardSink:
+        return ShardSink(self.url)
 
     def unit_done(self, paths: Sequence[str]) -> None:
-        for path in paths:
-            _upload(self.folder, self.remote, path)
+        """The shard's objects are in the store (its task uploaded them): publish the state."""
+        _upload(self.folder, self.remote, paths[-1])
 
     def job_done(self, paths: Sequence[str]) -> None:
         *files, last = paths
-        sizes = _remote_sizes(self.remote)
         for path in files:
-            if path == STATS_NAME or sizes.get(path) != (self.folder / path).stat().st_size:
+            if (self.folder / path).is_file():  # the job's own files; the shards are in the store
                 _upload(self.folder, self.remote, path)
         _upload(self.folder, self.remote, last)
         keep = set(paths)
-        for path in sizes:
+        for path in listed_sizes(self.remote):
             if path == STATE_FILE or (path not in keep and path.split("/")[0] in ("frames", "episodes", "mcap")):
                 self.remote.fs.rm_file(f"{self.remote.path.rstrip('/')}/{path}")
         _empty(self.folder)
-

@@ -21,7 +21,9 @@ Every column of every frame (state arrays bit for bit, the JPEG bytes) and of th
 episodes table is compared, then the shard is rewritten into a scratch folder and
 its three files' sha256 are compared with the manifest (which also covers the MCAP
 and the Parquet metadata). The first difference raises :class:`ReplayMismatch`
-naming the shard, episode, frame and column, with both values.
+naming the shard, episode, frame and column, with both values; :func:`replay` (and
+``catalog verify``) add each library version the folder records that differs from the
+installed one (:mod:`catalog.versions`), the likeliest cause of such a difference.
 
 :func:`replay_shard` is the one place a recorded shard is re-executed: ``catalog verify``
 (:mod:`pipeline.jobs.verify`) rebuilds its sampled shards through it too.
@@ -45,12 +47,16 @@ from catalog.manifest import MANIFEST_NAME, Manifest
 from catalog.parquet_io import episode_row, episodes_table, frames_table
 from catalog.reader import ShardReader, check_file, open_folder
 from catalog.records import ShardRecord, shard_stem
+from catalog.versions import mismatch_note
+from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
+from generators.heldout import TestSeed, matching, private_specs
 from pipeline.jobs.progress import EpisodeReport, report_quietly
 from pipeline.jobs.replay_trail import AuditedReplay, audited_replay, trail_difference
 from pipeline.loop.conditions import EvalProtocol
+from pipeline.loop.disturb import disturbed_spec
 from pipeline.loop.wrappers import RecordEpisode, loop_env
 from pipeline.policies.base import BUILTIN, make_policy
-from schemas.errors import PolicyError, ReplayMismatch, ShardError
+from schemas.errors import PolicyError, ReplayMismatch, ShardError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.names import printable
 from schemas.spec import EpisodeSpec
@@ -81,11 +87,15 @@ def check_rebuildable(directory: object, manifest: Manifest) -> None:
         )
 
 
+#: Where a :class:`ReplayMismatch` happened: its attributes.
+MISMATCH_WHERE = ("shard", "episode", "frame", "column", "file")
+
+
 def _mismatch(message: str, **where: Any) -> ReplayMismatch:
     """A ReplayMismatch carrying ``shard``, ``episode``, ``frame``, ``column`` attributes and
     ``file``, the folder-relative path of the file that differs."""
     exc = ReplayMismatch(message)
-    for key in ("shard", "episode", "frame", "column", "file"):
+    for key in MISMATCH_WHERE:
         setattr(exc, key, where.get(key))
     return exc
 
@@ -215,11 +225,13 @@ def replay_shard(
     audited: AuditedReplay | None = None,
     report: EpisodeReport | None = None,
     columns: Mapping[str, Any] | None = None,
+    drawn: Sequence[EpisodeSpec] | None = None,
 ) -> int:
     """Re-execute one shard (``env``: the environment for rollouts, None for ground truth),
     compare every column and the rewritten files' sha256, and return its frame count;
     ``report`` hears each episode re-executed; ``columns``: a run's ``policy`` and
-    ``privileged`` columns (:func:`rollout_columns`). The first difference is a ReplayMismatch."""
+    ``privileged`` columns (:func:`rollout_columns`); ``drawn``: the specs its episodes must
+    hold (a privately drawn run's, :func:`drawn_specs`). The first difference is a ReplayMismatch."""
     from catalog.shard import ShardWriter
 
     root, shard, rollout = reader.root, reader.record, reader.rollout
@@ -239,6 +251,9 @@ def replay_shard(
         spec = EpisodeSpec.from_json(row["spec"])
         ids = {"shard": stem, "episode": index, "file": shard.files["frames"].path}
         prefix = f"{root}: shard {stem}, episode {index} ({spec.episode_id})"
+        if drawn is not None and spec.to_json() != drawn[index - shard.first].to_json():
+            raise _mismatch(f"{prefix}: the stored spec is not the one the test seed draws", column="spec",
+                            shard=stem, episode=index, file=shard.files["episodes"].path)
         recorded = frames.filter(pa.array(frame_episode == index))
         extra: dict[str, Any] = {}
         if rollout and audited is not None and env is not None:
@@ -301,14 +316,42 @@ def replay_shard(
     return sum(f.num_frames for _, f, _, _ in replayed)
 
 
+def private_seed(root: object, manifest: Manifest, test_seed: str | None) -> TestSeed | None:
+    """The private seed a run was drawn from (None for a public run), checked against the
+    hash its manifest records; SpecError when it is missing, wrong, or given for a public run."""
+    where = f"{root}/{MANIFEST_NAME}"
+    record = manifest.extra.get(HELD_OUT_KEY)
+    if record is None:
+        if test_seed is not None:
+            raise SpecError(f"{where}: this run was drawn from its slice's public seed; replay it without --test-seed")
+        return None
+    if test_seed is None:
+        raise SpecError(f"{where}: this run's episodes were drawn from a private test seed; replaying it needs that "
+                        "seed (--test-seed-file FILE, or --test-seed SECRET)")
+    seed = matching(test_seed, record, where)
+    if seed.slice_name != manifest.slice:
+        raise SpecError(f"{where}: test_seed is salted for {printable(seed.slice_name, 40)}, the run is of {manifest.slice}")
+    return seed
+
+
+def drawn_specs(seed: TestSeed, protocol: EvalProtocol, first: int, end: int) -> list[EpisodeSpec]:
+    """The specs a privately drawn run's episodes ``[first, end)`` hold (disturbed under ``disturb``)."""
+    specs = private_specs(seed, first, end)
+    return [disturbed_spec(spec)[0] for spec in specs] if protocol.disturb else specs
+
+
 def replay(
     path: str | os.PathLike[str],
     shards: Sequence[int] | None = None,
     on_shard: Callable[[ShardRecord], None] | None = None,
+    test_seed: str | None = None,
 ) -> ReplayReport:
-    """Re-execute a built slice or a run (``shards``: only those first-episode indices)."""
+    """Re-execute a built slice or a run (``shards``: only those first-episode indices);
+    a run drawn from a private seed needs it (``test_seed``), and its stored specs must be
+    the ones that seed draws."""
     folder = open_folder(path, verify="sha256")
     manifest, rollout = folder.manifest, folder.rollout
+    seed = private_seed(folder.root, manifest, test_seed)
     check_rebuildable(folder.root, manifest)
     for record in manifest.audit or ():
         try:
@@ -322,8 +365,8 @@ def replay(
         wanted = set(shards)
         chosen = [s for s in chosen if s.record.first in wanted]
     env = None
+    protocol = EvalProtocol.from_dict(settings.get("protocol"))
     if rollout:
-        protocol = EvalProtocol.from_dict(settings.get("protocol"))
         if protocol.realtime:
             raise ShardError(
                 f"{folder.root}: a real-time run (settings.protocol.realtime) depends on the machine's timing "
@@ -336,7 +379,12 @@ def replay(
     episodes = frames = 0
     try:
         for shard in chosen:
-            frames += replay_shard(shard, settings, env, audited, columns=columns)
+            drawn = None if seed is None else drawn_specs(seed, protocol, shard.record.first, shard.record.end)
+            try:
+                frames += replay_shard(shard, settings, env, audited, columns=columns, drawn=drawn)
+            except ReplayMismatch as exc:
+                raise _mismatch(f"{exc}{mismatch_note(manifest.versions)}",
+                                **{key: getattr(exc, key, None) for key in MISMATCH_WHERE}) from None
             episodes += shard.record.num_episodes
             if on_shard is not None:
                 on_shard(shard.record)

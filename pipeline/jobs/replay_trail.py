@@ -20,7 +20,7 @@ from typing import Any
 
 from catalog.manifest import MANIFEST_NAME, Manifest
 from catalog.records import ShardRecord
-from pipeline.jobs.audit import audit_path, read_audit
+from pipeline.jobs.audit import audit_path, read_audit, stamped
 from pipeline.loop.rollout import RolloutResult, run_episode
 from pipeline.loop.wrappers import RecordEpisode
 from pipeline.policies.base import Policy
@@ -64,7 +64,7 @@ class AuditedReplay:
         """The episode run again from ``records``, and the exchanges it records itself."""
         policy = self.policy(records)
         result = run_episode(env, policy, spec, None)
-        return result, policy.take_audit() if isinstance(policy, Audited) else []
+        return result, stamped(policy.take_audit(), spec.episode_id) if isinstance(policy, Audited) else []
 
 
 def audited_replay(root: Path, manifest: Manifest) -> AuditedReplay | None:

@@ -34,11 +34,14 @@ from typing import Any, Generic
 from catalog.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
 from catalog.records import ShardRecord, shard_like_files
 from catalog.stats import compute_stats, write_stats
+from catalog.storage import listed_sizes, where
+from catalog.versions import installed_versions
 from pipeline.jobs.audit import audit_records, remove_unlisted_audit
 from pipeline.jobs.engine import Destination, Execution, LocalFolder, Previous, run_folder_job
 from pipeline.jobs.progress import to_stderr
 from pipeline.jobs.state import STATE_FILE, Identity, Range, identity_of, previous_work, save_state
 from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, default_workers, shard_ranges
+from schemas.errors import ShardError
 from schemas.versions import CODE_VERSION
 
 __all__ = ["Job", "JobResult", "ShardTask", "default_workers", "remove_unlisted_shards", "run_job", "shard_ranges"]
@@ -107,12 +110,20 @@ def remove_unlisted_shards(folder: Path, manifest: Manifest) -> list[Path]:
 
 @dataclass(frozen=True)
 class ManifestProduct:
-    """A ``catalog.json`` folder (a built slice or a run) as the engine's product."""
+    """A ``catalog.json`` folder (a built slice or a run) as the engine's product. ``store``:
+    where the tasks' files are when not in the folder (an object store's URL, as a UPath):
+    a finished shard is kept there while its objects have their recorded sizes, and the
+    statistics and audit records are read from there."""
 
     job: Job[Any]
+    store: Path | None = None
 
     def previous(self, folder: Path, commit: str | None, overwrite: bool) -> Previous[ShardRecord, Manifest]:
-        work = previous_work(folder, self.job.identity(), self.job.with_stats, commit, overwrite)
+        intact = None
+        if self.store is not None:
+            sizes = listed_sizes(self.store)
+            intact = lambda record: all(sizes.get(f.path) == f.size for f in record.files.values())  # noqa: E731
+        work = previous_work(folder, self.job.identity(), self.job.with_stats, commit, overwrite, intact)
         return Previous(work.done, load_manifest(folder) if work.complete else None)
 
     def unit(self, result: dict[str, Any]) -> ShardRecord:
@@ -132,16 +143,30 @@ class ManifestProduct:
     def finish(self, folder: Path, commit: str | None, units: Sequence[ShardRecord]) -> Manifest:
         """``stats.json``, then ``catalog.json``, then the files of a replaced job go."""
         job = self.job
-        stats = write_stats(folder, compute_stats(folder, units)) if job.with_stats else None
-        audit = None if job.audit_dir is None else audit_records(folder, job.audit_dir, [u.episodes for u in units])
+        files = folder if self.store is None else self.store
+        if self.store is not None:
+            check_stored(self.store, units)
+        stats = write_stats(folder, compute_stats(files, units)) if job.with_stats else None
+        audit = None if job.audit_dir is None else audit_records(files, job.audit_dir, [u.episodes for u in units])
         manifest = Manifest.create(job.slice_name, job.seed, job.settings, list(units),
-                                   code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats, audit=audit)
+                                   code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats, audit=audit,
+                                   versions=installed_versions())
         write_manifest(folder, manifest)
         remove_unlisted_shards(folder, manifest)
         if job.audit_dir is not None:
             remove_unlisted_audit(folder, job.audit_dir, manifest)
         (folder / STATE_FILE).unlink(missing_ok=True)
         return manifest
+
+
+def check_stored(store: Path, units: Sequence[ShardRecord]) -> None:
+    """ShardError unless every file of ``units`` is in the object store ``store`` at its
+    recorded size (listed afresh: other hosts uploaded them)."""
+    sizes = listed_sizes(store)
+    missing = [f.path for unit in units for f in unit.files.values() if sizes.get(f.path) != f.size]
+    if missing:
+        raise ShardError(f"{where(store)}/{missing[0]}: not in the object store at its recorded size "
+                         f"({len(missing)} file(s) of finished shards); rerun the same command to rebuild them")
 
 
 def run_job(
@@ -153,14 +178,16 @@ def run_job(
     overwrite: bool = False,
     on_result: Callable[[dict[str, Any]], None] | None = None,
     destination: Destination | None = None,
+    store: Path | None = None,
 ) -> JobResult:
     """Run ``job`` into its folder (see the module docstring), or into ``destination`` (whose
-    folder replaces the job's); progress lines on stderr."""
+    folder replaces the job's; ``store``: where its tasks' files are, when not in that
+    folder: :class:`ManifestProduct`); progress lines on stderr."""
     execution = Execution(workers, scheduler, to_stderr if progress else None)
     if destination is None:
         destination = LocalFolder(job.folder)
     elif destination.folder != job.folder:
         job = dataclasses.replace(job, folder=destination.folder)
-    outcome = run_folder_job(destination, ManifestProduct(job), job.tasks, job.task_fn, job.payload, execution,
+    outcome = run_folder_job(destination, ManifestProduct(job, store), job.tasks, job.task_fn, job.payload, execution,
                              overwrite=overwrite, verb=job.verb, key_prefix=job.key_prefix, on_result=on_result)
     return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed)

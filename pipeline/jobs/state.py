@@ -3,15 +3,17 @@
 A folder holds one job, described by its identity (slice, seed, episodes, shard ranges,
 settings and the extra manifest keys): a finished job's ``catalog.json``, or the
 ``.build-state.json`` an interrupted run leaves (identity, code, finished shards). A
-shard is kept only when the same code (version and commit) wrote it and every one of
-its files still has its size and sha256; a folder is "up to date" only when every shard,
+shard is kept only when the same code (version and commit) and the same byte-determining
+library versions (:mod:`catalog.versions`) wrote it, and every one of its files still has
+its size and sha256 (a run resumed under other library versions rebuilds every shard,
+so no folder mixes shards of two installations); a folder is "up to date" only when every shard,
 the statistics file and the audit trail files pass that check.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,6 +21,7 @@ from catalog.atomic import atomic_write_text
 from catalog.manifest import Manifest, load_manifest, manifest_path
 from catalog.reader import check_file
 from catalog.records import FileRecord, ShardRecord
+from catalog.versions import installed_versions
 from schemas.errors import ShardError, SpecError
 from schemas.versions import CODE_VERSION
 
@@ -85,15 +88,18 @@ class PreviousWork:
     complete: bool = False
 
 
-def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str | None, overwrite: bool) -> PreviousWork:
-    """What ``folder`` holds of the job ``wanted`` (see the module docstring).
+def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str | None, overwrite: bool,
+                  intact: Callable[[ShardRecord], bool] | None = None) -> PreviousWork:
+    """What ``folder`` holds of the job ``wanted`` (see the module docstring); ``intact``
+    says whether a finished shard's files are still there (default: their sizes and sha256
+    in ``folder``; an object store's job checks its objects instead).
 
     Refuses (SpecError) a folder holding another job unless ``overwrite``, which then
     forgets it (its files are removed once the new job is finished)."""
     state_path = folder / STATE_FILE
     held: Identity | None = None
     records: list[ShardRecord] = []
-    code: tuple[str | None, str | None] = (None, None)
+    code: tuple[object, ...] = (None, None, None)
     complete = False
     if manifest_path(folder).exists():
         try:
@@ -105,13 +111,14 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
             held, records = manifest_identity(manifest), list(manifest.shards)
             complete = file_intact(folder, manifest.stats) if manifest.stats is not None else not with_stats
             complete = complete and all(file_intact(folder, record) for record in manifest.audit or ())
-            code = (manifest.code.version, manifest.code.commit)
+            code = (manifest.code.version, manifest.code.commit,
+                    None if manifest.versions is None else dict(manifest.versions))
     if held is None and state_path.exists():
         try:
             state = json.loads(state_path.read_text())
             held = state["identity"]
             records = [ShardRecord.from_dict(raw) for raw in state["shards"]]
-            code = (state["code"]["version"], state["code"]["commit"])
+            code = (state["code"]["version"], state["code"]["commit"], state["code"].get("versions"))
         except (OSError, ValueError, KeyError, TypeError, ShardError) as exc:
             if not overwrite:
                 raise ShardError(
@@ -131,9 +138,10 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
             f"{folder} {what} another job ({describe_difference(held, wanted)}): "
             "choose another --out, or pass --overwrite to replace it"
         )
-    if code != (CODE_VERSION, commit):
+    if code != (CODE_VERSION, commit, installed_versions()):
         return PreviousWork()
-    done = {(r.first, r.end): r for r in records if shard_intact(folder, r)}
+    kept = (lambda record: shard_intact(folder, record)) if intact is None else intact
+    done = {(r.first, r.end): r for r in records if kept(r)}
     return PreviousWork(done, complete and len(done) == len(records))
 
 
@@ -141,7 +149,7 @@ def save_state(folder: Path, identity: Identity, commit: str | None, done: Mappi
     """Record the finished shards of a running job (what an interrupted run resumes from)."""
     state = {
         "identity": identity,
-        "code": {"version": CODE_VERSION, "commit": commit},
+        "code": {"version": CODE_VERSION, "commit": commit, "versions": installed_versions()},
         "shards": [done[key].to_dict() for key in sorted(done)],
     }
     atomic_write_text(folder / STATE_FILE, json.dumps(state, sort_keys=True, indent=2) + "\n")

@@ -1,11 +1,13 @@
 """Shard tasks and where they run: a local Dask cluster of single-threaded worker processes
 (one per core by default), an existing ``--scheduler``, or this process (``workers=0``).
 
-A task is ``task_fn(task, payload, folder)``; it returns a plain dict with the shard's
-``record`` and whatever else its job's caller wants (timing). Its episode reports reach
-the driver through :attr:`ShardTask.report`: in this process the driver's own callback,
-in a Dask worker a function sending a Dask event (``Worker.log_event``) on a topic of
-this run that the driver's client subscribes to.
+A task is ``task_fn(task, payload, sink)``; it writes its shard files through ``sink``
+(:class:`pipeline.jobs.sink.ShardSink`: the job's output folder or URL, which a worker on
+any host can open) and returns a plain dict with the shard's ``record`` and whatever else
+its job's caller wants (timing). Its episode reports reach the driver through
+:attr:`ShardTask.report`: in this process the driver's own callback, in a Dask worker a
+function sending a Dask event (``Worker.log_event``) on a topic of this run that the
+driver's client subscribes to.
 
 Ctrl-C is the driver's: local workers start with SIGINT blocked and then ignore it
 (:func:`sigint_held`, :func:`dask_setup`), the driver closes the cluster, and a lost
@@ -26,10 +28,10 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import CancelledError
 from dataclasses import dataclass, field
 from multiprocessing import resource_tracker
-from pathlib import Path
 from typing import Any, TypeVar
 
 from pipeline.jobs.progress import EpisodeReport, ReportingSpecs
+from pipeline.jobs.sink import ShardSink
 from schemas.errors import DyanaError, SpecError
 from schemas.names import shorten
 from schemas.spec import EpisodeSpec
@@ -101,7 +103,7 @@ def shard_ranges(episodes: int, shard_size: int) -> list[tuple[int, int]]:
     return [(a, min(a + shard_size, episodes)) for a in range(0, episodes, shard_size)]
 
 
-TaskFn = Callable[[ShardTask, Payload, str], dict[str, Any]]
+TaskFn = Callable[[ShardTask, Payload, ShardSink], dict[str, Any]]
 
 
 @contextlib.contextmanager
@@ -210,14 +212,14 @@ def run_tasks(
     tasks: Sequence[ShardTask],
     task_fn: TaskFn[Payload],
     payload: Payload,
-    folder: Path,
+    sink: ShardSink,
     workers: int,
     scheduler: str | None,
     on_done: Callable[[dict[str, Any]], None],
     key_prefix: str = "shard",
     on_episode: EpisodeReport | None = None,
 ) -> None:
-    """Run ``task_fn(task, payload, str(folder))`` for every task on a local cluster (one
+    """Run ``task_fn(task, payload, sink)`` for every task on a local cluster (one
     single-threaded process per worker), on an existing scheduler, or in this process
     (``workers == 0``); call ``on_done`` in the driver with each result as it finishes, and
     ``on_episode`` (on another thread with Dask) with the tasks' episode reports."""
@@ -225,7 +227,7 @@ def run_tasks(
         return
     if workers == 0 and not scheduler:
         for task in tasks:
-            on_done(task_fn(task.reporting_to(on_episode), payload, str(folder)))
+            on_done(task_fn(task.reporting_to(on_episode), payload, sink))
         return
     import dask  # Dask is imported only by runs that use it
     from dask.distributed import Client, LocalCluster, as_completed
@@ -263,7 +265,7 @@ def run_tasks(
                     task_fn,
                     task,
                     payload,
-                    str(folder),
+                    sink,
                     topic if on_episode is not None else None,
                     key=f"{key_prefix}-{task.first:06d}-{task.end:06d}",
                     pure=False,
@@ -287,11 +289,11 @@ def run_tasks(
 
 
 def reporting_task(
-    task_fn: TaskFn[Payload], task: ShardTask, payload: Payload, folder: str, topic: str | None
+    task_fn: TaskFn[Payload], task: ShardTask, payload: Payload, sink: ShardSink, topic: str | None
 ) -> dict[str, Any]:
     """Worker side: ``task_fn``, its episode reports sent to the driver as Dask events on ``topic``."""
     if topic is None:
-        return task_fn(task, payload, folder)
+        return task_fn(task, payload, sink)
     from distributed import get_worker  # in a Dask worker, where distributed is loaded
 
     worker = get_worker()
@@ -299,4 +301,4 @@ def reporting_task(
     def report(first: int, end: int, done: int, frames: int) -> None:
         worker.log_event(topic, {"first": first, "end": end, "done": done, "frames": frames})
 
-    return task_fn(task.reporting_to(report), payload, folder)
+    return task_fn(task.reporting_to(report), payload, sink)

@@ -21,12 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from catalog.integrity import verify_files
-from catalog.manifest import Manifest
+from catalog.manifest import Manifest, load_manifest
 from catalog.reader import open_folder
 from catalog.records import ShardRecord
 from catalog.storage import as_location
+from catalog.versions import mismatch_note
 from pipeline.jobs.build import BuildSettings
-from pipeline.jobs.replay import check_rebuildable, replay, replay_shard
+from pipeline.jobs.replay import check_rebuildable, private_seed, replay, replay_shard
 from schemas.cli import ProgressMeter
 from schemas.errors import ReplayMismatch, ShardError
 
@@ -63,17 +64,19 @@ def verify(
     rng: np.random.Generator | None = None,
     on_shard: Callable[[ShardRecord], None] | None = None,
     progress: bool | None = None,
+    test_seed: str | None = None,
 ) -> VerifyReport:
     """Check every file, then rebuild ``sample`` shards (all by default) and compare bytes.
 
     ``progress`` (default: whether ``on_shard`` is given) prints episode progress lines of
-    the rebuild on stderr."""
+    the rebuild on stderr. A run drawn from a private seed needs it (``test_seed``)."""
     directory = as_location(directory)
     rng = np.random.default_rng(0) if rng is None else rng
+    private_seed(directory, load_manifest(directory), test_seed)  # a missing or wrong seed: one line, before the work
     manifest = verify_files(directory)
     shards = _sample_shards(manifest, sample, rng)
     if "policy" in manifest.extra:
-        replay(directory, shards=[s.first for s in shards])
+        replay(directory, shards=[s.first for s in shards], test_seed=test_seed)
         return VerifyReport(manifest.slice, len(manifest.shards), len(shards), 0)
     check_build_settings(directory, manifest)
     readers = {reader.record.first: reader for reader in open_folder(directory).shards}  # hashes checked above
@@ -90,7 +93,8 @@ def verify(
         try:
             replay_shard(readers[shard.first], dict(manifest.settings), None, report=report)
         except ReplayMismatch as exc:
-            raise ShardError(f"{directory / str(getattr(exc, 'file', ''))}: rebuilding gives different bytes ({exc})") from None
+            raise ShardError(f"{directory / str(getattr(exc, 'file', ''))}: rebuilding gives different bytes ({exc})"
+                             f"{mismatch_note(manifest.versions)}") from None
         compared += len(shard.files)
         finished[0] += shard.end - shard.first
         finished[1] += shard.frames

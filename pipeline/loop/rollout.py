@@ -73,11 +73,11 @@ class RolloutResult:
 
 
 def task_for(spec: EpisodeSpec, resolution: int, privileged: bool, horizon: int) -> Task:
-    """The task a policy's ``reset`` receives: the public conditions of the episode
-    (its id, instruction, timing, the interception setting's time, image size, hand); the spec
-    itself only for privileged policies."""
+    """The task a policy's ``reset`` receives: what a model needs (the instruction, timing,
+    the interception setting's time, image size, hand) and nothing that identifies the
+    episode (no id, slice, seed or spec hash: a policy that could name its episode could
+    look the answer up); the spec itself only for privileged policies, which are flagged."""
     task: Task = {
-        "episode_id": spec.episode_id,
         "text": spec.text,
         "fps": FPS,
         "observe_frames": spec.observe_frames,

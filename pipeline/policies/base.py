@@ -6,9 +6,10 @@ A policy has three attributes and two methods:
   (H, 18) chunks executed open loop); ``privileged`` (bool: True only for the
   oracle, whose task carries the spec);
 * ``reset(task)`` before each episode. ``task`` (:class:`Task`) = ``{"text", "fps",
-  "observe_frames", "horizon", "resolution", "hand"}``, plus ``"episode_id"`` and ``"intercept_time_s"``
+  "observe_frames", "horizon", "resolution", "hand"}``, plus ``"intercept_time_s"``
   (the interception setting's time, part of the public task description) when the
-  runner provides it, plus ``"spec"`` (the spec's JSON) for privileged policies;
+  runner provides it, plus ``"spec"`` (the spec's JSON) for privileged policies. Nothing
+  a policy receives identifies its episode (no id, slice, seed or spec hash);
 * ``act(obs) -> ndarray`` (18,) or (H, 18) float32, from the observation
   (:class:`Observation`, described in :mod:`pipeline.loop.env`). Policies are
   deterministic given the same observations.
@@ -83,7 +84,6 @@ class Task(TypedDict):
     horizon: int
     resolution: int
     hand: str
-    episode_id: NotRequired[str]
     intercept_time_s: NotRequired[float]
     #: The spec's JSON, for privileged policies only.
     spec: NotRequired[str]

@@ -270,7 +270,6 @@ class VLMPolicy:
             except AnswerError as exc:
                 outcome, detail = exc.kind, exc.detail
         self.audit.append({
-            "episode_id": self._task.get("episode_id"),
             "query": self._query,
             "frame_index": int(obs["frame_index"]),
             "images": [{"frame": k} for k in frames],

@@ -8,6 +8,8 @@ that raises, or a malformed request, gets an ``error`` message and the connectio
 stays open; the client decides what to do (the evaluator fails that episode).
 Policy calls run on a daemon worker thread per connection, so the event loop keeps
 answering pings and a policy that hangs cannot keep the server from shutting down.
+The wire (:class:`Wire`) is ``dyana/1`` unless another is given (``pipeline serve
+--protocol openpi``: :mod:`pipeline.remote.openpi_serve`).
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ import asyncio
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from typing import Any
 
 from pipeline.loop.fault_text import raised
@@ -30,12 +33,31 @@ PolicyFactory = Callable[[], Any]
 SHUTDOWN_GRACE_S = 5.0
 
 
-def policy_factory(policy: str | PolicyFactory) -> PolicyFactory:
+@dataclass(frozen=True)
+class Wire:
+    """What a served protocol does around the shared session lifecycle: ``hello(policy)``
+    the first message's bytes (raises when the policy cannot describe itself);
+    ``answer(websocket, worker, policy)`` answers requests until the client closes;
+    ``fail(websocket, text)`` reports a fault that ends the session; ``busy(websocket,
+    text)`` turns away a connection beyond the limit; ``refuse(policy)`` says why a policy
+    cannot be served on this wire (None: it can), checked before listening."""
+
+    name: str
+    hello: Callable[[Any], bytes]
+    answer: Callable[[Any, WorkerThread, Any], Awaitable[None]]
+    fail: Callable[[Any, str], Awaitable[None]]
+    busy: Callable[[Any, str], Awaitable[None]]
+    refuse: Callable[[Any], str | None] = lambda policy: None
+
+
+def policy_factory(policy: str | PolicyFactory, wire: Wire | None = None) -> PolicyFactory:
     """A zero-argument factory from a policy name / ``module:callable`` ref, or the factory itself.
 
     A name is resolved once here, and the policy it makes must describe itself (name,
-    action horizon, privileged flag), so that a bad one fails before listening.
+    action horizon, privileged flag) and be one ``wire`` can serve, so that a bad one
+    fails before listening.
     """
+    wire = wire or DYANA
     if isinstance(policy, str):
         sample = make_policy(policy)
         try:
@@ -46,6 +68,9 @@ def policy_factory(policy: str | PolicyFactory) -> PolicyFactory:
                 raise protocol.ProtocolError(f"action_horizon must be an integer >= 1, got {sample.action_horizon!r}")
             if not isinstance(sample.privileged, bool):
                 raise protocol.ProtocolError(f"privileged must be True or False, got {sample.privileged!r}")
+            refused = wire.refuse(sample)
+            if refused:
+                raise protocol.ProtocolError(refused)
         except (AttributeError, TypeError, ValueError, protocol.ProtocolError) as exc:
             raise DyanaError(f"policy {policy!r} cannot be served: {_describe(exc)}") from None
         finally:
@@ -71,25 +96,25 @@ async def _send(websocket, message: dict[str, Any]) -> None:
     await websocket.send(data)
 
 
-async def _session(websocket, factory: PolicyFactory) -> None:
-    """One connection: metadata, then reset/act requests until the client closes."""
+async def _session(websocket, factory: PolicyFactory, wire: Wire) -> None:
+    """One connection: the wire's hello, then its requests until the client closes."""
     from websockets.exceptions import ConnectionClosed  # lazy, as the server below
 
     worker = WorkerThread("dyana-serve-policy")
     policy: Any = None
-    try:  # everything after the thread starts, the metadata send too, ends it in `finally`
+    try:  # everything after the thread starts, the hello too, ends it in `finally`
         try:
             policy = await worker.acall(factory)
         except Exception as exc:
-            await _send(websocket, protocol.error_message(f"cannot create the policy: {_describe(exc)}"))
+            await wire.fail(websocket, f"cannot create the policy: {_describe(exc)}")
             return
         try:
-            hello = protocol.metadata_message(policy.name, policy.action_horizon, policy.privileged)
-        except (AttributeError, TypeError, ValueError) as exc:
-            await _send(websocket, protocol.error_message(f"the policy does not describe itself: {_describe(exc)}"))
+            hello = wire.hello(policy)
+        except (AttributeError, TypeError, ValueError, protocol.ProtocolError) as exc:
+            await wire.fail(websocket, f"the policy does not describe itself: {_describe(exc)}")
             return
-        await _send(websocket, hello)
-        await _answer(websocket, worker, policy)
+        await websocket.send(hello)
+        await wire.answer(websocket, worker, policy)
     except ConnectionClosed:
         pass
     finally:
@@ -134,6 +159,23 @@ async def _answer(websocket, worker: WorkerThread, policy: Any) -> None:
         await _send(websocket, reply)
 
 
+async def _dyana_fail(websocket, text: str) -> None:
+    await _send(websocket, protocol.error_message(text))
+
+
+async def _dyana_busy(websocket, text: str) -> None:
+    await _send(websocket, protocol.error_message(text))
+    await websocket.close(1013, "busy")
+
+
+def _dyana_hello(policy: Any) -> bytes:
+    return protocol.encode(protocol.metadata_message(policy.name, policy.action_horizon, policy.privileged))
+
+
+#: Dyana's own wire, dyana/1 (docs/reference/wire-protocol.md).
+DYANA = Wire(protocol.PROTOCOL, _dyana_hello, _answer, _dyana_fail, _dyana_busy)
+
+
 async def serve_async(
     policy: str | PolicyFactory,
     host: str = "127.0.0.1",
@@ -143,8 +185,9 @@ async def serve_async(
     stop: asyncio.Future | None = None,
     max_message_bytes: int = protocol.MAX_MESSAGE_BYTES,
     max_connections: int = protocol.MAX_CONNECTIONS,
+    wire: Wire | None = None,
 ) -> None:
-    """Serve until ``stop`` completes (or forever); ``on_listening(host, port)`` gets the bound port.
+    """Serve (on ``wire``, default dyana/1) until ``stop`` completes (or forever); ``on_listening(host, port)`` gets the bound port.
 
     A request over ``max_message_bytes`` closes its connection (code 1009); a connection
     beyond ``max_connections`` open at once is told the server is busy and closed (1013),
@@ -154,18 +197,18 @@ async def serve_async(
     for name, value in (("max_message_bytes", max_message_bytes), ("max_connections", max_connections)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise DyanaError(f"{name} must be an integer >= 1, got {value!r}")
-    factory = policy_factory(policy)
+    wire = wire or DYANA
+    factory = policy_factory(policy, wire)
     open_sessions = 0
 
     async def handler(websocket) -> None:
         nonlocal open_sessions
         if open_sessions >= max_connections:
-            await _send(websocket, protocol.error_message(f"server busy: at most {max_connections} connections at once"))
-            await websocket.close(1013, "busy")
+            await wire.busy(websocket, f"server busy: at most {max_connections} connections at once")
             return
         open_sessions += 1
         try:
-            await _session(websocket, factory)
+            await _session(websocket, factory, wire)
         finally:
             open_sessions -= 1
 
@@ -204,12 +247,15 @@ def serve(
     *,
     max_message_bytes: int = protocol.MAX_MESSAGE_BYTES,
     max_connections: int = protocol.MAX_CONNECTIONS,
+    wire: Wire | None = None,
 ) -> None:
-    """Serve ``policy`` on ``ws://host:port`` until SIGINT/SIGTERM; prints the address on stderr."""
+    """Serve ``policy`` on ``ws://host:port`` (``wire``, default dyana/1) until SIGINT/SIGTERM;
+    prints the address on stderr."""
+    wire = wire or DYANA
 
     def listening(bound_host: str, bound_port: int) -> None:
         name = policy if isinstance(policy, str) else getattr(policy, "__name__", "policy")
-        print(f"serving {name} on ws://{bound_host}:{bound_port} ({protocol.PROTOCOL})", file=sys.stderr, flush=True)
+        print(f"serving {name} on ws://{bound_host}:{bound_port} ({wire.name})", file=sys.stderr, flush=True)
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
@@ -226,7 +272,7 @@ def serve(
                 pass
         await serve_async(
             policy, host, port, on_listening=listening, stop=stop,
-            max_message_bytes=max_message_bytes, max_connections=max_connections,
+            max_message_bytes=max_message_bytes, max_connections=max_connections, wire=wire,
         )
 
     asyncio.run(main())

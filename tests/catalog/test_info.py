@@ -12,8 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from catalog.info import rebuild_verdict
 from catalog.manifest import Manifest, write_manifest
 from catalog.shard import ShardWriter
+from catalog.versions import installed_versions
 from pipeline.cli_catalog import main
 from schemas.versions import DATASET_VERSION
 
@@ -51,7 +53,7 @@ def test_a_built_slice_as_text(slice_dir, capsys):
     assert code == 0 and err == ""
     rows = dict(line.split(None, 1) for line in out.splitlines())
     assert list(rows) == ["folder", "kind", "dataset", "code", "slice", "settings", "episodes", "frames", "size",
-                          "hash", "rebuild"]
+                          "hash", "versions", "rebuild"]
     manifest = Manifest.from_dict(json.loads((slice_dir / "catalog.json").read_text()))
     assert rows["folder"] == str(slice_dir)
     assert rows["kind"] == "built slice (ground truth)"
@@ -63,7 +65,9 @@ def test_a_built_slice_as_text(slice_dir, capsys):
     assert rows["frames"] == f"{manifest.frames:,}"
     assert rows["size"].endswith(f"in {disk_bytes(slice_dir)[0]} files")
     assert rows["hash"] == manifest.hash[:16]
-    assert rows["rebuild"] == f"yes: this code writes dataset {DATASET_VERSION}, as the folder records"
+    assert rows["versions"] == "not recorded (written before Dyana recorded them)"
+    assert rows["rebuild"] == (f"yes: this code writes dataset {DATASET_VERSION}, as the folder records "
+                               "(it records no library versions: written before Dyana recorded them)")
 
 
 def test_json_matches_the_manifest_and_the_disk(slice_dir, capsys):
@@ -77,7 +81,9 @@ def test_json_matches_the_manifest_and_the_disk(slice_dir, capsys):
         "dataset_version": DATASET_VERSION, "code": CODE.to_dict(), "settings": SETTINGS,
         "episodes": 5, "frames": manifest.frames, "shards": 3, "files": files, "bytes": size,
         "hash": manifest.hash,
-        "rebuild": {"possible": True, "reason": f"this code writes dataset {DATASET_VERSION}, as the folder records"},
+        "rebuild": {"possible": True, "reason": f"this code writes dataset {DATASET_VERSION}, as the folder records "
+                                                "(it records no library versions: written before Dyana recorded them)"},
+        "versions": None,
     }
     code, again, _ = info(capsys, str(slice_dir / "catalog.json"), "--json")  # the manifest's own path works too
     assert code == 0 and json.loads(again) == {**data, "path": str(slice_dir / "catalog.json")}
@@ -172,3 +178,43 @@ def test_a_folder_in_object_storage(slice_dir, capsys):
     _, local, _ = info(capsys, str(slice_dir), "--json")
     assert json.loads(out) == {**json.loads(local), "path": "s3://dyana-info/linear-fast"}
     assert missing == 2 and "no catalog.json (not a built slice or run folder" in gone
+
+
+def _with_versions(root: Path, versions: dict) -> Manifest:
+    """A built slice whose catalog.json records ``versions`` (re-sealed, as a build writes it)."""
+    write_slice(root)
+    manifest = Manifest.from_dict(json.loads((root / "catalog.json").read_text()))
+    updated = Manifest.create(manifest.slice, manifest.seed, manifest.settings, manifest.shards, code=manifest.code,
+                              stats=manifest.stats, versions=versions)
+    write_manifest(root, updated)
+    return updated
+
+
+def test_the_recorded_versions_are_printed_and_compared_with_the_installed_ones(tmp_path, capsys, monkeypatch):
+    installed = installed_versions()
+    _with_versions(tmp_path / "same", installed)
+    code, out, _ = info(capsys, str(tmp_path / "same"))
+    rows = dict(line.split(None, 1) for line in out.splitlines())
+    assert code == 0
+    assert rows["versions"] == " ".join(f"{k}={v or '(none)'}" for k, v in sorted(installed.items()))
+    assert f"numpy={np.__version__}" in rows["versions"]
+    assert rows["rebuild"] == f"yes: this code writes dataset {DATASET_VERSION}, as the folder records, with the " \
+                              "library versions it records"
+
+    monkeypatch.setattr("catalog.info.installed_versions", lambda: {**installed, "pyarrow": "99.0.0"})
+    code, out, _ = info(capsys, str(tmp_path / "same"), "--json")
+    verdict = json.loads(out)["rebuild"]
+    assert code == 0 and verdict["possible"] is False
+    assert f"(recorded pyarrow {installed['pyarrow']}, installed 99.0.0)" in verdict["reason"]
+    assert "numpy" not in verdict["reason"]
+    assert json.loads(out)["versions"] == installed
+
+
+def test_rebuild_verdict_names_every_differing_version(tmp_path):
+    manifest = _with_versions(tmp_path / "s", {"python": "3.11.7", "numpy": "2.1.0", "opencv-python-headless": None})
+    same = rebuild_verdict(manifest, {"python": "3.11.7", "numpy": "2.1.0", "pyarrow": "1"})
+    assert same.possible
+    other = rebuild_verdict(manifest, {"python": "3.12.1", "numpy": "2.1.0", "opencv-python-headless": "4.10.0.84"})
+    assert not other.possible
+    assert "(recorded opencv-python-headless (none), installed 4.10.0.84; recorded python 3.11.7, installed 3.12.1)" \
+        in other.reason

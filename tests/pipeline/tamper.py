@@ -47,7 +47,8 @@ def reseal(folder: Path, **changes: object) -> Manifest:
     manifest = load_manifest(folder)
     audit = changes.pop("audit", manifest.audit)
     updated = Manifest.create(manifest.slice, manifest.seed, manifest.settings, manifest.shards, code=manifest.code,
-                              extra={**manifest.extra, **changes}, stats=manifest.stats, audit=audit)
+                              extra={**manifest.extra, **changes}, stats=manifest.stats, audit=audit,
+                              versions=manifest.versions)
     write_manifest(folder, updated)
     return updated
 
@@ -79,7 +80,7 @@ def rehash(folder: Path, shard_index: int, kind: str) -> ShardRecord:
     shards[shard_index] = ShardRecord(shard.episodes, shard.frames, files)
     updated = Manifest.create(
         manifest.slice, manifest.seed, manifest.settings, shards, code=manifest.code, extra=manifest.extra,
-        stats=manifest.stats, audit=manifest.audit,
+        stats=manifest.stats, audit=manifest.audit, versions=manifest.versions,
     )
     write_manifest(folder, updated)
     return shards[shard_index]

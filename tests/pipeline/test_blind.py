@@ -72,13 +72,14 @@ def test_blind_policies_read_no_frame_beyond_their_description(name):
 
 
 @pytest.mark.parametrize("name", BLIND)
-def test_blind_policies_are_deterministic_and_ignore_the_episode_id(name):
+def test_blind_policies_are_deterministic_and_ignore_keys_they_are_not_given(name):
     spec = spec_for("test-1k", 7)
     first, task = observations(spec)
+    assert "episode_id" not in task  # no policy is told its episode (test_no_lookup)
     runs = []
-    for episode_id in (task["episode_id"], "someone-else"):
+    for given in (task, {**task, "episode_id": "someone-else"}):
         policy = make_policy(name)
-        policy.reset({**task, "episode_id": episode_id})
+        policy.reset(given)
         runs.append(np.stack([policy.act(dict(first, frame_index=first["frame_index"] + k)) for k in range(30)]))
     np.testing.assert_array_equal(runs[0], runs[1])
     steps = np.linalg.norm(np.diff(runs[0][:, :3], axis=0), axis=1)

@@ -112,7 +112,8 @@ def test_a_rerun_is_up_to_date_and_another_job_is_refused(remote, server, tmp_pa
 
 def test_a_killed_remote_build_resumes_on_another_machine(server, local, tmp_path):
     """Killed after its first shard reached the server; resumed with an empty staging folder
-    (another machine): the finished shard is downloaded, not rebuilt, and the bytes match."""
+    (another machine): the finished shard is kept in the store (not downloaded, not rebuilt),
+    and the bytes match. The workers upload the shards: no staging folder ever holds one."""
     import fsspec
 
     url = f"s3://{BUCKET}/killed"
@@ -131,6 +132,7 @@ def test_a_killed_remote_build_resumes_on_another_machine(server, local, tmp_pat
     resumed = _cli("pipeline", "build", *ARGS, "--out", url, env=server, staging=tmp_path / "second")
     assert resumed.returncode == 0, resumed.stderr
     assert "resuming: " in resumed.stderr
+    assert not [p for p in tmp_path.rglob("*") if p.suffix in (".parquet", ".mcap")]
     objects = _objects("killed/linear-fast")
     assert {p: b for p, b in objects.items() if p.split("/")[0] in ("frames", "episodes", "mcap")} == shard_bytes(local)
     assert ".build-state.json" not in objects

@@ -17,6 +17,7 @@ from catalog.records import shard_paths
 from pipeline.jobs import tasks as task_module
 from pipeline.jobs.lock import FolderBusy, folder_lock
 from pipeline.jobs.runner import Job, run_job
+from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.state import STATE_FILE
 from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import SpecError
@@ -25,14 +26,15 @@ from tests.shard_files import shard_names
 CALLS: list[int] = []
 
 
-def fake_shard(task: ShardTask, payload: str, folder: str) -> dict:
+def fake_shard(task: ShardTask, payload: str, sink: ShardSink) -> dict:
     CALLS.append(task.first)
     files = {}
-    for kind, rel in shard_paths(task.first, task.end).items():
-        data = f"{payload}:{kind}:{task.first}".encode()
-        (Path(folder) / rel).parent.mkdir(exist_ok=True)
-        (Path(folder) / rel).write_bytes(data)
-        files[kind] = {"path": rel, "sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
+    with sink.writing() as folder:
+        for kind, rel in shard_paths(task.first, task.end).items():
+            data = f"{payload}:{kind}:{task.first}".encode()
+            (folder / rel).parent.mkdir(exist_ok=True)
+            (folder / rel).write_bytes(data)
+            files[kind] = {"path": rel, "sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
     return {"record": {"episodes": [task.first, task.end], "frames": task.end - task.first, "files": files}}
 
 
@@ -113,6 +115,33 @@ def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):
     assert CALLS == [2]  # the same job resumes
 
 
+def test_a_run_resumed_under_other_library_versions_rebuilds_every_shard(tmp_path, monkeypatch):
+    """Shards of two installations never mix in one folder: the manifest records one set of
+    versions, so a finished or interrupted run resumed with another pyarrow rebuilds all."""
+    from catalog.versions import installed_versions
+    from pipeline.jobs import runner, state
+
+    def dies(task, payload, folder):
+        if task.first == 2:
+            raise KeyboardInterrupt
+        return fake_shard(task, payload, folder)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, job(tmp_path).tasks, dies, "a", with_stats=False),
+                workers=0, progress=False)
+    other = {**installed_versions(), "pyarrow": "0.0.1"}
+    monkeypatch.setattr(state, "installed_versions", lambda: other)
+    monkeypatch.setattr(runner, "installed_versions", lambda: other)
+    CALLS.clear()
+    finished = run_job(job(tmp_path), workers=0, progress=False)
+    assert CALLS == [0, 2] and finished.shards_resumed == 0 and finished.manifest.versions["pyarrow"] == "0.0.1"
+    CALLS.clear()
+    assert run_job(job(tmp_path), workers=0, progress=False).up_to_date and CALLS == []
+    monkeypatch.undo()
+    again = run_job(job(tmp_path), workers=0, progress=False)
+    assert not again.up_to_date and CALLS == [0, 2] and again.manifest.versions == installed_versions()
+
+
 def test_a_second_process_on_the_folder_is_refused(tmp_path):
     with folder_lock(tmp_path):
         with pytest.raises(FolderBusy, match="another process"):
@@ -147,11 +176,11 @@ def test_a_scheduler_address_that_is_not_a_scheduler_is_one_error(monkeypatch):
 # --- progress ------------------------------------------------------------------------------
 
 
-def spec_shard(task: ShardTask, payload: str, folder: str) -> dict:
+def spec_shard(task: ShardTask, payload: str, sink: ShardSink) -> dict:
     """A fake shard that walks its specs the way build and eval do."""
     for _spec in task.specs():
         pass
-    return fake_shard(task, payload, folder)
+    return fake_shard(task, payload, sink)
 
 
 def test_progress_is_per_episode_in_process(tmp_path, capsys):
