@@ -85,8 +85,11 @@ VLM_DEFAULTS = {"vlm_every": 5, "vlm_latency_frames": 0, "vlm_observe_images": 2
 
 def _eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", required=True,
-                   help="oracle, still, chase, predictive, module:callable, ws://HOST:PORT or vlm:URL "
-                   "(an OpenAI-compatible endpoint, e.g. vlm:http://127.0.0.1:8000/v1)")
+                   help="oracle, still, chase, predictive, module:callable, ws://HOST:PORT, vlm:URL "
+                   "(an OpenAI-compatible endpoint, e.g. vlm:http://127.0.0.1:8000/v1) or lerobot:PATH "
+                   "(a LeRobot checkpoint folder, run with the lerobot installed here)")
+    p.add_argument("--policy-device", metavar="DEVICE",
+                   help="where a lerobot:PATH policy runs: cpu (default), cuda, cuda:N or mps")
     p.add_argument("--slice", default="test-1k", help="slice whose episodes to run (default: test-1k)")
     cli.add_episodes(p)
     p.add_argument("--out", type=cli.output_path, required=True,
@@ -165,6 +168,16 @@ def _vlm_options(args: argparse.Namespace) -> dict | None:
     }
 
 
+def _policy_config(args: argparse.Namespace) -> dict | None:
+    """The policy kind's configuration from the flags: a VLM's, or a LeRobot checkpoint's device."""
+    vlm = _vlm_options(args)
+    if args.policy.startswith("lerobot:"):
+        return {"device": args.policy_device or "cpu"}
+    if args.policy_device is not None:
+        raise SpecError("--policy-device is for --policy lerobot:PATH only")
+    return vlm
+
+
 def _protocol(args: argparse.Namespace) -> EvalProtocol:
     from pipeline.loop.conditions import EvalProtocol
     from pipeline.loop.perturb import Perturbation
@@ -178,7 +191,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from pipeline.jobs.evaluate import evaluate
     from pipeline.jobs.repeats import evaluate_repeats
 
-    vlm = _vlm_options(args)
+    vlm = _policy_config(args)
     protocol = _protocol(args)
     if vlm is None:
         _importable_cwd(args.policy)

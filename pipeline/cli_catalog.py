@@ -1,7 +1,7 @@
 """The ``catalog`` command: the slice registry and the recipe seen from the shell.
 
 ``catalog list`` lists the slices with their episode and frame counts;
-``catalog export DIR --format lerobot|lerobot-v2.1 --out OUT`` writes a LeRobot dataset;
+``catalog export DIR [DIR ...] --format lerobot|lerobot-v2.1 --out OUT`` writes a LeRobot dataset;
 ``catalog stats SLICE [--json]`` enumerates a slice's recipe (Figure 4's numbers for
 ``dyana-12m``); ``catalog specs SLICE [--episodes N]`` prints its specs as JSONL, to
 inspect, edit and build with ``pipeline build --specs``; ``catalog info DIR|URL [--json]``
@@ -184,9 +184,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     from pipeline.jobs.export import export
     from pipeline.jobs.progress import to_stderr
 
-    settings = ExportSettings(args.format, args.codec)
+    settings = ExportSettings(args.format, args.codec, args.environment_state)
     workers = args.workers or cli.default_worker_count()
-    report = export(args.dir, args.out, settings, workers=workers, overwrite=args.overwrite,
+    report = export(args.dirs, args.out, settings, workers=workers, overwrite=args.overwrite,
                     progress=None if args.quiet else to_stderr)
     if report.up_to_date:
         print(f"{report.out}: up to date ({settings.format}, {report.episodes} episodes, {report.frames} frames)")
@@ -194,7 +194,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     resumed = f", {report.units_resumed} shards resumed" if report.units_resumed else ""
     rate = report.frames / report.seconds if report.seconds > 0 else 0.0
     print(
-        f"exported {args.dir} as {settings.format} ({settings.version}, {settings.codec}): {report.episodes} episodes, "
+        f"exported {' '.join(args.dirs)} as {settings.format} ({settings.version}, {settings.codec}): {report.episodes} episodes, "
         f"{report.frames} frames in {report.seconds:.1f} s ({rate:.0f} frames/s{resumed}) -> {report.out}"
     )
     return 0
@@ -204,7 +204,11 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
     from catalog.export.layout import FORMATS
     from catalog.export.video import CODECS
 
-    p.add_argument("dir", metavar="DIR", help="a built slice or evaluated run folder (holding catalog.json)")
+    p.add_argument("dirs", metavar="DIR", nargs="+", help="built slice or evaluated run folders (holding "
+                   "catalog.json); several become one dataset, episodes renumbered in the order given")
+    p.add_argument("--environment-state", action="store_true",
+                   help="also export the object's true pose as observation.environment_state (privileged: LeRobot "
+                   "policies take every observation.* feature, and the closed loop never gives this one)")
     p.add_argument("--format", choices=sorted(FORMATS), default="lerobot",
                    help="lerobot: LeRobot v3.0; lerobot-v2.1: LeRobot v2.1 with GR00T's meta/modality.json")
     p.add_argument("--out", type=cli.output_path, required=True, metavar="OUT", help="the export's folder (one export per folder)")

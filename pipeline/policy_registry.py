@@ -9,6 +9,9 @@ kind           reference           makes
 ``vlm``        ``vlm:URL``         :class:`pipeline.policies.vlm.VLMPolicy` (an OpenAI-compatible
                                    endpoint; its configuration comes from ``--model`` and the
                                    ``--vlm-*`` flags, its exchanges are kept as an audit trail)
+``lerobot``    ``lerobot:PATH``    :class:`pipeline.policies.lerobot_checkpoint.CheckpointPolicy` (a
+                                   LeRobot checkpoint folder, loaded with the installed lerobot on
+                                   ``--policy-device``; its features are checked up front)
 ``openpi``     ``openpi:ws://...`` :class:`pipeline.remote.openpi_client.OpenpiPolicy` (an openpi
                                    policy server; key names in the URL's query)
 ``remote``     ``ws://HOST:PORT``  :class:`pipeline.remote.client.RemotePolicy` (``pipeline serve``)
@@ -259,6 +262,22 @@ register(PolicyKind("remote", lambda ref: ref.startswith(("ws://", "wss://")), m
 register(PolicyKind("vlm", lambda ref: ref.startswith(VLM_PREFIX), make_vlm, configure=configure_vlm,
                     manifest_key="vlm", audit_dir="vlm", replay=replay_vlm, summarize_audit=summarize_vlm,
                     check=check_vlm))
+
+
+def make_lerobot(ref: str, options: OpenOptions) -> Policy:
+    from pipeline.policies.lerobot_checkpoint import make  # lazy: torch and lerobot
+
+    return make(ref, options.config)
+
+
+def configure_lerobot(ref: str, config: Config | None) -> Config:
+    from pipeline.policies.lerobot_checkpoint import configure
+
+    return configure(ref, config)
+
+
+register(PolicyKind("lerobot", lambda ref: ref.startswith("lerobot:"), make_lerobot, configure=configure_lerobot,
+                    manifest_key="lerobot"))
 
 
 # openpi policy servers: openpi:ws://HOST:PORT[?key=value...] ---------------------------------

@@ -9,11 +9,16 @@ LeRobot feature                    Dyana source
                                    video: H.264 or AV1, yuv420p)
 ``observation.state`` (21)         ``palm_pose`` (6: xyz, roll, pitch, yaw) then
                                    ``joint_angles`` (15)
-``observation.environment_state``  ``object_pose`` (7: xyz, quaternion x, y, z, w)
+``observation.environment_state``  ``object_pose`` (7: xyz, quaternion x, y, z, w); only with
+                                   ``environment_state`` (``--environment-state``): it is
+                                   privileged, and LeRobot policies take every
+                                   ``observation.*`` feature as an input
 ``action`` (18)                    ``action`` (palm xyz target, 15 joint targets)
 ``timestamp``                      ``frame_index / fps`` (Dyana's own ``timestamp``)
 ``frame_index``                    ``frame_index``
-``episode_index``                  ``episode_index`` (the source's own numbering)
+``episode_index``                  the episode's position in the export (sources in the order
+                                   given, each in its own order); ``dyana/source_hash`` and
+                                   ``dyana/source_episode_index`` say where it came from
 ``index``                          the frame's position in the whole export
 ``task_index``                     the episode's ``text``, numbered in order of first use
 =================================  ======================================================
@@ -22,8 +27,9 @@ What LeRobot has no slot for is kept per episode (``dyana/...`` columns of the v
 episodes table; the same keys in v2.1's ``meta/episodes.jsonl``): episode id, slice,
 motion type, interception setting, object and its size, hand, rollout format, observe
 and intercept frames, seed, the full spec (JSON), its hash and, for evaluated runs,
-policy, status and error. ``meta/dyana.json`` records the source folder's slice hash,
-versions, the codec build and every exported file's sha256.
+policy, status and error, and the provenance above. ``meta/dyana.json`` records each
+source folder's slice hash and first exported episode, versions, the codec build and
+every exported file's sha256.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from schemas.joints import ACTION_NAMES, JOINT_NAMES, OBJECT_POSE_NAMES, PALM_PO
 #: Export formats: name -> LeRobot codebase version.
 FORMATS = {"lerobot": "v3.0", "lerobot-v2.1": "v2.1"}
 VIDEO_KEY = "observation.images.ego"
+ENV_KEY = "observation.environment_state"
 STATE_NAMES = PALM_POSE_NAMES + JOINT_NAMES
 #: LeRobot feature -> the Dyana frames columns it concatenates.
 VECTOR_SOURCES = {
@@ -47,6 +54,7 @@ VECTOR_NAMES = {
     "observation.environment_state": OBJECT_POSE_NAMES,
     "action": ACTION_NAMES,
 }
+PROVENANCE = ("source_hash", "source_episode_index")
 INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 #: Episode facts kept beside LeRobot's own (``dyana/<name>``), from the episodes table.
 EPISODE_FACTS = (
@@ -63,8 +71,13 @@ V21_VIDEO_PATH = "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_
 DYANA_META = "meta/dyana.json"
 
 
-def features(height: int, width: int, fps: int, codec: str, version: str) -> dict[str, Any]:
-    """``info.json``'s ``features``: the video, the three vectors and the index columns."""
+def vector_names(environment_state: bool) -> dict[str, tuple[str, ...]]:
+    """The exported vectors (feature -> element names): the object's pose only if asked for."""
+    return {key: names for key, names in VECTOR_NAMES.items() if environment_state or key != ENV_KEY}
+
+
+def features(height: int, width: int, fps: int, codec: str, version: str, environment_state: bool) -> dict[str, Any]:
+    """``info.json``'s ``features``: the video, the vectors and the index columns."""
     video_info = {
         "video.height": height,
         "video.width": width,
@@ -83,7 +96,7 @@ def features(height: int, width: int, fps: int, codec: str, version: str) -> dic
             "info": video_info,
         }
     }
-    for key, names in VECTOR_NAMES.items():
+    for key, names in vector_names(environment_state).items():
         out[key] = {"dtype": "float32", "shape": [len(names)], "names": list(names)}
     out["timestamp"] = {"dtype": "float32", "shape": [1], "names": None}
     for key in INDEX_FEATURES[1:]:

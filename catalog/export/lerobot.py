@@ -1,9 +1,11 @@
-"""A built slice or an evaluated run as a LeRobot dataset: what an export is (the field
+"""Built slices or evaluated runs as one LeRobot dataset: what an export is (the field
 mapping is in :mod:`catalog.export.layout`).
 
-Work is done shard by shard (a *unit*): in v3.0 a Dyana shard becomes one data file
-and one video file (``file-<shard>``), in v2.1 one data and one video file per
-episode (:mod:`catalog.export.unit`). A finished unit leaves a part record (its
+An export has one or more sources (folders), their episodes renumbered in the order the
+sources are given. Work is done shard by shard (a *unit*: the sources' shards numbered in
+that order): in v3.0 a Dyana shard becomes one data file and one video file
+(``file-<unit>``), in v2.1 one data and one video file per episode
+(:mod:`catalog.export.unit`). A finished unit leaves a part record (its
 episodes' metadata, statistics and files with their sha256) in ``OUT/.dyana-export/``;
 when every unit is done the metadata is assembled (:mod:`catalog.export.meta`) and
 ``meta/dyana.json`` is written last: it lists every file with its sha256 and marks the
@@ -17,7 +19,7 @@ Running an export (the folder lock, resume, progress, "up to date") is the job e
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -30,7 +32,7 @@ from schemas.errors import DyanaError
 from schemas.names import shorten
 
 WORK_DIR = ".dyana-export"
-EXPORT_VERSION = 1
+EXPORT_VERSION = 2
 
 #: A JSON value read from or written to a part record or metadata file (checked where it is used).
 Json = Any
@@ -42,12 +44,16 @@ class ExportError(DyanaError):
 
 @dataclass(frozen=True)
 class ExportSettings:
-    """What decides an export's bytes besides its source."""
+    """What decides an export's bytes besides its sources: the format, the video codec, and
+    whether the object's true pose is exported as ``observation.environment_state``."""
 
     format: str
     codec: str = "h264"
+    environment_state: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.environment_state, bool):
+            raise ExportError(f"environment_state must be True or False, got {shorten(repr(self.environment_state))}")
         if self.format not in FORMATS:
             raise ExportError(f"--format {shorten(repr(self.format))}: expected one of {sorted(FORMATS)}")
         if self.codec not in CODECS:
@@ -59,18 +65,44 @@ class ExportSettings:
 
 
 @dataclass(frozen=True)
-class ExportPlan:
-    """Everything a unit's worker needs besides its shard: the source folder, the output
-    folder, the settings, the task index of each task text, the image size, and the first
-    dataset frame index of each source shard (by its first episode)."""
+class Unit:
+    """One source shard of an export: its source (position in the plan's sources), the
+    shard's first episode there, its first episode and frame in the export, and its
+    episode and frame counts."""
 
-    source: str
+    source: int
+    source_first: int
+    episode: int
+    index: int
+    episodes: int
+    frames: int
+
+
+@dataclass(frozen=True)
+class ExportPlan:
+    """Everything a unit's worker needs besides its shard: the source folders and their
+    slice hashes, the output folder, the settings, the task index of each task text, the
+    image size, and the units in export order."""
+
+    sources: tuple[str, ...]
+    hashes: tuple[str, ...]
     out: str
     settings: ExportSettings
     tasks: Mapping[str, int]
     height: int
     width: int
-    first_index: Mapping[int, int]
+    units: tuple[Unit, ...]
+
+    def __post_init__(self) -> None:
+        if not self.sources or len(self.sources) != len(self.hashes):
+            raise ExportError("an export plan needs one slice hash per source, and a source")
+
+    def unit_at(self, episode: int) -> tuple[int, Unit]:
+        """The number and unit whose first exported episode is ``episode``."""
+        for number, unit in enumerate(self.units):
+            if unit.episode == episode:
+                return number, unit
+        raise ExportError(f"no unit of this export starts at episode {episode}")
 
 
 def json_int(value: Json) -> int:
@@ -80,12 +112,11 @@ def json_int(value: Json) -> int:
     return value
 
 
-def job_identity(reader: FolderReader, settings: ExportSettings) -> dict[str, Json]:
+def job_identity(readers: Sequence[FolderReader], settings: ExportSettings) -> dict[str, Json]:
     """What an export folder must hold to be this export (``meta/dyana.json``'s ``job``)."""
     return {
         "export_version": EXPORT_VERSION,
-        "source_hash": reader.manifest.hash,
-        "slice": reader.manifest.slice,
+        "sources": [{"source_hash": r.manifest.hash, "slice": r.manifest.slice} for r in readers],
         "settings": asdict(settings),
         "codec": codec_versions(settings.codec),
     }

@@ -28,6 +28,7 @@ from catalog.export.layout import (
     VIDEO_KEY,
     features,
     modality,
+    vector_names,
 )
 from catalog.export.lerobot import ExportSettings, Json, Part
 from catalog.hashing import sha256_file
@@ -36,21 +37,24 @@ from catalog.stats import load_stats
 from schemas.versions import CODE_VERSION, FPS
 
 
-def tasks_of(reader: FolderReader) -> dict[str, int]:
-    """Each distinct task text of the source's episodes, numbered in order of appearance."""
-    texts = reader.episodes(["text"]).column("text").to_pylist()
+def tasks_of(readers: Sequence[FolderReader]) -> dict[str, int]:
+    """Each distinct task text of the sources' episodes, numbered in order of appearance."""
+    texts = [text for reader in readers for text in reader.episodes(["text"]).column("text").to_pylist()]
     return {text: i for i, text in enumerate(dict.fromkeys(texts))}
 
 
-def _merged_stats(parts: Sequence[Part], reader: FolderReader) -> dict[str, Any]:
-    """``meta/stats.json``: states and actions from the folder's own ``stats.json`` (the
-    same numbers, concatenated per LeRobot feature); the rest merged over episodes."""
+def _merged_stats(parts: Sequence[Part], readers: Sequence[FolderReader], environment_state: bool) -> dict[str, Any]:
+    """``meta/stats.json``: everything merged over episodes; from one source, states and
+    actions are its own ``stats.json``'s numbers (concatenated per LeRobot feature)."""
     per_episode = [e["stats"] for part in parts for e in part.episodes]
     out: dict[str, Any] = {}
     for key in per_episode[0]:
         out[key] = merge_all([Moments.from_state(s[key]) for s in per_episode]).to_dict()
-    dyana = load_stats(reader.root)
-    for key, sources in VECTOR_SOURCES.items():
+    if len(readers) != 1:
+        return out
+    dyana = load_stats(readers[0].root)
+    for key in vector_names(environment_state):
+        sources = VECTOR_SOURCES[key]
         columns = [dyana.columns[name] for name in sources]
         out[key] = {
             "min": np.concatenate([c.min for c in columns]).tolist(),
@@ -131,7 +135,13 @@ def _v30_episodes_table(parts: Sequence[Part]) -> pa.Table:
     return pa.Table.from_pylist(rows)
 
 
-def assemble(out: Path, reader: FolderReader, settings: ExportSettings, parts: Sequence[Part],
+def _source(reader: FolderReader, first_episode: int) -> dict[str, Any]:
+    manifest = reader.manifest
+    return _plain({"slice": manifest.slice, "slice_hash": manifest.hash, "episodes": manifest.episodes,
+                   "first_episode": first_episode, "settings": manifest.settings, "extra": manifest.extra})
+
+
+def assemble(out: Path, readers: Sequence[FolderReader], settings: ExportSettings, parts: Sequence[Part],
              tasks: Mapping[str, int], identity: Mapping[str, Json], height: int, width: int) -> None:
     """Write the export's metadata from its finished parts, ``meta/dyana.json`` last."""
     episodes = sum(len(p.episodes) for p in parts)
@@ -153,9 +163,9 @@ def assemble(out: Path, reader: FolderReader, settings: ExportSettings, parts: S
         "chunks_size": 1000,
         "fps": FPS,
         "splits": {"train": f"0:{episodes}"},
-        "features": features(height, width, FPS, settings.codec, settings.version),
+        "features": features(height, width, FPS, settings.codec, settings.version, settings.environment_state),
     }
-    _write_json(meta / "stats.json", _merged_stats(parts, reader))
+    _write_json(meta / "stats.json", _merged_stats(parts, readers, settings.environment_state))
     written(meta / "stats.json")
     if settings.version == "v3.0":
         info.update({
@@ -192,13 +202,13 @@ def assemble(out: Path, reader: FolderReader, settings: ExportSettings, parts: S
             written(meta / name)
     _write_json(meta / "info.json", info)
     written(meta / "info.json")
-    manifest = reader.manifest
+    firsts = np.cumsum([0] + [r.manifest.episodes for r in readers]).tolist()
     _write_json(out / DYANA_META, {
         "job": dict(identity),
-        "source": _plain({"slice": manifest.slice, "slice_hash": manifest.hash, "episodes": manifest.episodes,
-                          "settings": manifest.settings, "extra": manifest.extra}),
+        "sources": [_source(reader, int(first)) for reader, first in zip(readers, firsts)],
         "code_version": CODE_VERSION,
-        "mapping": {key: list(sources) for key, sources in VECTOR_SOURCES.items()} | {VIDEO_KEY: ["image"]},
+        "mapping": {key: list(VECTOR_SOURCES[key]) for key in vector_names(settings.environment_state)}
+        | {VIDEO_KEY: ["image"]},
         "files": dict(sorted(files.items())),
     })
 

@@ -1,8 +1,9 @@
 """One unit of a LeRobot export: one source shard's episodes as data and video files,
 and its part record (:class:`catalog.export.lerobot.Part`).
 
-In v3.0 the shard becomes one data file and one video file (``file-<shard>``), in v2.1
-one data and one video file per episode. The part record is written last, so a unit
+In v3.0 the shard becomes one data file and one video file (``file-<unit>``), in v2.1
+one data and one video file per episode. Episodes are numbered as the export numbers them
+(:class:`catalog.export.lerobot.Unit`); each keeps its source's hash and episode index. The part record is written last, so a unit
 whose part record is there (and whose files still match it) is finished.
 """
 
@@ -22,6 +23,7 @@ from catalog.export.episode_stats import Moments
 from catalog.export.layout import (
     EPISODE_FACTS,
     INDEX_FEATURES,
+    PROVENANCE,
     ROLLOUT_FACTS,
     V21_DATA_PATH,
     V21_VIDEO_PATH,
@@ -31,8 +33,9 @@ from catalog.export.layout import (
     VECTOR_SOURCES,
     VIDEO_KEY,
     chunk_of,
+    vector_names,
 )
-from catalog.export.lerobot import ExportError, ExportPlan, Json, Part, json_int, part_path
+from catalog.export.lerobot import ExportError, ExportPlan, Json, Part, Unit, json_int, part_path
 from catalog.export.video import VideoWriter
 from catalog.hashing import sha256_file
 from catalog.parquet_io import column_to_numpy
@@ -70,10 +73,10 @@ def _checked(image: np.ndarray, plan: ExportPlan, shard: ShardReader, episode: i
     return image
 
 
-def _hf_features() -> dict[str, Json]:
+def _hf_features(vectors: dict[str, tuple[str, ...]]) -> dict[str, Json]:
     """The ``huggingface`` schema metadata `datasets` reads the data files' features from."""
     out: dict[str, Json] = {}
-    for key, names in VECTOR_NAMES.items():
+    for key, names in vectors.items():
         out[key] = {"feature": {"dtype": "float32", "_type": "Value"}, "length": len(names), "_type": "Sequence"}
     out["timestamp"] = {"dtype": "float32", "_type": "Value"}
     for key in INDEX_FEATURES[1:]:
@@ -81,23 +84,30 @@ def _hf_features() -> dict[str, Json]:
     return {"info": {"features": out}}
 
 
-DATA_SCHEMA = pa.schema(
-    [pa.field(key, pa.list_(pa.float32(), len(names))) for key, names in VECTOR_NAMES.items()]
-    + [pa.field("timestamp", pa.float32())]
-    + [pa.field(key, pa.int64()) for key in INDEX_FEATURES[1:]],
-    metadata={"huggingface": json.dumps(_hf_features(), sort_keys=True)},
-)
+def data_schema(environment_state: bool) -> pa.Schema:
+    """The data files' schema: the vectors exported, then the index columns."""
+    vectors = vector_names(environment_state)
+    return pa.schema(
+        [pa.field(key, pa.list_(pa.float32(), len(names))) for key, names in vectors.items()]
+        + [pa.field("timestamp", pa.float32())]
+        + [pa.field(key, pa.int64()) for key in INDEX_FEATURES[1:]],
+        metadata={"huggingface": json.dumps(_hf_features(vectors), sort_keys=True)},
+    )
 
 
 def _vector(columns: dict[str, np.ndarray], key: str, rows: slice) -> np.ndarray:
     return np.concatenate([columns[name][rows] for name in VECTOR_SOURCES[key]], axis=1).astype(np.float32)
 
 
-def _data_table(columns: dict[str, np.ndarray], rows: slice, episode: int, first_index: int, task: int) -> pa.Table:
+def _data_table(schema: pa.Schema, columns: dict[str, np.ndarray], rows: slice, episode: int, first_index: int,
+                task: int) -> pa.Table:
     n = rows.stop - rows.start
     frame_index = columns["frame_index"][rows].astype(np.int64)
     arrays = []
-    for key, names in VECTOR_NAMES.items():
+    for field in schema:
+        if field.name not in VECTOR_SOURCES:
+            break
+        key, names = field.name, VECTOR_NAMES[field.name]
         values = _vector(columns, key, rows)
         arrays.append(pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1), pa.float32()), len(names)))
     arrays.append(pa.array((frame_index / FPS).astype(np.float32), pa.float32()))
@@ -105,21 +115,21 @@ def _data_table(columns: dict[str, np.ndarray], rows: slice, episode: int, first
     arrays.append(pa.array(np.full(n, episode, dtype=np.int64), pa.int64()))
     arrays.append(pa.array(np.arange(first_index, first_index + n, dtype=np.int64), pa.int64()))
     arrays.append(pa.array(np.full(n, task, dtype=np.int64), pa.int64()))
-    return pa.Table.from_arrays(arrays, schema=DATA_SCHEMA)
+    return pa.Table.from_arrays(arrays, schema=schema)
 
 
-def _write_parquet(path: Path, tables: list[pa.Table]) -> None:
+def _write_parquet(path: Path, schema: pa.Schema, tables: list[pa.Table]) -> None:
     with atomic_open(path, "wb") as handle:
-        with pq.ParquetWriter(handle, DATA_SCHEMA, compression="zstd", write_statistics=True) as writer:
+        with pq.ParquetWriter(handle, schema, compression="zstd", write_statistics=True) as writer:
             for table in tables:
                 writer.write_table(table, row_group_size=max(table.num_rows, 1))
 
 
-def _episode_stats(columns: dict[str, np.ndarray], rows: slice, images: np.ndarray, index: np.ndarray,
-                   episode: int, task: int) -> dict[str, Moments]:
+def _episode_stats(vectors: dict[str, tuple[str, ...]], columns: dict[str, np.ndarray], rows: slice,
+                   images: np.ndarray, index: np.ndarray, episode: int, task: int) -> dict[str, Moments]:
     n = rows.stop - rows.start
     frame_index = columns["frame_index"][rows].astype(np.float64)
-    stats = {key: Moments.of(_vector(columns, key, rows)) for key in VECTOR_NAMES}
+    stats = {key: Moments.of(_vector(columns, key, rows)) for key in vectors}
     stats[VIDEO_KEY] = Moments.of_images(images)
     stats["timestamp"] = Moments.of((frame_index / FPS)[:, None])
     stats["frame_index"] = Moments.of(frame_index[:, None])
@@ -134,17 +144,20 @@ def _facts(row: dict[str, Json]) -> dict[str, Json]:
 
 
 def export_unit(plan: ExportPlan, first: int, report: EpisodeReport | None = None) -> Part:
-    """Export the source shard whose episodes start at ``first``; its part record, written
+    """Export the unit whose first exported episode is ``first``; its part record, written
     last. ``report`` hears each exported episode (progress only: its failure is ignored)."""
-    reader = open_folder(plan.source, verify="sha256")
-    number, shard = next((k, s) for k, s in enumerate(reader.shards) if s.record.first == first)
+    number, unit = plan.unit_at(first)
+    reader = open_folder(plan.sources[unit.source], verify="sha256")
+    if reader.manifest.hash != plan.hashes[unit.source]:
+        raise ExportError(f"{plan.sources[unit.source]}: changed since the export started (its slice hash differs)")
+    shard = next(s for s in reader.shards if s.record.first == unit.source_first)
     episodes = shard.episodes()
     names = ("image", "frame_index", "palm_pose", "joint_angles", "object_pose", "action")
     table, runs = shard.indexed_frames(names, episodes)
     columns = {name: column_to_numpy(table.column(name)) for name in names if name != "image"}
     out = Path(plan.out)
-    records, files = _write_episodes(plan, number, shard, episodes.to_pylist(), table.column("image"), runs, columns,
-                                     out, report)
+    records, files = _write_episodes(plan, number, unit, shard, episodes.to_pylist(), table.column("image"), runs,
+                                     columns, out, report)
     part = Part(number, tuple(records),
                 tuple(FileRecord(p.relative_to(out).as_posix(), sha256_file(p), p.stat().st_size) for p in files))
     text = json.dumps(part.to_dict(), sort_keys=True)
@@ -152,13 +165,15 @@ def export_unit(plan: ExportPlan, first: int, report: EpisodeReport | None = Non
     return Part.from_dict(json.loads(text))  # the same canonical form a resumed export reads back
 
 
-def _write_episodes(plan: ExportPlan, number: int, shard: ShardReader, rows: list[dict[str, Json]],
+def _write_episodes(plan: ExportPlan, number: int, unit: Unit, shard: ShardReader, rows: list[dict[str, Json]],
                     jpegs: pa.ChunkedArray, runs: dict[int, tuple[int, int]], columns: dict[str, np.ndarray], out: Path,
                     report: EpisodeReport | None) -> tuple[list[dict[str, Json]], list[Path]]:
     """The unit's data and video files; each episode's record and the files written."""
     v30 = plan.settings.version == "v3.0"
+    schema = data_schema(plan.settings.environment_state)
+    vectors = vector_names(plan.settings.environment_state)
     chunk, file_index = chunk_of(number)
-    first_index = next_index = plan.first_index[shard.record.first]
+    first_index = next_index = unit.index
     records: list[dict[str, Json]] = []
     files: list[Path] = []
     data_tables: list[pa.Table] = []
@@ -167,23 +182,26 @@ def _write_episodes(plan: ExportPlan, number: int, shard: ShardReader, rows: lis
         video_path = out / V30_VIDEO_PATH.format(video_key=VIDEO_KEY, chunk_index=chunk, file_index=file_index)
         video = VideoWriter(video_path, plan.width, plan.height, FPS, plan.settings.codec)
     try:
-        for row in rows:
-            episode = json_int(row["episode_index"])
-            start, count = runs[episode]
+        for position, row in enumerate(rows):
+            source_episode = json_int(row["episode_index"])
+            episode = unit.episode + position
+            start, count = runs[source_episode]
             span = slice(start, start + count)
-            images = np.stack([_checked(_decode(jpegs[k].as_py()), plan, shard, episode, k - start)
+            images = np.stack([_checked(_decode(jpegs[k].as_py()), plan, shard, source_episode, k - start)
                                for k in range(start, start + count)])
             task = plan.tasks[str(row["text"])]
             index = np.arange(next_index, next_index + count, dtype=np.int64)
-            data = _data_table(columns, span, episode, next_index, task)
+            data = _data_table(schema, columns, span, episode, next_index, task)
             record: dict[str, Json] = {
                 "episode_index": episode,
                 "tasks": [row["text"]],
                 "length": count,
                 "dataset_from_index": next_index,
                 "dataset_to_index": next_index + count,
-                "stats": {k: m.to_state() for k, m in _episode_stats(columns, span, images, index, episode, task).items()},
+                "stats": {k: m.to_state()
+                          for k, m in _episode_stats(vectors, columns, span, images, index, episode, task).items()},
                 **_facts(row),
+                **dict(zip((f"dyana/{name}" for name in PROVENANCE), (plan.hashes[unit.source], source_episode))),
             }
             if video is not None:
                 record["from_timestamp"] = video.frames / FPS
@@ -195,7 +213,7 @@ def _write_episodes(plan: ExportPlan, number: int, shard: ShardReader, rows: lis
             else:
                 episode_chunk = episode // 1000
                 data_path = out / V21_DATA_PATH.format(episode_chunk=episode_chunk, episode_index=episode)
-                _write_parquet(data_path, [data])
+                _write_parquet(data_path, schema, [data])
                 video_path = out / V21_VIDEO_PATH.format(episode_chunk=episode_chunk, video_key=VIDEO_KEY,
                                                          episode_index=episode)
                 with VideoWriter(video_path, plan.width, plan.height, FPS, plan.settings.codec) as writer:
@@ -213,7 +231,7 @@ def _write_episodes(plan: ExportPlan, number: int, shard: ShardReader, rows: lis
             video.finish()
             video = None
             data_path = out / V30_DATA_PATH.format(chunk_index=chunk, file_index=file_index)
-            _write_parquet(data_path, data_tables)
+            _write_parquet(data_path, schema, data_tables)
             files += [data_path, out / V30_VIDEO_PATH.format(video_key=VIDEO_KEY, chunk_index=chunk, file_index=file_index)]
     finally:
         if video is not None:

@@ -1,5 +1,5 @@
-"""``catalog export DIR --format lerobot|lerobot-v2.1 --out OUT``: a built slice or an
-evaluated run as a LeRobot dataset, run by the job engine (:mod:`pipeline.jobs.engine`).
+"""``catalog export DIR [DIR ...] --format lerobot|lerobot-v2.1 --out OUT``: built slices
+or evaluated runs as one LeRobot dataset, run by the job engine (:mod:`pipeline.jobs.engine`).
 
 The format (units, parts, metadata) is :mod:`catalog.export.lerobot`'s; here is the
 export as a job: its units are the source's shards, run as Dask tasks or in this
@@ -7,7 +7,11 @@ process, under the folder lock, with progress per exported episode. The driver l
 ``pipeline`` (not beside the format in ``catalog``) because running jobs (processes, Dask,
 the lock) is this layer's; ``catalog`` stays a library of formats and readers.
 
-A folder holds one export: an existing finished export of the same source and settings
+Several sources become one dataset, their episodes renumbered in the order given (each
+episode keeps its source's slice hash and episode index); the same folder twice (the same
+slice hash) is refused, and so are sources of different image sizes.
+
+A folder holds one export: an existing finished export of the same sources and settings
 whose every listed file still has its size and sha256 is "up to date" (a damaged one is
 exported again); an interrupted export of the same source and settings resumes from the
 units whose files are intact; anything else in ``OUT`` is refused unless ``--overwrite``
@@ -25,8 +29,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from catalog.atomic import atomic_write_text, remove_stray_temps
 from catalog.export.layout import DYANA_META
 from catalog.export.lerobot import (
@@ -36,6 +38,7 @@ from catalog.export.lerobot import (
     ExportSettings,
     Json,
     Part,
+    Unit,
     job_identity,
     part_path,
     read_part,
@@ -127,7 +130,7 @@ def files_intact(out: Path, files: Json) -> bool:
 class LeRobotProduct:
     """A LeRobot export folder as the engine's product (see the module docstring)."""
 
-    reader: FolderReader
+    readers: tuple[FolderReader, ...]
     settings: ExportSettings
     plan: ExportPlan
     identity: Mapping[str, Json]
@@ -143,7 +146,8 @@ class LeRobotProduct:
         same = isinstance(meta, dict) and meta.get("job") == self.identity and not overwrite
         if same and isinstance(meta, dict) and files_intact(folder, meta.get("files")):
             _remove_work(folder)  # a driver killed after dyana.json, before it cleaned up
-            return Previous(finished=Exported(self.reader.manifest.episodes, self.reader.manifest.frames))
+            return Previous(finished=Exported(sum(r.manifest.episodes for r in self.readers),
+                                              sum(r.manifest.frames for r in self.readers)))
         if _content(folder):
             resuming = job.is_file() and _read_json(job) == self.identity and not finished.is_file()
             if not (resuming or same):
@@ -158,7 +162,7 @@ class LeRobotProduct:
                 finished.unlink()
         atomic_write_text(job, json.dumps(dict(self.identity), sort_keys=True) + "\n")
         done: dict[Range, Part] = {}
-        for number in range(len(self.reader.shards)):
+        for number in range(len(self.plan.units)):
             part = read_part(folder, number)
             if part is not None and all(file_intact(folder, f) for f in part.files):
                 done[(part.first, part.end)] = part
@@ -179,7 +183,7 @@ class LeRobotProduct:
         return [*sorted(files), DYANA_META]
 
     def finish(self, folder: Path, commit: str | None, units: Sequence[Part]) -> Exported:
-        assemble(folder, self.reader, self.settings, units, self.plan.tasks, self.identity, self.plan.height,
+        assemble(folder, self.readers, self.settings, units, self.plan.tasks, self.identity, self.plan.height,
                  self.plan.width)
         _remove_work(folder)
         return Exported(sum(len(p.episodes) for p in units), sum(p.frames for p in units))
@@ -190,8 +194,39 @@ def export_shard(task: ShardTask, plan: ExportPlan, sink: ShardSink) -> dict[str
     return {"part": export_unit(plan, task.first, task.report).to_dict()}
 
 
+def _plan(readers: Sequence[FolderReader], names: Sequence[str], target: Path, settings: ExportSettings) -> ExportPlan:
+    """The export's units in order (sources as given, each's shards in order), after
+    refusing what cannot be one dataset: a source twice, no episodes, another image size."""
+    seen: dict[str, str] = {}
+    sizes = set()
+    for reader, name in zip(readers, names):
+        manifest = reader.manifest
+        if manifest.hash in seen:
+            raise ExportError(f"{shorten(name)}: the same build as {shorten(seen[manifest.hash])} (slice hash "
+                              f"{manifest.hash}): give each source once")
+        seen[manifest.hash] = name
+        if manifest.episodes == 0:
+            raise ExportError(f"{shorten(name)}: nothing to export (no episodes)")
+        size = int(manifest.settings.get("resolution", 0))
+        if size <= 0 or size % 2:
+            raise ExportError(f"{shorten(name)}: video export needs an even image size, got {size}")
+        sizes.add(size)
+        if len(sizes) > 1:
+            raise ExportError(f"{shorten(name)}: its images are {size} px, the sources before it "
+                              f"{min(sizes - {size})} px: one export holds one image size")
+    units, episode, index = [], 0, 0
+    for k, reader in enumerate(readers):
+        for shard in reader.manifest.shards:
+            units.append(Unit(k, shard.first, episode, index, shard.end - shard.first, shard.frames))
+            episode += shard.end - shard.first
+            index += shard.frames
+    size = sizes.pop()
+    return ExportPlan(tuple(str(r.root) for r in readers), tuple(r.manifest.hash for r in readers), os.fspath(target),
+                      settings, tasks_of(readers), size, size, tuple(units))
+
+
 def export(
-    source: str | os.PathLike[str],
+    source: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     out: str | os.PathLike[str],
     settings: ExportSettings,
     *,
@@ -199,29 +234,25 @@ def export(
     overwrite: bool = False,
     progress: Callable[[str], None] | None = None,
 ) -> ExportReport:
-    """Export a built slice or run folder into ``out`` (see the module docstring):
-    ``workers`` processes (1: in this process), progress lines to ``progress``."""
+    """Export built slice or run folders (one, or a sequence) into ``out`` as one dataset
+    (see the module docstring): ``workers`` processes (1: in this process), progress
+    lines to ``progress``."""
     check_workers(workers, None)
     if is_remote(out):  # else a local folder named "s3:" would be made
         raise ExportError(f"--out {shorten(str(out))}: an export is written to a local folder (object-storage "
                           "outputs are not supported yet): export here, then copy it")
+    names = [os.fspath(source)] if isinstance(source, (str, os.PathLike)) else [os.fspath(s) for s in source]
+    if not names:
+        raise ExportError("nothing to export: give at least one source folder")
     start = time.perf_counter()
-    reader = open_folder(source, verify="sha256")
-    manifest = reader.manifest
-    if manifest.episodes == 0:
-        raise ExportError(f"{shorten(os.fspath(source))}: nothing to export (no episodes)")
+    readers = tuple(open_folder(name, verify="sha256") for name in names)
     target = Path(out)
     check_foreign(target)
-    height = width = int(manifest.settings.get("resolution", 0))
-    if height <= 0 or height % 2:
-        raise ExportError(f"{shorten(os.fspath(source))}: video export needs an even image size, got {height}")
-    firsts = np.concatenate([[0], np.cumsum([s.frames for s in manifest.shards])]).astype(int)
-    plan = ExportPlan(str(reader.root), os.fspath(target), settings, tasks_of(reader), height, width,
-                      {s.first: int(firsts[k]) for k, s in enumerate(manifest.shards)})
-    product = LeRobotProduct(reader, settings, plan, job_identity(reader, settings))
-    tasks = [ShardTask(manifest.slice, s.first, s.end) for s in manifest.shards]
+    plan = _plan(readers, names, target, settings)
+    product = LeRobotProduct(readers, settings, plan, job_identity(readers, settings))
+    tasks = [ShardTask(readers[u.source].manifest.slice, u.episode, u.episode + u.episodes) for u in plan.units]
     execution = Execution(0 if workers <= 1 else workers, None, progress)
     outcome = run_folder_job(LocalFolder(target), product, tasks, export_shard, plan, execution, overwrite=overwrite,
-                             verb="exported", key_prefix="export", total_frames=int(firsts[-1]))
+                             verb="exported", key_prefix="export", total_frames=sum(u.frames for u in plan.units))
     return ExportReport(target, outcome.result.episodes, outcome.result.frames, outcome.units_run,
                         outcome.units_resumed, outcome.up_to_date, time.perf_counter() - start)

@@ -35,7 +35,7 @@ def test_lerobot_dataset_loads_the_v21_export_item_for_item(tmp_path):
     build("circular-fast", tmp_path / "src", episodes=4, shard_size=2, resolution=96, workers=1, progress=False)
     source = tmp_path / "src" / "circular-fast"
     out = tmp_path / "export"
-    export(source, out, ExportSettings("lerobot-v2.1"))
+    export(source, out, ExportSettings("lerobot-v2.1", environment_state=True))  # every key keys="lerobot" gives
     npz = tmp_path / "items.npz"
     script = Path(__file__).with_name("lerobot_items.py")
     result = subprocess.run([LEROBOT_PYTHON, str(script), str(out), str(npz), "torchcodec"],

@@ -63,15 +63,21 @@ def _hf_rows(files: list[Path]) -> list[dict]:
     return list(loaded)
 
 
-def _check_rows(rows: list[dict], source: list[dict]) -> None:
+def _check_rows(rows: list[dict], source: list[dict], environment_state: bool = False,
+                episodes: list[int] | None = None) -> None:
     assert len(rows) == len(source)
     tasks = {}
     for k, (row, item) in enumerate(zip(rows, source)):
         state = np.concatenate([item["palm_pose"], item["joint_angles"]])
         np.testing.assert_array_equal(np.asarray(row["observation.state"], np.float32), state)
-        np.testing.assert_array_equal(np.asarray(row["observation.environment_state"], np.float32), item["object_pose"])
+        if environment_state:
+            np.testing.assert_array_equal(np.asarray(row["observation.environment_state"], np.float32),
+                                          item["object_pose"])
+        else:  # privileged: only on request
+            assert "observation.environment_state" not in row
         np.testing.assert_array_equal(np.asarray(row["action"], np.float32), item["action"])
-        assert row["frame_index"] == item["frame_index"] and row["episode_index"] == item["episode_index"]
+        episode = item["episode_index"] if episodes is None else episodes[k]
+        assert row["frame_index"] == item["frame_index"] and row["episode_index"] == episode
         assert row["index"] == k
         assert row["timestamp"] == pytest.approx(item["frame_index"] / 20, abs=1e-6)
         tasks.setdefault(item["text"], row["task_index"])
@@ -164,7 +170,7 @@ def test_an_export_is_the_same_bytes_again_and_its_manifest_hashes_every_file(bu
     assert first == second
     meta = json.loads(second["meta/dyana.json"])
     assert set(meta["files"]) == set(second) - {"meta/dyana.json", ".lock"}  # the folder lock is no part of it
-    assert meta["source"]["slice_hash"] == json.loads((built / "catalog.json").read_text())["hash"]
+    assert meta["sources"][0]["slice_hash"] == json.loads((built / "catalog.json").read_text())["hash"]
     assert meta["job"]["codec"]["encoder"] == "libx264" and meta["job"]["codec"]["pyav"]
 
 
@@ -251,7 +257,7 @@ def test_an_evaluated_run_exports_with_its_policy_and_statuses(tmp_path):
     assert [(e["dyana/policy"], e["dyana/status"]) for e in episodes] == [("chase", "ok")] * 3
     assert [e["dyana/motion_type"] for e in episodes] == ["linear", "linear", "linear"]
     meta = json.loads((out / "meta/dyana.json").read_text())
-    assert meta["source"]["extra"]["policy"] == "chase"
+    assert meta["sources"][0]["extra"]["policy"] == "chase"
     rows = _hf_rows(sorted((out / "data").rglob("*.parquet")))
     with catalog.open(run) as ds:
         assert len(rows) == len(ds)
