@@ -191,11 +191,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from pipeline.jobs.evaluate import evaluate
     from pipeline.jobs.repeats import evaluate_repeats
 
-    vlm = _policy_config(args)
+    config = _policy_config(args)
     protocol = _protocol(args)
-    if vlm is None:
+    if config is None:
         _importable_cwd(args.policy)
-    options = dict(deadline_s=args.deadline, isolate=not args.in_process, vlm=vlm, require_success=True,
+    options = dict(deadline_s=args.deadline, isolate=not args.in_process, config=config, require_success=True,
                    test_seed=cli.read_test_seed(args), **cli.job_options(args))
     if args.repeats != 1:
         evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)

@@ -75,7 +75,7 @@ class EvalSettings:
     privileged: bool
     deadline_s: float | None
     isolate: bool = True
-    #: The policy kind's configuration (a ``vlm:URL`` ref's), recorded in the manifest.
+    #: The policy kind's configuration (a ``vlm:URL`` ref's settings, a ``lerobot:PATH`` ref's device), recorded in the manifest.
     config: Config | None = None
     #: The evaluation protocol (latency, perturbation, repeat), in ``settings.protocol``.
     protocol: EvalProtocol = EvalProtocol()
@@ -291,7 +291,7 @@ def evaluate(
     stream: TextIO | None = None,
     overwrite: bool = False,
     isolate: bool = True,
-    vlm: dict[str, Any] | None = None,
+    config: dict[str, Any] | None = None,
     protocol: EvalProtocol | None = None,
     formats: str | tuple[str, ...] = ALL_FORMATS,
     require_success: bool = False,
@@ -305,9 +305,10 @@ def evaluate(
     and tests. A folder holding another run is refused unless ``overwrite``. A user's
     ``module:callable`` runs in a child process per worker (``isolate``; same bytes), so
     that its crash or exit fails only its episode. ``protocol`` (latency, perturbation,
-    repeat; :mod:`pipeline.loop.conditions`) is recorded in ``settings.protocol``. ``vlm``
-    holds the ``--model`` and ``--vlm-*`` settings of a ``vlm:URL`` policy (its kind's
-    configuration, :mod:`pipeline.policy_registry`); other kinds refuse it. With
+    repeat; :mod:`pipeline.loop.conditions`) is recorded in ``settings.protocol``. ``config``
+    is the policy kind's configuration (:mod:`pipeline.policy_registry`): a ``vlm:URL``
+    policy's ``--model`` and ``--vlm-*`` settings, a ``lerobot:PATH`` policy's device;
+    kinds that take none refuse it. With
     ``require_success``, a run in which every episode failed raises AllEpisodesFailed after
     it is written and summarised (the run is read once for both). ``test_seed`` (a secret)
     draws a held-out slice's episodes from it instead of the public seed
@@ -336,7 +337,7 @@ def evaluate(
     ranges = shard_ranges(total, shard_size)
     if not is_url(out):
         refuse_export_folder(as_location(out), "run")
-    config = kind.configure(policy_ref, vlm)
+    config = kind.configure(policy_ref, config)
     options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config)
     name, privileged = describe_policy(policy_ref, options)
     if kind.check is not None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run

@@ -37,7 +37,7 @@ def vlm_run(tmp_path_factory):
         out = tmp_path_factory.mktemp("vlm") / "run"
         evaluate(f"vlm:{url}", "test-1k", out, episodes=2, workers=0, resolution=RESOLUTION, shard_size=2,
                  progress=False, summary=False, stream=io.StringIO(),
-                 vlm={"model": "loopback-perception", "timeout_s": 10.0})
+                 config={"model": "loopback-perception", "timeout_s": 10.0})
     finally:
         server.terminate()
         server.wait(timeout=10)

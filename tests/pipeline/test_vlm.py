@@ -26,7 +26,7 @@ SECRET = "sk-dyana-test-secret-never-written"
 def _eval(url: str, out: Path, episodes: int = 2, **vlm) -> None:
     options = {"model": "loopback-perception", "timeout_s": 10.0, **vlm}
     evaluate(f"vlm:{url}", "test-1k", out, episodes=episodes, workers=1, resolution=RESOLUTION, shard_size=2,
-             progress=False, summary=False, stream=io.StringIO(), vlm=options)
+             progress=False, summary=False, stream=io.StringIO(), config=options)
 
 
 @pytest.mark.parametrize("content, expected", [

@@ -74,7 +74,7 @@ def test_a_bomb_fails_its_act_and_is_in_the_trail(serve, tmp_path):
 
     run = tmp_path / "run"
     evaluate(f"vlm:{serve('bomb')}", "test-1k", run, episodes=1, workers=0, resolution=64, shard_size=1,
-             progress=False, summary=False, stream=io.StringIO(), vlm={"model": "loopback-perception"})
+             progress=False, summary=False, stream=io.StringIO(), config={"model": "loopback-perception"})
     [record] = read_audit(run / "vlm")
     assert record["outcome"] == "http_error" and "reply too large" in record["detail"]
 
@@ -108,7 +108,7 @@ def test_a_long_answer_is_stored_as_a_prefix_with_its_size_and_hash_and_replays(
 
     run = tmp_path / "run"
     evaluate(f"vlm:{serve('long')}", "test-1k", run, episodes=1, workers=0, resolution=64, shard_size=1,
-             progress=False, summary=False, stream=io.StringIO(), vlm={"model": "loopback-perception"})
+             progress=False, summary=False, stream=io.StringIO(), config={"model": "loopback-perception"})
     [record] = read_audit(run / "vlm")
     reply = record["reply"]
     assert record["outcome"] == "parse_error" and "at most 65,536" in record["detail"]
