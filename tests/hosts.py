@@ -1,8 +1,10 @@
 """Separate hosts on one machine, for the multi-host tests: one network namespace per host
 (its own addresses and ports), joined by veth pairs to a bridge in a namespace of its own
 (nothing is added to the machine's own network), and a private mount namespace per process
-with a fresh tmpfs over ``/tmp`` holding its HOME and TMPDIR (so no two hosts share a
-disk: only the installed software is common, as on real machines).
+with a fresh tmpfs over the run's disk folder (:attr:`Hosts.disk`, a new empty folder, so it
+can hide nothing the processes need: the checkout and its venv may well lie under /tmp)
+holding its HOME and TMPDIR (so no two hosts share a disk: only the installed software is
+common, as on real machines).
 
 Everything is named with a random tag per run and removed by :meth:`Hosts.close`: every
 process in each namespace is killed (``ip netns pids``), then the namespaces go, and
@@ -16,6 +18,7 @@ import re
 import shutil
 import signal
 import subprocess
+import tempfile
 import time
 import uuid
 from dataclasses import dataclass
@@ -24,10 +27,11 @@ from pathlib import Path
 #: The private range used only inside the namespaces (never on the machine's interfaces).
 SUBNET = "10.213.7"
 
-#: Run in each process's new mount namespace: a private /tmp, HOME and TMPDIR inside it.
+#: Run in each process's new mount namespace (``$0``: the disk folder): a private tmpfs there,
+#: HOME and TMPDIR inside it.
 PRIVATE_DISK = (
-    'mount -t tmpfs -o size=2g,mode=1777 tmpfs /tmp && mkdir -p /tmp/home && cd /tmp/home && '
-    'HOME=/tmp/home TMPDIR=/tmp exec "$@"'
+    'mount -t tmpfs -o size=2g,mode=1777 tmpfs "$0" && mkdir -p "$0/home" && cd "$0/home" && '
+    'HOME="$0/home" TMPDIR="$0" exec "$@"'
 )
 
 
@@ -66,6 +70,8 @@ class Hosts:
         self.logs = logs
         self.hosts: dict[str, Host] = {}
         self.procs: list[subprocess.Popen] = []
+        #: Each process's private disk is a tmpfs mounted here in its own mount namespace.
+        self.disk = Path(tempfile.mkdtemp(prefix=f"{self.tag}-disk-"))
         _ip("netns", "add", self.bridge)
         _ip("-n", self.bridge, "link", "add", "br0", "type", "bridge")
         _ip("-n", self.bridge, "link", "set", "br0", "up")
@@ -85,7 +91,7 @@ class Hosts:
 
     def _argv(self, name: str, argv: list[str]) -> list[str]:
         return ["ip", "netns", "exec", self.hosts[name].netns, "unshare", "--mount", "--propagation", "private",
-                "sh", "-c", PRIVATE_DISK, "sh", *argv]
+                "sh", "-c", PRIVATE_DISK, str(self.disk), *argv]
 
     def start(self, name: str, argv: list[str], env: dict[str, str], log: str) -> subprocess.Popen:
         """Start ``argv`` on host ``name`` (output to ``logs/<log>``)."""
@@ -143,6 +149,7 @@ class Hosts:
         for netns in [host.netns for host in self.hosts.values()] + [self.bridge]:
             subprocess.run(["ip", "netns", "del", netns], capture_output=True)
         self.hosts.clear()
+        shutil.rmtree(self.disk, ignore_errors=True)
 
     def leftovers(self) -> list[str]:
         """Namespaces of this run still present (none after close())."""

@@ -1,5 +1,5 @@
 """Beyond one machine: a Dask cluster across hosts that share no filesystem, with object
-storage as the only common place (tests/hosts.py: a network namespace and a private /tmp
+storage as the only common place (tests/hosts.py: a network namespace and a private disk
 per host). Hosts: ``s3`` (moto's S3 server), ``sched`` (``dask scheduler``), ``wa`` and
 ``wb`` (``dask worker``, one single-threaded worker each), ``drv`` and ``drv2`` (drivers),
 ``pol`` (``pipeline serve``: a GPU box serving the policy to the CPU hosts that render).
@@ -121,10 +121,10 @@ class Cluster:
         return json.loads(listed.stdout)
 
     def private_tmp(self, name: str) -> list[Path]:
-        """What host ``name``'s own /tmp holds now (seen through one of its processes)."""
+        """What host ``name``'s own disk holds now (seen through one of its processes)."""
         for pid in self.hosts.pids(name):
             try:
-                return list(Path(f"/proc/{pid}/root/tmp").rglob("*"))
+                return list(Path(f"/proc/{pid}/root{self.hosts.disk}").rglob("*"))
             except OSError:
                 continue
         return []
@@ -178,7 +178,7 @@ def test_a_worker_host_killed_mid_shard_and_the_build_has_the_local_hash(cluster
 
 
 def _kill_driver_after_two_shards(cluster: Cluster, proc, prefix: str) -> list[str]:
-    """Kill host ``drv`` once its own state (in its private /tmp) records two shards; the
+    """Kill host ``drv`` once its own state (on its private disk) records two shards; the
     files of the shards the store's state then lists."""
     deadline = time.monotonic() + 240
     while True:
