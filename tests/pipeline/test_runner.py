@@ -98,15 +98,20 @@ def test_another_job_is_refused_naming_the_difference_and_nothing_is_lost(tmp_pa
     assert set(shard_names(tmp_path)) == listed
 
 
-def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):
-    def dies(task, payload, folder):
+def interrupt_at_the_second_shard(folder: Path) -> None:
+    """Run :func:`job` in ``folder`` until Ctrl-C (KeyboardInterrupt) stops it at its second shard."""
+    def dies(task, payload, sink):
         if task.first == 2:
             raise KeyboardInterrupt
-        return fake_shard(task, payload, folder)
+        return fake_shard(task, payload, sink)
 
     with pytest.raises(KeyboardInterrupt):
-        run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, job(tmp_path).tasks, dies, "a", with_stats=False),
+        run_job(Job(folder, "linear-fast", 1, {"resolution": 32}, {}, job(folder).tasks, dies, "a", with_stats=False),
                 workers=0, progress=False)
+
+
+def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):
+    interrupt_at_the_second_shard(tmp_path)
     assert (tmp_path / STATE_FILE).exists() and not (tmp_path / "catalog.json").exists()
     with pytest.raises(SpecError, match="unfinished run of another job"):
         run_job(job(tmp_path, episodes=2), workers=0, progress=False)
@@ -121,14 +126,7 @@ def test_a_run_resumed_under_other_library_versions_rebuilds_every_shard(tmp_pat
     from catalog.versions import installed_versions
     from pipeline.jobs import runner, state
 
-    def dies(task, payload, folder):
-        if task.first == 2:
-            raise KeyboardInterrupt
-        return fake_shard(task, payload, folder)
-
-    with pytest.raises(KeyboardInterrupt):
-        run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, job(tmp_path).tasks, dies, "a", with_stats=False),
-                workers=0, progress=False)
+    interrupt_at_the_second_shard(tmp_path)
     other = {**installed_versions(), "pyarrow": "0.0.1"}
     monkeypatch.setattr(state, "installed_versions", lambda: other)
     monkeypatch.setattr(runner, "installed_versions", lambda: other)
