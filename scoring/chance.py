@@ -10,8 +10,8 @@ episodes.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,16 +25,19 @@ CHANCE_LABEL = "chance (best blind)"
 @dataclass(frozen=True)
 class ChanceRow:
     """Per metric, the best blind value (None if no blind run has one) and the label of
-    the run that reached it; ``runs`` the blind runs' labels, ``episodes`` their episode count."""
+    the run that reached it; ``runs`` the blind runs' labels, ``episodes`` their episode count;
+    ``by_motion`` the same best values within each motion type (what the plot's bars mark)."""
 
     runs: tuple[str, ...]
     episodes: int
     metrics: dict[str, float | None]
     best_of: dict[str, str | None]
+    by_motion: dict[str, dict[str, float | None]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, object]:
         return {"label": CHANCE_LABEL, "runs": list(self.runs), "episodes": self.episodes,
-                "metrics": dict(self.metrics), "best_of": dict(self.best_of)}
+                "metrics": dict(self.metrics), "best_of": dict(self.best_of),
+                "by_motion": {group: dict(metrics) for group, metrics in self.by_motion.items()}}
 
 
 def chance_row(runs: Sequence[tuple[str, Summary]]) -> ChanceRow:
@@ -52,6 +55,20 @@ def chance_row(runs: Sequence[tuple[str, Summary]]) -> ChanceRow:
         value, label = pick(given, key=lambda pair: pair[0])
         metrics[name], best_of[name] = value, label
     return ChanceRow(tuple(label for label, _ in runs), runs[0][1].episodes, metrics, best_of)
+
+
+def chance_by_group(runs: Sequence[tuple[str, Mapping[str, Summary]]]) -> dict[str, dict[str, float | None]]:
+    """Per group of a breakdown (``(label, {group: summary})`` of each blind run), the best
+    value per metric over the runs that hold episodes of that group."""
+    groups: list[str] = []
+    for _, by_group in runs:
+        groups += [g for g in by_group if g not in groups]
+    out: dict[str, dict[str, float | None]] = {}
+    for group in groups:
+        held = [(label, by_group[group]) for label, by_group in runs if group in by_group and by_group[group].episodes]
+        if held:
+            out[group] = chance_row(held).metrics
+    return out
 
 
 def check_same_episodes(blind: Sequence[tuple[str, np.ndarray]], scored: Sequence[tuple[str, np.ndarray]]) -> None:

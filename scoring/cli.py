@@ -13,6 +13,7 @@ a run being read is refused.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from collections.abc import Sequence
@@ -21,7 +22,7 @@ from catalog.outputs import check_output, open_output
 from schemas import cli
 from schemas.errors import DyanaError
 from schemas.names import shorten
-from scoring.chance import ChanceRow, chance_row, check_same_episodes
+from scoring.chance import ChanceRow, chance_by_group, chance_row, check_same_episodes
 from scoring.episodes import check_episodes_path, write_episodes
 from scoring.io import RunData, load_run
 from scoring.metrics import DEFAULT_READING, READINGS
@@ -103,7 +104,9 @@ def chance_of(blind_runs: Sequence[str], scored: Sequence[RunReport], obstacle_c
     """The chance row of the blind runs, refused unless they hold the scored runs' episodes."""
     data = load_runs(blind_runs)
     check_same_episodes([(d.name, d.episode_id) for d in data], [(r.name, r.data.episode_id) for r in scored])
-    return chance_row([(r.label, r.overall) for r in score_all(data, obstacle_contact, reading)])
+    blind = score_all(data, obstacle_contact, reading)
+    row = chance_row([(r.label, r.overall) for r in blind])
+    return dataclasses.replace(row, by_motion=chance_by_group([(r.label, r.breakdowns["by_motion"]) for r in blind]))
 
 
 #: The output flags of ``scoring eval`` (attribute, flag).
@@ -167,7 +170,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         from scoring.plot import plot_runs
 
         try:
-            plot_runs(reports, args.plot, paper=args.paper)
+            plot_runs(reports, args.plot, paper=args.paper, chance=chance)
         except OSError as exc:
             raise DyanaError(f"{args.plot}: cannot write: {exc.strerror or exc}") from None
     return 0

@@ -8,6 +8,10 @@
 * bars of the three success rates per motion type with their Wilson intervals and a
   legend; a rate of 0 is drawn as a visible stub labelled 0, a group without
   episodes is labelled n/a.
+
+Given a chance row (``scoring eval --chance``), the radar shades the area blind play
+reaches and each motion type's bars carry a dashed line at its best blind rate: a run
+inside the shade, or a bar under its line, does not show that the model sees.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from catalog.outputs import open_output  # noqa: E402
+from scoring.chance import CHANCE_LABEL, ChanceRow  # noqa: E402
 from scoring.metrics import SUCCESS_RATE_NAMES  # noqa: E402
 from scoring.paper import PAPER_ROWS, paper_label  # noqa: E402
 from scoring.report import RunReport  # noqa: E402
@@ -44,6 +49,7 @@ COLOURS = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#F
 STYLES = ("-", "--", ":", "-.")
 MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
 PAPER_COLOURS = ("#444444", "#777777", "#999999", "#BBBBBB")
+CHANCE_COLOUR = "#9A9A9A"
 COLUMN_WIDTH_IN = 3.5
 FONT_PT = 7
 
@@ -89,9 +95,12 @@ def _series(reports: Sequence[RunReport], paper: bool) -> list[_Series]:
     return out
 
 
-def _radar(ax, series: Sequence[_Series]) -> None:
+def _radar(ax, series: Sequence[_Series], chance: ChanceRow | None = None) -> None:
     angles = np.linspace(0.0, 2.0 * np.pi, len(RADAR_METRICS), endpoint=False)
     closed = np.concatenate([angles, angles[:1]])
+    if chance is not None:
+        values = radar_values(chance.metrics)
+        ax.fill(closed, values + values[:1], color=CHANCE_COLOUR, alpha=0.35, linewidth=0.0, label=CHANCE_LABEL)
     for s in series:
         values = radar_values(s.metrics)
         ax.plot(closed, values + values[:1], color=s.colour, linestyle=s.style, linewidth=s.width,
@@ -112,7 +121,7 @@ def _radar(ax, series: Sequence[_Series]) -> None:
     ax.grid(linewidth=0.4)
 
 
-def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool) -> None:
+def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool, chance: ChanceRow | None = None) -> None:
     groups = list(reports[0].breakdowns["by_motion"])
     for report in reports[1:]:
         groups += [g for g in report.breakdowns["by_motion"] if g not in groups]
@@ -137,6 +146,10 @@ def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool) -> N
                 ax.text(centre, 3.0, "0", ha="center", va="bottom", fontsize=FONT_PT - 1, color=colour)
         ax.bar(centres, heights, width, yerr=[low, high], color=colour, capsize=1.5, label=report.label,
                error_kw={"linewidth": 0.6, "capthick": 0.6}, hatch=None, edgecolor="none")
+    marked = [(c, v) for c, g in zip(x, groups) if chance is not None and (v := chance.by_motion.get(g, {}).get(metric)) is not None]
+    for i, (centre, value) in enumerate(marked):
+        ax.plot([centre - 0.45, centre + 0.45], [value, value], color="black", linestyle=(0, (2, 1)),
+                linewidth=0.8, label=CHANCE_LABEL if i == 0 else None)
     ax.set_xticks(x)
     ax.set_xticklabels(groups if show_groups else [], fontsize=FONT_PT)
     ax.set_ylim(0.0, 112.0)
@@ -147,18 +160,24 @@ def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool) -> N
     ax.set_axisbelow(True)
 
 
-def plot_runs(reports: Sequence[RunReport], path: str | os.PathLike[str], paper: bool = False) -> None:
-    """Write the radar and the per-motion success bars of ``reports`` to a PNG (atomically)."""
+def plot_runs(
+    reports: Sequence[RunReport], path: str | os.PathLike[str], paper: bool = False, chance: ChanceRow | None = None
+) -> None:
+    """Write the radar and the per-motion success bars of ``reports`` to a PNG (atomically),
+    with ``chance`` shaded on the radar and marked on the bars."""
     if not reports:
         raise ValueError("nothing to plot: no runs")
     series = _series(reports, paper)
-    legend_rows = (len(series) + 1) // 2
-    heights = [3.0, 0.2 * legend_rows + 0.25, 1.05, 1.05, 1.05]
+    legend_rows = (len(series) + (chance is not None) + 1) // 2
+    bar_entries = len(reports) + (chance is not None and bool(chance.by_motion))
+    bar_rows = -(-bar_entries // min(bar_entries, 3))
+    # room for the radar's legend and, under it, the bars' title and legend
+    heights = [3.0, 0.2 * legend_rows + 0.12 * bar_rows + 0.15, 1.05, 1.05, 1.05]
     figure = plt.figure(figsize=(COLUMN_WIDTH_IN, sum(heights) + 0.5), dpi=300)
     try:
         grid = figure.add_gridspec(len(heights), 1, height_ratios=heights, hspace=0.35)
         radar = figure.add_subplot(grid[0, 0], projection="polar")
-        _radar(radar, series)
+        _radar(radar, series, chance)
         radar.set_title("All metrics, outward is better", fontsize=FONT_PT + 1, pad=22)
         legend_ax = figure.add_subplot(grid[1, 0])
         legend_ax.axis("off")
@@ -167,12 +186,10 @@ def plot_runs(reports: Sequence[RunReport], path: str | os.PathLike[str], paper:
                          handlelength=2.6, columnspacing=1.0)
         for k, metric in enumerate(SUCCESS_RATE_NAMES):
             ax = figure.add_subplot(grid[2 + k, 0])
-            _bars(ax, reports, metric, show_groups=k == len(SUCCESS_RATE_NAMES) - 1)
+            _bars(ax, reports, metric, show_groups=k == len(SUCCESS_RATE_NAMES) - 1, chance=chance)
             if k == 0:
-                columns = min(len(reports), 3)
-                rows = -(-len(reports) // columns)
-                ax.set_title("Success by motion type (95% Wilson intervals)", fontsize=FONT_PT + 1, pad=4 + 9 * rows)
-                ax.legend(fontsize=FONT_PT - 1, ncol=columns, frameon=False, loc="lower center",
+                ax.set_title("Success by motion type (95% Wilson intervals)", fontsize=FONT_PT + 1, pad=4 + 9 * bar_rows)
+                ax.legend(fontsize=FONT_PT - 1, ncol=min(bar_entries, 3), frameon=False, loc="lower center",
                           bbox_to_anchor=(0.5, 0.98), handlelength=1.2, columnspacing=0.8, borderaxespad=0.2)
         with open_output(path, "wb") as handle:
             figure.savefig(handle, format="png", metadata={"Software": None}, bbox_inches="tight")

@@ -8,8 +8,10 @@ Marked ``peer``: deselected by default, run by .ci/run (the venv build takes 90-
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +38,20 @@ SCRIPTS = Path(__file__).parent / "openpi_peer"
 POLICY = "predictive"
 
 
+@contextlib.contextmanager
+def served_openpi() -> Iterator[str]:
+    """`pipeline serve --protocol openpi` of POLICY for the block's duration; yields its URL and
+    checks that it stops cleanly (exit 0) when terminated."""
+    proc, url = start_server(POLICY, "--protocol", "openpi")
+    try:
+        yield url
+    finally:
+        proc.terminate()
+        assert proc.wait(timeout=20) == 0
+        proc.drain.join(timeout=10)
+        proc.stderr.close()
+
+
 @pytest.fixture(scope="module")
 def python() -> Path:
     return peer_python("openpi-client", VERSION, ALSO)
@@ -55,15 +71,9 @@ def test_openpi_client_drives_pipeline_serve(python, tmp_path):
         expected.append(action)
         obs = env.step(action[0])[0]
     (tmp_path / "requests.msgpack").write_bytes(openpi_wire.encode({"requests": requests}))
-    proc, url = start_server(POLICY, "--protocol", "openpi")
-    try:
+    with served_openpi() as url:
         ran = subprocess.run([str(python), str(SCRIPTS / "client.py"), url, str(tmp_path / "requests.msgpack"),
                               str(tmp_path / "out.msgpack")], capture_output=True, text=True, timeout=120)
-    finally:
-        proc.terminate()
-        assert proc.wait(timeout=20) == 0
-        proc.drain.join(timeout=10)
-        proc.stderr.close()
     assert ran.returncode == 0, ran.stderr
     out = openpi_wire.decode((tmp_path / "out.msgpack").read_bytes())
     assert out["metadata"]["policy"] == POLICY and out["metadata"]["keys"]["state"] == "observation/state"
@@ -97,15 +107,9 @@ def test_the_guides_openpi_client_snippet_runs_with_the_real_client(python, tmp_
     page = (Path(__file__).parents[2] / "docs" / "guides" / "openpi.md").read_text()
     block = page.split("<!-- docs-test: needs openpi_client -->\n```python\n", 1)[1].split("\n```", 1)[0]
     (tmp_path / "snippet.py").write_text(block)
-    proc, url = start_server(POLICY, "--protocol", "openpi")
-    try:
+    with served_openpi() as url:
         (tmp_path / "openpi.url").write_text(url + "\n")
         ran = subprocess.run([str(python), "snippet.py"], capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    finally:
-        proc.terminate()
-        assert proc.wait(timeout=20) == 0
-        proc.drain.join(timeout=10)
-        proc.stderr.close()
     assert ran.returncode == 0, ran.stderr
     assert ran.stdout.splitlines() == [
         "{'policy': 'predictive', 'action_horizon': 1, 'keys': {'image': 'observation/image', 'state': "

@@ -445,7 +445,25 @@ def test_chance_row_is_the_best_blind_value_per_metric(tmp_path, capsys, run):
     assert chance["metrics"]["S_loc"] == pytest.approx(100 / 3) and chance["best_of"]["S_loc"] == "blind-centre"
     assert chance["metrics"]["E_loc"] == pytest.approx((0.1 + 1.0 + 1.0) / 3, rel=1e-6)  # the lower
     assert chance["runs"] == ["blind-centre", "blind-sweep"]
+    # the same best values within each motion type that holds episodes (the plot's bar marks)
+    assert {group: by["S_loc"] for group, by in chance["by_motion"].items()} == {"linear": pytest.approx(100 / 3)}
     assert table.read_text().splitlines()[-1].startswith("chance (best blind)")
+
+
+def test_the_plot_shades_what_blind_play_reaches(tmp_path, capsys, run):
+    from PIL import Image
+
+    hit = write_run(tmp_path / "hit", [Ep(**GOOD), Ep(**MISS), Ep(**MISS)], policy="blind-centre")
+    plain, shaded = tmp_path / "plain.png", tmp_path / "chance.png"
+    assert run_main(capsys, "eval", str(run), "--plot", str(plain))[0] == 0
+    code, _, err = run_main(capsys, "eval", str(run), "--chance", str(hit), "--plot", str(shaded))
+    assert code == 0, err
+
+    def shade_pixels(path):  # the chance fill: #9A9A9A at 35% over white
+        rgb = np.asarray(Image.open(path).convert("RGB"), dtype=int)
+        return int((np.abs(rgb - 220).max(axis=2) <= 2).sum())
+
+    assert shade_pixels(shaded) > shade_pixels(plain) + 500
 
 
 def test_chance_runs_on_other_episodes_are_refused(tmp_path, capsys, run):
