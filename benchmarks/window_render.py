@@ -1,16 +1,14 @@
-"""Would drawing only a window around the moving bodies make TinyRenderer's draw cheaper,
-and would it give the same pixels as the full-viewport draw?
+"""How much cheaper is the ``window`` renderer's draw than the ``full`` one's, and how far
+are its frames from ``full``'s (dataset 4.0.0 against 3.0.0, :mod:`schemas.renderers`)?
 
 :meth:`generators.render.Renderer.render` draws each frame's moving bodies (hand and
-object) in a pybullet client of their own at the full viewport (``Renderer._draw``)
-and composites them over the static plate. Most of that draw's CPU time is
-per-pixel overhead (an empty client costs ~2.1 ms at 224 px), while the moving bodies
-cover ~11% of the image on average. The idea measured here: find the bodies' screen
-window *before* drawing, from bounds of their geometry projected with the view and
-projection matrices, and draw only that window with an off-centre projection matrix
-(rows 0 and 1 scaled and translated so that the window ``[c0, c1) x [r0, r1)`` of the
-full unmirrored image maps onto a ``(c1 - c0) x (r1 - r0)`` viewport; rows 2 and 3,
-the view matrix and the lights unchanged).
+object) in a pybullet client of their own and composites them over the static plate.
+``full`` draws them over the whole viewport (``Renderer._draw``); ``window`` first finds
+their screen window from boxes around their visual shapes and draws only that window with
+an off-centre projection (:mod:`generators.window`, ``Renderer.window``). Most of a full
+draw's CPU time is per-pixel overhead (an empty client costs ~2.1 ms at 224 px), while
+the moving bodies cover ~11% of the image on average. This script runs the production
+code of both (two renderers, ``kind="full"`` and ``kind="window"``) side by side.
 
 Two ways to find the window are compared:
 
@@ -20,7 +18,7 @@ Two ways to find the window are compared:
 - ``visual``: the 8 corners of an oriented box around each *visual* shape
   (``getVisualShapeData``, read once per scene), placed with the links' frames
   (``getLinkStates`` with forward kinematics, one call per body per frame), projected,
-  padded by ``--pad`` pixels. This is the window that is actually drawn.
+  padded by ``--pad`` pixels (the production window: ``generators.window.PAD``).
 
 Per frame, on real episodes of ``--slices`` (``slice_specs`` + ``episode``), two
 renderers hold the same scene: one draws the full viewport (``Renderer._draw``), the
@@ -32,21 +30,23 @@ other draws the window, so each client draws exactly once per frame, as in a bui
 2. misses: moving pixels of the full draw outside the window (each method);
 3. inside the window, the window draw against the full draw: pixels covered by one but
    not the other, pixels covered by both whose RGBA differs (fraction, max level
-   difference), depth values not bit-equal; and the composited frames (both draws
-   through ``Renderer._composite`` over the same plate) that differ.
+   difference), depth values not bit-equal; and the composited frames (each draw
+   through ``Renderer._composite`` over the same plate, as each renderer makes its frames)
+   that differ, with their largest level difference.
 
     python benchmarks/window_render.py [--episodes 8] [--slices circular-medium,...] [--pad 2]
 
 Prints a table per slice and overall, then one JSON line.
 
-Measured (benchmarks/results/window_render.txt, 16 episodes per slice, 3,063 frames):
-the window covers ~13% of the image and never missed a moving pixel; full draw 3.35
-ms, window 2.10 ms a frame (0.38 ms bounds + 1.72 ms draw, of which ~0.28 ms is the
-draw of an empty 80 px viewport: the rest is per-triangle work that a window does not
-remove), 1.6x (1.6-1.66x over two runs). Not pixel-identical: ~15% of covered depths are not bit-equal (the
-barycentric weights are computed from differently rounded screen coordinates), RGBA
-differs by up to 3 levels on ~0.008% of covered pixels, 4 pixels' coverage differs,
-and ~9% of composited frames differ from the full-viewport composite (0.09 px a frame).
+Measured (benchmarks/results/window_render.txt, 16 episodes per slice, 3,063 frames, load
+average ~9): the window covers ~13% of the image and never missed a moving pixel; full
+draw 3.98 ms, window 2.63 ms a frame (0.54 ms bounds + 2.10 ms draw; the rest is
+per-triangle work that a window does not remove), 1.5x (1.6x in the first measurement, at
+a lower load, with 3.35 and 2.10 ms). Not pixel-identical: ~15% of covered depths are not
+bit-equal (the barycentric weights are computed from differently rounded screen
+coordinates), RGBA differs by up to 3 levels on ~0.008% of covered pixels, 4 pixels'
+coverage differs, and 8.8% of composited frames differ from the full-viewport composite
+(280 pixels, 0.09 a frame: 276 by 1-3 levels, 4 silhouette pixels by up to 105).
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ def new_stats() -> dict:
         "frames episodes t_full t_bounds t_window_draw t_aabb window_px moving_px "
         "miss_frames_visual miss_px_visual miss_frames_aabb miss_px_aabb "
         "cover_only_full cover_only_window both_px rgba_diff_px max_level_diff depth_not_bit_equal "
-        "frames_any_diff composite_diff_frames composite_diff_px composite_max_level fallbacks"
+        "frames_any_diff composite_diff_frames composite_diff_px composite_max_level composite_px_over_3 fallbacks"
     ).split()
     return dict.fromkeys(keys, 0)
 
@@ -178,6 +178,7 @@ def run_slice(name: str, count: int, pad: int, res: int, stats: dict) -> None:
                 stats["composite_diff_px"] += d
                 stats["composite_diff_frames"] += d > 0
                 stats["composite_max_level"] = max(stats["composite_max_level"], int(level.max()))
+                stats["composite_px_over_3"] += int((level > 3).sum())
     finally:
         full.close()
         win.close()
@@ -214,6 +215,8 @@ def summary(s: dict, res: int) -> dict:
         "composite_diff_frames_frac": round(s["composite_diff_frames"] / n, 4),
         "composite_diff_px_per_frame": round(s["composite_diff_px"] / n, 2),
         "composite_max_level_diff": s["composite_max_level"],
+        "composite_diff_px": s["composite_diff_px"],
+        "composite_px_over_3_levels": s["composite_px_over_3"],
         "fallbacks": s["fallbacks"],
     }
 
@@ -252,6 +255,8 @@ def main() -> None:
         ("frames_any_diff_frac", "frames≠"),
         ("composite_diff_frames_frac", "comp≠"),
         ("composite_max_level_diff", "compLvl"),
+        ("composite_diff_px", "compPx"),
+        ("composite_px_over_3_levels", "comp>3"),
     ]
     load = f"load average (1, 5, 15 min) {' '.join(f'{v:.2f}' for v in load_start)} at the start, " \
         f"{' '.join(f'{v:.2f}' for v in os.getloadavg())} at the end"
@@ -264,7 +269,7 @@ def main() -> None:
         "pixels outside the visual-bounds window (missAABB: getAABB window); onlyFull, onlyWin = pixels "
         "covered by only the full or only the window draw; rgba≠, depth≠ = fraction of pixels covered by both that differ (depth: not "
         "bit-equal); frames≠ = frames with any difference; comp≠ = frames whose composited RGB differs "
-        "(compLvl: its largest level difference)"
+        "(compLvl: the largest level difference; compPx: pixels that differ; comp>3: of them, by more than 3 levels)"
     )
     print(json.dumps({"resolution": a.resolution, "pad": a.pad, "episodes_per_slice": a.episodes, "load": load,
                       **{k: v for k, v in rows.items()}}))

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -64,6 +65,13 @@ def _rotation(quat) -> np.ndarray:
     )
 
 
+def _affine(m: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``points @ m.T + t`` for (n, 3) points, in a fixed order of IEEE operations: no BLAS, whose
+    kernels (and fused multiply-adds) vary with the CPU, so the result is the same on every host."""
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    return np.stack([m[i, 0] * x + m[i, 1] * y + m[i, 2] * z + t[i] for i in range(m.shape[0])], axis=-1)
+
+
 @dataclass(frozen=True)
 class ShapeBoxes:
     """Corners of a box around every visual shape of some bodies, in their links' frames."""
@@ -84,7 +92,7 @@ def shape_boxes(client: int, bodies: tuple[int, ...]) -> ShapeBoxes | None:
             link, half = shape[1], _half_extents(shape[2], shape[3])
             if half is None:
                 return None
-            shapes.append((link, (_CUBE * half) @ _rotation(shape[6]).T + np.asarray(shape[5], dtype=np.float64)))
+            shapes.append((link, _affine(_rotation(shape[6]), np.asarray(shape[5], dtype=np.float64), _CUBE * half)))
         links = tuple(sorted({link for link, _ in shapes if link >= 0}))
         row = {link: frames + i for i, link in enumerate((-1, *links))}
         for link, local in shapes:
@@ -110,10 +118,15 @@ def world_corners(boxes: ShapeBoxes) -> np.ndarray:
                 orientations.append(state[1])
     q = np.asarray(orientations, dtype=np.float64)[boxes.frame]
     t = np.asarray(positions, dtype=np.float64)[boxes.frame]
-    v = boxes.corners
-    # v rotated by q: v + w u + q x u, with u = 2 q x v
-    u = 2.0 * np.cross(q[:, :3], v)
-    return v + q[:, 3:4] * u + np.cross(q[:, :3], u) + t
+    # v rotated by q: v + w u + q x u, with u = 2 q x v (written out: np.cross costs more on small arrays)
+    qx, qy, qz, qw = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    vx, vy, vz = boxes.corners[:, 0], boxes.corners[:, 1], boxes.corners[:, 2]
+    ux, uy, uz = 2.0 * (qy * vz - qz * vy), 2.0 * (qz * vx - qx * vz), 2.0 * (qx * vy - qy * vx)
+    out = np.empty_like(t)
+    out[:, 0] = vx + qw * ux + (qy * uz - qz * uy) + t[:, 0]
+    out[:, 1] = vy + qw * uy + (qz * ux - qx * uz) + t[:, 1]
+    out[:, 2] = vz + qw * uz + (qx * uy - qy * ux) + t[:, 2]
+    return out
 
 
 @dataclass(frozen=True)
@@ -125,22 +138,29 @@ class WindowCamera:
     height: int
     pad: int = PAD
 
-    @property
+    @cached_property
     def projection_rows(self) -> np.ndarray:
+        """The camera's 4x4 projection matrix (row-major)."""
         return projection_matrix(self.width / self.height)
+
+    @cached_property
+    def clip_matrix(self) -> np.ndarray:
+        """World -> clip coordinates: projection times view (summed in a fixed order, see :func:`_affine`)."""
+        a, b = self.projection_rows, view_matrix()
+        return np.array([[sum(float(a[i, k]) * float(b[k, j]) for k in range(4)) for j in range(4)] for i in range(4)])
 
     def window(self, points: np.ndarray) -> Window | None:
         """The padded window holding every point's projection, clipped to the image; the
         whole image when a point is not in front of the camera; None when it is empty."""
         w, h, pad = self.width, self.height, self.pad
-        clip_matrix = self.projection_rows @ view_matrix()
-        clip = points @ clip_matrix[:, :3].T + clip_matrix[:, 3]
-        cw = clip[:, 3]
+        m = self.clip_matrix
+        px, py, pz = points[:, 0], points[:, 1], points[:, 2]
+        cw = m[3, 0] * px + m[3, 1] * py + m[3, 2] * pz + m[3, 3]  # as _affine, rows 0, 1 and 3 only
         if np.any(cw <= MIN_CLIP_W):
             return 0, h, 0, w
         # TinyRenderer samples pixel P at screen (w/2 (ndc_x + 1), h/2 (ndc_y + 1)); image row h - 1 - P.y
-        x = 0.5 * w * (clip[:, 0] / cw + 1.0)
-        y = 0.5 * h * (clip[:, 1] / cw + 1.0)
+        x = 0.5 * w * ((m[0, 0] * px + m[0, 1] * py + m[0, 2] * pz + m[0, 3]) / cw + 1.0)
+        y = 0.5 * h * ((m[1, 0] * px + m[1, 1] * py + m[1, 2] * pz + m[1, 3]) / cw + 1.0)
         c0 = max(0, math.floor(float(x.min())) - pad)
         c1 = min(w, math.ceil(float(x.max())) + 1 + pad)
         r0 = max(0, h - 1 - math.ceil(float(y.max())) - pad)
