@@ -1,16 +1,14 @@
-"""Would drawing only a window around the moving bodies make TinyRenderer's draw cheaper,
-and would it give the same pixels as the full-viewport draw?
+"""How much cheaper is the ``window`` renderer's draw than the ``full`` one's, and how far
+are its frames from ``full``'s (dataset 4.0.0 against 3.0.0, :mod:`schemas.renderers`)?
 
 :meth:`generators.render.Renderer.render` draws each frame's moving bodies (hand and
-object) in a pybullet client of their own at the full viewport (``Renderer._draw``)
-and composites them over the static plate. Most of that draw's CPU time is
-per-pixel overhead (an empty client costs ~2.1 ms at 224 px), while the moving bodies
-cover ~11% of the image on average. The idea measured here: find the bodies' screen
-window *before* drawing, from bounds of their geometry projected with the view and
-projection matrices, and draw only that window with an off-centre projection matrix
-(rows 0 and 1 scaled and translated so that the window ``[c0, c1) x [r0, r1)`` of the
-full unmirrored image maps onto a ``(c1 - c0) x (r1 - r0)`` viewport; rows 2 and 3,
-the view matrix and the lights unchanged).
+object) in a pybullet client of their own and composites them over the static plate.
+``full`` draws them over the whole viewport (``Renderer._draw``); ``window`` first finds
+their screen window from boxes around their visual shapes and draws only that window with
+an off-centre projection (:mod:`generators.window`, ``Renderer.window``). Most of a full
+draw's CPU time is per-pixel overhead (an empty client costs ~2.1 ms at 224 px), while
+the moving bodies cover ~11% of the image on average. This script runs the production
+code of both (two renderers, ``kind="full"`` and ``kind="window"``) side by side.
 
 Two ways to find the window are compared:
 
@@ -20,7 +18,7 @@ Two ways to find the window are compared:
 - ``visual``: the 8 corners of an oriented box around each *visual* shape
   (``getVisualShapeData``, read once per scene), placed with the links' frames
   (``getLinkStates`` with forward kinematics, one call per body per frame), projected,
-  padded by ``--pad`` pixels. This is the window that is actually drawn.
+  padded by ``--pad`` pixels (the production window: ``generators.window.PAD``).
 
 Per frame, on real episodes of ``--slices`` (``slice_specs`` + ``episode``), two
 renderers hold the same scene: one draws the full viewport (``Renderer._draw``), the
@@ -32,116 +30,42 @@ other draws the window, so each client draws exactly once per frame, as in a bui
 2. misses: moving pixels of the full draw outside the window (each method);
 3. inside the window, the window draw against the full draw: pixels covered by one but
    not the other, pixels covered by both whose RGBA differs (fraction, max level
-   difference), depth values not bit-equal; and the composited frames (both draws
-   through ``Renderer._composite`` over the same plate) that differ.
+   difference), depth values not bit-equal; and the composited frames (each draw
+   through ``Renderer._composite`` over the same plate, as each renderer makes its frames)
+   that differ, with their largest level difference.
 
     python benchmarks/window_render.py [--episodes 8] [--slices circular-medium,...] [--pad 2]
 
 Prints a table per slice and overall, then one JSON line.
 
-Measured (benchmarks/results/window_render.txt, 16 episodes per slice, 3,063 frames):
-the window covers ~13% of the image and never missed a moving pixel; full draw 3.35
-ms, window 2.10 ms a frame (0.38 ms bounds + 1.72 ms draw, of which ~0.28 ms is the
-draw of an empty 80 px viewport: the rest is per-triangle work that a window does not
-remove), 1.6x (1.6-1.66x over two runs). Not pixel-identical: ~15% of covered depths are not bit-equal (the
-barycentric weights are computed from differently rounded screen coordinates), RGBA
-differs by up to 3 levels on ~0.008% of covered pixels, 4 pixels' coverage differs,
-and ~9% of composited frames differ from the full-viewport composite (0.09 px a frame).
+Measured (benchmarks/results/window_render.txt, 16 episodes per slice, 3,063 frames, load
+average ~9): the window covers ~13% of the image and never missed a moving pixel; full
+draw 3.98 ms, window 2.63 ms a frame (0.54 ms bounds + 2.10 ms draw; the rest is
+per-triangle work that a window does not remove), 1.5x (1.6x in the first measurement, at
+a lower load, with 3.35 and 2.10 ms). Not pixel-identical: ~15% of covered depths are not
+bit-equal (the barycentric weights are computed from differently rounded screen
+coordinates), RGBA differs by up to 3 levels on ~0.008% of covered pixels, 4 pixels'
+coverage differs, and 8.8% of composited frames differ from the full-viewport composite
+(280 pixels, 0.09 a frame: 276 by 1-3 levels, 4 silhouette pixels by up to 105).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
+import os
 import time
 
 import numpy as np
 
 from generators.bullet import p
-from generators.camera import projection_matrix, view_matrix
 from generators.recipe import slice_specs
-from generators.render import (
-    Renderer,
-)
+from generators.render import Renderer
+from generators.window import PAD, WindowCamera, world_corners
 from pipeline.stages.episode import episode
 
 SLICES = ("circular-medium", "linear-fast", "harmonic-slow")
 _CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
-
-
-def _rotations(quats: np.ndarray) -> np.ndarray:
-    """(n, 4) quaternions (x, y, z, w) -> (n, 3, 3) rotation matrices."""
-    x, y, z, w = quats.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        1,
-    )
-
-
-class VisualBounds:
-    """Corners of an oriented box around every visual shape of some bodies, in the frames
-    of their links (read once per scene), placed in the world per frame."""
-
-    def __init__(self, client: int, bodies):
-        self.client = client
-        self.bodies = []  # (body, moving link indices)
-        index, corners, frames = [], [], 0
-        for body in bodies:
-            shapes = []
-            for shape in p.getVisualShapeData(body, physicsClientId=client):
-                link, geom, dims, pos, orn = shape[1], shape[2], shape[3], shape[5], shape[6]
-                if geom == p.GEOM_SPHERE:
-                    half = np.full(3, dims[0])
-                elif geom == p.GEOM_BOX:  # reported as full extents
-                    half = 0.5 * np.asarray(dims[:3])
-                elif geom == p.GEOM_CYLINDER:  # (length, radius), axis local Z
-                    half = np.array([dims[1], dims[1], 0.5 * dims[0]])
-                elif geom == p.GEOM_CAPSULE:
-                    half = np.array([dims[1], dims[1], 0.5 * dims[0] + dims[1]])
-                else:
-                    raise ValueError(f"no bounds for geometry type {geom}")
-                local = (_CUBE * half) @ _rotations(np.asarray([orn], dtype=np.float64))[0].T + np.asarray(pos)
-                shapes.append((link, local))
-            links = sorted({link for link, _ in shapes if link >= 0})
-            row = {k: frames + i for i, k in enumerate([-1] + links)}  # frames: base, then links in order
-            for link, local in shapes:
-                index.append(row[link])
-                corners.append(local)
-            self.bodies.append((body, links))
-            frames += 1 + len(links)
-        self.index = np.repeat(np.asarray(index), 8)
-        self.corners = np.concatenate(corners)  # (shapes * 8, 3) in the link frames
-
-    def world(self) -> np.ndarray:
-        """(shapes * 8, 3) world corners for the bodies' current poses: v + 2w (q x v) + 2 q x (q x v) + t."""
-        c = self.client
-        positions, orientations = [], []
-        for body, links in self.bodies:
-            pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=c)
-            positions.append(pos)
-            orientations.append(orn)
-            if links:
-                for state in p.getLinkStates(body, links, computeForwardKinematics=1, physicsClientId=c):
-                    positions.append(state[0])
-                    orientations.append(state[1])
-        q = np.asarray(orientations, dtype=np.float64)[self.index]
-        t = np.asarray(positions, dtype=np.float64)[self.index]
-        v = self.corners
-        qx, qy, qz, qw = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-        vx, vy, vz = v[:, 0], v[:, 1], v[:, 2]
-        ux = 2 * (qy * vz - qz * vy)
-        uy = 2 * (qz * vx - qx * vz)
-        uz = 2 * (qx * vy - qy * vx)
-        out = np.empty_like(v)
-        out[:, 0] = vx + qw * ux + (qy * uz - qz * uy) + t[:, 0]
-        out[:, 1] = vy + qw * uy + (qz * ux - qx * uz) + t[:, 1]
-        out[:, 2] = vz + qw * uz + (qx * uy - qy * ux) + t[:, 2]
-        return out
 
 
 def aabb_corners(client: int, bodies) -> np.ndarray:
@@ -154,48 +78,6 @@ def aabb_corners(client: int, bodies) -> np.ndarray:
     b = np.asarray(boxes, dtype=np.float64)  # (n, 2, 3)
     sel = (_CUBE > 0).astype(np.intp)  # (8, 3): 0 -> lo, 1 -> hi
     return b[:, sel, np.arange(3)].reshape(-1, 3)
-
-
-class Window:
-    """The screen window of world points and the off-centre projection that draws it."""
-
-    def __init__(self, width: int, height: int, pad: int):
-        self.w, self.h, self.pad = width, height, pad
-        self.clip = projection_matrix(width / height) @ view_matrix()  # world -> clip
-        self.proj = projection_matrix(width / height)
-
-    def of(self, points: np.ndarray) -> tuple[int, int, int, int] | None:
-        """(r0, r1, c0, c1) of the unmirrored image holding every point's projection, padded;
-        the whole image if a point is not in front of the near plane; None if empty."""
-        W, H, pad = self.w, self.h, self.pad
-        clip = points @ self.clip[:, :3].T + self.clip[:, 3]
-        cw = clip[:, 3]
-        if np.any(cw <= 1e-6):
-            return 0, H, 0, W
-        # TinyRenderer samples pixel P at screen (P.x, P.y) = (w/2 (ndc_x + 1), h/2 (ndc_y + 1)), image row H-1-P.y
-        x = 0.5 * W * (clip[:, 0] / cw + 1.0)
-        y = 0.5 * H * (clip[:, 1] / cw + 1.0)
-        c0 = max(0, math.floor(x.min()) - pad)
-        c1 = min(W, math.ceil(x.max()) + 1 + pad)
-        r0 = max(0, H - 1 - math.ceil(y.max()) - pad)
-        r1 = min(H, H - math.floor(y.min()) + pad)
-        if c0 >= c1 or r0 >= r1:
-            return None
-        return r0, r1, c0, c1
-
-    def projection(self, r0: int, r1: int, c0: int, c1: int) -> list[float]:
-        """pybullet's flat projection matrix mapping the window onto a (c1-c0) x (r1-r0) viewport."""
-        W, H = self.w, self.h
-        w, h, y0 = c1 - c0, r1 - r0, H - r1
-        m = self.proj.copy()
-        m[0] = (W / w) * self.proj[0] + ((W - 2.0 * c0) / w - 1.0) * self.proj[3]
-        m[1] = (H / h) * self.proj[1] + ((H - 2.0 * y0) / h - 1.0) * self.proj[3]
-        return m.T.reshape(-1).tolist()
-
-
-def draw_window(r: Renderer, proj: list[float], w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
-    """``Renderer._draw`` with another projection and viewport size."""
-    return r._draw(r._client, proj, w, h)
 
 
 def outside(mask: np.ndarray, win) -> int:
@@ -211,21 +93,21 @@ def new_stats() -> dict:
         "frames episodes t_full t_bounds t_window_draw t_aabb window_px moving_px "
         "miss_frames_visual miss_px_visual miss_frames_aabb miss_px_aabb "
         "cover_only_full cover_only_window both_px rgba_diff_px max_level_diff depth_not_bit_equal "
-        "frames_any_diff composite_diff_frames composite_diff_px fallbacks"
+        "frames_any_diff composite_diff_frames composite_diff_px composite_max_level composite_px_over_3 fallbacks"
     ).split()
     return dict.fromkeys(keys, 0)
 
 
 def run_slice(name: str, count: int, pad: int, res: int, stats: dict) -> None:
-    full, win = Renderer(res), Renderer(res)
-    window = Window(res, res, pad)
+    full, win = Renderer(res, kind="full"), Renderer(res, kind="window")
+    # the production window (generators.window), with this run's padding
+    camera = WindowCamera(res, res, pad)
     try:
         for spec in slice_specs(name, count):
             frames = episode(spec)
             for r in (full, win):
                 r.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
-            bodies = [b for b in (win._hand, win._object) if b is not None]
-            bounds = VisualBounds(win._client, [b.body for b in bodies])
+            bodies = [b.body for b in (win._hand, win._object) if b is not None]
             stats["episodes"] += 1
             for i in range(frames.num_frames):
                 args = (frames.object_pose[i], frames.palm_pose[i], frames.joint_angles[i])
@@ -240,16 +122,16 @@ def run_slice(name: str, count: int, pad: int, res: int, stats: dict) -> None:
                         stats["t_full"] += time.thread_time() - t
                     else:
                         t = time.thread_time()
-                        wv = window.of(bounds.world())
+                        wv = win.window() if pad == PAD else camera.window(world_corners(win._boxes))
                         t1 = time.thread_time()
                         if wv is not None:
                             r0, r1, c0, c1 = wv
-                            rgba_w, depth_w = draw_window(win, window.projection(*wv), c1 - c0, r1 - r0)
+                            rgba_w, depth_w = win._draw(win._client, camera.projection(wv), c1 - c0, r1 - r0)
                         t2 = time.thread_time()
                         stats["t_bounds"] += t1 - t
                         stats["t_window_draw"] += t2 - t1
                 t = time.thread_time()
-                wa = window.of(aabb_corners(win._client, [b.body for b in bodies]))
+                wa = camera.window(aabb_corners(win._client, bodies))
                 stats["t_aabb"] += time.thread_time() - t
                 stats["frames"] += 1
 
@@ -261,7 +143,7 @@ def run_slice(name: str, count: int, pad: int, res: int, stats: dict) -> None:
                     stats[f"miss_frames_{key}"] += miss > 0
 
                 # the window draw placed into an empty full frame
-                # (outside the window only the depth matters: nothing there is compared or composited)
+                # (outside the window only the depth matters: nothing there is compared)
                 rgba_p = np.zeros_like(rgba_f)
                 depth_p = np.full_like(depth_f, np.float32(win._empty_depth))
                 if wv is not None:
@@ -286,13 +168,17 @@ def run_slice(name: str, count: int, pad: int, res: int, stats: dict) -> None:
                     stats["max_level_diff"] = max(stats["max_level_diff"], int(diff[both].max()))
                 stats["frames_any_diff"] += (only_f + only_w + rgba_diff + depth_diff) > 0
 
+                # the composited frames, as each renderer kind makes them (Renderer._composite)
                 fb = full.fallbacks + win.fallbacks
                 a = full._composite(rgba_f, depth_f, False)
-                b = win._composite(rgba_p, depth_p, False)
+                b = win._composite(rgba_w, depth_w, False, r0, c0) if wv is not None else win._plate_rgb
                 stats["fallbacks"] += full.fallbacks + win.fallbacks - fb
-                d = int((a != b).any(axis=-1).sum())
+                level = np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=-1)
+                d = int((level > 0).sum())
                 stats["composite_diff_px"] += d
                 stats["composite_diff_frames"] += d > 0
+                stats["composite_max_level"] = max(stats["composite_max_level"], int(level.max()))
+                stats["composite_px_over_3"] += int((level > 3).sum())
     finally:
         full.close()
         win.close()
@@ -328,6 +214,9 @@ def summary(s: dict, res: int) -> dict:
         "frames_any_diff_frac": round(s["frames_any_diff"] / n, 4),
         "composite_diff_frames_frac": round(s["composite_diff_frames"] / n, 4),
         "composite_diff_px_per_frame": round(s["composite_diff_px"] / n, 2),
+        "composite_max_level_diff": s["composite_max_level"],
+        "composite_diff_px": s["composite_diff_px"],
+        "composite_px_over_3_levels": s["composite_px_over_3"],
         "fallbacks": s["fallbacks"],
     }
 
@@ -336,9 +225,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=8, help="episodes per slice")
     ap.add_argument("--slices", default=",".join(SLICES))
-    ap.add_argument("--pad", type=int, default=2, help="pixels added around the projected bounds")
+    ap.add_argument("--pad", type=int, default=PAD, help=f"pixels added around the projected bounds (production: {PAD})")
     ap.add_argument("--resolution", type=int, default=224)
     a = ap.parse_args()
+    load_start = os.getloadavg()
     total = new_stats()
     rows = {}
     for name in a.slices.split(","):
@@ -346,7 +236,7 @@ def main() -> None:
         run_slice(name, a.episodes, a.pad, a.resolution, s)
         rows[name] = summary(s, a.resolution)
         for k, v in s.items():
-            total[k] = max(total[k], v) if k == "max_level_diff" else total[k] + v
+            total[k] = max(total[k], v) if k in ("max_level_diff", "composite_max_level") else total[k] + v
     rows["all"] = summary(total, a.resolution)
     cols = [
         ("frames", "frames"),
@@ -364,8 +254,13 @@ def main() -> None:
         ("depth_not_bit_equal_frac", "depth≠"),
         ("frames_any_diff_frac", "frames≠"),
         ("composite_diff_frames_frac", "comp≠"),
+        ("composite_max_level_diff", "compLvl"),
+        ("composite_diff_px", "compPx"),
+        ("composite_px_over_3_levels", "comp>3"),
     ]
-    print(f"resolution {a.resolution}, pad {a.pad}, {a.episodes} episodes per slice; CPU ms per frame (thread_time)")
+    load = f"load average (1, 5, 15 min) {' '.join(f'{v:.2f}' for v in load_start)} at the start, " \
+        f"{' '.join(f'{v:.2f}' for v in os.getloadavg())} at the end"
+    print(f"resolution {a.resolution}, pad {a.pad}, {a.episodes} episodes per slice; CPU ms per frame (thread_time); {load}")
     print(f"{'slice':16s}" + "".join(f"{h:>10s}" for _, h in cols))
     for name, row in rows.items():
         print(f"{name:16s}" + "".join(f"{str(row[k]):>10s}" for k, _ in cols))
@@ -373,9 +268,11 @@ def main() -> None:
         "columns: win ms = visual bounds + window draw; area = window / image; miss = frames with moving "
         "pixels outside the visual-bounds window (missAABB: getAABB window); onlyFull, onlyWin = pixels "
         "covered by only the full or only the window draw; rgba≠, depth≠ = fraction of pixels covered by both that differ (depth: not "
-        "bit-equal); frames≠ = frames with any difference; comp≠ = frames whose composited RGB differs"
+        "bit-equal); frames≠ = frames with any difference; comp≠ = frames whose composited RGB differs "
+        "(compLvl: the largest level difference; compPx: pixels that differ; comp>3: of them, by more than 3 levels)"
     )
-    print(json.dumps({"resolution": a.resolution, "pad": a.pad, "episodes_per_slice": a.episodes, **{k: v for k, v in rows.items()}}))
+    print(json.dumps({"resolution": a.resolution, "pad": a.pad, "episodes_per_slice": a.episodes, "load": load,
+                      **{k: v for k, v in rows.items()}}))
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.storage import as_location, is_remote
 from catalog.versions import installed_versions, version_differences
 from schemas.errors import ShardError
-from schemas.versions import DATASET_VERSION, READABLE_DATASET_VERSIONS
+from schemas.renderers import renderer_of
+from schemas.versions import READABLE_DATASET_VERSIONS, REBUILDABLE_DATASET_VERSIONS
 
 #: The folder kinds: a built slice (ground truth) or a policy's evaluated rollouts.
 KINDS = ("slice", "rollouts")
@@ -30,22 +31,25 @@ class Rebuild:
 
 
 def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | None = None) -> Rebuild:
-    """Only the dataset version this code writes is rebuilt byte for byte (an older one is
+    """Only the dataset versions this code writes are rebuilt byte for byte (4.0.0 with the
+    ``window`` renderer, 3.0.0 with ``full``: :mod:`schemas.renderers`; an older one is
     read, scored and exported); a real-time run depends on the machine's timing; and the
     bytes are the same only with the library versions the folder records
     (:func:`catalog.versions.version_differences` against ``installed``, default this
     installation's)."""
     version = manifest.settings.get("dataset_version")
-    if version != DATASET_VERSION:
+    renderer = renderer_of(version)
+    if renderer is None:
         readable = "readable, not re-executable" if version in READABLE_DATASET_VERSIONS else (
             f"not readable either (this code reads dataset {', '.join(READABLE_DATASET_VERSIONS)})")
         commit = manifest.code.commit
         where = f"; check out commit {commit} to rebuild it" if commit else ""
-        return Rebuild(False, f"written by dataset {version}; this code writes {DATASET_VERSION}: {readable}{where}")
+        writes = " and ".join(REBUILDABLE_DATASET_VERSIONS)
+        return Rebuild(False, f"written by dataset {version}; this code writes {writes}: {readable}{where}")
     protocol = manifest.settings.get("protocol")
     if isinstance(protocol, Mapping) and protocol.get("realtime"):
         return Rebuild(False, "a real-time run (settings.protocol.realtime) depends on the machine's timing")
-    same = f"this code writes dataset {DATASET_VERSION}, as the folder records"
+    same = f"this code writes dataset {version} (--renderer {renderer}), as the folder records"
     if manifest.versions is None:
         return Rebuild(True, f"{same} (it records no library versions: written before Dyana recorded them)")
     differ = version_differences(manifest.versions, installed_versions() if installed is None else installed)

@@ -38,6 +38,7 @@ def _build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=cli.output_path, default="out", help="output folder; the slice goes to OUT/<slice>/ (default: out)")
     cli.add_workers(p)
     cli.add_resolution(p)
+    cli.add_renderer(p)
     cli.add_shard_size(p, 128)
     cli.add_formats(p)
     p.add_argument("--specs", help="build the episodes of a JSONL file of EpisodeSpecs instead of the recipe")
@@ -101,6 +102,7 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
         "decides a result; a 300 s watchdog still fails a call that hangs)",
     )
     cli.add_resolution(p)
+    cli.add_renderer(p)
     cli.add_shard_size(p, 32)
     cli.add_formats(p)
     p.add_argument(

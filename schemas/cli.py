@@ -37,6 +37,7 @@ from typing import Any
 
 from schemas.errors import AllEpisodesFailed, DyanaError, ReplayMismatch, SpecError
 from schemas.names import printable, shorten
+from schemas.renderers import DEFAULT_RENDERER, RENDERER_VERSIONS, RENDERERS
 from schemas.storage_faults import describe_storage_fault, is_storage_fault
 from schemas.versions import CODE_VERSION, DATASET_VERSION
 
@@ -135,6 +136,16 @@ def add_workers(parser: argparse.ArgumentParser) -> None:
 
 def add_resolution(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resolution", type=positive_int, default=224, help="image side in pixels (default: 224)")
+
+
+def add_renderer(parser: argparse.ArgumentParser) -> None:
+    """``--renderer``: how frames are drawn, which decides the dataset version (:mod:`schemas.renderers`)."""
+    parser.add_argument(
+        "--renderer", choices=RENDERERS, default=DEFAULT_RENDERER,
+        help=f"window: draw only the window around the hand and object (default; dataset "
+        f"{RENDERER_VERSIONS['window']}); full: the whole viewport (dataset {RENDERER_VERSIONS['full']}, "
+        "its bytes exactly)",
+    )
 
 
 def add_shard_size(parser: argparse.ArgumentParser, default: int) -> None:
@@ -302,6 +313,7 @@ def job_options(args: argparse.Namespace) -> dict[str, Any]:
         "progress": not args.quiet,
         "overwrite": args.overwrite,
         "formats": args.formats,
+        "renderer": args.renderer,
     }
 
 

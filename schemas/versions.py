@@ -6,12 +6,16 @@ every MCAP file, so changing it changes the built bytes and the slice hash.
 ``DATASET_VERSION`` names what the recipe and the stages produce: any change that alters
 a built shard's bytes for the same slice and seed bumps it and adds a changelog entry.
 It is part of every manifest's ``settings``, so it is covered by the slice hash.
+A build chooses its renderer (:mod:`schemas.renderers`), and the renderer decides the
+version: ``window`` writes ``DATASET_VERSION``, ``full`` writes 3.0.0's bytes.
 """
 
 CODE_VERSION = "0.1.0"
 SCHEMA_VERSION = "1.0.0"
-DATASET_VERSION = "3.0.0"
+DATASET_VERSION = "4.0.0"
 #: Dataset versions whose folders this code still reads (and ``catalog migrate`` moves into the
-#: 3.0.0 folder layout); only the current one is rebuilt byte for byte.
-READABLE_DATASET_VERSIONS = ("2.0.0", "3.0.0")
+#: folder layout of 3.0.0 and later).
+READABLE_DATASET_VERSIONS = ("2.0.0", "3.0.0", "4.0.0")
+#: Dataset versions this code rebuilds byte for byte: 3.0.0 with the ``full`` renderer, 4.0.0 with ``window``.
+REBUILDABLE_DATASET_VERSIONS = ("3.0.0", "4.0.0")
 FPS = 20

@@ -23,6 +23,7 @@ from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
+from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of, renderer_of
 from schemas.spec import EpisodeSpec
 from schemas.versions import DATASET_VERSION, FPS
 
@@ -37,6 +38,7 @@ class BuildSettings:
     jpeg_quality: int
     fps: int = FPS
     image_format: str = "jpeg"
+    #: Names the renderer too (:mod:`schemas.renderers`): 4.0.0 ``window``, 3.0.0 ``full``.
     dataset_version: str = DATASET_VERSION
     #: The frames table carries the hand's obstacle clearance (scenes may hold obstacles).
     obstacle_clearance: bool = False
@@ -52,6 +54,15 @@ class BuildSettings:
             raise SpecError(f"resolution must be an integer in [16, 1024], got {self.resolution!r}")
         if not isinstance(self.jpeg_quality, int) or not 1 <= self.jpeg_quality <= 100:
             raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {self.jpeg_quality!r}")
+        if renderer_of(self.dataset_version) is None:
+            raise SpecError(f"dataset_version {self.dataset_version!r} is not one this code writes")
+
+    @property
+    def renderer(self) -> str:
+        """The renderer that draws this dataset version's frames."""
+        renderer = renderer_of(self.dataset_version)
+        assert renderer is not None  # checked in __post_init__
+        return renderer
 
     def as_dict(self) -> dict:
         """The manifest's settings; ``obstacle_clearance`` and ``protocol`` only when set, so
@@ -93,13 +104,17 @@ def build_job(
     progress: bool = True,
     overwrite: bool = False,
     formats: str | tuple[str, ...] = ALL_FORMATS,
+    renderer: str = DEFAULT_RENDERER,
 ) -> JobResult:
     """Build a slice (or a specs file) into ``out/<slice>/``: its manifest, and whether
     the folder already held this complete build (then nothing is redone).
 
     ``workers`` defaults to one per core (0: in this process, no Dask). A folder holding
-    another build is refused unless ``overwrite``."""
+    another build is refused unless ``overwrite``. ``renderer`` (:mod:`schemas.renderers`)
+    decides the dataset version: ``window`` 4.0.0, ``full`` 3.0.0."""
     from generators.encode import JPEG_QUALITY
+
+    version = dataset_version_of(check_renderer(renderer))
 
     extra: dict[str, str] = {}
     obstacles = False
@@ -132,7 +147,8 @@ def build_job(
             raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
 
     settings = BuildSettings(
-        resolution=resolution, jpeg_quality=JPEG_QUALITY, obstacle_clearance=obstacles, formats=parse_formats(formats)
+        resolution=resolution, jpeg_quality=JPEG_QUALITY, obstacle_clearance=obstacles, formats=parse_formats(formats),
+        dataset_version=version,
     )
     tasks = tuple(
         ShardTask(slice_name, first, end, None if specs_json is None else tuple(specs_json[first:end]))

@@ -57,6 +57,7 @@ from pipeline.policy_registry import (
 from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import printable
+from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of
 
 DEFAULT_SHARD_SIZE = 32
 
@@ -136,7 +137,8 @@ def eval_shard(task: ShardTask, settings: EvalSettings, sink: ShardSink) -> dict
 def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[str, Any]:
     from catalog.shard import ShardWriter
 
-    env = loop_env(settings.build.resolution, settings.build.jpeg_quality, settings.protocol)
+    env = loop_env(settings.build.resolution, settings.build.jpeg_quality, settings.protocol,
+                   renderer=settings.build.renderer)
     stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
     policy: Policy | None = None
     audit: list[dict[str, Any]] = []
@@ -296,6 +298,7 @@ def evaluate(
     formats: str | tuple[str, ...] = ALL_FORMATS,
     require_success: bool = False,
     test_seed: str | None = None,
+    renderer: str = DEFAULT_RENDERER,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
@@ -312,10 +315,13 @@ def evaluate(
     ``require_success``, a run in which every episode failed raises AllEpisodesFailed after
     it is written and summarised (the run is read once for both). ``test_seed`` (a secret)
     draws a held-out slice's episodes from it instead of the public seed
-    (:mod:`generators.heldout`): the manifest keeps its hash only (key ``test_seed``)."""
+    (:mod:`generators.heldout`): the manifest keeps its hash only (key ``test_seed``).
+    ``renderer`` (:mod:`schemas.renderers`) draws the frames and decides the run's dataset
+    version, as for a build."""
     from generators.encode import JPEG_QUALITY
     from schemas.slices import get_slice
 
+    version = dataset_version_of(check_renderer(renderer))
     kind = kind_of(policy_ref)
     if deadline_s is not None:
         try:
@@ -333,7 +339,7 @@ def evaluate(
     build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY,
                                    obstacle_clearance=definition.may_hold_obstacles,
                                    protocol=None if protocol.plain else protocol.to_dict(),
-                                   formats=parse_formats(formats))
+                                   formats=parse_formats(formats), dataset_version=version)
     ranges = shard_ranges(total, shard_size)
     if not is_url(out):
         refuse_export_folder(as_location(out), "run")

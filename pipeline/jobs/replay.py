@@ -59,8 +59,9 @@ from pipeline.policies.base import BUILTIN, make_policy
 from schemas.errors import PolicyError, ReplayMismatch, ShardError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.names import printable
+from schemas.renderers import renderer_of
 from schemas.spec import EpisodeSpec
-from schemas.versions import DATASET_VERSION, FPS
+from schemas.versions import FPS, REBUILDABLE_DATASET_VERSIONS
 
 
 @dataclass(frozen=True)
@@ -75,16 +76,19 @@ class ReplayReport:
     frames: int
 
 
-def check_rebuildable(directory: object, manifest: Manifest) -> None:
-    """ShardError unless this code writes ``manifest``'s dataset version (rebuilds and replays
-    compare bytes, so an older version's folder can be read and scored but not re-executed)."""
+def check_rebuildable(directory: object, manifest: Manifest) -> str:
+    """The renderer that re-executes ``manifest``'s dataset version (:mod:`schemas.renderers`),
+    or ShardError when this code writes another (rebuilds and replays compare bytes, so an
+    older version's folder can be read and scored but not re-executed)."""
     built_with = manifest.settings.get("dataset_version")
-    if built_with != DATASET_VERSION:
+    renderer = renderer_of(built_with)
+    if renderer is None:
         raise ShardError(
             f"{directory}/catalog.json: written as dataset version {built_with!r}; this code writes "
-            f"{DATASET_VERSION!r}, so its shards cannot be re-executed byte for byte (check out the commit "
-            f"{manifest.code.commit or 'that wrote it'})"
+            f"{' and '.join(map(repr, REBUILDABLE_DATASET_VERSIONS))}, so its shards cannot be re-executed "
+            f"byte for byte (check out the commit {manifest.code.commit or 'that wrote it'})"
         )
+    return renderer
 
 
 #: Where a :class:`ReplayMismatch` happened: its attributes.
@@ -241,6 +245,9 @@ def replay_shard(
     frames = reader.frames(None, episodes)
     frame_episode = frames.column("episode_index").to_numpy()
     resolution, quality = settings["resolution"], settings["jpeg_quality"]
+    renderer = renderer_of(settings.get("dataset_version"))
+    if renderer is None:
+        raise ShardError(f"{root}: dataset version {settings.get('dataset_version')!r} cannot be re-executed here")
     fps = settings.get("fps", FPS)
     replayed: list[tuple[EpisodeSpec, EpisodeFrames, list[bytes], dict]] = []
     if rollout and columns is None:
@@ -274,7 +281,7 @@ def replay_shard(
             from pipeline.stages.record import encoded_frames
 
             ep_frames = episode(spec)
-            images = encoded_frames(spec, ep_frames, resolution, quality)
+            images = encoded_frames(spec, ep_frames, resolution, quality, renderer)
         expected = frames_table(index, ep_frames, images, fps=fps, obstacles=bool(settings.get("obstacle_clearance")))
         found = _first_difference(recorded, expected, expected.column_names)
         if found is None and recorded.num_rows != expected.num_rows:
@@ -352,7 +359,7 @@ def replay(
     folder = open_folder(path, verify="sha256")
     manifest, rollout = folder.manifest, folder.rollout
     seed = private_seed(folder.root, manifest, test_seed)
-    check_rebuildable(folder.root, manifest)
+    renderer = check_rebuildable(folder.root, manifest)
     for record in manifest.audit or ():
         try:
             check_file(folder.root, record, "sha256")
@@ -373,7 +380,8 @@ def replay(
                 "and cannot be replayed byte for byte"
             )
         # the recorded specs are the disturbed ones already: no second disturbance
-        env = loop_env(settings["resolution"], settings["jpeg_quality"], dataclasses.replace(protocol, disturb=False))
+        env = loop_env(settings["resolution"], settings["jpeg_quality"], dataclasses.replace(protocol, disturb=False),
+                       renderer=renderer)
     audited = audited_replay(folder.root, manifest) if rollout else None
     columns = rollout_columns(folder.root, manifest, audited) if rollout else None
     episodes = frames = 0

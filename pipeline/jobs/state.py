@@ -23,6 +23,7 @@ from catalog.reader import check_file
 from catalog.records import FileRecord, ShardRecord
 from catalog.versions import installed_versions
 from schemas.errors import ShardError, SpecError
+from schemas.renderers import renderer_of
 from schemas.versions import CODE_VERSION
 
 STATE_FILE = ".build-state.json"
@@ -56,12 +57,31 @@ def _short(value: object, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def _flat_settings(identity: Mapping[str, object]) -> dict[str, object]:
+    """``identity`` with its settings as ``settings.<key>`` entries, so a difference names the setting."""
+    out = {k: v for k, v in identity.items() if k != "settings"}
+    settings = identity.get("settings")
+    if isinstance(settings, Mapping):
+        out.update({f"settings.{k}": v for k, v in settings.items()})
+    elif "settings" in identity:
+        out["settings"] = settings
+    return out
+
+
 def describe_difference(held: Mapping[str, object], wanted: Mapping[str, object]) -> str:
-    """The first few keys on which two identities differ, as ``key held -> wanted``."""
+    """The first few keys on which two identities differ, as ``key held -> wanted`` (a
+    dataset version also names the renderer that writes it)."""
+    held, wanted = _flat_settings(held), _flat_settings(wanted)
     keys = [k for k in sorted(set(held) | set(wanted)) if held.get(k) != wanted.get(k)]
+    if "settings.dataset_version" in keys:
+        keys.remove("settings.dataset_version")
+        keys.insert(0, "settings.dataset_version")
     if "shards" in keys and "episodes" in keys:
         keys.remove("shards")
     parts = [f"{k} {_short(held.get(k))} -> {_short(wanted.get(k))}" for k in keys[:3]]
+    if keys and keys[0] == "settings.dataset_version":
+        named = [f"{v} is --renderer {renderer_of(v)}" for v in (held.get(keys[0]), wanted.get(keys[0])) if renderer_of(v)]
+        parts[0] += f" ({', '.join(named)})" if named else ""
     if len(keys) > 3:
         parts.append(f"and {len(keys) - 3} more")
     return "; ".join(parts)

@@ -6,8 +6,9 @@ the same stages as the build (object motion, hand kinematics, render, JPEG).
 (:mod:`pipeline.loop.wrappers`: :class:`~pipeline.loop.wrappers.RecordEpisode`,
 ``Latency``, ``PerturbObservation``, ``DisturbMotion``; :func:`~pipeline.loop.wrappers.loop_env`
 stacks them for a protocol), as Gymnasium's own recorders wrap an environment. It renders
-with the :class:`~generators.render.Renderer` it is given (by default one of its own,
-closed by :meth:`DyanaEnv.close`).
+with the :class:`~generators.render.Renderer` it is given (by default one of its own, of
+the kind named by its ``renderer`` option, ``"window"`` unless told, closed by
+:meth:`DyanaEnv.close`).
 
 * ``reset(seed=None, options={"spec": spec})`` runs the observe window inside (the
   hand held still at rest while the object moves) and returns the observation of the
@@ -133,6 +134,7 @@ from pipeline.stages.episode import measure_hand
 from schemas.errors import DyanaError, SpecError
 from schemas.events import grasp_closed, localized, spec_hover_offset
 from schemas.objects import object_category
+from schemas.renderers import DEFAULT_RENDERER, RENDERERS, check_renderer
 from schemas.scene import DEFAULT_RESOLUTION, PHASES
 from schemas.slices import get_slice
 from schemas.spec import EpisodeSpec
@@ -206,8 +208,9 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         jpeg_quality: the frames' JPEG quality (what a policy sees is the decoded JPEG).
         render_mode: None or ``"rgb_array"`` (:meth:`render` gives the latest frame).
         renderer: the :class:`~generators.render.Renderer` to draw with, at ``resolution``
-            (the caller keeps and closes it); None: the env makes its own on first use
-            and closes it in :meth:`close`.
+            (the caller keeps and closes it); or a renderer's name (:mod:`schemas.renderers`:
+            ``"window"``, what None means, or ``"full"``, dataset 3.0.0's frames): the env
+            makes its own of that kind on first use and closes it in :meth:`close`.
         episodes: where ``reset`` without a spec takes its episode (:class:`EpisodeSource`,
             or a built-in slice's name for its :class:`SliceEpisodes`); None: such a reset
             is refused.
@@ -224,7 +227,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         resolution: int = DEFAULT_RESOLUTION,
         jpeg_quality: int = JPEG_QUALITY,
         render_mode: str | None = None,
-        renderer: Renderer | None = None,
+        renderer: Renderer | str | None = None,
         episodes: EpisodeSource | str | None = None,
         obs: str = "full",
         normalize_actions: bool = False,
@@ -234,8 +237,10 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {jpeg_quality!r}")
         if render_mode not in (None, "rgb_array"):
             raise SpecError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if renderer is not None and not isinstance(renderer, Renderer):
-            raise SpecError(f"renderer must be a generators.render.Renderer, got {type(renderer).__name__}")
+        if renderer is not None and not isinstance(renderer, (Renderer, str)):
+            raise SpecError(f"renderer must be a generators.render.Renderer or one of {list(RENDERERS)}, "
+                            f"got {type(renderer).__name__}")
+        kind = check_renderer(renderer) if isinstance(renderer, str) else DEFAULT_RENDERER
         if not isinstance(obs, str) or obs not in VIEWS:
             raise SpecError(f"obs must be one of {', '.join(map(repr, VIEWS))}, got {obs!r:.80}")
         if not isinstance(normalize_actions, (bool, np.bool_)):
@@ -255,8 +260,9 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         #: The frames the last ``reset`` (the observe window and the first acting frame)
         #: or ``step`` (one) made: what a recorder reads.
         self.new_frames: tuple[SimFrame, ...] = ()
-        self._renderer = renderer
-        self._own_renderer = renderer is None
+        self._renderer = renderer if isinstance(renderer, Renderer) else None
+        self._own_renderer = self._renderer is None
+        self._kind = kind
         self._next_index = 0
         self._done = True
         self._frame = -1
@@ -399,7 +405,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             else:
                 phase = PHASE["approach"]
         if self._renderer is None:
-            self._renderer = Renderer(self.resolution)
+            self._renderer = Renderer(self.resolution, kind=self._kind)
         self._renderer.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
         data = encode_jpeg(self._renderer.render(obj, palm_pose, joints), self.jpeg_quality)
         self._frame = k

@@ -218,7 +218,7 @@ def loop_env(
     resolution: int = DEFAULT_RESOLUTION,
     jpeg_quality: int = JPEG_QUALITY,
     protocol: EvalProtocol | None = None,
-    renderer: Renderer | None = None,
+    renderer: Renderer | str | None = None,
     episodes: EpisodeSource | None = None,
 ) -> RecordEpisode:
     """A recorded closed-loop environment under ``protocol`` (default: the plain loop):

@@ -1,7 +1,7 @@
 """The stage chain that turns specs into a written shard: episode stage, render, encode, write.
 
-A worker process keeps one :class:`~generators.render.Renderer` per resolution for its
-whole life (loading the scene and both hands costs far more than a frame).
+A worker process keeps one :class:`~generators.render.Renderer` per resolution and
+renderer kind for its whole life (loading the scene and both hands costs far more than a frame).
 """
 
 from __future__ import annotations
@@ -16,17 +16,18 @@ from generators.encode import encode_bgr_jpeg
 from generators.render import Renderer
 from pipeline.stages.episode import episode
 from schemas.frames import EpisodeFrames
+from schemas.renderers import DEFAULT_RENDERER
 from schemas.spec import EpisodeSpec
 
-_RENDERERS: dict[int, Renderer] = {}
+_RENDERERS: dict[tuple[int, str], Renderer] = {}
 
 
-def renderer_for(resolution: int) -> Renderer:
-    """This process's renderer at ``resolution``, created on first use."""
-    renderer = _RENDERERS.get(resolution)
+def renderer_for(resolution: int, kind: str = DEFAULT_RENDERER) -> Renderer:
+    """This process's renderer of ``kind`` at ``resolution``, created on first use."""
+    renderer = _RENDERERS.get((resolution, kind))
     if renderer is None:
-        renderer = Renderer(resolution)
-        _RENDERERS[resolution] = renderer
+        renderer = Renderer(resolution, kind=kind)
+        _RENDERERS[(resolution, kind)] = renderer
     return renderer
 
 
@@ -37,10 +38,13 @@ def _close_renderers() -> None:
     _RENDERERS.clear()
 
 
-def encoded_frames(spec: EpisodeSpec, frames: EpisodeFrames, resolution: int, jpeg_quality: int) -> list[bytes]:
-    """Render every frame of an episode and encode it as JPEG (frames drawn in OpenCV's
-    channel order, so nothing is converted between renderer and encoder)."""
-    images = renderer_for(resolution).render_episode(
+def encoded_frames(
+    spec: EpisodeSpec, frames: EpisodeFrames, resolution: int, jpeg_quality: int, renderer: str = DEFAULT_RENDERER
+) -> list[bytes]:
+    """Render every frame of an episode with ``renderer`` (:mod:`schemas.renderers`) and
+    encode it as JPEG (frames drawn in OpenCV's channel order, so nothing is converted
+    between renderer and encoder)."""
+    images = renderer_for(resolution, renderer).render_episode(
         frames, spec.object, spec.object_size, spec.hand, obstacles=spec.obstacles, bgr=True
     )
     return [encode_bgr_jpeg(image, jpeg_quality) for image in images]
@@ -53,6 +57,6 @@ def write_ground_truth_shard(
     with ShardWriter(slice_dir, first, end, settings.as_dict()) as writer:
         for _index, spec in zip(range(first, end), specs):
             frames = episode(spec)
-            images = encoded_frames(spec, frames, settings.resolution, settings.jpeg_quality)
+            images = encoded_frames(spec, frames, settings.resolution, settings.jpeg_quality, settings.renderer)
             writer.add_episode(spec, frames, images)
     return writer.result

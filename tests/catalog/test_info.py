@@ -66,7 +66,7 @@ def test_a_built_slice_as_text(slice_dir, capsys):
     assert rows["size"].endswith(f"in {disk_bytes(slice_dir)[0]} files")
     assert rows["hash"] == manifest.hash[:16]
     assert rows["versions"] == "not recorded (written before Dyana recorded them)"
-    assert rows["rebuild"] == (f"yes: this code writes dataset {DATASET_VERSION}, as the folder records "
+    assert rows["rebuild"] == (f"yes: this code writes dataset {DATASET_VERSION} (--renderer window), as the folder records "
                                "(it records no library versions: written before Dyana recorded them)")
 
 
@@ -81,7 +81,7 @@ def test_json_matches_the_manifest_and_the_disk(slice_dir, capsys):
         "dataset_version": DATASET_VERSION, "code": CODE.to_dict(), "settings": SETTINGS,
         "episodes": 5, "frames": manifest.frames, "shards": 3, "files": files, "bytes": size,
         "hash": manifest.hash,
-        "rebuild": {"possible": True, "reason": f"this code writes dataset {DATASET_VERSION}, as the folder records "
+        "rebuild": {"possible": True, "reason": f"this code writes dataset {DATASET_VERSION} (--renderer window), as the folder records "
                                                 "(it records no library versions: written before Dyana recorded them)"},
         "versions": None,
     }
@@ -105,9 +105,9 @@ def test_an_older_dataset_version_is_readable_but_not_rebuilt(tmp_path, capsys):
     write_slice(tmp_path / "old", settings={**SETTINGS, "dataset_version": "2.0.0"})
     code, out, _ = info(capsys, str(tmp_path / "old"))
     assert code == 0
-    assert "dataset   2.0.0 (this code writes 3.0.0)\n" in out
+    assert f"dataset   2.0.0 (this code writes {DATASET_VERSION})\n" in out
     assert out.splitlines()[-1] == (
-        f"rebuild   no: written by dataset 2.0.0; this code writes {DATASET_VERSION}: readable, not re-executable; "
+        "rebuild   no: written by dataset 2.0.0; this code writes 3.0.0 and 4.0.0: readable, not re-executable; "
         f"check out commit {CODE.commit} to rebuild it"
     )
 
@@ -198,7 +198,7 @@ def test_the_recorded_versions_are_printed_and_compared_with_the_installed_ones(
     assert code == 0
     assert rows["versions"] == " ".join(f"{k}={v or '(none)'}" for k, v in sorted(installed.items()))
     assert f"numpy={np.__version__}" in rows["versions"]
-    assert rows["rebuild"] == f"yes: this code writes dataset {DATASET_VERSION}, as the folder records, with the " \
+    assert rows["rebuild"] == f"yes: this code writes dataset {DATASET_VERSION} (--renderer window), as the folder records, with the " \
                               "library versions it records"
 
     monkeypatch.setattr("catalog.info.installed_versions", lambda: {**installed, "pyarrow": "99.0.0"})

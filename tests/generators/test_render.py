@@ -1,4 +1,5 @@
-"""The renderer: composited frames equal full renders pixel for pixel (obstacles
+"""The renderer (the ``full`` kind: tests/generators/test_render_window.py has ``window``):
+composited frames equal full renders pixel for pixel (obstacles
 included), frames show what the states say, determinism, JPEG encoding."""
 
 from __future__ import annotations
@@ -47,13 +48,13 @@ def random_quat(rng: np.random.Generator) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def small():
-    with Renderer(SMALL) as renderer:
+    with Renderer(SMALL, kind="full") as renderer:
         yield renderer
 
 
 @pytest.fixture(scope="module")
 def full():
-    with Renderer(FULL) as renderer:
+    with Renderer(FULL, kind="full") as renderer:
         yield renderer
 
 
@@ -195,7 +196,7 @@ def test_same_states_give_the_same_bytes_across_renderers(small):
         small.set_scene(name, size, side)
         first.append(small.render(pose, palm, joints).tobytes())
     again = []
-    with Renderer(SMALL) as other:
+    with Renderer(SMALL, kind="full") as other:
         for name, size, side, pose, palm, joints in reversed(states):
             other.set_scene(name, size, side)
             again.append(other.render(pose, palm, joints).tobytes())
@@ -273,7 +274,7 @@ def test_obstacles_show_their_category_colour_and_turn_as_ry(full):
 def test_scenes_without_obstacles_are_unchanged_by_earlier_obstacle_scenes(small):
     rng = np.random.default_rng(5)
     states = list(random_states(rng, 4))
-    with Renderer(SMALL) as fresh:
+    with Renderer(SMALL, kind="full") as fresh:
         expected = []
         for name, size, side, pose, palm, joints in states:
             fresh.set_scene(name, size, side)
@@ -423,9 +424,9 @@ def test_a_frame_does_not_depend_on_what_the_renderer_drew_before():
         state = frames.object_pose[60], frames.palm_pose[60], frames.joint_angles[60]
         return renderer.render(*state), renderer.render_full(*state)
 
-    with Renderer(224) as fresh:
+    with Renderer(224, kind="full") as fresh:
         composited, full = tie_frame(fresh)
-    with Renderer(224) as used:
+    with Renderer(224, kind="full") as used:
         for index in range(12):
             spec = spec_for("harmonic-fast", index)
             frames = episode(spec)
@@ -448,11 +449,11 @@ def test_a_scene_starts_from_fresh_bodies_whatever_was_drawn_before():
 
     spec = spec_for("circular-slow", 17611)
     state = (lambda f: (f.object_pose[73], f.palm_pose[73], f.joint_angles[73]))(episode(spec))
-    with Renderer(224) as fresh:
+    with Renderer(224, kind="full") as fresh:
         fresh.set_scene(spec.object, spec.object_size, spec.hand)
         first, second = fresh.render(*state), fresh.render(*state)
     assert not np.array_equal(first, second), "premise: a body's first and second draws differ here"
-    with Renderer(224) as used:
+    with Renderer(224, kind="full") as used:
         for index in range(3):
             other = spec_for("harmonic-fast", index)
             frames = episode(other)
@@ -499,12 +500,12 @@ def test_frames_do_not_depend_on_when_the_moving_client_was_last_reset(monkeypat
     states = list(random_states(rng, 5))
     fresh = []
     for name, size, side, pose, palm, joints in states:
-        with Renderer(SMALL) as once:
+        with Renderer(SMALL, kind="full") as once:
             once.set_scene(name, size, side)
             fresh.append([once.render(pose, palm, joints), once.render(pose, palm, joints)])
     for every in (1, 2, 3):
         monkeypatch.setattr(render, "RESET_EVERY", every)
-        with Renderer(SMALL) as used:
+        with Renderer(SMALL, kind="full") as used:
             for (name, size, side, pose, palm, joints), expected in zip(states, fresh):
                 used.set_scene(name, size, side)
                 assert np.array_equal(used.render(pose, palm, joints), expected[0]), (every, name)
