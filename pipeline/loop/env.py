@@ -119,7 +119,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from generators.encode import JPEG_QUALITY, decode_jpeg, encode_jpeg
+from generators.encode import JPEG_QUALITY, decode_jpeg, encode_bgr_jpeg
 from generators.grasp import grasp_angles
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_PALM
 from generators.motion import object_pose
@@ -401,7 +401,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         if self._renderer is None:
             self._renderer = Renderer(self.resolution)
         self._renderer.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
-        data = encode_jpeg(self._renderer.render(obj, palm_pose, joints), self.jpeg_quality)
+        # drawn in OpenCV's channel order, as a build draws it: the same JPEG bytes, one conversion fewer
+        data = encode_bgr_jpeg(self._renderer.render_bgr(obj, palm_pose, joints), self.jpeg_quality)
         self._frame = k
         self._last_jpeg = data
         return SimFrame(
