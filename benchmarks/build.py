@@ -52,11 +52,11 @@ import numpy as np
 import pyarrow.parquet as pq
 
 import generators.encode as encode
+import pipeline.stages.record as record
 from generators.recipe import slice_specs
 from generators.render import Renderer
 from pipeline.jobs.build import build
 from pipeline.stages.episode import episode
-from pipeline.stages.record import close_renderers
 from schemas.cli import ProgressMeter
 from schemas.slices import get_slice
 
@@ -108,6 +108,12 @@ HOOKS = (
 )
 
 
+def close_renderers() -> None:
+    """Close this process's renderers (under their older private name in earlier checkouts)."""
+    close = getattr(record, "close_renderers", None) or record._close_renderers  # type: ignore[attr-defined]
+    close()
+
+
 def _phase(title: str, quiet: bool) -> None:
     if not quiet:
         print(title, file=sys.stderr, flush=True)
@@ -123,8 +129,8 @@ class StageClock:
     """Exclusive CPU time per stage: time inside a hooked function, minus the hooked
     functions it calls (which count for their own stage)."""
 
-    def __init__(self) -> None:
-        self.totals = dict.fromkeys(STAGES, 0.0)
+    def __init__(self, stages: tuple[str, ...] = STAGES) -> None:
+        self.totals = dict.fromkeys(stages, 0.0)
         self._nested: list[float] = []
 
     def wrap(self, stage: str, fn):
@@ -145,13 +151,13 @@ class StageClock:
 
 
 @contextlib.contextmanager
-def hooked(clock: StageClock) -> Iterator[list[str]]:
+def hooked(clock: StageClock, hooks: tuple[Hook, ...] = HOOKS) -> Iterator[list[str]]:
     """Wrap every hook's function with ``clock`` for the duration; yields the stages none of
     whose functions exist. (A stage lists the names of older code too, so the same script
     profiles an earlier checkout.)"""
     saved, found = [], set()
     try:
-        for hook in HOOKS:
+        for hook in hooks:
             owner = _owner(hook.owner)
             fn = owner.__dict__.get(hook.name) if isinstance(owner, type) else getattr(owner, hook.name, None)
             if fn is None:
@@ -161,7 +167,7 @@ def hooked(clock: StageClock) -> Iterator[list[str]]:
             wrapped = (classmethod(clock.wrap(hook.stage, fn.__func__)) if isinstance(fn, classmethod)
                        else clock.wrap(hook.stage, fn))
             setattr(owner, hook.name, wrapped)
-        yield [stage for stage in STAGES if stage not in found]
+        yield [stage for stage in clock.totals if stage not in found]
     finally:
         for owner, name, fn in reversed(saved):
             setattr(owner, name, fn)
