@@ -121,7 +121,7 @@ from gymnasium import spaces
 
 from generators.encode import JPEG_QUALITY, decode_jpeg, encode_bgr_jpeg
 from generators.grasp import grasp_angles
-from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_PALM
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_PALM, forward_kinematics
 from generators.motion import object_pose
 from generators.recipe import spec_for
 from generators.render import Renderer, check_resolution
@@ -268,6 +268,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         self.object_velocity = np.zeros((0, 3), dtype=np.float32)
         self.grasp_angles = np.zeros(15, dtype=np.float32)
         self._last_jpeg: bytes | None = None
+        #: The last hand state's forward kinematics, keyed by (side, palm pose bytes, joint angle bytes).
+        self._kinematics: tuple[tuple[str, bytes, bytes], tuple[np.ndarray, np.ndarray]] | None = None
 
     # episode -----------------------------------------------------------------
     def pick_episode(self, seed: int | None) -> EpisodeSpec:
@@ -383,7 +385,12 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         palm_pose = np.concatenate([palm_xyz, REST_PALM[3:].astype(np.float32)]).astype(np.float32)
         joints = joints.astype(np.float32)
         obj = self.object_pose[k]
-        measures = measure_hand(spec, palm_pose[None], joints[None], obj[None])
+        # The hand's kinematics depend on its state alone: kept while the state repeats
+        # (the observe window's rest pose, a hand holding still), the same arrays.
+        state = (spec.hand, palm_pose.tobytes(), joints.tobytes())
+        if self._kinematics is None or self._kinematics[0] != state:
+            self._kinematics = (state, forward_kinematics(palm_pose[None], joints[None], spec.hand))
+        measures = measure_hand(spec, palm_pose[None], joints[None], obj[None], self._kinematics[1])
         if k < self._first:
             phase = PHASE["observe"]
         else:
