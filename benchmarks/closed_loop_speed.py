@@ -22,7 +22,8 @@
   episodes, each with its stages timed by ``benchmarks/build.py``'s clock (CPU ms per
   recorded frame), plus the loop's own stages: per-step hand measures (forward kinematics
   and distances), JPEG decoding of what the policy sees, the observation, the policy call
-  (the hand-off to its thread). ``eval_over_build`` = the evaluation's frames per CPU
+  (the hand-off to its thread), and the rest of each layer: the simulator's reset and step,
+  the recorder, the rollout loop. ``eval_over_build`` = the evaluation's frames per CPU
   second over the build's (``frames_per_cpu_s_vs_build`` of ``still``, without process
   and cluster start-up).
 
@@ -58,7 +59,7 @@ import numpy as np  # noqa: E402
 SLICE = "test-1k"
 POLICIES = ("still", "predictive")
 #: The closed loop's own stages (beyond a build's) and the functions they time, as the loop calls them.
-LOOP_STAGES = ("hand measures", "JPEG decode", "observation", "policy call")
+LOOP_STAGES = ("hand measures", "JPEG decode", "observation", "policy call", "env step", "recorder", "rollout")
 LOOP_HOOKS = (
     ("episode stage", "pipeline.loop.wrappers", "assemble_frames"),  # the recording's frames
     ("episode stage", "pipeline.loop.env", "object_pose"),  # the object's motion, at reset
@@ -69,6 +70,17 @@ LOOP_HOOKS = (
     ("JPEG decode", "pipeline.loop.env", "decode_jpeg"),
     ("observation", "pipeline.loop.env:DyanaEnv", "_observation"),
     ("policy call", "pipeline.loop.rollout", "call_policy"),
+    # the rest of each layer, exclusive of the stages above: the simulator's reset/step/frame,
+    # the recorder and the protocol wrappers, the rollout loop
+    ("env step", "pipeline.loop.env:DyanaEnv", "reset"),
+    ("env step", "pipeline.loop.env:DyanaEnv", "step"),
+    ("env step", "pipeline.loop.env:DyanaEnv", "_simulate"),
+    ("env step", "pipeline.loop.env:DyanaEnv", "_info"),
+    ("recorder", "pipeline.loop.wrappers:RecordEpisode", "reset"),
+    ("recorder", "pipeline.loop.wrappers:RecordEpisode", "step"),
+    ("recorder", "pipeline.loop.wrappers:RecordEpisode", "recording"),
+    ("rollout", "pipeline.jobs.evaluate", "run_episode"),
+    ("rollout", "pipeline.loop.rollout", "run_chunk"),
 )
 
 
