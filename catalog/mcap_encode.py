@@ -25,26 +25,24 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from google.protobuf.message import Message
 
-#: Wire types.
-_I64, _LEN, _VARINT = 1, 2, 0
+#: Wire types: 64-bit (a double), length-delimited.
+_I64, _LEN = 1, 2
 _ZERO = b"\x00" * 8
+_SMALL = [bytes((v,)) for v in range(0x80)]
+#: Length-delimited tags of fields 1..15 (one byte each).
+_LEN_TAGS = [b""] + [bytes((field << 3 | _LEN,)) for field in range(1, 16)]
 
 
 def varint(value: int) -> bytes:
     """A non-negative integer as a protobuf varint."""
     if value < 0x80:
-        return _SMALL[value] if value < len(_SMALL) else bytes((value,))
+        return _SMALL[value]
     out = bytearray()
     while value >= 0x80:
         out.append(value & 0x7F | 0x80)
         value >>= 7
     out.append(value)
     return bytes(out)
-
-
-_SMALL = [bytes((v,)) for v in range(0x80)]
-#: Length-delimited tags of fields 1..15 (one byte each).
-_LEN_TAGS = [b""] + [bytes((field << 3 | _LEN,)) for field in range(1, 16)]
 
 
 def length_delimited(field: int, payload: bytes) -> bytes:
