@@ -373,7 +373,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"2 workers: {two:.1f} frames/s (x{two / one:.2f} over 1)")
     print(json.dumps(result))
     if args.results is not None:
-        args.results.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+        args.results.write_text(json.dumps(result) + "\n", encoding="utf-8")
     return 0
 
 
