@@ -10,7 +10,13 @@
   (``workers=0``: the same shard task a worker runs, then the driver's statistics and
   manifest), with each stage's functions wrapped by a timer; a stage's time is this
   thread's CPU time inside its functions minus the stages nested in them, per frame.
-  ``other`` is the rest of the build's CPU time (spec sampling, Python glue, the manifest).
+  The stages: the episode stage, scene setup (loading an episode's bodies), posing (placing
+  them for a frame), the draw (TinyRenderer's pass), the composite, JPEG encoding, Parquet,
+  MCAP, hashing, statistics and the manifest; ``other`` is the rest of the build's CPU
+  time (spec sampling, Python glue). An untimed warm-up build of ``--warmup`` episodes
+  runs first, so what a process pays once (lazy imports, the renderer's plate) stays out
+  of the per-frame figures (``warmup_cpu_s``). ``non_draw_share`` = every stage but the
+  draw over the total, against ``non_draw_target``.
 - ``jpeg_only_fps``: the same frames, decoded from that build's Parquet, encoded again with
   the build's encoder and options (OpenCV's ``imencode`` on the BGR pixels it decodes to),
   CPU time of the encode calls alone: the most frames/s a build that only encoded JPEG
@@ -19,7 +25,7 @@
   build's frames per CPU second / jpeg_only_fps (CPU time, robust to other load).
 
 Usage: python benchmarks/build.py [--slice circular-medium] [--episodes 96] [--json] [--quiet]
-           [--profile-only]
+           [--profile-only] [--warmup 1] [--results benchmarks/results/build_profile.json]
 Prints the profile table, then the JSON result as the last line; progress lines (per
 episode, at most one per 2 s) go to stderr unless --quiet. Run it under the shared lock
 (``flock /tmp/dyana-bench.lock python benchmarks/build.py``).
@@ -32,6 +38,7 @@ import contextlib
 import functools
 import importlib
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -45,6 +52,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 import generators.encode as encode
+import pipeline.stages.record as record
 from generators.recipe import slice_specs
 from generators.render import Renderer
 from pipeline.jobs.build import build
@@ -64,13 +72,19 @@ class Hook:
 
 
 #: The stages of a build, in the order they are printed, and the functions that make them up.
-STAGES = ("episode stage", "scene setup", "render", "composite", "JPEG encode", "Parquet", "MCAP",
-          "hashing", "statistics")
+STAGES = ("episode stage", "scene setup", "posing", "window bounds", "draw", "composite", "JPEG encode", "Parquet", "MCAP",
+          "hashing", "statistics", "manifest")
+#: The stage the non-draw share leaves out: TinyRenderer's ``getCameraImage`` pass.
+DRAW = "draw"
+#: The largest share of a frame's CPU time all stages but the draw may take together (issue 30).
+NON_DRAW_TARGET = 0.15
 HOOKS = (
     Hook("episode stage", "pipeline.stages.episode", "episode"),
+    Hook("episode stage", "pipeline.stages.record", "episode"),  # the name the shard task calls
     Hook("scene setup", "generators.render:Renderer", "set_scene"),
-    Hook("render", "generators.render:Renderer", "_pose"),
-    Hook("render", "generators.render:Renderer", "_draw"),
+    Hook("posing", "generators.render:Renderer", "_pose"),
+    Hook("window bounds", "generators.render:Renderer", "window"),  # the window renderer's bounds
+    Hook("draw", "generators.render:Renderer", "_draw"),
     Hook("composite", "generators.render:Renderer", "render"),
     Hook("composite", "generators.render:Renderer", "render_bgr"),
     Hook("JPEG encode", "pipeline.stages.record", "encode_jpeg"),
@@ -89,7 +103,16 @@ HOOKS = (
     Hook("hashing", "catalog.shard", "sha256_file"),
     Hook("hashing", "catalog.stats", "sha256_file"),
     Hook("statistics", "pipeline.jobs.runner", "compute_stats"),
+    Hook("statistics", "pipeline.jobs.runner", "write_stats"),
+    Hook("manifest", "pipeline.jobs.runner", "write_manifest"),
+    Hook("manifest", "catalog.manifest:Manifest", "create"),
 )
+
+
+def close_renderers() -> None:
+    """Close this process's renderers (under their older private name in earlier checkouts)."""
+    close = getattr(record, "close_renderers", None) or record._close_renderers  # type: ignore[attr-defined]
+    close()
 
 
 def _phase(title: str, quiet: bool) -> None:
@@ -107,8 +130,8 @@ class StageClock:
     """Exclusive CPU time per stage: time inside a hooked function, minus the hooked
     functions it calls (which count for their own stage)."""
 
-    def __init__(self) -> None:
-        self.totals = dict.fromkeys(STAGES, 0.0)
+    def __init__(self, stages: tuple[str, ...] = STAGES) -> None:
+        self.totals = dict.fromkeys(stages, 0.0)
         self._nested: list[float] = []
 
     def wrap(self, stage: str, fn):
@@ -129,21 +152,23 @@ class StageClock:
 
 
 @contextlib.contextmanager
-def hooked(clock: StageClock) -> Iterator[list[str]]:
+def hooked(clock: StageClock, hooks: tuple[Hook, ...] = HOOKS) -> Iterator[list[str]]:
     """Wrap every hook's function with ``clock`` for the duration; yields the stages none of
     whose functions exist. (A stage lists the names of older code too, so the same script
     profiles an earlier checkout.)"""
     saved, found = [], set()
     try:
-        for hook in HOOKS:
+        for hook in hooks:
             owner = _owner(hook.owner)
             fn = owner.__dict__.get(hook.name) if isinstance(owner, type) else getattr(owner, hook.name, None)
             if fn is None:
                 continue
             found.add(hook.stage)
             saved.append((owner, hook.name, fn))
-            setattr(owner, hook.name, clock.wrap(hook.stage, fn))
-        yield [stage for stage in STAGES if stage not in found]
+            wrapped = (classmethod(clock.wrap(hook.stage, fn.__func__)) if isinstance(fn, classmethod)
+                       else clock.wrap(hook.stage, fn))
+            setattr(owner, hook.name, wrapped)
+        yield [stage for stage in clock.totals if stage not in found]
     finally:
         for owner, name, fn in reversed(saved):
             setattr(owner, name, fn)
@@ -199,26 +224,44 @@ class Profile:
     hash: str
     missing: tuple[str, ...]  # stages without a hooked function
     jpeg_only_fps: float
+    warmup_cpu_s: float  # the untimed warm-up build before it (imports, renderer set-up, its episodes)
+
+    @property
+    def non_draw_share(self) -> float:
+        """Every stage but the draw, together, over the frame's CPU time."""
+        total = sum(self.ms_per_frame.values())
+        return (total - self.ms_per_frame[DRAW]) / total
 
 
-def profile_build(slice_name: str, episodes: int, resolution: int, shard_size: int, quiet: bool = True) -> Profile:
+def profile_build(slice_name: str, episodes: int, resolution: int, shard_size: int, quiet: bool = True,
+                  warmup: int = 1) -> Profile:
     """Build in this process with every stage timed, then time JPEG encoding alone on the
-    frames it wrote."""
-    out = Path(tempfile.mkdtemp(prefix="dyana-bench-profile-"))
-    _phase("pipeline build in this process, stages timed:", quiet)
+    frames it wrote. A warm-up build of the slice's first ``warmup`` episodes runs first,
+    untimed (its CPU time is kept apart): what a worker pays once (lazy imports such as
+    pyarrow's of pandas, the renderer's plate) then stays out of the per-frame figures.
+    The renderers it made are closed, so the timed build starts from fresh ones."""
     clock = StageClock()
+    out = Path(tempfile.mkdtemp(prefix="dyana-bench-profile-"))
     try:
+        warm = time.thread_time()
+        if warmup:
+            _phase(f"warm-up build of {warmup} episode(s), untimed:", quiet)
+            build(slice_name, out / "warmup", episodes=warmup, workers=0, resolution=resolution,
+                  shard_size=shard_size, progress=False)
+            close_renderers()
+        warm = time.thread_time() - warm
+        _phase("pipeline build in this process, stages timed:", quiet)
         with hooked(clock) as missing:
             wall, cpu = time.perf_counter(), time.thread_time()
-            manifest = build(slice_name, out, episodes=episodes, workers=0, resolution=resolution,
+            manifest = build(slice_name, out / "timed", episodes=episodes, workers=0, resolution=resolution,
                              shard_size=shard_size, progress=not quiet)
             cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
         frames = manifest.frames
         ms = {stage: 1000.0 * clock.totals[stage] / frames for stage in STAGES}
         ms["other"] = 1000.0 * (cpu - sum(clock.totals.values())) / frames
         _phase("JPEG encoding alone, the same frames (timed):", quiet)
-        jpeg = jpeg_only_fps(out / slice_name / "frames")
-        return Profile(frames, ms, cpu, wall, manifest.hash, tuple(missing), jpeg)
+        jpeg = jpeg_only_fps(out / "timed" / slice_name / "frames")
+        return Profile(frames, ms, cpu, wall, manifest.hash, tuple(missing), jpeg, warm)
     finally:
         shutil.rmtree(out, ignore_errors=True)
 
@@ -263,6 +306,9 @@ def profile_table(profile: Profile) -> str:
     lines.append(f"{'total':<14} {total:9.3f} {100.0:6.1f}%  ({1000.0 / total:.1f} frames per CPU second)")
     lines.append(f"{'JPEG alone':<14} {1000.0 / profile.jpeg_only_fps:9.3f}          "
                  f"({profile.jpeg_only_fps:.1f} frames per CPU second)")
+    lines.append(f"non-draw share = {100.0 * profile.non_draw_share:.1f}% (target <= {100.0 * NON_DRAW_TARGET:.0f}%): "
+                 f"every stage but the draw, {total - profile.ms_per_frame[DRAW]:.3f} of {total:.3f} ms per frame")
+    lines.append(f"warm-up build before it (untimed stages, once per process): {profile.warmup_cpu_s:.2f} CPU s")
     return "\n".join(lines)
 
 
@@ -276,12 +322,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     parser.add_argument("--profile-only", action="store_true",
                         help="only the profiled in-process build and JPEG alone (no naive render, no Dask builds)")
+    parser.add_argument("--warmup", type=int, default=1,
+                        help="episodes of the untimed warm-up build before the profiled one (0: none)")
+    parser.add_argument("--results", type=Path, default=None,
+                        help="also write the JSON result to this file (e.g. benchmarks/results/build_profile.json)")
     args = parser.parse_args(argv)
     get_slice(args.slice)
 
-    profile = profile_build(args.slice, args.episodes, args.resolution, args.shard_size, args.quiet)
+    result: dict = {"load_average_start": [round(v, 2) for v in os.getloadavg()]}
+    profile = profile_build(args.slice, args.episodes, args.resolution, args.shard_size, args.quiet, args.warmup)
     per_cpu_s = profile.frames / profile.cpu_s
-    result: dict = {}
     if not args.profile_only:
         naive, frames = naive_render_fps(args.slice, args.episodes, args.resolution, args.quiet)
         one, hash_one = build_fps(args.slice, args.episodes, args.resolution, 1, args.shard_size, args.quiet)
@@ -290,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"catalog hashes differ: 1 worker {hash_one}, 2 workers {hash_two}, in process {profile.hash}",
                   file=sys.stderr)
             return 1
-        result = {
+        result |= {
             "naive_render_fps": round(naive, 1),
             "build_fps": round(one, 1),
             "ratio": round(one / naive, 3),
@@ -301,6 +351,10 @@ def main(argv: list[str] | None = None) -> int:
     result.update({
         "profile_ms_per_frame": {stage: round(ms, 3) for stage, ms in profile.ms_per_frame.items()},
         "profile_fps_per_cpu_s": round(per_cpu_s, 1),
+        "non_draw_share": round(profile.non_draw_share, 4),
+        "non_draw_target": NON_DRAW_TARGET,
+        "warmup_episodes": args.warmup,
+        "warmup_cpu_s": round(profile.warmup_cpu_s, 3),
         "jpeg_only_fps": round(profile.jpeg_only_fps, 1),
         "profile_fraction_of_jpeg": round(per_cpu_s / profile.jpeg_only_fps, 3),
         "hash": profile.hash[:16],
@@ -308,6 +362,7 @@ def main(argv: list[str] | None = None) -> int:
         "episodes": args.episodes,
         "resolution": args.resolution,
         "slice": args.slice,
+        "load_average_end": [round(v, 2) for v in os.getloadavg()],
     })
     if profile.missing:
         print(f"stages not found (not timed): {', '.join(profile.missing)}", file=sys.stderr, flush=True)
@@ -318,6 +373,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"(x{one / naive:.2f}; {one / profile.jpeg_only_fps:.3f} of JPEG alone); "
                   f"2 workers: {two:.1f} frames/s (x{two / one:.2f} over 1)")
     print(json.dumps(result))
+    if args.results is not None:
+        args.results.write_text(json.dumps(result) + "\n", encoding="utf-8")
     return 0
 
 

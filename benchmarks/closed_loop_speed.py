@@ -16,11 +16,23 @@
   and its workers, from ``getrusage``) are recorded too: on a shared machine their
   ratios move less than the wall clock's.
 
+- ``profile`` (``--profile``): where evaluation spends CPU beyond building, in this
+  process (``workers=0``, one thread but the policy's): after an untimed warm-up of one
+  episode each, the build of the episodes' specs and ``still``'s evaluation of the same
+  episodes, each with its stages timed by ``benchmarks/build.py``'s clock (CPU ms per
+  recorded frame), plus the loop's own stages: per-step hand measures (forward kinematics
+  and distances), JPEG decoding of what the policy sees, the observation, the policy call
+  (the hand-off to its thread), and the rest of each layer: the simulator's reset and step,
+  the recorder, the rollout loop. ``eval_over_build`` = the evaluation's frames per CPU
+  second over the build's (``frames_per_cpu_s_vs_build`` of ``still``, without process
+  and cluster start-up).
+
 Prints a summary on stderr and, as the last line, one JSON object. The load average
 (``os.getloadavg``) is recorded before and after: the machine may be shared.
 
     python benchmarks/closed_loop_speed.py                   # 50 episodes, ~2 minutes
     python benchmarks/closed_loop_speed.py --episodes 5 --repeats 1 --no-throughput
+    python benchmarks/closed_loop_speed.py --episodes 32 --profile --no-throughput
 """
 
 from __future__ import annotations
@@ -46,6 +58,30 @@ import numpy as np  # noqa: E402
 
 SLICE = "test-1k"
 POLICIES = ("still", "predictive")
+#: The closed loop's own stages (beyond a build's) and the functions they time, as the loop calls them.
+LOOP_STAGES = ("hand measures", "JPEG decode", "observation", "policy call", "env step", "recorder", "rollout")
+LOOP_HOOKS = (
+    ("episode stage", "pipeline.loop.wrappers", "assemble_frames"),  # the recording's frames
+    ("episode stage", "pipeline.loop.env", "object_pose"),  # the object's motion, at reset
+    ("episode stage", "pipeline.loop.env", "grasp_angles"),
+    ("hand measures", "pipeline.loop.env", "measure_hand"),  # per step, for the observation and info
+    ("JPEG encode", "pipeline.loop.env", "encode_jpeg"),
+    ("JPEG encode", "pipeline.loop.env", "encode_bgr_jpeg"),
+    ("JPEG decode", "pipeline.loop.env", "decode_jpeg"),
+    ("observation", "pipeline.loop.env:DyanaEnv", "_observation"),
+    ("policy call", "pipeline.loop.rollout", "call_policy"),
+    # the rest of each layer, exclusive of the stages above: the simulator's reset/step/frame,
+    # the recorder and the protocol wrappers, the rollout loop
+    ("env step", "pipeline.loop.env:DyanaEnv", "reset"),
+    ("env step", "pipeline.loop.env:DyanaEnv", "step"),
+    ("env step", "pipeline.loop.env:DyanaEnv", "_simulate"),
+    ("env step", "pipeline.loop.env:DyanaEnv", "_info"),
+    ("recorder", "pipeline.loop.wrappers:RecordEpisode", "reset"),
+    ("recorder", "pipeline.loop.wrappers:RecordEpisode", "step"),
+    ("recorder", "pipeline.loop.wrappers:RecordEpisode", "recording"),
+    ("rollout", "pipeline.jobs.evaluate", "run_episode"),
+    ("rollout", "pipeline.loop.rollout", "run_chunk"),
+)
 
 
 def load_average() -> list[float]:
@@ -152,6 +188,58 @@ def throughput(episodes: int, resolution: int, workers: int, tmp: Path) -> dict:
     return result
 
 
+def stage_profile(episodes: int, resolution: int, tmp: Path) -> dict:
+    """CPU ms per recorded frame by stage of an in-process build of the first ``episodes``
+    test-1k specs and of ``still``'s evaluation of them (see the module docstring)."""
+    from build import HOOKS, STAGES, Hook, StageClock, close_renderers, hooked
+
+    from generators.recipe import spec_for
+    from pipeline.jobs.build import build
+    from pipeline.jobs.evaluate import evaluate
+
+    stages = STAGES + LOOP_STAGES
+    hooks = HOOKS + tuple(Hook(*hook) for hook in LOOP_HOOKS)
+    specs = tmp / "profile-specs.jsonl"
+    specs.write_text("".join(spec_for(SLICE, i).to_json() + "\n" for i in range(episodes)))
+    warm = tmp / "warm.jsonl"
+    warm.write_text(spec_for(SLICE, 0).to_json() + "\n")
+    build(None, tmp / "warm-build", specs_path=str(warm), workers=0, resolution=resolution, progress=False)
+    evaluate("still", SLICE, tmp / "warm-eval", episodes=1, workers=0, resolution=resolution, progress=False,
+             summary=False)
+    close_renderers()
+    result: dict = {}
+    for name in ("build", "eval"):
+        clock = StageClock(stages)
+        with hooked(clock, hooks):
+            cpu = time.process_time()
+            if name == "build":
+                manifest = build(None, tmp / "profile-build", specs_path=str(specs), workers=0, resolution=resolution,
+                                 progress=False)
+            else:
+                manifest = evaluate("still", SLICE, tmp / "profile-eval", episodes=episodes, workers=0,
+                                    resolution=resolution, progress=False, summary=False)
+            cpu = time.process_time() - cpu
+        ms = {stage: 1000.0 * clock.totals[stage] / manifest.frames for stage in stages}
+        ms["other"] = 1000.0 * (cpu - sum(clock.totals.values())) / manifest.frames
+        result[name] = {"frames": manifest.frames, "cpu_seconds": round(cpu, 3),
+                        "frames_per_cpu_s": round(manifest.frames / cpu, 1),
+                        "ms_per_frame": {stage: round(v, 3) for stage, v in ms.items()}, "hash": manifest.hash}
+    result["eval_over_build"] = round(result["eval"]["frames_per_cpu_s"] / result["build"]["frames_per_cpu_s"], 3)
+    return result
+
+
+def profile_lines(profile: dict) -> list[str]:
+    build, ev = profile["build"]["ms_per_frame"], profile["eval"]["ms_per_frame"]
+    lines = [f"stage profile, in process, CPU ms per recorded frame ({profile['build']['frames']} built, "
+             f"{profile['eval']['frames']} evaluated frames):", f"{'stage':<16} {'build':>8} {'eval':>8} {'eval-build':>11}"]
+    for stage in build:
+        lines.append(f"{stage:<16} {build[stage]:8.3f} {ev[stage]:8.3f} {ev[stage] - build[stage]:+11.3f}")
+    total_b, total_e = sum(build.values()), sum(ev.values())
+    lines.append(f"{'total':<16} {total_b:8.3f} {total_e:8.3f} {total_e - total_b:+11.3f}")
+    lines.append(f"eval still / build, frames per CPU second: {profile['eval_over_build']:.3f} (target >= 0.9)")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=50, help="first N test-1k episodes (default 50)")
@@ -159,16 +247,27 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--resolution", type=int, default=224)
     parser.add_argument("--workers", type=int, default=1, help="workers of each build and eval (default 1)")
     parser.add_argument("--no-throughput", action="store_true", help="time the first act only")
+    parser.add_argument("--profile", action="store_true",
+                        help="also profile an in-process build and still evaluation by stage")
+    parser.add_argument("--no-first-act", action="store_true", help="skip the first-act timing")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.repeats < 1 or args.workers < 1:
         parser.error("--episodes, --repeats and --workers must be >= 1")
 
     result: dict = {"benchmark": "closed_loop_speed", "slice": SLICE, "load_average_start": load_average()}
-    act = first_act(args.episodes, args.resolution, args.repeats)
-    print(f"first act (predictive, {args.episodes} episodes, best of {args.repeats}): CPU median "
-          f"{act['cpu_median_s']:.3f} s, p95 {act['cpu_p95_s']:.3f} s, max {act['cpu_max_s']:.3f} s; wall median "
-          f"{act['wall_median_s']:.3f} s, p95 {act['wall_p95_s']:.3f} s", file=sys.stderr)
-    result["first_act"] = act
+    if args.profile:
+        with tempfile.TemporaryDirectory(prefix="dyana-closed-loop-profile-") as tmp:
+            result["profile"] = stage_profile(args.episodes, args.resolution, Path(tmp))
+        print("\n".join(profile_lines(result["profile"])), file=sys.stderr)
+    if args.no_first_act:
+        act = None
+    else:
+        act = first_act(args.episodes, args.resolution, args.repeats)
+    if act is not None:
+        print(f"first act (predictive, {args.episodes} episodes, best of {args.repeats}): CPU median "
+              f"{act['cpu_median_s']:.3f} s, p95 {act['cpu_p95_s']:.3f} s, max {act['cpu_max_s']:.3f} s; wall median "
+              f"{act['wall_median_s']:.3f} s, p95 {act['wall_p95_s']:.3f} s", file=sys.stderr)
+        result["first_act"] = act
     if not args.no_throughput:
         with tempfile.TemporaryDirectory(prefix="dyana-closed-loop-") as tmp:
             rates = throughput(args.episodes, args.resolution, args.workers, Path(tmp))

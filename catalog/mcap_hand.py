@@ -21,9 +21,9 @@ from collections.abc import Sequence
 import numpy as np
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
-from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
-from google.protobuf.timestamp_pb2 import Timestamp
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 
+from catalog.mcap_encode import fields, length_delimited
 from schemas.joints import FINGERS, JOINT_NAMES, KEYPOINT_NAMES
 
 SKELETON_TOPIC = "/hand/skeleton"
@@ -57,15 +57,26 @@ def in_hand_order(keypoints: np.ndarray, joints: np.ndarray) -> np.ndarray:
     return np.concatenate([np.asarray(keypoints), np.asarray(joints)], axis=-2)
 
 
-def skeleton_update(stamp: Timestamp, frame_id: str, positions: Sequence[Sequence[float]]) -> SceneUpdate:
-    """The hand entity at one instant: ``positions`` (21 x 3, :data:`HAND_FRAMES` order) in ``frame_id``'s axes."""
+def _skeleton_parts(frame_id: str) -> tuple[bytes, bytes, bytes]:
+    """The fields of the skeleton's entity and line that never change, serialised once:
+    the entity's after its timestamp, the line's before its points and after them."""
     r, g, b, a = SKELETON_RGBA
-    update = SceneUpdate()
-    entity = update.entities.add(frame_id=frame_id, id=SKELETON_ENTITY)
-    entity.timestamp.CopyFrom(stamp)
-    line = entity.lines.add(type=LinePrimitive.LINE_LIST, thickness=SKELETON_THICKNESS_PX, scale_invariant=True,
-                            color=Color(r=r, g=g, b=b, a=a), indices=_INDICES)
-    line.pose.orientation.w = 1.0
-    for x, y, z in positions:
-        line.points.add(x=x, y=y, z=z)
-    return update
+    head = LinePrimitive(type=LinePrimitive.LINE_LIST, thickness=SKELETON_THICKNESS_PX, scale_invariant=True)
+    head.pose.orientation.w = 1.0
+    tail = LinePrimitive(color=Color(r=r, g=g, b=b, a=a), indices=_INDICES)
+    return fields(SceneEntity(frame_id=frame_id, id=SKELETON_ENTITY)), fields(head), fields(tail)
+
+
+class SkeletonEncoder:
+    """``foxglove.SceneUpdate`` bytes of the hand entity at one instant, in ``frame_id``'s
+    axes: one entity :data:`SKELETON_ENTITY` holding one ``LINE_LIST`` over the points."""
+
+    def __init__(self, frame_id: str) -> None:
+        self._entity, self._head, self._tail = _skeleton_parts(frame_id)
+
+    def encode(self, stamp: bytes, points: Sequence[bytes]) -> bytes:
+        """``stamp``: the encoded ``Timestamp``; ``points``: the 21 points in :data:`HAND_FRAMES`
+        order, each encoded as the line's field 5 (a ``Point3``)."""
+        line = self._head + b"".join(points) + self._tail
+        entity = length_delimited(1, stamp) + self._entity + length_delimited(11, line)
+        return length_delimited(2, entity)

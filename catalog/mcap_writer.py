@@ -7,7 +7,9 @@ build); chunk size :data:`CHUNK_SIZE`; all indexes, statistics, summary offsets 
 repeated schemas/channels; summary and data-section CRCs; protobuf serialisation in
 deterministic mode. The schema records are the ``FileDescriptorSet`` of the
 installed ``foxglove-schemas-protobuf``, so the bytes depend on that package's
-version (and on ``mcap``'s record layout). Nothing pins those versions: pyproject.toml only
+version (and on ``mcap``'s record layout). The per-frame messages are encoded directly
+(:mod:`catalog.mcap_encode`: the bytes the protobuf runtime gives, without building
+~600 fields a frame in Python); the obstacles' cubes go through the runtime. Nothing pins those versions: pyproject.toml only
 bounds them, and ``catalog verify`` reports a shard whose rebuild comes out different.
 """
 
@@ -21,10 +23,9 @@ from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
-from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
 from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 from foxglove_schemas_protobuf.SceneEntityDeletion_pb2 import SceneEntityDeletion
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
@@ -37,7 +38,8 @@ from mcap.writer import Writer as _McapWriter
 from mcap_protobuf.schema import register_schema
 
 from catalog.hashing import canonical_json
-from catalog.mcap_hand import SKELETON_TOPIC, in_hand_order, skeleton_update
+from catalog.mcap_encode import doubles, fields, length_delimited, rows, timestamp
+from catalog.mcap_hand import SKELETON_TOPIC, SkeletonEncoder, in_hand_order
 from catalog.mcap_layout import (
     CAMERA_FRAME,
     CHANNELS,
@@ -87,27 +89,20 @@ def _pose(position: Vector, quaternion: Vector) -> Pose:
     return _set_pose(Pose(), position, quaternion)
 
 
-def _poses(stamp: Timestamp, positions: Sequence[Sequence[float]], quaternions: Sequence[Sequence[float]]) -> PosesInFrame:
-    out = PosesInFrame(timestamp=stamp, frame_id=WORLD_FRAME)
-    for position, quaternion in zip(positions, quaternions):
-        _set_pose(out.poses.add(), position, quaternion)
-    return out
+def _transform_fields(row: Sequence[float]) -> bytes:
+    """A ``FrameTransform``'s translation (field 4) and rotation (field 5) from x y z qx qy qz qw."""
+    return length_delimited(4, doubles(row[:3])) + length_delimited(5, doubles(row[3:]))
 
 
-def _transforms(
-    stamp: Timestamp,
-    children: Sequence[str],
-    positions: Sequence[Sequence[float]],
-    quaternions: Sequence[Sequence[float]],
-) -> FrameTransforms:
-    """world -> each child frame, at ``stamp``."""
-    out = FrameTransforms()
-    for child, (x, y, z), (qx, qy, qz, qw) in zip(children, positions, quaternions):
-        transform = out.transforms.add(parent_frame_id=WORLD_FRAME, child_frame_id=child)
-        transform.timestamp.CopyFrom(stamp)
-        transform.translation.x, transform.translation.y, transform.translation.z = x, y, z
-        transform.rotation.x, transform.rotation.y, transform.rotation.z, transform.rotation.w = qx, qy, qz, qw
-    return out
+def _pose_field(row: Sequence[float]) -> bytes:
+    """A ``foxglove.Pose`` (position, orientation) from x y z qx qy qz qw, as field 3 of
+    ``PoseInFrame`` (``pose``) and ``PosesInFrame`` (``poses``)."""
+    return length_delimited(3, length_delimited(1, doubles(row[:3])) + length_delimited(2, doubles(row[3:])))
+
+
+def _point_field(row: Sequence[float]) -> bytes:
+    """A ``foxglove.Point3`` as field 5 of ``LinePrimitive`` (``points``)."""
+    return length_delimited(5, doubles(row))
 
 
 def _obstacle_update(stamp: Timestamp, obstacles: Sequence[Obstacle]) -> SceneUpdate:
@@ -156,6 +151,13 @@ class McapShardWriter:
                 raise ShardError(f"resolution must be a positive integer, got {resolution!r}")
             self._calibration = camera_calibration(resolution, resolution)
         self._camera = camera_pose()
+        # The fields of each per-frame message that never change, serialised once (catalog.mcap_encode).
+        self._calibration_rest = None if self._calibration is None else fields(
+            CameraCalibration(frame_id=CAMERA_FRAME, **self._calibration))
+        self._image_tail = fields(CompressedImage(format=self._format, frame_id=CAMERA_FRAME))
+        self._tf_heads = [fields(FrameTransform(parent_frame_id=WORLD_FRAME, child_frame_id=child)) for child in TF_FRAMES]
+        self._world = fields(PoseInFrame(frame_id=WORLD_FRAME))
+        self._skeleton = SkeletonEncoder(WORLD_FRAME)
         self._writer = _McapWriter(
             stream,
             chunk_size=CHUNK_SIZE,
@@ -198,11 +200,14 @@ class McapShardWriter:
         self.frames = 0
 
     def _write(self, topic: str, message: Message, time_ns: int, sequence: int) -> None:
+        self._write_bytes(topic, message.SerializeToString(deterministic=True), time_ns, sequence)
+
+    def _write_bytes(self, topic: str, data: bytes, time_ns: int, sequence: int) -> None:
         self._writer.add_message(
             channel_id=self._channels[topic],
             log_time=time_ns,
             publish_time=time_ns,
-            data=message.SerializeToString(deterministic=True),
+            data=data,
             sequence=sequence,
         )
 
@@ -249,36 +254,38 @@ class McapShardWriter:
         joint_pos, joint_rot = _six_dof(np.asarray(frames.joint_poses).reshape(n, 15, 6))
         camera_pos, camera_rot = self._camera
         tf_pos = np.concatenate([np.broadcast_to(camera_pos, (n, 1, 3)), object_pos[:, None], palm_pos[:, None],
-                                 in_hand_order(key_pos, joint_pos)], axis=1).tolist()
+                                 in_hand_order(key_pos, joint_pos)], axis=1)
         tf_rot = np.concatenate([np.broadcast_to(camera_rot, (n, 1, 4)), object_rot[:, None], palm_rot[:, None],
-                                 in_hand_order(key_rot, joint_rot)], axis=1).tolist()
+                                 in_hand_order(key_rot, joint_rot)], axis=1)
+        tf = np.concatenate([tf_pos, tf_rot], axis=2)  # (n, frames, 7): one row per world->frame transform
+        frames_per = tf.shape[1]
+        # Per frame f and /tf frame k, at f * frames_per + k: that transform's translation and
+        # rotation fields, the same as a foxglove.Pose field 3 (PoseInFrame, PosesInFrame), and
+        # the position as a Point3 field 5 (the skeleton's LINE_LIST).
+        transform = rows(tf.reshape(-1, 7), _transform_fields)
+        pose = rows(tf.reshape(-1, 7), _pose_field)
+        points = rows(tf_pos.reshape(-1, 3), _point_field)
+        heads = self._tf_heads
         for f in range(n):
             t = start + f * self._period
-            stamp = _timestamp(t)
-            pos, rot = tf_pos[f], tf_rot[f]
-            self._write(
-                IMAGE_TOPIC,
-                CompressedImage(timestamp=stamp, frame_id=CAMERA_FRAME, data=bytes(images[f]), format=self._format),
-                t,
-                f,
-            )
-            if self._calibration is not None:
-                self._write(
-                    "/camera/calibration",
-                    CameraCalibration(timestamp=stamp, frame_id=CAMERA_FRAME, **self._calibration),
-                    t,
-                    f,
-                )
-            self._write("/tf", _transforms(stamp, TF_FRAMES, pos, rot), t, f)
-            self._write("/object/pose", PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(pos[1], rot[1])),
-                        t, f)
-            self._write("/hand/palm", PoseInFrame(timestamp=stamp, frame_id=WORLD_FRAME, pose=_pose(pos[2], rot[2])),
-                        t, f)
-            self._write("/hand/keypoints", _poses(stamp, pos[_KEYPOINTS], rot[_KEYPOINTS]), t, f)
-            self._write("/hand/joints", _poses(stamp, pos[_JOINTS], rot[_JOINTS]), t, f)
-            self._write(SKELETON_TOPIC, skeleton_update(stamp, WORLD_FRAME, pos[_HAND]), t, f)
+            stamp = timestamp(t)
+            stamped = length_delimited(1, stamp)
+            row = f * frames_per
+            self._write_bytes(IMAGE_TOPIC, stamped + length_delimited(2, bytes(images[f])) + self._image_tail, t, f)
+            if self._calibration_rest is not None:
+                self._write_bytes("/camera/calibration", stamped + self._calibration_rest, t, f)
+            self._write_bytes("/tf", b"".join([length_delimited(1, stamped + heads[k] + transform[row + k])
+                                               for k in range(frames_per)]), t, f)
+            self._write_bytes("/object/pose", stamped + self._world + pose[row + 1], t, f)
+            self._write_bytes("/hand/palm", stamped + self._world + pose[row + 2], t, f)
+            self._write_bytes("/hand/keypoints", stamped + self._world + b"".join(
+                pose[row + _KEYPOINTS.start : row + _KEYPOINTS.stop]), t, f)
+            self._write_bytes("/hand/joints", stamped + self._world + b"".join(
+                pose[row + _JOINTS.start : row + _JOINTS.stop]), t, f)
+            self._write_bytes(SKELETON_TOPIC, self._skeleton.encode(stamp, points[row + _HAND.start : row + _HAND.stop]),
+                              t, f)
             if self._obstacles:
-                self._write(OBSTACLE_TOPIC, _obstacle_update(stamp, obstacles), t, f)
+                self._write(OBSTACLE_TOPIC, _obstacle_update(_timestamp(t), obstacles), t, f)
         self.frames += n
 
     def close(self) -> None:

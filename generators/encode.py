@@ -72,4 +72,4 @@ def decode_jpeg(data: bytes) -> np.ndarray:
             bgr = None
     if bgr is None:
         raise ShardError(f"not a decodable JPEG image ({len(data)} bytes)")
-    return np.ascontiguousarray(bgr[:, :, ::-1])
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)  # one SIMD pass; copying numpy's [:, :, ::-1] view cost more than the decode

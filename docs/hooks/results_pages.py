@@ -49,6 +49,8 @@ TIMINGS = (
     Source("first_screen.json", "first_screen.py", "The first screen: command 1 and the tests"),
     Source("speed_targets.txt", "speed_targets.py", "Speed targets"),
     Source("closed_loop_speed.txt", "closed_loop_speed.py", "Closed-loop speed"),
+    Source("build_profile.json", "build.py", "Build profile: CPU per frame by stage"),
+    Source("closed_loop_profile.txt", "closed_loop_speed.py", "Closed loop against build, by stage"),
     Source("window_render.txt", "window_render.py", "Window rendering (not used)"),
     Source("visibility.txt", "visibility.py", "Visibility of the object"),
 )

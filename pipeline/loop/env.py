@@ -120,9 +120,9 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from generators.encode import JPEG_QUALITY, decode_jpeg, encode_jpeg
+from generators.encode import JPEG_QUALITY, decode_jpeg, encode_bgr_jpeg
 from generators.grasp import grasp_angles
-from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_PALM
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_PALM, forward_kinematics
 from generators.motion import object_pose
 from generators.recipe import spec_for
 from generators.render import Renderer, check_resolution
@@ -274,6 +274,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         self.object_velocity = np.zeros((0, 3), dtype=np.float32)
         self.grasp_angles = np.zeros(15, dtype=np.float32)
         self._last_jpeg: bytes | None = None
+        #: The last hand state's forward kinematics, keyed by (side, palm pose bytes, joint angle bytes).
+        self._kinematics: tuple[tuple[str, bytes, bytes], tuple[np.ndarray, np.ndarray]] | None = None
 
     # episode -----------------------------------------------------------------
     def pick_episode(self, seed: int | None) -> EpisodeSpec:
@@ -389,7 +391,12 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         palm_pose = np.concatenate([palm_xyz, REST_PALM[3:].astype(np.float32)]).astype(np.float32)
         joints = joints.astype(np.float32)
         obj = self.object_pose[k]
-        measures = measure_hand(spec, palm_pose[None], joints[None], obj[None])
+        # The hand's kinematics depend on its state alone: kept while the state repeats
+        # (the observe window's rest pose, a hand holding still), the same arrays.
+        state = (spec.hand, palm_pose.tobytes(), joints.tobytes())
+        if self._kinematics is None or self._kinematics[0] != state:
+            self._kinematics = (state, forward_kinematics(palm_pose[None], joints[None], spec.hand))
+        measures = measure_hand(spec, palm_pose[None], joints[None], obj[None], self._kinematics[1])
         if k < self._first:
             phase = PHASE["observe"]
         else:
@@ -407,7 +414,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         if self._renderer is None:
             self._renderer = Renderer(self.resolution, kind=self._kind)
         self._renderer.set_scene(spec.object, spec.object_size, spec.hand, spec.obstacles)
-        data = encode_jpeg(self._renderer.render(obj, palm_pose, joints), self.jpeg_quality)
+        # drawn in OpenCV's channel order, as a build draws it: the same JPEG bytes, one conversion fewer
+        data = encode_bgr_jpeg(self._renderer.render_bgr(obj, palm_pose, joints), self.jpeg_quality)
         self._frame = k
         self._last_jpeg = data
         return SimFrame(

@@ -42,11 +42,21 @@ class HandMeasures:
     palm_distance: np.ndarray
 
 
-def measure_hand(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: np.ndarray, object_pose: np.ndarray) -> HandMeasures:
+def measure_hand(
+    spec: EpisodeSpec,
+    palm_pose: np.ndarray,
+    joint_angles: np.ndarray,
+    object_pose: np.ndarray,
+    kinematics: tuple[np.ndarray, np.ndarray] | None = None,
+) -> HandMeasures:
     """Forward kinematics and distances of ``n`` frames, computed in float64 from the
     states as given (the ground truth's float64 plan, the environment's float32 states)
-    and kept as float32."""
-    joint_poses, keypoints = forward_kinematics(palm_pose, joint_angles, spec.hand)
+    and kept as float32. ``kinematics``: ``forward_kinematics(palm_pose, joint_angles,
+    spec.hand)`` when the caller already has it (the closed loop, while the hand keeps
+    its state); it is not recomputed."""
+    if kinematics is None:
+        kinematics = forward_kinematics(palm_pose, joint_angles, spec.hand)
+    joint_poses, keypoints = kinematics
     n = len(joint_poses)
     tips = keypoints.reshape(n, 6, 6)[:, :5, :3]
     obj = np.asarray(object_pose, dtype=np.float64)

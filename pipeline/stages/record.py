@@ -32,7 +32,9 @@ def renderer_for(resolution: int, kind: str = DEFAULT_RENDERER) -> Renderer:
 
 
 @atexit.register
-def _close_renderers() -> None:
+def close_renderers() -> None:
+    """Close this process's renderers (at exit; a benchmark calls it after a warm-up, so
+    the next build starts from a fresh renderer as a new worker does)."""
     for renderer in _RENDERERS.values():
         renderer.close()
     _RENDERERS.clear()

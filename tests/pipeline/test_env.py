@@ -443,3 +443,26 @@ def test_the_api_episode_names_a_spec_that_is_not_one(spec):
 
     with pytest.raises(SpecError, match="spec must be a schemas.spec.EpisodeSpec"):
         pipeline.episode(spec)
+
+
+def test_kinematics_kept_while_the_hand_holds_are_the_hand_state_s_own(env):
+    """The env keeps the last hand state's forward kinematics while the state repeats: every
+    observation's joint poses and keypoints still equal measure_hand of its own state,
+    through holds, moves, a return to an earlier state and a new episode with the other hand."""
+    from pipeline.stages.episode import measure_hand
+
+    assert spec_for("test-1k", 0).hand != spec_for("test-1k", 4).hand
+    for index in (0, 4):
+        spec = spec_for("test-1k", index)
+        obs, _ = env.reset(options={"spec": spec})
+        still = hold(obs)
+        moved = still.copy()
+        moved[0] += 0.05
+        moved[5] += 0.3
+        for action in (still, still, moved, moved, still, moved):
+            obs, _, terminated, truncated, _ = env.step(action)
+            fresh = measure_hand(spec, obs["palm_pose"][None], obs["joint_angles"][None],
+                                 env.unwrapped.object_pose[obs["frame_index"]][None])
+            np.testing.assert_array_equal(obs["joint_poses"], fresh.joint_poses[0])
+            np.testing.assert_array_equal(obs["keypoints"], fresh.keypoints[0])
+            assert not (terminated or truncated)
