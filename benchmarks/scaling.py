@@ -1,5 +1,5 @@
 """Build scaling: throughput with 1 and 2 local Dask workers, the scheduler's and an upload's
-cost per shard, and a projection of dyana-12m's wall time on 8, 32 and 128 cores.
+cost per shard, and a projection of dyana-12m's wall time on 2 (this machine), 8, 32 and 128 cores.
 
 Every build below is a real ``pipeline.jobs.build.build`` of the same episodes:
 
@@ -59,7 +59,7 @@ from typing import Any
 import bench_setup  # noqa: F401  (first: this checkout's code)
 
 RESULT = Path(bench_setup.ROOT) / "benchmarks" / "results" / "scaling.json"
-CORES = (8, 32, 128)
+CORES = (2, 8, 32, 128)
 TARGET = "dyana-12m"
 
 

@@ -51,7 +51,7 @@ TIMINGS = (
     Source("closed_loop_speed.txt", "closed_loop_speed.py", "Closed-loop speed"),
     Source("build_profile.json", "build.py", "Build profile: CPU per frame by stage"),
     Source("closed_loop_profile.txt", "closed_loop_speed.py", "Closed loop against build, by stage"),
-    Source("window_render.txt", "window_render.py", "Window rendering (not used)"),
+    Source("window_render.txt", "window_render.py", "Window rendering: the full-viewport draw against the window (dataset 4.0.0)"),
     Source("visibility.txt", "visibility.py", "Visibility of the object"),
 )
 SCALING = Source("scaling.json", "scaling.py", "Scaling and a projection of dyana-12m")

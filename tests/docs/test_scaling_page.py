@@ -88,7 +88,7 @@ def test_the_script_runs_on_a_tiny_configuration(tmp_path):
     record = json.loads(out.read_text())
     assert json.loads(done.stdout.splitlines()[-1]) == record
     assert record["tiny"] is True and record["runs"]["workers_1"]["frames"] == record["runs"]["workers_2"]["frames"] > 0
-    assert set(record["projection"]["hours"]) == {"8", "32", "128"}
+    assert set(record["projection"]["hours"]) == {"2", "8", "32", "128"}
     assert record["target"]["episodes"] == 184_718
     assert len(record["load_average_start"]) == len(record["load_average_end"]) == 3
     assert "| 128 |" in "\n".join(results_pages.scaling_section(tmp_path, "f"))
