@@ -15,6 +15,9 @@ to a temporary folder unless ``--runs`` is given; a folder there that already ho
     python benchmarks/closed_loop_results.py --episodes 450 --runs runs/test-1k
     python benchmarks/closed_loop_results.py --slice test-complex --episodes 300
 
+The committed results were run with ``--renderer full`` (dataset 3.0.0's frames, made
+before the window renderer became the default); pass it to reproduce them exactly.
+
 Each build and evaluation shows its progress lines (per episode, at most one per 2 s) on
 stderr unless ``--quiet``.
 """
@@ -55,13 +58,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=os.path.join(bench_setup.HERE, "results"))
     parser.add_argument("--runs", help="keep the runs in this folder")
+    parser.add_argument("--renderer", default="window",
+                        help="the renderer of every build and run (default window, dataset 4.0.0; full: 3.0.0)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
         runs = Path(args.runs) if args.runs else Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        common = ["--episodes", str(args.episodes), "--workers", str(args.workers), *(["--quiet"] if args.quiet else [])]
+        common = ["--episodes", str(args.episodes), "--workers", str(args.workers), "--renderer", args.renderer,
+                  *(["--quiet"] if args.quiet else [])]
         commands = {"gt": ["build", "--slice", args.slice, "--out", str(runs / "gt"), *common]}
         for policy in POLICIES:
             commands[policy] = ["eval", "--policy", policy, "--slice", args.slice, "--out", str(runs / policy), *common]

@@ -7,7 +7,7 @@
   paper's Tables 3 and 4 are drawn too, thin and grey-toned;
 * bars of the three success rates per motion type with their Wilson intervals and a
   legend; a rate of 0 is drawn as a visible stub labelled 0, a group without
-  episodes is labelled n/a.
+  episodes in one run is labelled n/a, a group no run holds is left out.
 
 Given a chance row (``scoring eval --chance``), the radar shades the area blind play
 reaches and each motion type's bars carry a dashed line at its best blind rate: a run
@@ -121,10 +121,18 @@ def _radar(ax, series: Sequence[_Series], chance: ChanceRow | None = None) -> No
     ax.grid(linewidth=0.4)
 
 
+def _episodes(report: RunReport, group: str) -> int:
+    summary = report.breakdowns["by_motion"].get(group)
+    return 0 if summary is None else summary.episodes
+
+
 def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool, chance: ChanceRow | None = None) -> None:
-    groups = list(reports[0].breakdowns["by_motion"])
-    for report in reports[1:]:
+    groups: list[str] = []
+    for report in reports:
         groups += [g for g in report.breakdowns["by_motion"] if g not in groups]
+    # a motion type no run holds (test-complex has no linear episodes) takes no room
+    held = [g for g in groups if any(_episodes(r, g) for r in reports)]
+    groups = held or groups
     x = np.arange(len(groups))
     width = 0.8 / len(reports)
     for i, report in enumerate(reports):
