@@ -126,13 +126,18 @@ def _episodes(report: RunReport, group: str) -> int:
     return 0 if summary is None else summary.episodes
 
 
-def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool, chance: ChanceRow | None = None) -> None:
+def bar_groups(reports: Sequence[RunReport]) -> list[str]:
+    """The motion types the bars show, in the reports' order: those some run holds episodes
+    of (test-complex has no linear ones: they take no room), or all when none does."""
     groups: list[str] = []
     for report in reports:
         groups += [g for g in report.breakdowns["by_motion"] if g not in groups]
-    # a motion type no run holds (test-complex has no linear episodes) takes no room
     held = [g for g in groups if any(_episodes(r, g) for r in reports)]
-    groups = held or groups
+    return held or groups
+
+
+def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool, chance: ChanceRow | None = None) -> None:
+    groups = bar_groups(reports)
     x = np.arange(len(groups))
     width = 0.8 / len(reports)
     for i, report in enumerate(reports):

@@ -471,3 +471,14 @@ def test_chance_runs_on_other_episodes_are_refused(tmp_path, capsys, run):
     code, out, err = run_main(capsys, "eval", str(run), "--chance", str(short))
     assert code == 2 and out == ""
     assert err.count("\n") == 1 and "--chance short" in err and "other episodes" in err
+
+
+def test_the_bars_leave_out_motion_types_no_run_holds(tmp_path):
+    from scoring.cli import evaluate
+    from scoring.plot import bar_groups
+
+    linear = write_run(tmp_path / "linear", [Ep(**GOOD), Ep(**MISS)], policy="oracle")
+    circular = write_run(tmp_path / "circular", [Ep(**GOOD, motion_type="circular")], policy="chase")
+    one, both = evaluate([str(linear)]), evaluate([str(linear), str(circular)])
+    assert bar_groups(one) == ["linear"]  # no circular or harmonic episode: no empty n/a group
+    assert bar_groups(both) == ["linear", "circular"]  # one run without circular still shows n/a there
