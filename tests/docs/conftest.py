@@ -102,6 +102,10 @@ def page_pool(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathF
              for item in request.session.items
              if isinstance(item, pytest.Function) and item.originalname == "test_page_runs"
              and hasattr(item, "callspec")]
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        # Under pytest-xdist every process collects every page but runs only those it is
+        # given: starting pages ahead would run the other process's pages a second time.
+        order = []
     pool = PagePool(order, tmp_path_factory.mktemp("docs-pages"), env)
     yield pool
     pool.close()
