@@ -12,8 +12,8 @@ from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.storage import as_location, is_remote
 from catalog.versions import installed_versions, version_differences
 from schemas.errors import ShardError
-from schemas.renderers import renderer_of
-from schemas.versions import READABLE_DATASET_VERSIONS, REBUILDABLE_DATASET_VERSIONS
+from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
+from schemas.versions import READABLE_DATASET_VERSIONS
 
 #: The folder kinds: a built slice (ground truth) or a policy's evaluated rollouts.
 KINDS = ("slice", "rollouts")

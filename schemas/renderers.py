@@ -18,6 +18,8 @@ from schemas.versions import DATASET_VERSION
 #: Renderer name -> the dataset version its builds write.
 RENDERER_VERSIONS = {"window": DATASET_VERSION, "full": "3.0.0"}
 RENDERERS = tuple(RENDERER_VERSIONS)
+#: Dataset versions this code rebuilds byte for byte: one per renderer, oldest first.
+REBUILDABLE_DATASET_VERSIONS = tuple(sorted(RENDERER_VERSIONS.values()))
 DEFAULT_RENDERER = "window"
 
 

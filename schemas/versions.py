@@ -16,6 +16,4 @@ DATASET_VERSION = "4.0.0"
 #: Dataset versions whose folders this code still reads (and ``catalog migrate`` moves into the
 #: folder layout of 3.0.0 and later).
 READABLE_DATASET_VERSIONS = ("2.0.0", "3.0.0", "4.0.0")
-#: Dataset versions this code rebuilds byte for byte: 3.0.0 with the ``full`` renderer, 4.0.0 with ``window``.
-REBUILDABLE_DATASET_VERSIONS = ("3.0.0", "4.0.0")
 FPS = 20

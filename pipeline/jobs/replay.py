@@ -59,9 +59,9 @@ from pipeline.policies.base import BUILTIN, make_policy
 from schemas.errors import PolicyError, ReplayMismatch, ShardError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.names import printable
-from schemas.renderers import renderer_of
+from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
 from schemas.spec import EpisodeSpec
-from schemas.versions import FPS, REBUILDABLE_DATASET_VERSIONS
+from schemas.versions import FPS
 
 
 @dataclass(frozen=True)
