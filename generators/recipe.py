@@ -9,6 +9,8 @@ by every episode so the stream layout is the same). An infeasible attempt (the
 target would leave the workspace or the view, or move too fast:
 :func:`generators.grids.feasible`) is redrawn from the next block of the same
 generator; after :data:`MAX_DRAWS` attempts the episode raises :class:`InfeasibleError`.
+The blocks of many episodes are computed at once, bit for bit those generators'
+(:func:`generators.streams.stream_doubles`).
 
 Motion. The parameter configuration is not drawn but assigned, so every configuration
 of the table appears (:mod:`generators.grids`). In an atomic slice, the type-wide
@@ -47,6 +49,7 @@ from generators.grids import (
     config_pool,
     feasible,
 )
+from generators.streams import stream_doubles
 from schemas.errors import InfeasibleError, SpecError
 from schemas.motion import ArcToken, HarmonicToken, LineToken, Motion, token_to_dict
 from schemas.objects import OBJECTS
@@ -170,22 +173,15 @@ def _choose(motion_type: str, setting: str, draws: np.ndarray, rows: np.ndarray 
     }
 
 
-def _generator(seed: int, index: int) -> np.random.Generator:
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, index])))
-
-
 def _draw_cell(
     motion_type: str, setting: str, seed: int, indices: np.ndarray, rows: np.ndarray | None
 ) -> dict[str, np.ndarray]:
     """Choices of the given episodes of one (type, setting) cell, redrawing infeasible ones."""
     parts: list[dict[str, np.ndarray]] = []
     for start in range(0, len(indices), CHUNK):
-        chunk = indices[start : start + CHUNK].tolist()
+        chunk = indices[start : start + CHUNK]
         chunk_rows = None if rows is None else rows[start : start + CHUNK]
-        generators = [_generator(seed, i) for i in chunk]
-        draws = np.empty((len(chunk), N_DRAWS))
-        for j, generator in enumerate(generators):
-            generator.random(out=draws[j])
+        draws = stream_doubles(seed, chunk, 0, N_DRAWS)
         choice = _choose(motion_type, setting, draws, chunk_rows)
         attempts = np.ones(len(chunk), dtype=np.int64)
         bad = np.flatnonzero(~choice["ok"])
@@ -195,9 +191,8 @@ def _draw_cell(
                     f"episode {chunk[bad[0]]} (seed {seed}, {motion_type}-{setting}) "
                     f"found no feasible draw in {MAX_DRAWS} attempts"
                 )
-            redraw = np.empty((len(bad), N_DRAWS))
-            for j, k in enumerate(bad):
-                generators[k].random(out=redraw[j])
+            # every episode still in `bad` has failed attempts[bad[0]] times: its next block
+            redraw = stream_doubles(seed, chunk[bad], int(attempts[bad[0]]) * N_DRAWS, N_DRAWS)
             again = _choose(motion_type, setting, redraw, None if chunk_rows is None else chunk_rows[bad])
             for name, values in again.items():
                 choice[name][bad] = values
