@@ -418,20 +418,20 @@ class Renderer:
         over the plate: a moving pixel shows where its depth is at least as near as the
         plate's; a near-tie falls back to a full render."""
         plate = self._plate_bgr if bgr else self._plate_rgb
-        moving = depth < self._empty_depth
-        rows = np.flatnonzero(moving.any(axis=1))
-        if rows.size == 0:
+        # OpenCV's one-pass calls on the window (each numpy expression is a pass and an array):
+        # the bounds of the drawn pixels, then the near-tie test and the front mask on them.
+        moving = (depth < self._empty_depth).view(np.uint8)
+        c0, r0, width, height = cv2.boundingRect(moving)  # a uint8 array is a mask: its nonzero pixels
+        if width == 0:
             return plate.copy()
-        r0, r1 = int(rows[0]), int(rows[-1]) + 1
-        band = moving[r0:r1]
-        cols = np.flatnonzero(band.any(axis=0))
-        c0, c1 = int(cols[0]), int(cols[-1]) + 1
+        r1, c1 = r0 + height, c0 + width
         at = np.s_[r0 + top : r1 + top, c0 + left : c1 + left]
-        inside, near, far = band[:, c0:c1], depth[r0:r1, c0:c1], self._plate_depth[at]
-        if np.any(inside & (np.abs(near - far) <= self._tie[at])):
+        inside, near, far = moving[r0:r1, c0:c1], depth[r0:r1, c0:c1], self._plate_depth[at]
+        tied = cv2.compare(cv2.absdiff(near, far), self._tie[at], cv2.CMP_LE)  # |near - far| <= tie, exactly
+        if cv2.countNonZero(cv2.bitwise_and(tied, inside)):
             self.fallbacks += 1
             return self._full(bgr)
-        front = cv2.flip((inside & (near <= far)).view(np.uint8), 1)
+        front = cv2.flip(cv2.bitwise_and(cv2.compare(near, far, cv2.CMP_LE), inside), 1)
         pixels = cv2.flip(cv2.cvtColor(rgba[r0:r1, c0:c1], cv2.COLOR_RGBA2BGR if bgr else cv2.COLOR_RGBA2RGB), 1)
         out = plate.copy()
         cv2.copyTo(pixels, front, out[r0 + top : r1 + top, self.width - c1 - left : self.width - c0 - left])

@@ -129,7 +129,8 @@ def add_workers(parser: argparse.ArgumentParser) -> None:
     cores = default_worker_count()
     parser.add_argument(
         "--workers", type=positive_int, default=None,
-        help=f"local single-threaded worker processes (default: one per core, {cores} here)",
+        help=f"local single-threaded worker processes (default: one per core, {cores} here; a job of one shard "
+        "runs in this process)",
     )
     parser.add_argument("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
 

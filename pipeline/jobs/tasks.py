@@ -1,5 +1,6 @@
 """Shard tasks and where they run: a local Dask cluster of single-threaded worker processes
-(one per core by default), an existing ``--scheduler``, or this process (``workers=0``).
+(one per core by default, at most one per task), an existing ``--scheduler``, or this
+process (``workers=0``, or a job of one task without a scheduler).
 
 A task is ``task_fn(task, payload, sink)``; it writes its shard files through ``sink``
 (:class:`pipeline.jobs.sink.ShardSink`: the job's output folder or URL, which a worker on
@@ -220,12 +221,15 @@ def run_tasks(
     on_episode: EpisodeReport | None = None,
 ) -> None:
     """Run ``task_fn(task, payload, sink)`` for every task on a local cluster (one
-    single-threaded process per worker), on an existing scheduler, or in this process
-    (``workers == 0``); call ``on_done`` in the driver with each result as it finishes, and
-    ``on_episode`` (on another thread with Dask) with the tasks' episode reports."""
+    single-threaded process per worker, at most one per task), on an existing scheduler, or
+    in this process (``workers == 0``, or a single task without a scheduler: one task runs
+    on one core either way, and starting a cluster, whose workers import everything again,
+    costs about 4 CPU seconds, more than a small job's work); call ``on_done`` in the driver
+    with each result as it finishes, and ``on_episode`` (on another thread with Dask) with
+    the tasks' episode reports."""
     if not tasks:
         return
-    if workers == 0 and not scheduler:
+    if not scheduler and (workers == 0 or len(tasks) == 1):
         for task in tasks:
             on_done(task_fn(task.reporting_to(on_episode), payload, sink))
         return

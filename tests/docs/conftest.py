@@ -88,6 +88,18 @@ class PagePool:
                     process.wait()
 
 
+def _build_cache_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """This session's build cache. Under pytest-xdist the test processes share one (their
+    temporary folders are siblings in the session's), so a page's build made by one is a
+    copy for the other; the cache stores an entry by renaming a finished folder, so two
+    processes building the same command at once both succeed."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = tmp_path_factory.getbasetemp().parent / "docs-build-cache"
+        shared.mkdir(exist_ok=True)
+        return shared
+    return tmp_path_factory.mktemp("docs-build-cache")
+
+
 @pytest.fixture(scope="session")
 def page_pool(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory):
     """The pages the selected tests run, started in their collection order."""
@@ -96,7 +108,7 @@ def page_pool(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathF
     if real is None:
         pytest.fail("the `pipeline` command is not installed: pip install -e . first")
     shim_dir = tmp_path_factory.mktemp("docs-bin")
-    extra = build_cache.install(shim_dir, tmp_path_factory.mktemp("docs-build-cache"), real, ROOT)
+    extra = build_cache.install(shim_dir, _build_cache_folder(tmp_path_factory), real, ROOT)
     env = {**os.environ, **extra, "PATH": os.pathsep.join([str(shim_dir), str(venv_bin), os.environ.get("PATH", "")])}
     order = [(str(item.callspec.params["path"]), bool(item.callspec.params["with_slow"]))
              for item in request.session.items

@@ -167,12 +167,13 @@ def test_a_launched_command_that_signals_its_parent_is_stopped_and_named(tmp_pat
 
 
 def _eval(policies: Policies, policy: str, workers: int, episodes: int, **env: str) -> subprocess.Popen:
-    """``pipeline eval`` in a process group of its own: ``--workers N`` (a local Dask cluster),
-    or 0 for the library's run in this process, without Dask."""
+    """``pipeline eval`` in a process group of its own: ``--workers N`` (a local Dask cluster:
+    two shards, as a job of one shard runs in the driver), or 0 for the library's run in
+    this process, without Dask."""
     out = str(policies.folder / "run")
     if workers:
         command = [str(BIN / "pipeline"), "eval", "--policy", f"dyana_hostile:{policy}", "--episodes", str(episodes),
-                   "--shard-size", str(episodes), "--workers", str(workers), "--resolution", str(RESOLUTION),
+                   "--shard-size", str(max(1, episodes // 2)), "--workers", str(workers), "--resolution", str(RESOLUTION),
                    "--out", out]
     else:
         command = [sys.executable, "-c", "from pipeline.jobs.evaluate import evaluate; evaluate("
