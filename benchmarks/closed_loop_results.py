@@ -8,7 +8,9 @@ the folders (the GT row first, then the models, the chance row — the best blin
 metric — and the paper's published rows), writing the terminal table, a Markdown table,
 the per-episode rows and the radar plot into ``--out`` (default ``benchmarks/results``,
 the files the docs show; test-1k's are ``table.*``, ``episodes.parquet`` and
-``radar.png``, another slice's carry its name, e.g. ``test_complex_table.md``). Runs go
+``radar.png``, another slice's carry its name, e.g. ``test_complex_table.md``).
+``--add-run FOLDER`` adds a run made elsewhere on the same episodes (the LeRobot ACT of
+``benchmarks/lerobot_act.py``, evaluated in LeRobot's environment). Runs go
 to a temporary folder unless ``--runs`` is given; a folder there that already holds a
 ``catalog.json`` is reused, so a kept ``--runs`` folder is re-scored in seconds.
 
@@ -61,7 +63,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--renderer", default="window",
                         help="the renderer of every build and run (default window, dataset 4.0.0; full: 3.0.0)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    parser.add_argument("--add-run", action="append", default=[], metavar="FOLDER",
+                        help="also score this run, made elsewhere on the same episodes (a model evaluated in its "
+                        "own environment: benchmarks/lerobot_act.py), after the built-in rows; repeatable")
     args = parser.parse_args(argv)
+    extra = []
+    for folder in args.add_run:
+        if not (Path(folder) / "catalog.json").is_file():
+            parser.error(f"--add-run takes a run's folder (with its catalog.json), got {folder[:200]!r}")
+        extra.append(folder)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
@@ -86,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
                     return code
                 print(f"{name}: {args.episodes} episodes in {time.perf_counter() - start:.1f} s", file=sys.stderr)
             (blind if name in BLIND else folders).append(str(folder))
+        folders += extra
         prefix = "" if args.slice == "test-1k" else args.slice.replace("-", "_") + "_"
         table = io.StringIO()
         with contextlib.redirect_stdout(table):

@@ -55,7 +55,7 @@ def _pool_words(seed: int, indices: np.ndarray) -> list[np.ndarray]:
         return value ^ (value >> np.uint64(16))
 
     def mix(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        result = (np.uint64(_MIX_L) * x - np.uint64(_MIX_R) * y) & np.uint64(_M32)
+        result: np.ndarray = np.bitwise_and(x * np.uint64(_MIX_L) - y * np.uint64(_MIX_R), np.uint64(_M32))
         return result ^ (result >> np.uint64(16))
 
     zero = np.zeros(n, dtype=np.uint64)
@@ -88,7 +88,8 @@ def _limbs(hi: tuple[np.ndarray, np.ndarray], lo: tuple[np.ndarray, np.ndarray])
 
 
 def _carry(sums: list[np.ndarray]) -> list[np.ndarray]:
-    out, carry = [], np.uint64(0)
+    out: list[np.ndarray] = []
+    carry: np.ndarray | np.uint64 = np.uint64(0)
     for s in sums:
         s = s + carry
         carry = s >> np.uint64(32)
@@ -156,7 +157,7 @@ def stream_doubles(seed: int, indices: np.ndarray, first: int, count: int) -> np
         pool = _pool_words(int(seed), indices[small])
         out[small] = _pcg64_doubles(_state_words(pool), first, count)
     for row in np.flatnonzero(~small):
-        generator = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), int(indices[row])])))
-        generator.bit_generator.advance(first)
-        out[row] = generator.random(count)
+        bits = np.random.PCG64(np.random.SeedSequence([int(seed), int(indices[row])]))
+        bits.advance(first)
+        out[row] = np.random.Generator(bits).random(count)
     return out

@@ -81,21 +81,6 @@ class ShapeBoxes:
     frame: np.ndarray  # (corners,) which placed frame (base, then links, body by body) holds each corner
     corners: np.ndarray  # (corners, 3)
 
-    @cached_property
-    def v(self) -> np.ndarray:
-        """The corners as rows x, y, z: (3, corners)."""
-        return np.ascontiguousarray(self.corners.T)
-
-    @cached_property
-    def v1(self) -> np.ndarray:
-        """Rows (y, z, x) of :attr:`v`."""
-        return self.v[_YZX]
-
-    @cached_property
-    def v2(self) -> np.ndarray:
-        """Rows (z, x, y) of :attr:`v`."""
-        return self.v[_ZXY]
-
 
 def shape_boxes(client: int, bodies: tuple[int, ...]) -> ShapeBoxes | None:
     """The boxes of ``bodies`` in ``client``; None when a shape is of a kind without a box
@@ -131,17 +116,17 @@ def world_corners(boxes: ShapeBoxes) -> np.ndarray:
             for state in p.getLinkStates(body, list(links), computeForwardKinematics=1, physicsClientId=boxes.client):
                 positions.append(state[0])
                 orientations.append(state[1])
-    q = np.asarray(orientations, dtype=np.float64)[boxes.frame].T  # (4, corners)
-    t = np.asarray(positions, dtype=np.float64)[boxes.frame].T
-    # v rotated by q: v + w u + q x u, with u = 2 q x v; each cross product as two products of
-    # rows taken in the orders (y, z, x) and (z, x, y): per component the same IEEE operations,
-    # in the same order, as writing out (qy vz - qz vy, ...), with a third of numpy's calls.
-    q1, q2, qw = q[_YZX], q[_ZXY], q[3]
-    u = 2.0 * (q1 * boxes.v2 - q2 * boxes.v1)
-    return (boxes.v + qw * u + (q1 * u[_ZXY] - q2 * u[_YZX]) + t).T
-
-
-_YZX, _ZXY = [1, 2, 0], [2, 0, 1]
+    q = np.asarray(orientations, dtype=np.float64)[boxes.frame]
+    t = np.asarray(positions, dtype=np.float64)[boxes.frame]
+    # v rotated by q: v + w u + q x u, with u = 2 q x v (written out: np.cross costs more on small arrays)
+    qx, qy, qz, qw = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    vx, vy, vz = boxes.corners[:, 0], boxes.corners[:, 1], boxes.corners[:, 2]
+    ux, uy, uz = 2.0 * (qy * vz - qz * vy), 2.0 * (qz * vx - qx * vz), 2.0 * (qx * vy - qy * vx)
+    out = np.empty_like(t)
+    out[:, 0] = vx + qw * ux + (qy * uz - qz * uy) + t[:, 0]
+    out[:, 1] = vy + qw * uy + (qz * ux - qx * uz) + t[:, 1]
+    out[:, 2] = vz + qw * uz + (qx * uy - qy * ux) + t[:, 2]
+    return out
 
 
 @dataclass(frozen=True)
@@ -164,34 +149,22 @@ class WindowCamera:
         a, b = self.projection_rows, view_matrix()
         return np.array([[sum(float(a[i, k]) * float(b[k, j]) for k in range(4)) for j in range(4)] for i in range(4)])
 
-    @cached_property
-    def _rows_xyw(self) -> np.ndarray:
-        """Rows 0, 1 and 3 of :attr:`clip_matrix` (clip x, y and w)."""
-        return np.ascontiguousarray(self.clip_matrix[[0, 1, 3]])
-
-    @cached_property
-    def _half_size(self) -> np.ndarray:
-        """(0.5 w, 0.5 h) as a column, the scale from NDC + 1 to screen x and y."""
-        return np.array([[0.5 * self.width], [0.5 * self.height]])
-
     def window(self, points: np.ndarray) -> Window | None:
         """The padded window holding every point's projection, clipped to the image; the
         whole image when a point is not in front of the camera; None when it is empty."""
         w, h, pad = self.width, self.height, self.pad
-        m = self._rows_xyw
+        m = self.clip_matrix
         px, py, pz = points[:, 0], points[:, 1], points[:, 2]
-        # clip x, y, w (rows 0, 1, 3) at once, each summed as _affine sums
-        clip = m[:, 0:1] * px + m[:, 1:2] * py + m[:, 2:3] * pz + m[:, 3:4]
-        cw = clip[2]
+        cw = m[3, 0] * px + m[3, 1] * py + m[3, 2] * pz + m[3, 3]  # as _affine, rows 0, 1 and 3 only
         if np.any(cw <= MIN_CLIP_W):
             return 0, h, 0, w
         # TinyRenderer samples pixel P at screen (w/2 (ndc_x + 1), h/2 (ndc_y + 1)); image row h - 1 - P.y
-        xy = self._half_size * (clip[:2] / cw + 1.0)
-        (x_min, y_min), (x_max, y_max) = xy.min(axis=1), xy.max(axis=1)
-        c0 = max(0, math.floor(float(x_min)) - pad)
-        c1 = min(w, math.ceil(float(x_max)) + 1 + pad)
-        r0 = max(0, h - 1 - math.ceil(float(y_max)) - pad)
-        r1 = min(h, h - math.floor(float(y_min)) + pad)
+        x = 0.5 * w * ((m[0, 0] * px + m[0, 1] * py + m[0, 2] * pz + m[0, 3]) / cw + 1.0)
+        y = 0.5 * h * ((m[1, 0] * px + m[1, 1] * py + m[1, 2] * pz + m[1, 3]) / cw + 1.0)
+        c0 = max(0, math.floor(float(x.min())) - pad)
+        c1 = min(w, math.ceil(float(x.max())) + 1 + pad)
+        r0 = max(0, h - 1 - math.ceil(float(y.max())) - pad)
+        r1 = min(h, h - math.floor(float(y.min())) + pad)
         if c0 >= c1 or r0 >= r1:
             return None
         return r0, r1, c0, c1

@@ -69,7 +69,10 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_external_scheduler_gives_the_same_hash(reference, tmp_path):
+    """A scheduler and a worker started by hand (30 s). .ci/run's multi-host tests build on
+    an external scheduler with workers on other hosts and compare the local hash."""
     manifest, _ = reference
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
@@ -97,7 +100,12 @@ def test_external_scheduler_gives_the_same_hash(reference, tmp_path):
     assert other.hash == manifest.hash
 
 
+@pytest.mark.slow
 def test_killed_build_resumes_to_the_same_bytes(reference, tmp_path):
+    """SIGKILL of a local build mid-run, then the same command (20 s). The default run
+    resumes a killed build through the same engine in tests/pipeline/test_object_store.py
+    (killed mid-shard, resumed on another machine) and an interrupted one in
+    tests/pipeline/test_runner.py (kept shards counted as done)."""
     manifest, slice_dir = reference
     cmd = [str(BIN / "pipeline"), "build", "--slice", SLICE, "--episodes", str(EPISODES), "--shard-size", "1",
            "--resolution", str(RESOLUTION), "--workers", "1", "--out", str(tmp_path)]
