@@ -64,6 +64,7 @@ def train(venv: Path, dataset: Path, out: Path, steps: int) -> dict:
         if record["command"][1:] == command[1:]:
             return record
         raise SystemExit(f"{out} holds another training ({record_path}); use another --work")
+    load_start = os.getloadavg()
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     log = out.parent / "train.log"
@@ -73,6 +74,8 @@ def train(venv: Path, dataset: Path, out: Path, steps: int) -> dict:
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     losses = [(int(s), float(v)) for s, v in LOSS.findall(log.read_text())]
     record = {
+        "load_average_start": [round(x, 2) for x in load_start],
+        "load_average_end": [round(x, 2) for x in os.getloadavg()],
         "command": command,
         "steps": steps,
         "batch_size": 8,

@@ -46,6 +46,7 @@ TEST_COMPLEX = (
     Source("irregular_strip.png", "frame_strip.py", "irregular-medium episode 4"),
 )
 BASELINE = Source("chunk_cnn/config.json", "train_chunk_cnn.py", "Training record of chunk_cnn")
+LEROBOT = Source("lerobot_act/record.json", "lerobot_act.py", "Training record of the LeRobot ACT")
 TIMINGS = (
     Source("first_screen.json", "first_screen.py", "The first screen: command 1 and the tests"),
     Source("speed_targets.txt", "speed_targets.py", "Speed targets"),
@@ -154,7 +155,9 @@ def _flatten(record: object, path: str = "") -> Iterator[tuple[str, object]]:
 RENDERER_NOTE = (
     "The runs behind these files were made with dataset 3.0.0's frames (`--renderer full`: they predate "
     "the window renderer, whose frames differ by 0.09 px a frame); `python benchmarks/closed_loop_results.py "
-    "... --renderer full` reproduces them exactly."
+    "... --renderer full` reproduces them exactly. The LeRobot ACT row (`lerobot-act-...`) is the exception: "
+    "`benchmarks/lerobot_act.py` trained it and ran it in LeRobot's own environment at 96 px with dataset 4.0.0's "
+    "frames (its record below), on the same episodes; `closed_loop_results.py --add-run` scored it with the others."
 )
 
 
@@ -171,7 +174,7 @@ def test_1k_page(root: Path) -> str:
         RENDERER_NOTE,
         "",
     ]
-    for source in (*TEST_1K, BASELINE):
+    for source in (*TEST_1K, BASELINE, LEROBOT):
         lines += _section(root, source, "files")
     return "\n".join(lines)
 
@@ -200,10 +203,10 @@ def script_summary(path: Path) -> str:
 
 def _kept(root: Path, script: str) -> str:
     """Where a script's last result is shown (sections of this page or the results pages)."""
-    pages = {**{s.name: "results/test-1k.md" for s in (*TEST_1K, BASELINE)},
+    pages = {**{s.name: "results/test-1k.md" for s in (*TEST_1K, BASELINE, LEROBOT)},
              **{s.name: "results/test-complex.md" for s in TEST_COMPLEX}}
     shown = []
-    for source in (*TIMINGS, SCALING, *TEST_1K, BASELINE, *TEST_COMPLEX):
+    for source in (*TIMINGS, SCALING, *TEST_1K, BASELINE, LEROBOT, *TEST_COMPLEX):
         if source.script == script and (root / RESULTS / source.name).exists():
             page = pages.get(source.name, "")
             anchor = re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", source.title.lower()).strip())  # as toc's slugify
