@@ -153,6 +153,22 @@ def test_workers_default_to_one_per_core_and_are_bounded(tmp_path):
         run_job(job(tmp_path), workers=1000, progress=False)
 
 
+def _where(task, payload, sink):
+    return {"pid": os.getpid(), "first": task.first}
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_job_of_one_shard_runs_in_this_process_and_more_shards_in_workers(tmp_path, workers):
+    """One shard occupies one core wherever it runs: no cluster is started for it (its
+    start-up costs more CPU than a small job's work); two shards go to worker processes."""
+    for ranges, here in (([(0, 4)], True), ([(0, 2), (2, 4)], False)):
+        seen: list[dict] = []
+        task_module.run_tasks([ShardTask("linear-fast", a, b) for a, b in ranges], _where, None,
+                              ShardSink(str(tmp_path)), workers, None, seen.append)
+        assert sorted(r["first"] for r in seen) == [a for a, _ in ranges]
+        assert all((r["pid"] == os.getpid()) == here for r in seen), (ranges, seen)
+
+
 def test_a_scheduler_address_that_is_not_a_scheduler_is_one_error(monkeypatch):
     """Something listening that never speaks Dask (here a silent socket on 127.0.0.1) is
     refused after the connect timeout instead of hanging the build."""
