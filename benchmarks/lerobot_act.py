@@ -10,12 +10,13 @@ The journey of issue 28 with zero glue, as the docs give it (guides/export-lerob
    ``--steps`` at batch 8. ACT is made smaller than LeRobot's default for a CPU budget: model
    width 256 (feed-forward 1024) and 20-frame chunks, executed 10 frames at a time (the
    default 100-frame chunk is longer than an episode's acting horizon), learning rate 1e-4.
-   Its CPU time (the process and its data-loading worker: ``getrusage`` of the children) and
-   the losses it logged go to ``--work/act/dyana_training.json``. A finished training there
-   (the same command) is kept.
+   Its CPU time (the process and its data-loading worker: ``getrusage`` of the children)
+   goes to ``--work/act/dyana_training.json``, its log to ``--work/train.log``. A finished
+   training there (the same command) is kept.
 3. ``VENV/bin/pipeline eval --policy lerobot:OUT`` on the first ``--eval-episodes`` episodes
    of test-1k at the same resolution into ``--work/runs/act``.
-4. ``--out/record.json``: versions, commands, the training budget and the run's hash;
+4. ``--out/record.json``: versions, commands, the training budget, the losses it logged
+   (every 50 steps) and the run's hash;
    ``benchmarks/closed_loop_results.py --add-run WORK/runs/act`` puts the run in
    the results table beside the other rows.
 
@@ -39,14 +40,22 @@ import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 from catalog.manifest import load_manifest  # noqa: E402
 from schemas.slices import ATOMIC_SLICES  # noqa: E402
 
+#: Steps between lerobot-train's log lines (``--log_freq``).
+LOG_FREQ = 50
 ACT_OPTIONS = (
     "--policy.type=act", "--policy.device=cpu", "--policy.push_to_hub=false",
     "--policy.pretrained_backbone_weights=null",
     "--policy.chunk_size=20", "--policy.n_action_steps=10", "--policy.dim_model=256",
     "--policy.dim_feedforward=1024", "--policy.optimizer_lr=1e-4", "--policy.optimizer_lr_backbone=1e-4",
-    "--batch_size=8", "--num_workers=1", "--log_freq=50", "--eval_freq=0", "--wandb.enable=false", "--seed=1000",
+    "--batch_size=8", "--num_workers=1", f"--log_freq={LOG_FREQ}", "--eval_freq=0", "--wandb.enable=false", "--seed=1000",
 )
-LOSS = re.compile(r"step:(\d+)\S* .*?loss:([\d.]+)")
+#: The loss of a lerobot-train log line (``step:2K smpl:16K ... loss:0.272``; its step is rounded).
+LOSS = re.compile(r"step:\S+ .*?loss:([\d.]+)")
+
+
+def logged_losses(log: Path) -> list[tuple[int, float]]:
+    """(step, loss) of every log line of a lerobot-train run: one line every LOG_FREQ steps."""
+    return [(LOG_FREQ * (i + 1), float(loss)) for i, loss in enumerate(LOSS.findall(log.read_text()))]
 
 
 def run(argv: list[str], **kwargs) -> None:
@@ -72,7 +81,6 @@ def train(venv: Path, dataset: Path, out: Path, steps: int) -> dict:
     with log.open("w") as sink:
         run(command, env=env, stdout=sink, stderr=subprocess.STDOUT)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    losses = [(int(s), float(v)) for s, v in LOSS.findall(log.read_text())]
     record = {
         "load_average_start": [round(x, 2) for x in load_start],
         "load_average_end": [round(x, 2) for x in os.getloadavg()],
@@ -82,7 +90,6 @@ def train(venv: Path, dataset: Path, out: Path, steps: int) -> dict:
         "cpu_seconds": round(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, 1),
         "wall_seconds": round(time.perf_counter() - start, 1),
         "threads": 1,
-        "losses": losses,
     }
     record_path.write_text(json.dumps(record, indent=1) + "\n")
     return record
@@ -122,9 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         "data": {"slices": sorted(ATOMIC_SLICES), "episodes_per_slice": args.episodes_per_slice,
                  "resolution": args.resolution,
                  "frames": sum(load_manifest(work / "train9" / n).frames for n in ATOMIC_SLICES)},
-        "training": {k: v for k, v in training.items() if k != "losses"} | {
-            "first_loss": training["losses"][0] if training["losses"] else None,
-            "last_loss": training["losses"][-1] if training["losses"] else None},
+        "training": training | {"logged_losses": logged_losses(work / "train.log")},
         "eval": {"command": evaluate[1:], "episodes": args.eval_episodes, "hash": load_manifest(runs).hash},
     }
     out = Path(args.out)
