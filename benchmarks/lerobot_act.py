@@ -47,7 +47,7 @@ ACT_OPTIONS = (
     "--policy.pretrained_backbone_weights=null",
     "--policy.chunk_size=20", "--policy.n_action_steps=10", "--policy.dim_model=256",
     "--policy.dim_feedforward=1024", "--policy.optimizer_lr=1e-4", "--policy.optimizer_lr_backbone=1e-4",
-    "--batch_size=8", "--num_workers=1", f"--log_freq={LOG_FREQ}", "--eval_freq=0", "--wandb.enable=false", "--seed=1000",
+    "--batch_size=8", "--num_workers=1", f"--log_freq={LOG_FREQ}", "--wandb.enable=false", "--seed=1000",
 )
 #: The loss of a lerobot-train log line (``step:2K smpl:16K ... loss:0.272``; its step is rounded).
 LOSS = re.compile(r"step:\S+ .*?loss:([\d.]+)")

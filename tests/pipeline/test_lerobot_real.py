@@ -66,7 +66,7 @@ def test_lerobot_trains_act_on_the_export_and_the_checkpoint_runs_in_the_loop(so
             "--policy.pretrained_backbone_weights=null", "--policy.chunk_size=10", "--policy.n_action_steps=10",
             "--policy.dim_model=64", "--policy.dim_feedforward=128", "--policy.n_encoder_layers=1",
             "--policy.n_decoder_layers=1", "--batch_size=2", f"--steps={STEPS}", "--num_workers=0",
-            f"--save_freq={STEPS}", "--log_freq=1", "--eval_freq=0", "--wandb.enable=false", f"--output_dir={train}"]
+            f"--save_freq={STEPS}", "--log_freq=1", "--wandb.enable=false", f"--output_dir={train}"]
     if legacy:
         argv.append("--dataset.video_backend=torchcodec")
     _run(argv, tmp_path, 3600)
