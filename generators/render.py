@@ -395,15 +395,19 @@ class Renderer:
         if self.backend != "tiny":
             return self._full(bgr)
         if self._object is None and self._hand is None:
-            return (self._plate_bgr if bgr else self._plate_rgb).copy()
+            return self._plate(bgr).copy()
         if self.kind == "full":
             return self._composite(*self._draw(self._client), bgr)
         window = self.window()
         if window is None:
-            return (self._plate_bgr if bgr else self._plate_rgb).copy()
+            return self._plate(bgr).copy()
         r0, r1, c0, c1 = window
         rgba, depth = self._draw(self._client, self._camera.projection(window), c1 - c0, r1 - r0)
         return self._composite(rgba, depth, bgr, r0, c0)
+
+    def _plate(self, bgr: bool) -> np.ndarray:
+        """The static plate in the frame's channel order (read only: copy before drawing on it)."""
+        return self._plate_bgr if bgr else self._plate_rgb
 
     def window(self) -> tuple[int, int, int, int] | None:
         """The window ``(r0, r1, c0, c1)`` of the unmirrored image that the ``window``
@@ -417,7 +421,7 @@ class Renderer:
         """The moving bodies' draw (of the unmirrored image's window at ``top``, ``left``)
         over the plate: a moving pixel shows where its depth is at least as near as the
         plate's; a near-tie falls back to a full render."""
-        plate = self._plate_bgr if bgr else self._plate_rgb
+        plate = self._plate(bgr)
         # OpenCV's one-pass calls on the window (each numpy expression is a pass and an array):
         # the bounds of the drawn pixels, then the near-tie test and the front mask on them.
         moving = (depth < self._empty_depth).view(np.uint8)
