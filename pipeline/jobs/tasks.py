@@ -224,7 +224,7 @@ def run_tasks(
     single-threaded process per worker, at most one per task), on an existing scheduler, or
     in this process (``workers == 0``, or a single task without a scheduler: one task runs
     on one core either way, and starting a cluster, whose workers import everything again,
-    costs about 4 CPU seconds, more than a small job's work); call ``on_done`` in the driver
+    costs more CPU than a small job's work); call ``on_done`` in the driver
     with each result as it finishes, and ``on_episode`` (on another thread with Dask) with
     the tasks' episode reports."""
     if not tasks:
