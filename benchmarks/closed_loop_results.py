@@ -67,11 +67,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="also score this run, made elsewhere on the same episodes (a model evaluated in its "
                         "own environment: benchmarks/lerobot_act.py), after the built-in rows; repeatable")
     args = parser.parse_args(argv)
-    extra = []
     for folder in args.add_run:
         if not (Path(folder) / "catalog.json").is_file():
             parser.error(f"--add-run takes a run's folder (with its catalog.json), got {folder[:200]!r}")
-        extra.append(folder)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
@@ -96,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
                     return code
                 print(f"{name}: {args.episodes} episodes in {time.perf_counter() - start:.1f} s", file=sys.stderr)
             (blind if name in BLIND else folders).append(str(folder))
-        folders += extra
+        folders += args.add_run
         prefix = "" if args.slice == "test-1k" else args.slice.replace("-", "_") + "_"
         table = io.StringIO()
         with contextlib.redirect_stdout(table):

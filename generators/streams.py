@@ -40,19 +40,27 @@ def _words(n: int) -> list[int]:
     return words
 
 
+def _hasher(init: int, mult: int):
+    """SeedSequence's hash step with its running constant (``hashmix`` while mixing the pool,
+    the same step with other constants in ``generate_state``): a function of 32-bit values."""
+    h = init
+
+    def step(value: np.ndarray) -> np.ndarray:
+        nonlocal h
+        value = value ^ np.uint64(h)
+        h = (h * mult) & _M32
+        value = (value * np.uint64(h)) & np.uint64(_M32)
+        return value ^ (value >> np.uint64(16))
+
+    return step
+
+
 def _pool_words(seed: int, indices: np.ndarray) -> list[np.ndarray]:
     """The 4 pool words of ``SeedSequence([seed, i])`` for every ``i`` (< 2**32), as uint64
     arrays holding 32-bit values."""
     n = len(indices)
     entropy = [np.full(n, w, dtype=np.uint64) for w in _words(seed)] + [indices.astype(np.uint64)]
-    h = _INIT_A
-
-    def hashmix(value: np.ndarray) -> np.ndarray:
-        nonlocal h
-        value = value ^ np.uint64(h)
-        h = (h * _MULT_A) & _M32
-        value = (value * np.uint64(h)) & np.uint64(_M32)
-        return value ^ (value >> np.uint64(16))
+    hashmix = _hasher(_INIT_A, _MULT_A)
 
     def mix(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         result: np.ndarray = np.bitwise_and(x * np.uint64(_MIX_L) - y * np.uint64(_MIX_R), np.uint64(_M32))
@@ -72,13 +80,8 @@ def _pool_words(seed: int, indices: np.ndarray) -> list[np.ndarray]:
 
 def _state_words(pool: list[np.ndarray]) -> list[np.ndarray]:
     """``generate_state(4, uint64)`` of the pool, as 8 little-endian 32-bit words."""
-    h, out = _INIT_B, []
-    for k in range(8):
-        value = pool[k % _POOL] ^ np.uint64(h)
-        h = (h * _MULT_B) & _M32
-        value = (value * np.uint64(h)) & np.uint64(_M32)
-        out.append(value ^ (value >> np.uint64(16)))
-    return out
+    step = _hasher(_INIT_B, _MULT_B)
+    return [step(pool[k % _POOL]) for k in range(8)]
 
 
 def _limbs(hi: tuple[np.ndarray, np.ndarray], lo: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray]:
