@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import fresnel
 
 from generators.primitives.base import XZ, Box, EndState, Piece, Primitive, Segment, register
 from generators.quadrature import weighted_sum
@@ -40,6 +39,10 @@ def clothoid_integral(h0: float, k0: float, c: float, s: np.ndarray) -> np.ndarr
     wmax = max(abs(w0), abs(w0 + smax / lam))
     if 2.2e-16 * (lam * (1.0 + wmax) + smax * wmax * wmax) > _FRESNEL_BUDGET:
         return clothoid_quadrature(h0, k0, c, s)
+    # imported here: scipy.special costs ~0.7 CPU s to import (every `pipeline`, `catalog`
+    # and `scoring` process and Dask worker imports this module; only clothoids call it)
+    from scipy.special import fresnel
+
     s1, c1 = fresnel(w1)
     s0, c0 = fresnel(w0)
     sign = 1.0 if c > 0 else -1.0

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
 from generators.primitives import Primitive, primitive_for, register, registered
@@ -40,3 +43,23 @@ def test_a_primitive_that_leaves_out_a_closed_form_cannot_be_registered() -> Non
                 raise AssertionError("never called")
 
     assert NewToken not in registered()
+
+
+def test_the_command_lines_start_without_scipy_special() -> None:
+    """scipy.special (~0.7 CPU s to import) is loaded by the clothoid's Fresnel form only
+    when a clothoid asks for it: a build, an evaluation or a score of the paper's
+    slices, and each Dask worker, start without it; a clothoid still gets it."""
+    code = (
+        "import sys\n"
+        "import pipeline.jobs.build, pipeline.jobs.evaluate, pipeline.cli_catalog, scoring.cli\n"
+        "from generators.recipe import spec_for\n"
+        "from generators.ground_truth import plan\n"
+        "plan(spec_for('linear-fast', 0))\n"
+        "assert 'scipy.special' not in sys.modules, 'scipy.special imported'\n"
+        "import numpy as np\n"
+        "from generators.primitives.clothoid import clothoid_integral\n"
+        "clothoid_integral(0.0, 0.1, 0.02, np.linspace(0.0, 1.0, 5))\n"
+        "assert 'scipy.special' in sys.modules\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
