@@ -55,6 +55,7 @@ TIMINGS = (
     Source("closed_loop_profile.txt", "closed_loop_speed.py", "Closed loop against build, by stage"),
     Source("window_render.txt", "window_render.py", "Window rendering: the full-viewport draw against the window (dataset 4.0.0)"),
     Source("visibility.txt", "visibility.py", "Visibility of the object"),
+    Source("dataloader.txt", "dataloader.py", "Loader against bare decoding"),
 )
 SCALING = Source("scaling.json", "scaling.py", "Scaling and a projection of dyana-12m")
 
