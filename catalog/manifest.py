@@ -33,7 +33,7 @@ from catalog.storage import as_location
 from catalog.versions import VERSIONS_KEY, checked_versions
 from schemas.errors import ShardError, SpecError
 from schemas.formats import stored_formats
-from schemas.names import printable
+from schemas.names import printable, shorten
 from schemas.versions import CODE_VERSION
 
 MANIFEST_NAME = "catalog.json"
@@ -55,9 +55,9 @@ class CodeInfo:
 
     def __post_init__(self) -> None:
         if not isinstance(self.version, str) or not self.version:
-            raise ShardError(f"code.version must be a non-empty string, got {self.version!r}")
+            raise ShardError(f"code.version must be a non-empty string, got {shorten(repr(self.version))}")
         if self.commit is not None and not (isinstance(self.commit, str) and _COMMIT.match(self.commit)):
-            raise ShardError(f"code.commit must be a hex git sha or null, got {self.commit!r}")
+            raise ShardError(f"code.commit must be a hex git sha or null, got {shorten(repr(self.commit))}")
 
     @classmethod
     def current(cls) -> CodeInfo:
@@ -109,17 +109,17 @@ class Manifest:
 
     def __post_init__(self) -> None:
         if not isinstance(self.slice, str) or not self.slice:
-            raise ShardError(f"slice must be a non-empty string, got {self.slice!r}")
+            raise ShardError(f"slice must be a non-empty string, got {shorten(repr(self.slice))}")
         if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int)):
-            raise ShardError(f"seed must be an integer or null, got {self.seed!r}")
+            raise ShardError(f"seed must be an integer or null, got {shorten(repr(self.seed))}")
         code = self.code
         if isinstance(code, Mapping) and set(code) == {"version", "commit"}:
             code = CodeInfo(code["version"], code["commit"])
         if not isinstance(code, CodeInfo):
-            raise ShardError(f"code must be a CodeInfo or {{version, commit}}, got {self.code!r}")
+            raise ShardError(f"code must be a CodeInfo or {{version, commit}}, got {shorten(repr(self.code))}")
         object.__setattr__(self, "code", code)
         if not isinstance(self.settings, Mapping):
-            raise ShardError(f"settings must be an object, got {self.settings!r}")
+            raise ShardError(f"settings must be an object, got {shorten(repr(self.settings))}")
         settings = dict(self.settings)
         try:
             canonical_json(settings)
@@ -129,7 +129,7 @@ class Manifest:
         shards = tuple(self.shards)
         for i, shard in enumerate(shards):
             if not isinstance(shard, ShardRecord):
-                raise ShardError(f"shards[{i}] must be a ShardRecord, got {shard!r}")
+                raise ShardError(f"shards[{i}] must be a ShardRecord, got {shorten(repr(shard))}")
             if i and shard.first < shards[i - 1].end:
                 raise ShardError(
                     f"shards must be ordered and disjoint: {list(shards[i - 1].episodes)} then {list(shard.episodes)}"
@@ -161,9 +161,9 @@ class Manifest:
             raise ShardError(f"extra keys must be plain JSON values: {exc}") from None
         object.__setattr__(self, "extra", MappingProxyType(extra))
         if not is_sha256(self.hash):
-            raise ShardError(f"hash must be a sha256 hex digest, got {self.hash!r}")
+            raise ShardError(f"hash must be a sha256 hex digest, got {shorten(repr(self.hash))}")
         if self.stats is not None and not isinstance(self.stats, FileRecord):
-            raise ShardError(f"stats must be a file record, got {self.stats!r}")
+            raise ShardError(f"stats must be a file record, got {shorten(repr(self.stats))}")
         if self.audit is not None:
             audit = tuple(self.audit)
             if not all(isinstance(r, FileRecord) for r in audit):
@@ -248,7 +248,7 @@ class Manifest:
             raise ShardError(f"manifest is missing key(s) {missing}")
         code = data["code"]
         if not isinstance(code, dict) or "version" not in code or "commit" not in code:
-            raise ShardError(f"code must be an object with version and commit, got {code!r}")
+            raise ShardError(f"code must be an object with version and commit, got {shorten(repr(code))}")
         if not isinstance(data["shards"], list):
             raise ShardError(f"shards must be a list, got {data['shards']!r}")
         shards = tuple(ShardRecord.from_dict(s, f"shards[{i}]") for i, s in enumerate(data["shards"]))

@@ -38,6 +38,7 @@ from urllib.parse import urlsplit, urlunsplit
 from pipeline.loop.rollout import WATCHDOG_S
 from pipeline.policies.base import Policy, make_policy
 from schemas.errors import PolicyError, SpecError
+from schemas.names import shorten
 
 #: Extra seconds a remote policy's socket waits beyond the deadline or watchdog (the
 #: rollout's fires first and names the fault).
@@ -141,7 +142,7 @@ def register(kind: PolicyKind, first: bool = True) -> PolicyKind:
 def kind_of(ref: str) -> PolicyKind:
     """The kind of ``ref``; SpecError when it is not a non-empty string."""
     if not isinstance(ref, str) or not ref:
-        raise SpecError(f"--policy must be a name, module:callable or ws://HOST:PORT, got {ref!r}")
+        raise SpecError(f"--policy must be a name, module:callable or ws://HOST:PORT, got {shorten(repr(ref))}")
     for kind in KINDS:
         if kind.matches(ref):
             return kind
@@ -183,7 +184,7 @@ def describe_policy(ref: str, options: OpenOptions | None = None) -> tuple[str, 
             raise SpecError(f"policy {ref!r} has no name (a Policy needs a non-empty str attribute name)")
         privileged = getattr(policy, "privileged", False)
         if not isinstance(privileged, bool):
-            raise SpecError(f"policy {ref!r}: privileged must be True or False, got {privileged!r}")
+            raise SpecError(f"policy {ref!r}: privileged must be True or False, got {shorten(repr(privileged))}")
         return name, privileged
     finally:
         close_policy(policy)

@@ -67,7 +67,7 @@ def check_workers(workers: int, scheduler: str | None) -> None:
         return
     if isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= MAX_WORKERS:
         raise SpecError(
-            f"--workers must be an integer in [0, {MAX_WORKERS}] (0: in this process, without Dask), got {workers!r}"
+            f"--workers must be an integer in [0, {MAX_WORKERS}] (0: in this process, without Dask), got {shorten(repr(workers))}"
         )
 
 
@@ -100,7 +100,7 @@ class ShardTask:
 def shard_ranges(episodes: int, shard_size: int) -> list[tuple[int, int]]:
     """Fixed episode ranges [first, end) of at most ``shard_size`` episodes."""
     if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
-        raise SpecError(f"--shard-size must be an integer >= 1, got {shard_size!r}")
+        raise SpecError(f"--shard-size must be an integer >= 1, got {shorten(repr(shard_size))}")
     return [(a, min(a + shard_size, episodes)) for a in range(0, episodes, shard_size)]
 
 

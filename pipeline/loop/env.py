@@ -133,6 +133,7 @@ from pipeline.loop.views import VIEWS, absolute_action, normalized_action_space
 from pipeline.stages.episode import measure_hand
 from schemas.errors import DyanaError, SpecError
 from schemas.events import grasp_closed, localized, spec_hover_offset
+from schemas.names import shorten
 from schemas.objects import object_category
 from schemas.renderers import DEFAULT_RENDERER, RENDERERS, check_renderer
 from schemas.scene import DEFAULT_RESOLUTION, PHASES
@@ -234,9 +235,9 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
     ):
         check_resolution("resolution", resolution)
         if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, (int, np.integer)) or not 1 <= jpeg_quality <= 100:
-            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {jpeg_quality!r}")
+            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {shorten(repr(jpeg_quality))}")
         if render_mode not in (None, "rgb_array"):
-            raise SpecError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+            raise SpecError(f"render_mode must be None or 'rgb_array', got {shorten(repr(render_mode))}")
         if renderer is not None and not isinstance(renderer, (Renderer, str)):
             raise SpecError(f"renderer must be a generators.render.Renderer or one of {list(RENDERERS)}, "
                             f"got {type(renderer).__name__}")

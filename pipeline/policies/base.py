@@ -32,6 +32,7 @@ from typing import Any, NotRequired, Protocol, TypedDict, runtime_checkable
 import numpy as np
 
 from schemas.errors import SpecError
+from schemas.names import shorten
 
 #: Built-in policies: name -> "module:class".
 BUILTIN = {
@@ -147,7 +148,7 @@ def _required_positional(fn: Callable) -> int | None:
 def _resolve(ref: str) -> Any:
     module_name, _, attr = ref.partition(":")
     if not module_name or not attr:
-        raise SpecError(f"policy reference must be a built-in name {sorted(BUILTIN)} or module:callable, got {ref!r}")
+        raise SpecError(f"policy reference must be a built-in name {sorted(BUILTIN)} or module:callable, got {shorten(repr(ref))}")
     try:
         target: Any = importlib.import_module(module_name)
     except ImportError as exc:
@@ -169,7 +170,7 @@ def make_policy(ref: str) -> Policy:
     does not give a policy.
     """
     if not isinstance(ref, str) or not ref:
-        raise SpecError(f"policy must be a non-empty string, got {ref!r}")
+        raise SpecError(f"policy must be a non-empty string, got {shorten(repr(ref))}")
     target = _resolve(BUILTIN.get(ref, ref)) if (ref in BUILTIN or ":" in ref) else None
     if target is None:
         raise SpecError(f"unknown policy {ref!r}: expected one of {sorted(BUILTIN)} or module:callable")

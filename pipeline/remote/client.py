@@ -25,6 +25,7 @@ import numpy as np
 from pipeline.policies.base import Observation, Task
 from pipeline.remote import protocol
 from schemas.errors import PolicyError, SpecError
+from schemas.names import shorten
 
 if TYPE_CHECKING:  # websockets is imported when a connection is made
     from websockets.sync.client import ClientConnection
@@ -52,9 +53,9 @@ class RemotePolicy:
 
     def __init__(self, url: str, timeout_s: float = DEFAULT_TIMEOUT_S, open_timeout_s: float = OPEN_TIMEOUT_S) -> None:
         if not is_remote(url):
-            raise SpecError(f"a remote policy URL starts with ws:// or wss://, got {url!r}")
+            raise SpecError(f"a remote policy URL starts with ws:// or wss://, got {shorten(repr(url))}")
         if not (isinstance(timeout_s, (int, float)) and timeout_s > 0):
-            raise SpecError(f"timeout_s must be a number > 0, got {timeout_s!r}")
+            raise SpecError(f"timeout_s must be a number > 0, got {shorten(repr(timeout_s))}")
         self.url = url
         self.timeout_s = float(timeout_s)
         self.calls = 0
