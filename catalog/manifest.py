@@ -313,7 +313,7 @@ def check_seal(data: Mapping[str, Any], *, required: bool = True) -> bool:
 
 
 def manifest_path(directory: str | os.PathLike[str]) -> Path:
-    return as_location(directory) / MANIFEST_NAME
+    return as_location(directory, "directory") / MANIFEST_NAME
 
 
 def write_manifest(directory: str | os.PathLike[str], manifest: Manifest) -> Path:

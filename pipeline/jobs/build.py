@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from catalog.manifest import Manifest
-from catalog.storage import is_url
+from catalog.storage import as_location, is_url
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, JobResult
@@ -116,6 +116,7 @@ def build_job(
     from generators.encode import JPEG_QUALITY
 
     version = dataset_version_of(check_renderer(renderer))
+    as_location(out, "out")  # a folder name or URL, checked before anything is read
 
     extra: dict[str, str] = {}
     obstacles = False

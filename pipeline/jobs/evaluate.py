@@ -323,6 +323,7 @@ def evaluate(
 
     version = dataset_version_of(check_renderer(renderer))
     kind = kind_of(policy_ref)
+    run_dir = as_location(out, "out")
     if deadline_s is not None:
         try:
             deadline_s = check_seconds("--deadline", deadline_s)
@@ -342,7 +343,7 @@ def evaluate(
                                    formats=parse_formats(formats), dataset_version=version)
     ranges = shard_ranges(total, shard_size)
     if not is_url(out):
-        refuse_export_folder(as_location(out), "run")
+        refuse_export_folder(run_dir, "run")
     config = kind.configure(policy_ref, config)
     options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config)
     name, privileged = describe_policy(policy_ref, options)
@@ -352,7 +353,6 @@ def evaluate(
                             protocol, kind.name)
     if is_url(out) and kind.audit_dir is not None:
         raise SpecError(f"--out {str(out)[:60]}: a {kind.name} run keeps its audit trail on local disk; evaluate it locally")
-    run_dir = as_location(out)
     job = Job(
         folder=Path("/nonexistent-remote-job") if is_url(out) else run_dir,
         slice_name=slice_name,
