@@ -56,7 +56,7 @@ from pipeline.policy_registry import (
 )
 from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
-from schemas.names import printable
+from schemas.names import printable, shorten
 from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of
 
 DEFAULT_SHARD_SIZE = 32
@@ -335,7 +335,9 @@ def evaluate(
         raise SpecError(f"{slice_name} is the union of {', '.join(definition.parts)}: evaluate on one of them or test-1k")
     total = definition.episodes if episodes is None else episodes
     if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
-        raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
+        raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {shorten(repr(total))}")
+    if protocol is not None and not isinstance(protocol, EvalProtocol):
+        raise SpecError(f"protocol must be a pipeline.loop.conditions.EvalProtocol or None, got {shorten(repr(protocol))}")
     protocol = protocol or EvalProtocol()
     build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY,
                                    obstacle_clearance=definition.may_hold_obstacles,
