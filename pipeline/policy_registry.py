@@ -210,20 +210,22 @@ def make_vlm(ref: str, options: OpenOptions) -> Policy:
 
     if options.config is None:
         raise SpecError(f"policy {ref!r} needs a VLM configuration (--model NAME and the --vlm-* flags)")
-    return VLMPolicy(VLMConfig(**options.config))
+    return VLMPolicy(VLMConfig.from_dict(options.config))
 
 
 def configure_vlm(ref: str, config: Config | None) -> Config:
     from pipeline.policies.vlm import VLMConfig
 
-    return VLMConfig(**{"url": ref[len(VLM_PREFIX):], **(config or {})}).to_dict()
+    if config is not None and not isinstance(config, dict):
+        raise SpecError(f"config of {shorten(ref)} must be a dict of --vlm-* settings, got {shorten(repr(config))}")
+    return VLMConfig.from_dict({"url": ref[len(VLM_PREFIX):], **(config or {})}).to_dict()
 
 
 def replay_vlm(config: Config, records: list[dict[str, Any]]) -> Policy:
     from pipeline.policies.vlm import VLMConfig, VLMPolicy
     from pipeline.policies.vlm_transport import RecordedTransport
 
-    return VLMPolicy(VLMConfig(**config), transport=RecordedTransport(records))
+    return VLMPolicy(VLMConfig.from_dict(config), transport=RecordedTransport(records))
 
 
 def check_vlm(config: Config | None) -> None:
