@@ -22,6 +22,7 @@ import contextlib
 import dataclasses
 import logging
 import os
+import re
 import signal
 import threading
 import uuid
@@ -61,8 +62,26 @@ def default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+#: A Dask scheduler address: ``[PROTOCOL://]HOST:PORT`` for tcp and tls (Dask's default
+#: protocol is tcp), ``PROTOCOL://ADDRESS`` for the others (inproc, ucx, ...).
+_SCHEDULER = re.compile(r"(?:(?:tcp|tls)://)?(?:\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+):(\d{1,5})|(?!(?:tcp|tls)://)[a-z][a-z0-9+.-]*://\S+")
+
+
+def check_scheduler(scheduler: str | None) -> None:
+    """SpecError unless ``scheduler`` is None or a Dask scheduler address (a port 1..65535 for
+    tcp and tls), so that a malformed one is refused before the output folder is made."""
+    if scheduler is None:
+        return
+    match = _SCHEDULER.fullmatch(scheduler) if isinstance(scheduler, str) else None
+    if match is None or (match.group(1) is not None and not 1 <= int(match.group(1)) <= 65535):
+        shown = shorten(scheduler) if isinstance(scheduler, str) else scheduler
+        raise SpecError(f"--scheduler {shown!r}: not a Dask scheduler address (expected e.g. tcp://127.0.0.1:8786)")
+
+
 def check_workers(workers: int, scheduler: str | None) -> None:
-    """SpecError unless ``workers`` is 0 (this process) to :data:`MAX_WORKERS` (ignored with a scheduler)."""
+    """SpecError unless ``workers`` is 0 (this process) to :data:`MAX_WORKERS` (ignored with a
+    scheduler, whose address :func:`check_scheduler` checks)."""
+    check_scheduler(scheduler)
     if scheduler:
         return
     if isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= MAX_WORKERS:
