@@ -1,0 +1,105 @@
+"""The job functions (``build``, ``evaluate``) and the readers' folder argument refuse a
+wrong type or value with a SpecError naming the argument, the value cut short, before a
+folder is made or anything is read: never a TypeError or AttributeError from deep inside."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from catalog.manifest import load_manifest
+from catalog.reader import open_folder
+from pipeline.jobs.build import build
+from pipeline.jobs.evaluate import evaluate
+from pipeline.policies.vlm import VLMConfig, template_path
+from schemas.errors import SpecError
+from scoring.io import load_run
+
+SMALL = {"episodes": 1, "workers": 0, "resolution": 16, "shard_size": 1, "progress": False}
+LONG = "x" * 10_000
+
+
+def _made(root: Path) -> list[str]:
+    return sorted(str(p.relative_to(root)) for p in root.rglob("*"))
+
+
+@pytest.mark.parametrize(("option", "value", "named"), [
+    ("formats", None, "--formats"),
+    ("formats", 5, "--formats"),
+    ("formats", 1.5, "--formats"),
+    ("formats", [5], "--formats"),
+    ("scheduler", "nope", "--scheduler"),
+    ("scheduler", "", "--scheduler"),
+    ("scheduler", 1.5, "--scheduler"),
+    ("scheduler", "tcp://127.0.0.1:99999", "--scheduler"),
+    ("overwrite", "no", "overwrite"),
+    ("overwrite", None, "overwrite"),
+    ("progress", 1, "progress"),
+    ("episodes", LONG, "--episodes"),
+    ("workers", LONG, "--workers"),
+    ("shard_size", LONG, "--shard-size"),
+    ("resolution", LONG, "resolution"),
+])
+def test_build_refuses_a_bad_option_before_making_the_folder(tmp_path, option, value, named):
+    """Before: formats=None was a TypeError, a malformed scheduler left OUT/<slice>/.lock
+    behind, overwrite="no" replaced another build, and a 10 kB value was echoed whole."""
+    with pytest.raises(SpecError, match=named) as caught:
+        build("linear-fast", tmp_path / "out", **{**SMALL, option: value})
+    assert len(str(caught.value)) < 300 and "\n" not in str(caught.value)
+    assert _made(tmp_path) == []
+
+
+@pytest.mark.parametrize("out", [None, 5, 1.5, [], b"out", "out\x00x"])
+def test_build_and_evaluate_name_an_out_that_is_not_a_folder_name(tmp_path, monkeypatch, out):
+    """Before: TypeError from pathlib (expected str, bytes or os.PathLike) or ValueError (embedded null byte)."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SpecError, match="out must be a folder or file name"):
+        build("linear-fast", out, **SMALL)
+    with pytest.raises(SpecError, match="out must be a folder or file name"):
+        evaluate("still", "linear-fast", out, **SMALL, summary=False)
+    assert _made(tmp_path) == []
+
+
+@pytest.mark.parametrize("protocol", ["latency", 3, [1], {"latency_frames": 2}, math.nan])
+def test_evaluate_names_a_protocol_that_is_not_an_eval_protocol(tmp_path, protocol):
+    """Before: AttributeError ('str' object has no attribute 'plain'); 0, [] and {} ran a plain run."""
+    with pytest.raises(SpecError, match="protocol must be a pipeline.loop.conditions.EvalProtocol"):
+        evaluate("still", "linear-fast", tmp_path / "run", protocol=protocol, **SMALL, summary=False)
+    assert _made(tmp_path) == []
+
+
+@pytest.mark.parametrize(("config", "message"), [
+    (None, "needs --model NAME"),
+    ({}, "needs --model NAME"),
+    ({"model": 5}, "needs --model NAME.*got 5"),
+    ({"model": "m", "colour": 1}, "unknown setting 'colour'"),
+    (["model", "m"], "must be a dict of --vlm-\\* settings"),
+    ({"model": "m", "template": "../../../etc/x"}, "no such template"),
+    ({"model": "m", "template": 7}, "--vlm-template must be a template name or a .txt file, got 7"),
+])
+def test_a_vlm_configuration_is_checked_field_by_field(tmp_path, config, message):
+    """Before: TypeError (VLMConfig.__init__() missing 'model' / unexpected keyword 'colour'),
+    AttributeError for a template that is not text; a built-in template name could be a path."""
+    with pytest.raises(SpecError, match=message):
+        evaluate("vlm:http://127.0.0.1:9/v1", "linear-fast", tmp_path / "run", config=config, **SMALL, summary=False)
+    assert _made(tmp_path) == []
+
+
+def test_a_vlm_template_name_stays_in_the_built_in_folder(tmp_path):
+    (tmp_path / "mine.txt").write_text("my prompt")
+    assert template_path("v1").name == "v1.txt"
+    assert template_path(str(tmp_path / "mine.txt")) == tmp_path / "mine.txt"
+    with pytest.raises(SpecError, match="no such template"):
+        template_path(f"../../../../../../{tmp_path}/mine")
+    with pytest.raises(SpecError, match="unknown setting"):
+        VLMConfig.from_dict({"url": "http://x", "model": "m", "extra": 1})
+
+
+@pytest.mark.parametrize("directory", [None, 5, 1.5, True, [], {}, b"folder", "a\x00b"])
+@pytest.mark.parametrize("reader", [open_folder, load_manifest, load_run])
+def test_readers_name_a_directory_that_is_not_a_folder_name(reader, directory):
+    """Before: TypeError from pathlib (``open_folder(None)``), ValueError for a NUL byte."""
+    with pytest.raises(SpecError, match="directory must be a folder or file name"):
+        reader(directory)
