@@ -103,3 +103,28 @@ def test_readers_name_a_directory_that_is_not_a_folder_name(reader, directory):
     """Before: TypeError from pathlib (``open_folder(None)``), ValueError for a NUL byte."""
     with pytest.raises(SpecError, match="directory must be a folder or file name"):
         reader(directory)
+
+
+@pytest.mark.parametrize("linked", ["frames", "episodes/inner", "catalog.json"])
+def test_a_symbolic_link_inside_the_output_folder_is_refused_before_anything_is_written(tmp_path, linked):
+    """Before: with ``frames -> elsewhere``, a rebuild --overwrite wrote its shards into
+    elsewhere and removed the shards it found there (files outside the output folder)."""
+    out = tmp_path / "out"
+    build("linear-fast", out, **{**SMALL, "episodes": 2})
+    folder = out / "linear-fast"
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "notes.txt").write_text("not Dyana's")
+    target = folder / linked
+    if linked == "frames":
+        for shard in (folder / "frames").iterdir():
+            shard.rename(elsewhere / shard.name)
+        (folder / "frames").rmdir()
+    elif linked == "catalog.json":
+        target.unlink()
+        elsewhere = elsewhere / "notes.txt"
+    target.symlink_to(elsewhere)
+    before = sorted((p.name, p.stat().st_size) for p in tmp_path.rglob("*") if not p.is_symlink() and p.is_file())
+    with pytest.raises(SpecError, match=f"{linked}: a symbolic link inside the output folder"):
+        build("linear-fast", out, **{**SMALL, "episodes": 2, "shard_size": 2, "overwrite": True})
+    assert sorted((p.name, p.stat().st_size) for p in tmp_path.rglob("*") if not p.is_symlink() and p.is_file()) == before
