@@ -55,10 +55,14 @@ def as_location(location: str | os.PathLike[str], name: str = "path") -> Path:
         except ImportError:
             raise ShardError(f"{str(location)[:80]}: object storage needs universal-pathlib and s3fs "
                              "(pip install 'dyana[s3]')") from None
+        if not str(location).split("://", 1)[1].split("/", 1)[0]:
+            raise SpecError(f"{name}: {shorten(repr(location))} names no bucket (expected e.g. s3://bucket/folder)")
         try:
-            return UPath(str(location))  # type: ignore[return-value]  # Path's API, not its class
+            path = UPath(str(location))
+            path.fs  # noqa: B018  # the file system's class: an uninstalled one (gs:// without gcsfs) fails here
         except (ValueError, ImportError) as exc:
             raise ShardError(f"{str(location)[:80]}: not a storage URL this installation reads ({exc})") from None
+        return path  # type: ignore[return-value]  # Path's API, not its class
     return Path(location)
 
 

@@ -5,6 +5,9 @@ folder is made or anything is read: never a TypeError or AttributeError from dee
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -19,6 +22,7 @@ from scoring.io import load_run
 
 SMALL = {"episodes": 1, "workers": 0, "resolution": 16, "shard_size": 1, "progress": False}
 LONG = "x" * 10_000
+BIN = Path(sys.executable).parent
 
 
 def _made(root: Path) -> list[str]:
@@ -128,3 +132,22 @@ def test_a_symbolic_link_inside_the_output_folder_is_refused_before_anything_is_
     with pytest.raises(SpecError, match=f"{linked}: a symbolic link inside the output folder"):
         build("linear-fast", out, **{**SMALL, "episodes": 2, "shard_size": 2, "overwrite": True})
     assert sorted((p.name, p.stat().st_size) for p in tmp_path.rglob("*") if not p.is_symlink() and p.is_file()) == before
+
+
+@pytest.mark.parametrize("argv", [
+    ["catalog", "info", "s3://"],
+    ["catalog", "verify", "s3:///"],
+    ["scoring", "eval", "s3://"],
+    ["pipeline", "replay", "s3:///x"],
+    ["pipeline", "build", "--slice", "linear-fast", "--episodes", "1", "--out", "s3://"],
+])
+def test_a_url_without_a_bucket_is_one_line_naming_it(tmp_path, argv):
+    """Before: s3fs's ValueError ("Attempt to open non key-like path") as a traceback, and a
+    build to s3:// reported 'built ... -> s3:/linear-fast/catalog.json'."""
+    env = {**os.environ, "AWS_MAX_ATTEMPTS": "1", "AWS_ENDPOINT_URL": "http://127.0.0.1:9",
+           "AWS_ACCESS_KEY_ID": "x", "AWS_SECRET_ACCESS_KEY": "y"}
+    result = subprocess.run([str(BIN / argv[0]), *argv[1:]], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                            env=env)
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and "names no bucket" in result.stderr
+    assert list(tmp_path.iterdir()) == []
