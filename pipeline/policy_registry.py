@@ -82,7 +82,7 @@ class Audited(Protocol):
 def no_config(ref: str, config: Config | None) -> Config | None:
     """The configuration step of kinds that take none: refuse one."""
     if config is not None:
-        raise SpecError(f"--model and the --vlm-* flags are for vlm:URL policies, not {ref!r}")
+        raise SpecError(f"--model and the --vlm-* flags are for vlm:URL policies, not {shorten(repr(ref))}")
     return None
 
 
@@ -146,7 +146,7 @@ def kind_of(ref: str) -> PolicyKind:
     for kind in KINDS:
         if kind.matches(ref):
             return kind
-    raise SpecError(f"no policy kind accepts {ref!r}")  # unreachable while "builtin" accepts everything
+    raise SpecError(f"no policy kind accepts {shorten(repr(ref))}")  # unreachable while "builtin" accepts everything
 
 
 def kind_named(name: str) -> PolicyKind:
@@ -181,10 +181,10 @@ def describe_policy(ref: str, options: OpenOptions | None = None) -> tuple[str, 
     try:
         name = getattr(policy, "name", None)
         if not isinstance(name, str) or not name:
-            raise SpecError(f"policy {ref!r} has no name (a Policy needs a non-empty str attribute name)")
+            raise SpecError(f"policy {shorten(repr(ref))} has no name (a Policy needs a non-empty str attribute name)")
         privileged = getattr(policy, "privileged", False)
         if not isinstance(privileged, bool):
-            raise SpecError(f"policy {ref!r}: privileged must be True or False, got {shorten(repr(privileged))}")
+            raise SpecError(f"policy {shorten(repr(ref))}: privileged must be True or False, got {shorten(repr(privileged))}")
         return name, privileged
     finally:
         close_policy(policy)
@@ -209,7 +209,7 @@ def make_vlm(ref: str, options: OpenOptions) -> Policy:
     from pipeline.policies.vlm import VLMConfig, VLMPolicy  # lazy: the OpenAI client
 
     if options.config is None:
-        raise SpecError(f"policy {ref!r} needs a VLM configuration (--model NAME and the --vlm-* flags)")
+        raise SpecError(f"policy {shorten(repr(ref))} needs a VLM configuration (--model NAME and the --vlm-* flags)")
     return VLMPolicy(VLMConfig.from_dict(options.config))
 
 

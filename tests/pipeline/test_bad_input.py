@@ -151,3 +151,10 @@ def test_a_url_without_a_bucket_is_one_line_naming_it(tmp_path, argv):
     assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and "names no bucket" in result.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_10_kb_policy_reference_is_cut_short_in_its_refusal(tmp_path):
+    """Before: 'unknown policy 'xxx...'' repeated all 10,000 characters."""
+    with pytest.raises(SpecError, match=r"unknown policy 'x+\.\.\. \(10,002 characters\)") as caught:
+        evaluate(LONG, "linear-fast", tmp_path / "run", **SMALL, summary=False)
+    assert len(str(caught.value)) < 400 and _made(tmp_path) == []
