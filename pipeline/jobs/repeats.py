@@ -53,6 +53,8 @@ def evaluate_repeats(
     (exit 3, as for one run) is raised after all of them and the index are written."""
     from pipeline.jobs.evaluate import evaluate
 
+    if not isinstance(protocol, EvalProtocol):
+        raise SpecError(f"protocol must be a pipeline.loop.conditions.EvalProtocol, got {shorten(repr(protocol))}")
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 2 <= repeats <= MAX_REPEATS:
         raise SpecError(f"--repeats must be an integer in [2, {MAX_REPEATS}], got {shorten(repr(repeats))}")
     if is_url(out):

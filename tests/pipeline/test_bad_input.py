@@ -158,3 +158,34 @@ def test_a_10_kb_policy_reference_is_cut_short_in_its_refusal(tmp_path):
     with pytest.raises(SpecError, match=r"unknown policy 'x+\.\.\. \(10,002 characters\)") as caught:
         evaluate(LONG, "linear-fast", tmp_path / "run", **SMALL, summary=False)
     assert len(str(caught.value)) < 400 and _made(tmp_path) == []
+
+
+def test_verify_replay_view_and_repeats_name_a_bad_argument(tmp_path):
+    """Before: TypeError ('>=' not supported between 'str' and 'int') for verify(sample='3'),
+    numpy's ValueError for sample=-1, AttributeError for rng='3'; TypeError for
+    replay(shards=1.5); TypeError or IndexError for write_recording(episode='3' or 1.5) and
+    pathlib's TypeError for out=5; AttributeError ('to_dict') for evaluate_repeats(protocol='x')."""
+    from pipeline.jobs.repeats import evaluate_repeats
+    from pipeline.jobs.replay import replay
+    from pipeline.jobs.verify import verify
+    from pipeline.jobs.view import write_recording
+
+    build("linear-fast", tmp_path / "out", **{**SMALL, "episodes": 2})
+    folder = tmp_path / "out" / "linear-fast"
+    for sample in ("3", -1, 0, 1.5, True):
+        with pytest.raises(SpecError, match="--sample must be an integer >= 1"):
+            verify(folder, sample=sample)
+    with pytest.raises(SpecError, match="rng must be a numpy.random.Generator"):
+        verify(folder, sample=1, rng="3")
+    for shards in (1.5, 3, "0", [0.0]):
+        with pytest.raises(SpecError, match="shards must be a list"):
+            replay(folder, shards=shards)
+    pytest.importorskip("rerun")
+    for episode in ("3", 1.5, None, True):
+        with pytest.raises(SpecError, match="--episode must be an integer"):
+            write_recording(folder, episode, tmp_path / "x.rrd")
+    with pytest.raises(SpecError, match="out must be a folder or file name"):
+        write_recording(folder, 0, 5)
+    with pytest.raises(SpecError, match="protocol must be a pipeline.loop.conditions.EvalProtocol"):
+        evaluate_repeats("still", "linear-fast", tmp_path / "rep", 2, "latency", **SMALL)
+    assert not (tmp_path / "rep").exists() and not (tmp_path / "x.rrd").exists()
