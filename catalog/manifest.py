@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import stat
 import subprocess
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -29,7 +30,7 @@ from catalog.atomic import atomic_write_text
 from catalog.hashing import canonical_json, is_sha256, sha256_bytes, slice_hash
 from catalog.records import FileRecord, ShardRecord
 from catalog.repeat_sets import repeats_hint
-from catalog.storage import as_location
+from catalog.storage import as_location, is_remote
 from catalog.versions import VERSIONS_KEY, checked_versions
 from schemas.errors import ShardError, SpecError
 from schemas.formats import stored_formats
@@ -321,13 +322,26 @@ def write_manifest(directory: str | os.PathLike[str], manifest: Manifest) -> Pat
     return atomic_write_text(manifest_path(directory), manifest.to_json())
 
 
+def _read_regular(path: Path) -> str:
+    """A local file's text, if it is a regular file: a FIFO (or a link to a device such as
+    /dev/zero) in catalog.json's place would block every reader or stream for ever."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO opens at once, to be refused
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device or socket"
+        raise ShardError(f"{path}: not a regular file ({kind}), so not a manifest")
+    with os.fdopen(fd, "rb") as handle:
+        return handle.read().decode("utf-8")
+
+
 def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> Manifest:
     """Read and validate ``DIR/catalog.json``, its seal first; ShardError naming the file
     on any problem. ``sealed=False`` accepts a manifest without a seal (``catalog migrate``
     reads the previous release's so; a seal present is still checked)."""
     path = manifest_path(directory)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8") if is_remote(path) else _read_regular(path)
     except FileNotFoundError:
         hint = repeats_hint(directory)  # a folder of repeats says what to pass instead
         raise ShardError(
