@@ -353,6 +353,10 @@ def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> 
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ShardError(f"{path}: not valid JSON: {exc}") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (sys.int_info)
+        raise ShardError(f"{path}: holds a number Dyana cannot read: {shorten(str(exc), 160)}") from None
+    except RecursionError:
+        raise ShardError(f"{path}: JSON nested too deeply") from None
     try:
         if not isinstance(data, dict):
             raise ShardError(f"manifest must be a JSON object, got {type(data).__name__}")

@@ -219,3 +219,12 @@ def test_a_catalog_json_that_is_not_a_regular_file_is_refused_without_reading(sl
     assert not reader.is_alive(), "load_manifest blocked"
     assert len(outcome) == 1 and isinstance(outcome[0], ShardError), outcome
     assert "catalog.json: not a regular file" in str(outcome[0])
+
+
+def test_a_catalog_json_holding_a_number_python_cannot_convert_is_named(slice_dir):
+    """Before: ValueError ('Exceeds the limit (4300 digits) for integer string conversion')
+    escaped load_manifest, a traceback from every reader."""
+    path = slice_dir / "catalog.json"
+    path.write_text(path.read_text().replace('"seed": ', '"seed": ' + "9" * 5000 + ', "s": ', 1))
+    with pytest.raises(ShardError, match="catalog.json: holds a number Dyana cannot read"):
+        load_manifest(slice_dir)
