@@ -228,3 +228,12 @@ def test_a_catalog_json_holding_a_number_python_cannot_convert_is_named(slice_di
     path.write_text(path.read_text().replace('"seed": ', '"seed": ' + "9" * 5000 + ', "s": ', 1))
     with pytest.raises(ShardError, match="catalog.json: holds a number Dyana cannot read"):
         load_manifest(slice_dir)
+
+
+def test_a_catalog_json_nested_too_deeply_is_named(slice_dir):
+    """Before: RecursionError ('maximum recursion depth exceeded while decoding a JSON array')."""
+    path = slice_dir / "catalog.json"
+    text = path.read_text().rstrip()
+    path.write_text(text[:-1] + ', "x": ' + "[" * 200_000 + "]" * 200_000 + "}")
+    with pytest.raises(ShardError, match="catalog.json: JSON nested too deeply"):
+        load_manifest(slice_dir)
