@@ -43,11 +43,12 @@ def is_url(location: Any) -> bool:
 def as_location(location: str | os.PathLike[str], name: str = "path") -> Path:
     """A local :class:`~pathlib.Path`, or a :class:`upath.UPath` for a URL (a Path subclass);
     SpecError naming ``name`` (the caller's argument) for anything else: not a str or
-    path-like (None, a number, bytes), or a name with a NUL byte no file system takes."""
+    path-like (None, a number, bytes), an empty name (``--out "$UNSET"``: not the current
+    folder), or a name with a NUL byte no file system takes."""
     if isinstance(location, Path) or (not isinstance(location, str) and is_remote(location)):
         return location  # type: ignore[return-value]
     text = location if isinstance(location, str) else os.fspath(location) if isinstance(location, os.PathLike) else None
-    if not isinstance(text, str) or "\x00" in text:
+    if not isinstance(text, str) or not text or "\x00" in text:
         raise SpecError(f"{name} must be a folder or file name (str or path-like), got {shorten(repr(location))}")
     if is_url(location):
         try:

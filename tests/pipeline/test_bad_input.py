@@ -189,3 +189,14 @@ def test_verify_replay_view_and_repeats_name_a_bad_argument(tmp_path):
     with pytest.raises(SpecError, match="protocol must be a pipeline.loop.conditions.EvalProtocol"):
         evaluate_repeats("still", "linear-fast", tmp_path / "rep", 2, "latency", **SMALL)
     assert not (tmp_path / "rep").exists() and not (tmp_path / "x.rrd").exists()
+
+
+def test_an_empty_out_is_not_the_current_folder(tmp_path, monkeypatch):
+    """Before: build(out='') built into ./linear-fast and evaluate(out='') wrote its run into
+    the current folder, beside whatever it held."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SpecError, match="out must be a folder or file name"):
+        build("linear-fast", "", **SMALL)
+    with pytest.raises(SpecError, match="out must be a folder or file name"):
+        evaluate("still", "linear-fast", "", **SMALL, summary=False)
+    assert _made(tmp_path) == []
