@@ -204,7 +204,9 @@ def _describe(exc: BaseException) -> str:
 
 
 def _closed(exc: Exception) -> str:
-    rcvd = getattr(exc, "rcvd", None)
+    sent, rcvd = getattr(exc, "sent", None), getattr(exc, "rcvd", None)
+    if sent is not None and sent.code == 1009:  # websockets closes when a reply exceeds max_size
+        return f"code 1009, a reply over {protocol.MAX_REPLY_BYTES >> 20} MiB"
     if rcvd is None:
         return "no close frame received"
     reason = f", {rcvd.reason}" if rcvd.reason else ""
