@@ -27,6 +27,7 @@ from schemas.errors import (
     ShardMissing,
     ShardSizeMismatch,
 )
+from schemas.names import shorten
 
 #: Problem kinds, in the order a file is checked.
 KINDS = ("missing", "size", "sha256", "unreadable", "stray-temp", "unlisted")
@@ -95,7 +96,7 @@ def check_files(
     shards = list(manifest.shards)
     if sample is not None:
         if isinstance(sample, bool) or not isinstance(sample, int) or sample < 1:
-            raise ShardError(f"--sample must be an integer >= 1, got {sample!r}")
+            raise ShardError(f"--sample must be an integer >= 1, got {shorten(repr(sample))}")
         if sample < len(shards):
             generator = np.random.default_rng(0) if rng is None else rng
             chosen = np.sort(generator.choice(len(shards), size=sample, replace=False))

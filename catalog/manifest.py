@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import stat
 import subprocess
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -29,11 +30,11 @@ from catalog.atomic import atomic_write_text
 from catalog.hashing import canonical_json, is_sha256, sha256_bytes, slice_hash
 from catalog.records import FileRecord, ShardRecord
 from catalog.repeat_sets import repeats_hint
-from catalog.storage import as_location
+from catalog.storage import as_location, is_remote
 from catalog.versions import VERSIONS_KEY, checked_versions
 from schemas.errors import ShardError, SpecError
 from schemas.formats import stored_formats
-from schemas.names import printable
+from schemas.names import printable, shorten
 from schemas.versions import CODE_VERSION
 
 MANIFEST_NAME = "catalog.json"
@@ -55,9 +56,9 @@ class CodeInfo:
 
     def __post_init__(self) -> None:
         if not isinstance(self.version, str) or not self.version:
-            raise ShardError(f"code.version must be a non-empty string, got {self.version!r}")
+            raise ShardError(f"code.version must be a non-empty string, got {shorten(repr(self.version))}")
         if self.commit is not None and not (isinstance(self.commit, str) and _COMMIT.match(self.commit)):
-            raise ShardError(f"code.commit must be a hex git sha or null, got {self.commit!r}")
+            raise ShardError(f"code.commit must be a hex git sha or null, got {shorten(repr(self.commit))}")
 
     @classmethod
     def current(cls) -> CodeInfo:
@@ -109,17 +110,17 @@ class Manifest:
 
     def __post_init__(self) -> None:
         if not isinstance(self.slice, str) or not self.slice:
-            raise ShardError(f"slice must be a non-empty string, got {self.slice!r}")
+            raise ShardError(f"slice must be a non-empty string, got {shorten(repr(self.slice))}")
         if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int)):
-            raise ShardError(f"seed must be an integer or null, got {self.seed!r}")
+            raise ShardError(f"seed must be an integer or null, got {shorten(repr(self.seed))}")
         code = self.code
         if isinstance(code, Mapping) and set(code) == {"version", "commit"}:
             code = CodeInfo(code["version"], code["commit"])
         if not isinstance(code, CodeInfo):
-            raise ShardError(f"code must be a CodeInfo or {{version, commit}}, got {self.code!r}")
+            raise ShardError(f"code must be a CodeInfo or {{version, commit}}, got {shorten(repr(self.code))}")
         object.__setattr__(self, "code", code)
         if not isinstance(self.settings, Mapping):
-            raise ShardError(f"settings must be an object, got {self.settings!r}")
+            raise ShardError(f"settings must be an object, got {shorten(repr(self.settings))}")
         settings = dict(self.settings)
         try:
             canonical_json(settings)
@@ -129,7 +130,7 @@ class Manifest:
         shards = tuple(self.shards)
         for i, shard in enumerate(shards):
             if not isinstance(shard, ShardRecord):
-                raise ShardError(f"shards[{i}] must be a ShardRecord, got {shard!r}")
+                raise ShardError(f"shards[{i}] must be a ShardRecord, got {shorten(repr(shard))}")
             if i and shard.first < shards[i - 1].end:
                 raise ShardError(
                     f"shards must be ordered and disjoint: {list(shards[i - 1].episodes)} then {list(shard.episodes)}"
@@ -161,9 +162,9 @@ class Manifest:
             raise ShardError(f"extra keys must be plain JSON values: {exc}") from None
         object.__setattr__(self, "extra", MappingProxyType(extra))
         if not is_sha256(self.hash):
-            raise ShardError(f"hash must be a sha256 hex digest, got {self.hash!r}")
+            raise ShardError(f"hash must be a sha256 hex digest, got {shorten(repr(self.hash))}")
         if self.stats is not None and not isinstance(self.stats, FileRecord):
-            raise ShardError(f"stats must be a file record, got {self.stats!r}")
+            raise ShardError(f"stats must be a file record, got {shorten(repr(self.stats))}")
         if self.audit is not None:
             audit = tuple(self.audit)
             if not all(isinstance(r, FileRecord) for r in audit):
@@ -248,7 +249,7 @@ class Manifest:
             raise ShardError(f"manifest is missing key(s) {missing}")
         code = data["code"]
         if not isinstance(code, dict) or "version" not in code or "commit" not in code:
-            raise ShardError(f"code must be an object with version and commit, got {code!r}")
+            raise ShardError(f"code must be an object with version and commit, got {shorten(repr(code))}")
         if not isinstance(data["shards"], list):
             raise ShardError(f"shards must be a list, got {data['shards']!r}")
         shards = tuple(ShardRecord.from_dict(s, f"shards[{i}]") for i, s in enumerate(data["shards"]))
@@ -313,12 +314,25 @@ def check_seal(data: Mapping[str, Any], *, required: bool = True) -> bool:
 
 
 def manifest_path(directory: str | os.PathLike[str]) -> Path:
-    return as_location(directory) / MANIFEST_NAME
+    return as_location(directory, "directory") / MANIFEST_NAME
 
 
 def write_manifest(directory: str | os.PathLike[str], manifest: Manifest) -> Path:
     """Write ``DIR/catalog.json`` atomically; returns its path."""
     return atomic_write_text(manifest_path(directory), manifest.to_json())
+
+
+def _read_regular(path: Path) -> str:
+    """A local file's text, if it is a regular file: a FIFO (or a link to a device such as
+    /dev/zero) in catalog.json's place would block every reader or stream for ever."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO opens at once, to be refused
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device or socket"
+        raise ShardError(f"{path}: not a regular file ({kind}), so not a manifest")
+    with os.fdopen(fd, "rb") as handle:
+        return handle.read().decode("utf-8")
 
 
 def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> Manifest:
@@ -327,7 +341,7 @@ def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> 
     reads the previous release's so; a seal present is still checked)."""
     path = manifest_path(directory)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8") if is_remote(path) else _read_regular(path)
     except FileNotFoundError:
         hint = repeats_hint(directory)  # a folder of repeats says what to pass instead
         raise ShardError(
@@ -339,6 +353,10 @@ def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> 
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ShardError(f"{path}: not valid JSON: {exc}") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (sys.int_info)
+        raise ShardError(f"{path}: holds a number Dyana cannot read: {shorten(str(exc), 160)}") from None
+    except RecursionError:
+        raise ShardError(f"{path}: JSON nested too deeply") from None
     try:
         if not isinstance(data, dict):
             raise ShardError(f"manifest must be a JSON object, got {type(data).__name__}")

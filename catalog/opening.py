@@ -128,15 +128,15 @@ def open_dataset(
     """
     roots = _roots(paths)
     if verify not in VERIFY_MODES:
-        raise SpecError(f"verify must be one of {list(VERIFY_MODES)}, got {verify!r}")
+        raise SpecError(f"verify must be one of {list(VERIFY_MODES)}, got {shorten(repr(verify))}")
     if isinstance(cache_mb, bool) or not isinstance(cache_mb, (int, float)) or not 0 < cache_mb <= MAX_CACHE_MB:
         raise SpecError(f"cache_mb must be a number in (0, {MAX_CACHE_MB}], got {shorten(repr(cache_mb))}")
     if keys not in KEYS:
-        raise SpecError(f"keys must be one of {list(KEYS)}, got {keys!r}")
+        raise SpecError(f"keys must be one of {list(KEYS)}, got {shorten(repr(keys))}")
     if image_dtype not in IMAGE_DTYPES:
-        raise SpecError(f"image_dtype must be one of {list(IMAGE_DTYPES)}, got {image_dtype!r}")
+        raise SpecError(f"image_dtype must be one of {list(IMAGE_DTYPES)}, got {shorten(repr(image_dtype))}")
     if resample not in RESAMPLE_MODES:
-        raise SpecError(f"resample must be one of {list(RESAMPLE_MODES)}, got {resample!r}")
+        raise SpecError(f"resample must be one of {list(RESAMPLE_MODES)}, got {shorten(repr(resample))}")
     options = Options(
         resample=resample,
         keys=keys,

@@ -232,7 +232,7 @@ def open_folder(
     """Open a built slice or a rollout folder: manifest, settings and shard kinds checked;
     each table is checked as it is read (sizes always, sha256 with ``verify="sha256"``)."""
     check_verify(verify)
-    root = as_location(directory)
+    root = as_location(directory, "directory")
     with reaching(root):  # an object store's failure: one StorageError naming the URL
         return _open_folder(root, directory, verify, expect)
 

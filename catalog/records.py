@@ -22,6 +22,7 @@ from typing import Any
 
 from catalog.hashing import FILE_KINDS, is_sha256
 from schemas.errors import ShardError
+from schemas.names import shorten
 
 #: The tables every shard has; ``mcap`` is optional (``--formats parquet``).
 REQUIRED_KINDS = ("frames", "episodes")
@@ -70,10 +71,10 @@ def is_legacy(record: ShardRecord) -> bool:
 def check_relative_path(path: Any, where: str) -> str:
     """A manifest path must be relative, POSIX, and stay inside the slice folder."""
     if not isinstance(path, str) or not path:
-        raise ShardError(f"{where}: path must be a non-empty string, got {path!r}")
+        raise ShardError(f"{where}: path must be a non-empty string, got {shorten(repr(path))}")
     pure = PurePosixPath(path)
     if pure.is_absolute() or "\\" in path or any(part in ("..", ".", "") for part in path.split("/")):
-        raise ShardError(f"{where}: path must be relative inside the slice folder, got {path!r}")
+        raise ShardError(f"{where}: path must be relative inside the slice folder, got {shorten(repr(path))}")
     return path
 
 
@@ -90,7 +91,7 @@ class FileRecord:
         if not is_sha256(self.sha256):
             raise ShardError(f"{self.path}: sha256 must be 64 lower-case hex digits, got {self.sha256!r}")
         if isinstance(self.size, bool) or not isinstance(self.size, int) or self.size < 0:
-            raise ShardError(f"{self.path}: size must be an integer >= 0, got {self.size!r}")
+            raise ShardError(f"{self.path}: size must be an integer >= 0, got {shorten(repr(self.size))}")
 
     def to_dict(self) -> dict[str, Any]:
         return {"path": self.path, "sha256": self.sha256, "size": self.size}
@@ -98,7 +99,7 @@ class FileRecord:
     @classmethod
     def from_dict(cls, data: Any, where: str = "file record") -> FileRecord:
         if not isinstance(data, dict):
-            raise ShardError(f"{where} must be an object, got {data!r}")
+            raise ShardError(f"{where} must be an object, got {shorten(repr(data))}")
         missing = [k for k in ("path", "sha256", "size") if k not in data]
         if missing:
             raise ShardError(f"{where} is missing key(s) {missing}")
@@ -116,11 +117,11 @@ class ShardRecord:
     def __post_init__(self) -> None:
         episodes = tuple(self.episodes)
         if len(episodes) != 2:
-            raise ShardError(f"shard episodes must be [first, end), got {self.episodes!r}")
+            raise ShardError(f"shard episodes must be [first, end), got {shorten(repr(self.episodes))}")
         shard_stem(*episodes)
         object.__setattr__(self, "episodes", episodes)
         if isinstance(self.frames, bool) or not isinstance(self.frames, int) or self.frames < episodes[1] - episodes[0]:
-            raise ShardError(f"shard {episodes}: frames must be an integer >= its episode count, got {self.frames!r}")
+            raise ShardError(f"shard {episodes}: frames must be an integer >= its episode count, got {shorten(repr(self.frames))}")
         kinds = set(self.files)
         if not set(REQUIRED_KINDS) <= kinds <= set(FILE_KINDS):
             raise ShardError(
@@ -165,7 +166,7 @@ class ShardRecord:
     @classmethod
     def from_dict(cls, data: Any, where: str = "shard") -> ShardRecord:
         if not isinstance(data, dict):
-            raise ShardError(f"{where} must be an object, got {data!r}")
+            raise ShardError(f"{where} must be an object, got {shorten(repr(data))}")
         missing = [k for k in ("episodes", "frames", "files") if k not in data]
         if missing:
             raise ShardError(f"{where} is missing key(s) {missing}")
@@ -173,8 +174,8 @@ class ShardRecord:
         if not isinstance(episodes, list) or len(episodes) != 2 or not all(
             isinstance(v, int) and not isinstance(v, bool) for v in episodes
         ):
-            raise ShardError(f"{where}.episodes must be [first, end) integers, got {episodes!r}")
+            raise ShardError(f"{where}.episodes must be [first, end) integers, got {shorten(repr(episodes))}")
         if not isinstance(files, dict):
-            raise ShardError(f"{where}.files must be an object, got {files!r}")
+            raise ShardError(f"{where}.files must be an object, got {shorten(repr(files))}")
         records = {kind: FileRecord.from_dict(value, f"{where}.files.{kind}") for kind, value in files.items()}
         return cls((episodes[0], episodes[1]), data["frames"], records)

@@ -43,7 +43,7 @@ def _episode_set(value: range | Iterable[int] | int | None) -> frozenset[int] | 
         return value
     if isinstance(value, (int, np.integer)):
         if isinstance(value, bool):
-            raise SpecError(f"episodes must be integers (or a range), got {value!r}")
+            raise SpecError(f"episodes must be integers (or a range), got {shorten(repr(value))}")
         return frozenset([int(value)])
     if not isinstance(value, Iterable) or isinstance(value, (str, bytes, Mapping)):
         raise SpecError(f"episodes must be integers (or a range), got {shorten(repr(value))}")

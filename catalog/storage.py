@@ -25,7 +25,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from schemas.errors import ShardError, StorageError
+from schemas.errors import ShardError, SpecError, StorageError
 from schemas.names import shorten
 from schemas.storage_faults import describe_storage_fault, is_storage_fault
 
@@ -40,20 +40,30 @@ def is_url(location: Any) -> bool:
     return match is not None and match.group(1).lower() != "file"
 
 
-def as_location(location: str | os.PathLike[str]) -> Path:
-    """A local :class:`~pathlib.Path`, or a :class:`upath.UPath` for a URL (a Path subclass)."""
+def as_location(location: str | os.PathLike[str], name: str = "path") -> Path:
+    """A local :class:`~pathlib.Path`, or a :class:`upath.UPath` for a URL (a Path subclass);
+    SpecError naming ``name`` (the caller's argument) for anything else: not a str or
+    path-like (None, a number, bytes), an empty name (``--out "$UNSET"``: not the current
+    folder), or a name with a NUL byte no file system takes."""
     if isinstance(location, Path) or (not isinstance(location, str) and is_remote(location)):
         return location  # type: ignore[return-value]
+    text = location if isinstance(location, str) else os.fspath(location) if isinstance(location, os.PathLike) else None
+    if not isinstance(text, str) or not text or "\x00" in text:
+        raise SpecError(f"{name} must be a folder or file name (str or path-like), got {shorten(repr(location))}")
     if is_url(location):
         try:
             from upath import UPath
         except ImportError:
             raise ShardError(f"{str(location)[:80]}: object storage needs universal-pathlib and s3fs "
                              "(pip install 'dyana[s3]')") from None
+        if not str(location).split("://", 1)[1].split("/", 1)[0]:
+            raise SpecError(f"{name}: {shorten(repr(location))} names no bucket (expected e.g. s3://bucket/folder)")
         try:
-            return UPath(str(location))  # type: ignore[return-value]  # Path's API, not its class
+            path = UPath(str(location))
+            path.fs  # noqa: B018  # the file system's class: an uninstalled one (gs:// without gcsfs) fails here
         except (ValueError, ImportError) as exc:
             raise ShardError(f"{str(location)[:80]}: not a storage URL this installation reads ({exc})") from None
+        return path  # type: ignore[return-value]  # Path's API, not its class
     return Path(location)
 
 

@@ -62,6 +62,8 @@ from typing import Any
 
 import numpy as np
 
+from schemas.names import shorten
+
 #: Slabs a worker keeps for reuse (prefetched batches, the batch in use, the one being freed).
 SLABS = 6
 _ALIGN = 64
@@ -394,7 +396,7 @@ def torch_loader(
         if name in kwargs:
             raise TypeError(f"torch_loader does not take {name!r}")
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+        raise ValueError(f"batch_size must be a positive integer, got {shorten(repr(batch_size))}")
     frames = getattr(frames, "frames", frames)  # the ds.torch() wrapper
     generator = torch.Generator()
     generator.manual_seed(seed)

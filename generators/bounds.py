@@ -11,6 +11,7 @@ from generators.segments import segments
 from generators.tracks import check_motion, compile_track, place, sample_motion
 from schemas.errors import SpecError
 from schemas.motion import Motion
+from schemas.names import shorten
 
 
 def _sampled_bounds(motion: Motion, ts: np.ndarray) -> tuple[float, float, float, float]:
@@ -43,12 +44,12 @@ def motion_bounds(motion: Motion, t_end: float, samples: int = 512) -> tuple[flo
     max|a| (t_end / samples)^2 / 8 of it).
     """
     if isinstance(t_end, bool) or not isinstance(t_end, (int, float, np.floating)) or not math.isfinite(t_end) or t_end < 0:
-        raise SpecError(f"t_end must be a finite number >= 0, got {t_end!r}")
+        raise SpecError(f"t_end must be a finite number >= 0, got {shorten(repr(t_end))}")
     t_end = float(t_end)
     check_motion(motion)
     if motion.overlays:
         if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 2:
-            raise SpecError(f"samples must be >= 2, got {samples!r}")
+            raise SpecError(f"samples must be >= 2, got {shorten(repr(samples))}")
         cuts = [s.t0 for s in segments(motion) if s.t0 <= t_end]
         return _sampled_bounds(motion, np.unique(np.concatenate([np.linspace(0.0, t_end, samples), cuts])))
     tokens = motion.base.tokens

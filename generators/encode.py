@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from schemas.errors import ShardError, SpecError
+from schemas.names import shorten
 
 #: Default JPEG quality (0-100) of built datasets.
 JPEG_QUALITY = 90
@@ -33,7 +34,7 @@ def jpeg_params(quality: int) -> list[int]:
 
 def _checked(image, quality) -> np.ndarray:
     if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
-        raise SpecError(f"JPEG quality must be an integer in [1, 100], got {quality!r}")
+        raise SpecError(f"JPEG quality must be an integer in [1, 100], got {shorten(repr(quality))}")
     array = np.asarray(image)
     if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] != 3:
         raise SpecError(f"expected an (H, W, 3) uint8 RGB image, got {array.dtype} {array.shape}")

@@ -27,6 +27,7 @@ from generators.hand import (
     chain_frames,
 )
 from schemas.errors import SpecError
+from schemas.names import shorten
 from schemas.objects import object_category
 from schemas.scene import PALM_HOVER
 
@@ -100,12 +101,12 @@ def lowest_fingertip_offset(category: str, size: float, side: str) -> float:
 def _check(category: str, size: float, side: str) -> None:
     """Validate before the caches, which would raise TypeError on unhashable arguments."""
     if not isinstance(category, str):
-        raise SpecError(f"object must be a category name, got {category!r}")
+        raise SpecError(f"object must be a category name, got {shorten(repr(category))}")
     object_category(category)
     if not isinstance(side, str) or side not in SIDES:
-        raise SpecError(f"hand side must be one of {list(SIDES)}, got {side!r}")
+        raise SpecError(f"hand side must be one of {list(SIDES)}, got {shorten(repr(side))}")
     if isinstance(size, bool) or not isinstance(size, numbers.Real) or not math.isfinite(size) or size <= 0:
-        raise SpecError(f"object size must be a finite number > 0, got {size!r}")
+        raise SpecError(f"object size must be a finite number > 0, got {shorten(repr(size))}")
 
 
 def grasp_angles(category: str, size: float, side: str) -> np.ndarray:

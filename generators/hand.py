@@ -26,6 +26,7 @@ from schemas.errors import SpecError
 from schemas.joints import FINGERS as FINGERS  # the names live in schemas (the data contract)
 from schemas.joints import JOINT_NAMES as JOINT_NAMES
 from schemas.joints import KEYPOINT_NAMES as KEYPOINT_NAMES
+from schemas.names import shorten
 from schemas.rotations import euler_to_matrix, matrix_to_euler
 from schemas.scene import HANDS, PALM_REST
 
@@ -98,7 +99,7 @@ def root_positions(side: str) -> np.ndarray:
 def check_side(side: str) -> str:
     """``side`` itself when it names a hand side, else a :class:`SpecError`."""
     if not isinstance(side, str) or side not in SIDES:
-        raise SpecError(f"hand side must be one of {list(SIDES)}, got {side!r}")
+        raise SpecError(f"hand side must be one of {list(SIDES)}, got {shorten(repr(side))}")
     return side
 
 

@@ -52,6 +52,7 @@ from generators.grids import (
 from generators.streams import stream_doubles
 from schemas.errors import InfeasibleError, SpecError
 from schemas.motion import ArcToken, HarmonicToken, LineToken, Motion, token_to_dict
+from schemas.names import shorten
 from schemas.objects import OBJECTS
 from schemas.scene import (
     GRASP_FRAMES,
@@ -273,7 +274,7 @@ def _check_count(definition: SliceDef, episodes: int | None) -> int:
     valid = isinstance(episodes, (int, np.integer)) and not isinstance(episodes, bool)
     if not valid or not 0 <= episodes <= definition.episodes:
         raise SpecError(
-            f"episodes must be an integer in [0, {definition.episodes}] for slice {definition.name}, got {episodes!r}"
+            f"episodes must be an integer in [0, {definition.episodes}] for slice {definition.name}, got {shorten(repr(episodes))}"
         )
     return int(episodes)
 
@@ -350,7 +351,7 @@ def spec_for(slice_name: str, index: int) -> EpisodeSpec:
     definition = get_slice(slice_name)
     if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < definition.episodes:
         raise SpecError(
-            f"episode index must be an integer in [0, {definition.episodes}) for slice {slice_name}, got {index!r}"
+            f"episode index must be an integer in [0, {definition.episodes}) for slice {slice_name}, got {shorten(repr(index))}"
         )
     if definition.generator != "recipe":
         from generators.appendix import appendix_spec

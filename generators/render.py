@@ -155,7 +155,7 @@ class Renderer:
             check_resolution("width", width)
         self.width = self.height if width is None else int(width)
         if backend not in BACKENDS:
-            raise SpecError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
+            raise SpecError(f"backend must be one of {list(BACKENDS)}, got {shorten(repr(backend))}")
         self.backend = backend
         self.fallbacks = 0
         self._scenes = 0
@@ -294,7 +294,7 @@ class Renderer:
         since posing bodies never changes TinyRenderer's draw order."""
         if object_name is not None:
             if not isinstance(object_name, str):
-                raise SpecError(f"object must be a category name or None, got {object_name!r}")
+                raise SpecError(f"object must be a category name or None, got {shorten(repr(object_name))}")
             object_category(object_name)
             if (
                 isinstance(object_size, (bool, np.bool_))
@@ -302,12 +302,12 @@ class Renderer:
                 or not np.isfinite(object_size)
                 or object_size <= 0
             ):
-                raise SpecError(f"object_size must be a finite number > 0, got {object_size!r}")
+                raise SpecError(f"object_size must be a finite number > 0, got {shorten(repr(object_size))}")
             object_size = float(object_size)
         else:
             object_size = None
         if hand is not None and (not isinstance(hand, str) or hand not in HANDS):
-            raise SpecError(f"hand must be one of {list(HANDS)} or None, got {hand!r}")
+            raise SpecError(f"hand must be one of {list(HANDS)} or None, got {shorten(repr(hand))}")
         scene = (object_name, object_size, hand, checked_obstacles(obstacles))
         if scene == self._scene:
             return
@@ -319,7 +319,7 @@ class Renderer:
         if self._object is not None:
             pose = _floats(object_pose)
             if pose is None or pose.shape != (7,) or not np.all(np.isfinite(pose)):
-                raise SpecError(f"object_pose must be 7 finite numbers, got {object_pose!r}")
+                raise SpecError(f"object_pose must be 7 finite numbers, got {shorten(repr(object_pose))}")
         if self._hand is not None:
             palm, joints = _floats(palm_pose), _floats(joint_angles)
             if (
@@ -329,7 +329,8 @@ class Renderer:
                 or joints.shape != (15,)
                 or not (np.all(np.isfinite(palm)) and np.all(np.isfinite(joints)))
             ):
-                raise SpecError(f"palm_pose (6,) and joint_angles (15,) must be finite numbers, got {palm_pose!r}, {joint_angles!r}")
+                raise SpecError(f"palm_pose (6,) and joint_angles (15,) must be finite numbers, "
+                              f"got {shorten(repr(palm_pose))}, {shorten(repr(joint_angles))}")
         self._object_pose = pose
         self._hand_pose = None if palm is None or joints is None else (palm, joints)
         self._apply(self._client, self._hand, self._object)

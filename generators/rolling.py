@@ -14,6 +14,7 @@ from generators.segments import along, grid_steps, walk
 from generators.tracks import ROLL_STEP_S, ZERO_SPEED, as_times, check_motion, evaluate, sample_motion
 from schemas.errors import SpecError
 from schemas.motion import Motion
+from schemas.names import shorten
 from schemas.objects import ObjectCategory, object_category
 from schemas.rotations import qaxis, qexp, qmul
 
@@ -191,7 +192,7 @@ def _check_size(category: ObjectCategory, size: float) -> float:
     if not isinstance(category, ObjectCategory):
         raise SpecError(f"not an object category: {category!r}")
     if isinstance(size, bool) or not isinstance(size, (int, float, np.floating)) or not math.isfinite(size) or size <= 0:
-        raise SpecError(f"object size must be a finite number > 0, got {size!r}")
+        raise SpecError(f"object size must be a finite number > 0, got {shorten(repr(size))}")
     if category.rolling and not (category.shape == "sphere" or (category.shape == "cylinder" and category.lying)):
         raise SpecError(f"object {category.name!r}: only spheres and lying cylinders can roll")
     return float(size)

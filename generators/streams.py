@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from schemas.errors import SpecError
+from schemas.names import shorten
 
 _M32 = 0xFFFFFFFF
 # numpy.random.SeedSequence's constants (bit_generator.pyx)
@@ -146,11 +147,11 @@ def stream_doubles(seed: int, indices: np.ndarray, first: int, count: int) -> np
     """``(len(indices), count)``: doubles ``first`` .. ``first + count - 1`` of
     ``Generator(PCG64(SeedSequence([seed, i]))).random()`` for each episode ``i``."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SpecError(f"seed must be a non-negative integer, got {seed!r}")
+        raise SpecError(f"seed must be a non-negative integer, got {shorten(repr(seed))}")
     if isinstance(first, bool) or not isinstance(first, int) or first < 0:
-        raise SpecError(f"first must be a non-negative integer, got {first!r}")
+        raise SpecError(f"first must be a non-negative integer, got {shorten(repr(first))}")
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
-        raise SpecError(f"count must be a non-negative integer, got {count!r}")
+        raise SpecError(f"count must be a non-negative integer, got {shorten(repr(count))}")
     indices = np.asarray(indices)
     if indices.ndim != 1 or (indices.size and (indices.dtype.kind not in "iu" or indices.min() < 0)):
         raise SpecError(f"indices must be a 1-D array of non-negative integers, got {indices!r:.80}")

@@ -38,6 +38,7 @@ from urllib.parse import urlsplit, urlunsplit
 from pipeline.loop.rollout import WATCHDOG_S
 from pipeline.policies.base import Policy, make_policy
 from schemas.errors import PolicyError, SpecError
+from schemas.names import shorten
 
 #: Extra seconds a remote policy's socket waits beyond the deadline or watchdog (the
 #: rollout's fires first and names the fault).
@@ -81,7 +82,7 @@ class Audited(Protocol):
 def no_config(ref: str, config: Config | None) -> Config | None:
     """The configuration step of kinds that take none: refuse one."""
     if config is not None:
-        raise SpecError(f"--model and the --vlm-* flags are for vlm:URL policies, not {ref!r}")
+        raise SpecError(f"--model and the --vlm-* flags are for vlm:URL policies, not {shorten(repr(ref))}")
     return None
 
 
@@ -141,11 +142,11 @@ def register(kind: PolicyKind, first: bool = True) -> PolicyKind:
 def kind_of(ref: str) -> PolicyKind:
     """The kind of ``ref``; SpecError when it is not a non-empty string."""
     if not isinstance(ref, str) or not ref:
-        raise SpecError(f"--policy must be a name, module:callable or ws://HOST:PORT, got {ref!r}")
+        raise SpecError(f"--policy must be a name, module:callable or ws://HOST:PORT, got {shorten(repr(ref))}")
     for kind in KINDS:
         if kind.matches(ref):
             return kind
-    raise SpecError(f"no policy kind accepts {ref!r}")  # unreachable while "builtin" accepts everything
+    raise SpecError(f"no policy kind accepts {shorten(repr(ref))}")  # unreachable while "builtin" accepts everything
 
 
 def kind_named(name: str) -> PolicyKind:
@@ -180,10 +181,10 @@ def describe_policy(ref: str, options: OpenOptions | None = None) -> tuple[str, 
     try:
         name = getattr(policy, "name", None)
         if not isinstance(name, str) or not name:
-            raise SpecError(f"policy {ref!r} has no name (a Policy needs a non-empty str attribute name)")
+            raise SpecError(f"policy {shorten(repr(ref))} has no name (a Policy needs a non-empty str attribute name)")
         privileged = getattr(policy, "privileged", False)
         if not isinstance(privileged, bool):
-            raise SpecError(f"policy {ref!r}: privileged must be True or False, got {privileged!r}")
+            raise SpecError(f"policy {shorten(repr(ref))}: privileged must be True or False, got {shorten(repr(privileged))}")
         return name, privileged
     finally:
         close_policy(policy)
@@ -208,21 +209,23 @@ def make_vlm(ref: str, options: OpenOptions) -> Policy:
     from pipeline.policies.vlm import VLMConfig, VLMPolicy  # lazy: the OpenAI client
 
     if options.config is None:
-        raise SpecError(f"policy {ref!r} needs a VLM configuration (--model NAME and the --vlm-* flags)")
-    return VLMPolicy(VLMConfig(**options.config))
+        raise SpecError(f"policy {shorten(repr(ref))} needs a VLM configuration (--model NAME and the --vlm-* flags)")
+    return VLMPolicy(VLMConfig.from_dict(options.config))
 
 
 def configure_vlm(ref: str, config: Config | None) -> Config:
     from pipeline.policies.vlm import VLMConfig
 
-    return VLMConfig(**{"url": ref[len(VLM_PREFIX):], **(config or {})}).to_dict()
+    if config is not None and not isinstance(config, dict):
+        raise SpecError(f"config of {shorten(ref)} must be a dict of --vlm-* settings, got {shorten(repr(config))}")
+    return VLMConfig.from_dict({"url": ref[len(VLM_PREFIX):], **(config or {})}).to_dict()
 
 
 def replay_vlm(config: Config, records: list[dict[str, Any]]) -> Policy:
     from pipeline.policies.vlm import VLMConfig, VLMPolicy
     from pipeline.policies.vlm_transport import RecordedTransport
 
-    return VLMPolicy(VLMConfig(**config), transport=RecordedTransport(records))
+    return VLMPolicy(VLMConfig.from_dict(config), transport=RecordedTransport(records))
 
 
 def check_vlm(config: Config | None) -> None:

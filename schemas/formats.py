@@ -2,19 +2,23 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from schemas.errors import SpecError
+from schemas.names import shorten
 
 ALL_FORMATS = ("parquet", "mcap")
 
 
-def parse_formats(value: str | Iterable[str]) -> tuple[str, ...]:
+def parse_formats(value: str | Sequence[str]) -> tuple[str, ...]:
     """``"parquet,mcap"`` (or a sequence) as a tuple in canonical order; Parquet is required
     because every reader (the dataloader, scoring, verify) reads the tables."""
+    if not isinstance(value, (str, list, tuple)):
+        raise SpecError(f"--formats takes a comma-separated subset of {','.join(ALL_FORMATS)} (or a list), "
+                        f"got {shorten(repr(value), 60)}")
     names = [part.strip() for part in value.split(",")] if isinstance(value, str) else list(value)
-    unknown = [name for name in names if name not in ALL_FORMATS]
+    unknown = [name for name in names if not isinstance(name, str) or name not in ALL_FORMATS]
     if unknown or not names:
         shown = repr(str(unknown[0])[:40]) if unknown else "nothing"
         raise SpecError(f"--formats takes a comma-separated subset of {','.join(ALL_FORMATS)}, got {shown}")

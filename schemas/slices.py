@@ -60,24 +60,24 @@ class SliceDef:
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
-            raise SpecError(f"slice.name must be a non-empty string, got {self.name!r}")
+            raise SpecError(f"slice.name must be a non-empty string, got {shorten(repr(self.name))}")
         if self.motion_type is not None and self.motion_type not in MOTION_TYPES + COMPLEX_MOTION_TYPES:
             raise SpecError(
                 f"slice.motion_type must be one of {list(MOTION_TYPES + COMPLEX_MOTION_TYPES)} or None, "
-                f"got {self.motion_type!r}"
+                f"got {shorten(repr(self.motion_type))}"
             )
         if self.generator not in GENERATORS:
-            raise SpecError(f"slice.generator must be one of {list(GENERATORS)}, got {self.generator!r}")
+            raise SpecError(f"slice.generator must be one of {list(GENERATORS)}, got {shorten(repr(self.generator))}")
         if self.intercept_setting is not None and self.intercept_setting not in SETTINGS:
             raise SpecError(
-                f"slice.intercept_setting must be one of {list(SETTINGS)} or None, got {self.intercept_setting!r}"
+                f"slice.intercept_setting must be one of {list(SETTINGS)} or None, got {shorten(repr(self.intercept_setting))}"
             )
         if (self.motion_type is None) != (self.intercept_setting is None):
             raise SpecError(f"slice {self.name!r}: motion_type and intercept_setting must both be set or both be None")
         if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
-            raise SpecError(f"slice.episodes must be an integer >= 1, got {self.episodes!r}")
+            raise SpecError(f"slice.episodes must be an integer >= 1, got {shorten(repr(self.episodes))}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise SpecError(f"slice.seed must be an integer >= 0, got {self.seed!r}")
+            raise SpecError(f"slice.seed must be an integer >= 0, got {shorten(repr(self.seed))}")
         object.__setattr__(self, "parts", tuple(self.parts))
         if self.parts and self.motion_type is not None:
             raise SpecError(f"slice {self.name!r}: a union of parts has no single motion type")

@@ -136,6 +136,12 @@ def check_outputs(args: argparse.Namespace) -> None:
 def cmd_eval(args: argparse.Namespace) -> int:
     check_outputs(args)
     reports = evaluate(args.runs, args.obstacle_contact, args.reading)
+    if args.latency_plot is not None:
+        from scoring.latency import latency_points
+
+        if not latency_points(reports):  # before any output: an empty figure is no answer
+            raise DyanaError("--latency-plot: no run to plot (a built slice's ground truth and --realtime runs "
+                             "have no latency setting)")
     chance = None if not args.chance else chance_of(args.chance, reports, args.obstacle_contact, args.reading)
     robust = [robustness(load_repeats(run), args.reading) for run in args.runs if is_repeats_folder(run)]
     if args.json:

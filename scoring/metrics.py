@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from schemas import events
+from schemas.errors import SpecError
+from schemas.names import shorten
 from schemas.obstacles import CONTACT_CLEARANCE
 from schemas.scene import LOC_TOLERANCE, PALM_HOVER
 
@@ -82,9 +84,9 @@ TOP_BAND = PALM_HOVER + LOC_TOLERANCE
 
 
 def reading_named(name: str) -> Reading:
-    """The registered reading ``name``; ValueError listing the known ones."""
-    if name not in READINGS:
-        raise ValueError(f"unknown reading {name!r}: expected one of {sorted(READINGS)}")
+    """The registered reading ``name``; SpecError (a ValueError) naming ``reading`` and the known ones."""
+    if not isinstance(name, str) or name not in READINGS:
+        raise SpecError(f"reading must be one of {sorted(READINGS)}, got {shorten(repr(name))}")
     return READINGS[name]
 
 

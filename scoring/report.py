@@ -93,12 +93,17 @@ def score_run(
     ``obstacle_contact``: ``fail`` (default) counts episodes whose hand touched an obstacle
     (the collision rate) and scores them as failures; ``report`` only counts them.
     ``reading`` names the rules for the paper's ambiguous metrics (:data:`scoring.metrics.READINGS`)."""
-    if obstacle_contact not in CONTACT_MODES:
+    if not isinstance(data, RunData):
+        raise SpecError(f"data must be a RunData (scoring.io.load_run or from_recordings), got {shorten(repr(data))}")
+    if label is not None and not isinstance(label, str):
+        raise SpecError(f"label must be text or None, got {shorten(repr(label))}")
+    if not isinstance(obstacle_contact, str) or obstacle_contact not in CONTACT_MODES:
         raise SpecError(f"obstacle_contact must be one of {CONTACT_MODES}, got {shorten(repr(obstacle_contact))}")
+    rules = reading_named(reading)
     fails = obstacle_contact == "fail"
     per: EpisodeMetrics = episode_metrics(
         data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles,
-        data.acting_budget, data.hover_offset, data.top_offset, reading_named(reading),
+        data.acting_budget, data.hover_offset, data.top_offset, rules,
     )
     breakdowns: dict[str, dict[str, Summary]] = {}
     for key, attribute, canonical, _ in BREAKDOWNS:
@@ -208,6 +213,8 @@ def obstacle_dict(summary: Summary) -> dict[str, Any]:
 
 def report_dict(report: RunReport) -> dict[str, Any]:
     """The ``scoring eval --json`` object of one run."""
+    if not isinstance(report, RunReport):
+        raise SpecError(f"report must be a RunReport (scoring.report.score_run), got {shorten(repr(report))}")
     overall = report.overall
     out: dict[str, Any] = {
         "label": report.label,

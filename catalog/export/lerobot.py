@@ -54,9 +54,9 @@ class ExportSettings:
     def __post_init__(self) -> None:
         if not isinstance(self.environment_state, bool):
             raise ExportError(f"environment_state must be True or False, got {shorten(repr(self.environment_state))}")
-        if self.format not in FORMATS:
+        if not isinstance(self.format, str) or self.format not in FORMATS:
             raise ExportError(f"--format {shorten(repr(self.format))}: expected one of {sorted(FORMATS)}")
-        if self.codec not in CODECS:
+        if not isinstance(self.codec, str) or self.codec not in CODECS:
             raise ExportError(f"--codec {shorten(repr(self.codec))}: expected one of {sorted(CODECS)}")
 
     @property

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from catalog.manifest import Manifest
-from catalog.storage import is_url
+from catalog.storage import as_location, is_url
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, JobResult
@@ -23,6 +23,7 @@ from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
+from schemas.names import shorten
 from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of, renderer_of
 from schemas.spec import EpisodeSpec
 from schemas.versions import DATASET_VERSION, FPS
@@ -51,9 +52,9 @@ class BuildSettings:
     def __post_init__(self) -> None:
         object.__setattr__(self, "formats", parse_formats(self.formats))
         if not isinstance(self.resolution, int) or not 16 <= self.resolution <= 1024:
-            raise SpecError(f"resolution must be an integer in [16, 1024], got {self.resolution!r}")
+            raise SpecError(f"resolution must be an integer in [16, 1024], got {shorten(repr(self.resolution))}")
         if not isinstance(self.jpeg_quality, int) or not 1 <= self.jpeg_quality <= 100:
-            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {self.jpeg_quality!r}")
+            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {shorten(repr(self.jpeg_quality))}")
         if renderer_of(self.dataset_version) is None:
             raise SpecError(f"dataset_version {self.dataset_version!r} is not one this code writes")
 
@@ -115,6 +116,7 @@ def build_job(
     from generators.encode import JPEG_QUALITY
 
     version = dataset_version_of(check_renderer(renderer))
+    as_location(out, "out")  # a folder name or URL, checked before anything is read
 
     extra: dict[str, str] = {}
     obstacles = False
@@ -124,7 +126,7 @@ def build_job(
         seed = specs[0].seed if len({s.seed for s in specs}) == 1 else None
         if episodes is not None:
             if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-                raise SpecError(f"--episodes must be >= 1, got {episodes!r}")
+                raise SpecError(f"--episodes must be >= 1, got {shorten(repr(episodes))}")
             specs = specs[:episodes]
         lines = [s.to_json() for s in specs]
         obstacles = any(s.obstacles for s in specs)
@@ -144,7 +146,7 @@ def build_job(
         specs_json = None
         total = definition.episodes if episodes is None else episodes
         if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
-            raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
+            raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {shorten(repr(total))}")
 
     settings = BuildSettings(
         resolution=resolution, jpeg_quality=JPEG_QUALITY, obstacle_clearance=obstacles, formats=parse_formats(formats),

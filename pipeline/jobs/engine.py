@@ -25,6 +25,7 @@ recorded for resuming, and how the folder is finished (metadata written last).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +39,7 @@ from pipeline.jobs.progress import Progress, Unit
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, check_workers, run_tasks
 from schemas.errors import SpecError
+from schemas.names import shorten
 
 Range = tuple[int, int]
 
@@ -155,6 +157,21 @@ def prepare_folder(folder: Path) -> None:
         raise SpecError(f"{folder}: cannot create the output folder ({exc.strerror or exc})") from None
 
 
+def refuse_links(folder: Path) -> None:
+    """SpecError naming the first symbolic link inside ``folder`` (at any depth; the folder
+    itself may be one): a job writes, renames and removes files in its folder, and a linked
+    subfolder (``frames -> /elsewhere``) would take those writes and removals outside it."""
+    for parent, dirs, files in os.walk(folder):
+        for name in sorted(dirs) + sorted(files):
+            path = Path(parent) / name
+            if path.is_symlink():
+                raise SpecError(
+                    f"{shorten(str(path), 200)}: a symbolic link inside the output folder (to "
+                    f"{shorten(os.readlink(path), 120)}); a job writes only real files and folders there: "
+                    "remove the link or write elsewhere"
+                )
+
+
 #: Files that mark a folder as a LeRobot export (``catalog export`` writes both).
 EXPORT_MARKERS = (DYANA_META, "meta/info.json")
 
@@ -189,6 +206,7 @@ def run_folder_job(
     prepare_folder(folder)
     ranges = [(task.first, task.end) for task in tasks]
     with folder_lock(folder):
+        refuse_links(folder)
         # under the lock, before this process writes anything: a temp named with our pid is a
         # dead writer's whose pid was reused (a fresh container rerun gets the same pid)
         remove_stray_temps(folder, keep_own=False)

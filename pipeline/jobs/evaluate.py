@@ -56,7 +56,7 @@ from pipeline.policy_registry import (
 )
 from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
-from schemas.names import printable
+from schemas.names import printable, shorten
 from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of
 
 DEFAULT_SHARD_SIZE = 32
@@ -323,6 +323,7 @@ def evaluate(
 
     version = dataset_version_of(check_renderer(renderer))
     kind = kind_of(policy_ref)
+    run_dir = as_location(out, "out")
     if deadline_s is not None:
         try:
             deadline_s = check_seconds("--deadline", deadline_s)
@@ -334,7 +335,9 @@ def evaluate(
         raise SpecError(f"{slice_name} is the union of {', '.join(definition.parts)}: evaluate on one of them or test-1k")
     total = definition.episodes if episodes is None else episodes
     if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
-        raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {total!r}")
+        raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {shorten(repr(total))}")
+    if protocol is not None and not isinstance(protocol, EvalProtocol):
+        raise SpecError(f"protocol must be a pipeline.loop.conditions.EvalProtocol or None, got {shorten(repr(protocol))}")
     protocol = protocol or EvalProtocol()
     build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY,
                                    obstacle_clearance=definition.may_hold_obstacles,
@@ -342,7 +345,7 @@ def evaluate(
                                    formats=parse_formats(formats), dataset_version=version)
     ranges = shard_ranges(total, shard_size)
     if not is_url(out):
-        refuse_export_folder(as_location(out), "run")
+        refuse_export_folder(run_dir, "run")
     config = kind.configure(policy_ref, config)
     options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config)
     name, privileged = describe_policy(policy_ref, options)
@@ -352,7 +355,6 @@ def evaluate(
                             protocol, kind.name)
     if is_url(out) and kind.audit_dir is not None:
         raise SpecError(f"--out {str(out)[:60]}: a {kind.name} run keeps its audit trail on local disk; evaluate it locally")
-    run_dir = as_location(out)
     job = Job(
         folder=Path("/nonexistent-remote-job") if is_url(out) else run_dir,
         slice_name=slice_name,

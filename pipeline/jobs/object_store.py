@@ -118,7 +118,12 @@ class RunOptions(TypedDict, total=False):
 
 
 def run_job_at(job: Job[Payload], out: str | os.PathLike[str], *, workers: int, **options: Unpack[RunOptions]) -> JobResult:
-    """:func:`run_job` into ``job.folder``, or :func:`run_remote_job` into ``out`` when it is a URL."""
+    """:func:`run_job` into ``job.folder``, or :func:`run_remote_job` into ``out`` when it is a URL.
+    ``overwrite`` and ``progress`` must be booleans: ``overwrite="no"`` would replace a folder."""
+    for flag in ("overwrite", "progress"):
+        value = options.get(flag, False)
+        if not isinstance(value, bool):
+            raise SpecError(f"{flag} must be True or False, got {shorten(repr(value))}")
     if is_url(out):
         return run_remote_job(job, str(out), workers, options)
     return run_job(job, workers=workers, **options)

@@ -20,6 +20,7 @@ from catalog.repeat_sets import REPEATS_FILE, repeat_folders
 from catalog.storage import is_url
 from pipeline.loop.conditions import MAX_REPEATS, EvalProtocol
 from schemas.errors import AllEpisodesFailed, SpecError
+from schemas.names import shorten
 
 #: The folder layout's names stay importable from here (``pipeline migrate``, ``catalog info``).
 __all__ = ["REPEATS_FILE", "evaluate_repeats", "repeat_folder", "repeat_folders", "repeats_index"]
@@ -52,8 +53,10 @@ def evaluate_repeats(
     (exit 3, as for one run) is raised after all of them and the index are written."""
     from pipeline.jobs.evaluate import evaluate
 
+    if not isinstance(protocol, EvalProtocol):
+        raise SpecError(f"protocol must be a pipeline.loop.conditions.EvalProtocol, got {shorten(repr(protocol))}")
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 2 <= repeats <= MAX_REPEATS:
-        raise SpecError(f"--repeats must be an integer in [2, {MAX_REPEATS}], got {repeats!r}")
+        raise SpecError(f"--repeats must be an integer in [2, {MAX_REPEATS}], got {shorten(repr(repeats))}")
     if is_url(out):
         raise SpecError(f"--out {str(out)[:60]}: repeats are written to a local folder (upload it afterwards)")
     out = Path(out)

@@ -58,7 +58,7 @@ from pipeline.loop.wrappers import RecordEpisode, loop_env
 from pipeline.policies.base import BUILTIN, make_policy
 from schemas.errors import PolicyError, ReplayMismatch, ShardError, SpecError
 from schemas.frames import EpisodeFrames
-from schemas.names import printable
+from schemas.names import printable, shorten
 from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
@@ -369,6 +369,9 @@ def replay(
     settings = dict(manifest.settings)
     chosen = list(folder.shards)
     if shards is not None:
+        if not isinstance(shards, (list, tuple, range, set, frozenset)) or any(
+                isinstance(s, bool) or not isinstance(s, int) for s in shards):
+            raise SpecError(f"shards must be a list of shards' first episode indices, got {shorten(repr(shards))}")
         wanted = set(shards)
         chosen = [s for s in chosen if s.record.first in wanted]
     env = None

@@ -36,6 +36,7 @@ from pathlib import Path
 from catalog.atomic import TEMP_PATTERN
 from catalog.storage import as_location, check_writable, is_url, reaching
 from schemas.errors import SpecError
+from schemas.names import shorten
 
 
 @dataclass(frozen=True)
@@ -46,7 +47,7 @@ class ShardSink:
 
     def __post_init__(self) -> None:
         if not isinstance(self.location, str) or not self.location:
-            raise SpecError(f"a shard sink's location must be a non-empty path or URL, got {self.location!r}")
+            raise SpecError(f"a shard sink's location must be a non-empty path or URL, got {shorten(repr(self.location))}")
         if not is_url(self.location) and not os.path.isabs(self.location):
             raise SpecError(f"a shard sink's folder must be an absolute path (a worker's working folder "
                             f"differs from the driver's), got {self.location[:80]!r}")

@@ -22,6 +22,7 @@ import contextlib
 import dataclasses
 import logging
 import os
+import re
 import signal
 import threading
 import uuid
@@ -61,13 +62,31 @@ def default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+#: A Dask scheduler address: ``[PROTOCOL://]HOST:PORT`` for tcp and tls (Dask's default
+#: protocol is tcp), ``PROTOCOL://ADDRESS`` for the others (inproc, ucx, ...).
+_SCHEDULER = re.compile(r"(?:(?:tcp|tls)://)?(?:\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+):(\d{1,5})|(?!(?:tcp|tls)://)[a-z][a-z0-9+.-]*://\S+")
+
+
+def check_scheduler(scheduler: str | None) -> None:
+    """SpecError unless ``scheduler`` is None or a Dask scheduler address (a port 1..65535 for
+    tcp and tls), so that a malformed one is refused before the output folder is made."""
+    if scheduler is None:
+        return
+    match = _SCHEDULER.fullmatch(scheduler) if isinstance(scheduler, str) else None
+    if match is None or (match.group(1) is not None and not 1 <= int(match.group(1)) <= 65535):
+        shown = shorten(scheduler) if isinstance(scheduler, str) else scheduler
+        raise SpecError(f"--scheduler {shown!r}: not a Dask scheduler address (expected e.g. tcp://127.0.0.1:8786)")
+
+
 def check_workers(workers: int, scheduler: str | None) -> None:
-    """SpecError unless ``workers`` is 0 (this process) to :data:`MAX_WORKERS` (ignored with a scheduler)."""
+    """SpecError unless ``workers`` is 0 (this process) to :data:`MAX_WORKERS` (ignored with a
+    scheduler, whose address :func:`check_scheduler` checks)."""
+    check_scheduler(scheduler)
     if scheduler:
         return
     if isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= MAX_WORKERS:
         raise SpecError(
-            f"--workers must be an integer in [0, {MAX_WORKERS}] (0: in this process, without Dask), got {workers!r}"
+            f"--workers must be an integer in [0, {MAX_WORKERS}] (0: in this process, without Dask), got {shorten(repr(workers))}"
         )
 
 
@@ -100,7 +119,7 @@ class ShardTask:
 def shard_ranges(episodes: int, shard_size: int) -> list[tuple[int, int]]:
     """Fixed episode ranges [first, end) of at most ``shard_size`` episodes."""
     if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
-        raise SpecError(f"--shard-size must be an integer >= 1, got {shard_size!r}")
+        raise SpecError(f"--shard-size must be an integer >= 1, got {shorten(repr(shard_size))}")
     return [(a, min(a + shard_size, episodes)) for a in range(0, episodes, shard_size)]
 
 

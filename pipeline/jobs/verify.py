@@ -29,7 +29,8 @@ from catalog.versions import mismatch_note
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.replay import check_rebuildable, private_seed, replay, replay_shard
 from schemas.cli import ProgressMeter
-from schemas.errors import ReplayMismatch, ShardError
+from schemas.errors import ReplayMismatch, ShardError, SpecError
+from schemas.names import shorten
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,10 @@ class VerifyReport:
 
 
 def _sample_shards(manifest: Manifest, sample: int | None, rng: np.random.Generator) -> list[ShardRecord]:
+    if sample is not None and (isinstance(sample, bool) or not isinstance(sample, int) or sample < 1):
+        raise SpecError(f"--sample must be an integer >= 1, got {shorten(repr(sample))}")
+    if not isinstance(rng, np.random.Generator):
+        raise SpecError(f"rng must be a numpy.random.Generator, got {shorten(repr(rng))}")
     shards = list(manifest.shards)
     if sample is None or sample >= len(shards):
         return shards

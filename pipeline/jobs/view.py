@@ -94,8 +94,11 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     os.environ.setdefault("RUST_LOG", "off")
     import rerun as rr
 
+    if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)):
+        raise SpecError(f"--episode must be an integer, got {shorten(repr(episode))}")
+    as_location(out, "out")  # a name (str or path-like), before check_output looks at it
     check_output(out, [], "--out")  # the name as given: Path() would turn a URL into a local "s3:" folder
-    directory, out = as_location(directory), Path(out)
+    directory, out = as_location(directory, "directory"), Path(out)
     if out.suffix != ".rrd":
         raise SpecError(f"--out must end in .rrd, got {str(out)!r}")
     check_output(out, [directory], "--out")  # never over a device or a file of the folder read

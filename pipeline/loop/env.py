@@ -133,6 +133,7 @@ from pipeline.loop.views import VIEWS, absolute_action, normalized_action_space
 from pipeline.stages.episode import measure_hand
 from schemas.errors import DyanaError, SpecError
 from schemas.events import grasp_closed, localized, spec_hover_offset
+from schemas.names import shorten
 from schemas.objects import object_category
 from schemas.renderers import DEFAULT_RENDERER, RENDERERS, check_renderer
 from schemas.scene import DEFAULT_RESOLUTION, PHASES
@@ -234,9 +235,9 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
     ):
         check_resolution("resolution", resolution)
         if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, (int, np.integer)) or not 1 <= jpeg_quality <= 100:
-            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {jpeg_quality!r}")
+            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {shorten(repr(jpeg_quality))}")
         if render_mode not in (None, "rgb_array"):
-            raise SpecError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+            raise SpecError(f"render_mode must be None or 'rgb_array', got {shorten(repr(render_mode))}")
         if renderer is not None and not isinstance(renderer, (Renderer, str)):
             raise SpecError(f"renderer must be a generators.render.Renderer or one of {list(RENDERERS)}, "
                             f"got {type(renderer).__name__}")
@@ -247,6 +248,10 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             raise SpecError(f"normalize_actions must be True or False, got {normalize_actions!r:.80}")
         if isinstance(episodes, str):
             episodes = SliceEpisodes(episodes)  # an unknown name fails here, naming it
+        elif episodes is not None and (isinstance(episodes, (bytes, dict)) or not all(
+                hasattr(episodes, name) for name in ("__len__", "__getitem__")) or len(episodes) == 0):
+            raise SpecError(f"episodes must be a slice name, a non-empty sequence of EpisodeSpec (an EpisodeSource) or None, "
+                            f"got {shorten(repr(episodes))}")
         self.resolution = int(resolution)
         self.jpeg_quality = int(jpeg_quality)
         self.render_mode = render_mode
@@ -301,7 +306,11 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             info: ``localized``, ``grasped``, ``t_loc``, ``t_gra``, ``palm_distance``,
                 ``fingertip_distance``.
         """
-        super().reset(seed=seed)
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+            raise SpecError(f"seed must be None or an integer >= 0, got {shorten(repr(seed))}")
+        if options is not None and not isinstance(options, dict):
+            raise SpecError(f"options must be None or a dict such as {{'spec': EpisodeSpec}}, got {shorten(repr(options))}")
+        super().reset(seed=None if seed is None else int(seed))
         options = options or {}
         spec = as_spec(options["spec"]) if options.get("spec") is not None else self.pick_episode(seed)
         self.episode_spec = spec

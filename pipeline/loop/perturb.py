@@ -99,7 +99,7 @@ class Perturbation:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise SpecError(f"--perturb {self.name} strength must be a number, got {shorten(repr(value))}")
         if not kind.low <= value <= kind.high:
-            raise SpecError(f"--perturb {self.name} strength must be in [{kind.low:g}, {kind.high:g}], got {value!r}")
+            raise SpecError(f"--perturb {self.name} strength must be in [{kind.low:g}, {kind.high:g}], got {shorten(repr(value))}")
         object.__setattr__(self, "strength", float(value))
 
     @classmethod

@@ -39,6 +39,7 @@ from pipeline.loop.wrappers import RecordEpisode, note_policy_time
 from pipeline.policies.base import Policy, Task
 from schemas.errors import PolicyError
 from schemas.frames import EpisodeFrames
+from schemas.names import shorten
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -114,7 +115,7 @@ def call_policy(
 def check_seconds(name: str, value: object) -> float:
     """A finite number of seconds > 0, or PolicyError naming it."""
     if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise PolicyError(f"{name} must be a finite number of seconds > 0, got {value!r}")
+        raise PolicyError(f"{name} must be a finite number of seconds > 0, got {shorten(repr(value))}")
     return float(value)
 
 

@@ -32,6 +32,7 @@ from typing import Any, NotRequired, Protocol, TypedDict, runtime_checkable
 import numpy as np
 
 from schemas.errors import SpecError
+from schemas.names import shorten
 
 #: Built-in policies: name -> "module:class".
 BUILTIN = {
@@ -147,18 +148,18 @@ def _required_positional(fn: Callable) -> int | None:
 def _resolve(ref: str) -> Any:
     module_name, _, attr = ref.partition(":")
     if not module_name or not attr:
-        raise SpecError(f"policy reference must be a built-in name {sorted(BUILTIN)} or module:callable, got {ref!r}")
+        raise SpecError(f"policy reference must be a built-in name {sorted(BUILTIN)} or module:callable, got {shorten(repr(ref))}")
     try:
         target: Any = importlib.import_module(module_name)
     except ImportError as exc:
-        raise SpecError(f"policy {ref!r}: cannot import module {module_name!r} ({exc})") from None
+        raise SpecError(f"policy {shorten(repr(ref))}: cannot import module {module_name!r} ({exc})") from None
     except Exception as exc:  # the module itself fails while importing (SyntaxError, a missing file, ...)
-        raise SpecError(f"policy {ref!r}: importing module {module_name!r} raised {type(exc).__name__}: {exc}") from None
+        raise SpecError(f"policy {shorten(repr(ref))}: importing module {module_name!r} raised {type(exc).__name__}: {exc}") from None
     for part in attr.split("."):
         try:
             target = getattr(target, part)
         except AttributeError:
-            raise SpecError(f"policy {ref!r}: {module_name!r} has no attribute {attr!r}") from None
+            raise SpecError(f"policy {shorten(repr(ref))}: {module_name!r} has no attribute {attr!r}") from None
     return target
 
 
@@ -169,26 +170,26 @@ def make_policy(ref: str) -> Policy:
     does not give a policy.
     """
     if not isinstance(ref, str) or not ref:
-        raise SpecError(f"policy must be a non-empty string, got {ref!r}")
+        raise SpecError(f"policy must be a non-empty string, got {shorten(repr(ref))}")
     target = _resolve(BUILTIN.get(ref, ref)) if (ref in BUILTIN or ":" in ref) else None
     if target is None:
-        raise SpecError(f"unknown policy {ref!r}: expected one of {sorted(BUILTIN)} or module:callable")
+        raise SpecError(f"unknown policy {shorten(repr(ref))}: expected one of {sorted(BUILTIN)} or module:callable")
     if _is_policy(target) and not inspect.isclass(target):
         return target
     if not callable(target):
-        raise SpecError(f"policy {ref!r} is neither a policy nor callable ({type(target).__name__})")
+        raise SpecError(f"policy {shorten(repr(ref))} is neither a policy nor callable ({type(target).__name__})")
     required = _required_positional(target)
     if inspect.isclass(target) or required == 0:
         try:
             made = target()
         except Exception as exc:
-            raise SpecError(f"policy {ref!r}: creating it raised {type(exc).__name__}: {exc}") from None
+            raise SpecError(f"policy {shorten(repr(ref))}: creating it raised {type(exc).__name__}: {exc}") from None
         if not _is_policy(made):
             raise SpecError(
-                f"policy {ref!r}: calling it gave {type(made).__name__}, not a policy "
+                f"policy {shorten(repr(ref))}: calling it gave {type(made).__name__}, not a policy "
                 "(needs name, action_horizon, privileged, reset(task), act(obs))"
             )
         return made
     if required == 1:
         return FunctionPolicy(target, ref)
-    raise SpecError(f"policy {ref!r}: a callable must take no argument (a factory) or one (obs -> action)")
+    raise SpecError(f"policy {shorten(repr(ref))}: a callable must take no argument (a factory) or one (obs -> action)")

@@ -30,7 +30,7 @@ import base64
 import hashlib
 import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -69,10 +69,17 @@ MAX_TIMEOUT_S = 3600.0
 ENV_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,127}")
 
 
+#: A built-in template's name (a file stem in :data:`TEMPLATES`).
+TEMPLATE_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
+
+
 def template_path(name: str) -> Path:
-    """A template by name (``v1``) or by path to a ``.txt`` file of the user's."""
-    path = Path(name) if name.endswith(".txt") else TEMPLATES / f"{name}.txt"
-    if not path.is_file():
+    """A template by name (``v1``: a plain name, never a path into or out of the built-in
+    folder) or by path to a ``.txt`` file of the user's."""
+    if not isinstance(name, str) or "\x00" in name:
+        raise SpecError(f"--vlm-template must be a template name or a .txt file, got {shorten(repr(name))}")
+    path = Path(name) if name.endswith(".txt") else TEMPLATES / f"{name}.txt" if TEMPLATE_NAME.fullmatch(name) else None
+    if path is None or not path.is_file():
         raise SpecError(f"--vlm-template {shorten(repr(name))}: no such template (built in: "
                         f"{sorted(p.stem for p in TEMPLATES.glob('*.txt'))}, or a .txt file)")
     return path
@@ -97,11 +104,25 @@ class VLMConfig:
     max_tokens: int = 200
     template_sha256: str = field(default="", compare=False)
 
-    def __post_init__(self) -> None:
-        if not self.url.startswith(("http://", "https://")):
-            raise SpecError(f"vlm URL must start with http:// or https://, got {shorten(repr(self.url))}")
-        if not self.model:
+    @classmethod
+    def from_dict(cls, settings: object) -> VLMConfig:
+        """A configuration from a dict of its settings (the flags', a manifest's); SpecError
+        naming a setting that is unknown or missing, where ``cls(**settings)`` would raise TypeError."""
+        if not isinstance(settings, dict):
+            raise SpecError(f"a VLM policy's config must be a dict of its settings, got {shorten(repr(settings))}")
+        known = [f.name for f in fields(cls)]
+        unknown = [key for key in settings if key not in known]
+        if unknown:
+            raise SpecError(f"vlm config: unknown setting {shorten(repr(unknown[0]))} (known: {', '.join(known)})")
+        if "model" not in settings:
             raise SpecError("a VLM policy needs --model NAME (the model the endpoint serves)")
+        return cls(**settings)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.url, str) or not self.url.startswith(("http://", "https://")):
+            raise SpecError(f"vlm URL must start with http:// or https://, got {shorten(repr(self.url))}")
+        if not isinstance(self.model, str) or not self.model:
+            raise SpecError(f"a VLM policy needs --model NAME (the model the endpoint serves), got {shorten(repr(self.model))}")
         for name, low, high in (
             ("every", 1, MAX_FRAMES), ("latency_frames", 0, MAX_FRAMES), ("observe_images", 0, MAX_OBSERVE_IMAGES),
             ("max_tokens", 1, MAX_TOKENS), ("seed", 0, MAX_SEED),

@@ -143,6 +143,8 @@ def parse_answer(
         data = json.loads(block)
     except json.JSONDecodeError as exc:
         raise AnswerError("parse_error", f"the answer's JSON does not parse ({exc.msg}): {block[:120]!r}") from None
+    except ValueError:  # an integer of more digits than Python converts (sys.int_info.str_digits_check_threshold)
+        raise AnswerError("parse_error", f"the answer's JSON holds a number too long to read: {block[:120]!r}") from None
     except RecursionError:  # unreachable below MAX_ANSWER_DEPTH; kept as the last guard
         raise AnswerError("parse_error", "the answer's JSON nests too deep") from None
     if not isinstance(data, dict):

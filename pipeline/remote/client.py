@@ -25,6 +25,7 @@ import numpy as np
 from pipeline.policies.base import Observation, Task
 from pipeline.remote import protocol
 from schemas.errors import PolicyError, SpecError
+from schemas.names import shorten
 
 if TYPE_CHECKING:  # websockets is imported when a connection is made
     from websockets.sync.client import ClientConnection
@@ -52,9 +53,9 @@ class RemotePolicy:
 
     def __init__(self, url: str, timeout_s: float = DEFAULT_TIMEOUT_S, open_timeout_s: float = OPEN_TIMEOUT_S) -> None:
         if not is_remote(url):
-            raise SpecError(f"a remote policy URL starts with ws:// or wss://, got {url!r}")
+            raise SpecError(f"a remote policy URL starts with ws:// or wss://, got {shorten(repr(url))}")
         if not (isinstance(timeout_s, (int, float)) and timeout_s > 0):
-            raise SpecError(f"timeout_s must be a number > 0, got {timeout_s!r}")
+            raise SpecError(f"timeout_s must be a number > 0, got {shorten(repr(timeout_s))}")
         self.url = url
         self.timeout_s = float(timeout_s)
         self.calls = 0
@@ -203,7 +204,9 @@ def _describe(exc: BaseException) -> str:
 
 
 def _closed(exc: Exception) -> str:
-    rcvd = getattr(exc, "rcvd", None)
+    sent, rcvd = getattr(exc, "sent", None), getattr(exc, "rcvd", None)
+    if sent is not None and sent.code == 1009:  # websockets closes when a reply exceeds max_size
+        return f"code 1009, a reply over {protocol.MAX_REPLY_BYTES >> 20} MiB"
     if rcvd is None:
         return "no close frame received"
     reason = f", {rcvd.reason}" if rcvd.reason else ""

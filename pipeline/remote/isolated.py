@@ -28,7 +28,7 @@ from pipeline.policies.base import Observation, Task
 from pipeline.remote.client import RemotePolicy, ServerError
 from pipeline.remote.launcher import Launched
 from schemas.errors import PolicyError
-from schemas.names import printable
+from schemas.names import printable, shorten
 
 #: Seconds a child process has to import the policy and start listening.
 START_TIMEOUT_S = 120.0
@@ -51,7 +51,7 @@ class IsolatedPolicy:
             self._remote = RemotePolicy(url, timeout_s=timeout_s)
         except PolicyError as exc:
             self.close()
-            raise PolicyError(f"isolated policy {ref!r}: {exc}") from None
+            raise PolicyError(f"isolated policy {shorten(repr(ref))}: {exc}") from None
         self.name = self._remote.name
         self.action_horizon = self._remote.action_horizon
         self.privileged = self._remote.privileged

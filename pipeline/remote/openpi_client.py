@@ -25,6 +25,7 @@ from pipeline.remote import openpi_wire
 from pipeline.remote.openpi_keys import OpenpiConfig, chunk_from, request_for
 from pipeline.remote.protocol import MAX_REPLY_BYTES, ProtocolError
 from schemas.errors import PolicyError, SpecError
+from schemas.names import shorten
 
 if TYPE_CHECKING:  # websockets is imported when a connection is made
     from websockets.sync.client import ClientConnection
@@ -60,7 +61,7 @@ class OpenpiPolicy:
         if not isinstance(config, OpenpiConfig):
             raise SpecError(f"config must be an OpenpiConfig, got {type(config).__name__}")
         if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)) or not timeout_s > 0:
-            raise SpecError(f"timeout_s must be a number > 0, got {timeout_s!r}")
+            raise SpecError(f"timeout_s must be a number > 0, got {shorten(repr(timeout_s))}")
         self.config = config
         self.timeout_s = float(timeout_s)
         self.calls = 0

@@ -193,3 +193,47 @@ def test_git_commit(tmp_path):
     own = git_commit()
     assert own is None or re.fullmatch(r"[0-9a-f]{40}", own)
     assert CodeInfo.current().commit == own
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero", "folder"])
+def test_a_catalog_json_that_is_not_a_regular_file_is_refused_without_reading(slice_dir, kind):
+    """Before: a FIFO in catalog.json's place blocked every reader (catalog info/verify,
+    scoring eval, pipeline replay) for ever, and a link to /dev/zero read without end."""
+    import os
+    import threading
+
+    path = slice_dir / "catalog.json"
+    path.unlink()
+    {"fifo": lambda: os.mkfifo(path), "dev-zero": lambda: path.symlink_to("/dev/zero"), "folder": path.mkdir}[kind]()
+    outcome: list[BaseException] = []
+
+    def read() -> None:
+        try:
+            load_manifest(slice_dir)
+        except BaseException as exc:  # reported below
+            outcome.append(exc)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    reader.join(10)
+    assert not reader.is_alive(), "load_manifest blocked"
+    assert len(outcome) == 1 and isinstance(outcome[0], ShardError), outcome
+    assert "catalog.json: not a regular file" in str(outcome[0])
+
+
+def test_a_catalog_json_holding_a_number_python_cannot_convert_is_named(slice_dir):
+    """Before: ValueError ('Exceeds the limit (4300 digits) for integer string conversion')
+    escaped load_manifest, a traceback from every reader."""
+    path = slice_dir / "catalog.json"
+    path.write_text(path.read_text().replace('"seed": ', '"seed": ' + "9" * 5000 + ', "s": ', 1))
+    with pytest.raises(ShardError, match="catalog.json: holds a number Dyana cannot read"):
+        load_manifest(slice_dir)
+
+
+def test_a_catalog_json_nested_too_deeply_is_named(slice_dir):
+    """Before: RecursionError ('maximum recursion depth exceeded while decoding a JSON array')."""
+    path = slice_dir / "catalog.json"
+    text = path.read_text().rstrip()
+    path.write_text(text[:-1] + ', "x": ' + "[" * 200_000 + "]" * 200_000 + "}")
+    with pytest.raises(ShardError, match="catalog.json: JSON nested too deeply"):
+        load_manifest(slice_dir)

@@ -158,3 +158,12 @@ class Dying:
             elif self.episode == 4:
                 raise KeyboardInterrupt
         return state_action(obs)
+
+
+class HugeReply(Single):
+    """Answers with a 14 MB action chunk: over the 1 MiB a reply to Dyana's client may hold."""
+
+    def act(self, obs: dict):
+        import numpy as np
+
+        return np.zeros((200_000, 18), np.float32)

@@ -218,14 +218,26 @@ def test_rebuilding_with_another_shard_size_leaves_no_stale_shards(reference, tm
     verify_files(tmp_path / SLICE)
 
 
-@pytest.mark.parametrize("address", ["not-an-address::", "tcp://127.0.0.1:notaport"])
-def test_a_bad_scheduler_address_is_one_line_and_exit_2(tmp_path, address):
+@pytest.mark.parametrize("address", ["not-an-address::", "tcp://127.0.0.1:notaport", "nope", "tcp://h:99999", ""])
+def test_a_malformed_scheduler_address_is_one_line_and_exit_2_before_the_folder_is_made(tmp_path, address):
     result = subprocess.run(
-        [str(BIN / "pipeline"), "build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path), "--scheduler", address],
+        [str(BIN / "pipeline"), "build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path / "out"),
+         "--scheduler", address],
         capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 2, result.stderr
-    assert f"--scheduler {address!r}: cannot connect" in result.stderr and "Traceback" not in result.stderr
+    assert f"--scheduler {address!r}: not a Dask scheduler address" in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "out").exists()  # no folder, no lock left behind
+
+
+def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path):
+    result = subprocess.run(
+        [str(BIN / "pipeline"), "build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path),
+         "--scheduler", "tcp://127.0.0.1:1"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert result.returncode == 2, result.stderr
+    assert "--scheduler 'tcp://127.0.0.1:1': cannot connect" in result.stderr and "Traceback" not in result.stderr
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:

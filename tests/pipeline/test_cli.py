@@ -92,3 +92,16 @@ def test_an_out_name_that_is_not_utf8_is_refused_in_one_line(args, tmp_path):
     assert stderr.count("\n") == 1 and "Traceback" not in stderr
     assert "argument --out: expected a name in UTF-8" in stderr and "bad\\udcffname" in stderr
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("args", [
+    ["pipeline", "build", "--slice", "linear-fast", "--episodes", "1", "--out", ""],
+    ["pipeline", "eval", "--policy", "still", "--slice", "linear-fast", "--episodes", "1", "--out", ""],
+    ["catalog", "export", "no-such-source", "--out", ""],
+])
+def test_an_empty_out_is_refused_not_taken_as_the_current_folder(args, tmp_path):
+    """Before: --out '' (an unset shell variable) built into ./linear-fast, reporting
+    '-> /linear-fast/catalog.json', and an eval wrote its run into the current folder."""
+    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert result.returncode == 2 and "out must be a folder or file name (str or path-like), got ''" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and list(tmp_path.iterdir()) == []

@@ -255,6 +255,29 @@ def test_bad_constructor_arguments():
             DyanaEnv(**kwargs)
 
 
+@pytest.mark.parametrize("episodes", [1.5, [], {}, b"x", object()])
+def test_an_episodes_source_that_is_not_one_is_refused_when_made(episodes):
+    """Before: accepted, then reset() failed with ZeroDivisionError or TypeError from '%'."""
+    with pytest.raises(SpecError, match="episodes must be a slice name, a non-empty sequence"):
+        DyanaEnv(resolution=16, episodes=episodes)
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"seed": "3"}, "seed must be None or an integer >= 0, got '3'"),
+    ({"seed": 1.5}, "seed must be None or an integer >= 0"),
+    ({"seed": -1}, "seed must be None or an integer >= 0"),
+    ({"options": "spec"}, "options must be None or a dict"),
+    ({"options": 3}, "options must be None or a dict"),
+])
+def test_reset_names_a_bad_seed_or_options(kwargs, message):
+    """Before: gymnasium.error.Error ('Seed must be a python integer') or AttributeError
+    ('str' object has no attribute 'get')."""
+    env = DyanaEnv(resolution=16, episodes="linear-fast")
+    with pytest.raises(SpecError, match=message):
+        env.reset(**kwargs)
+    env.close()
+
+
 #: Run in a fresh interpreter that imports only gymnasium (not Dyana): make, reset and step
 #: through the passive checker, FlattenObservation, then Gymnasium's check_env (render
 #: check included) on the unwrapped and the wrapped environment, recording its warnings.

@@ -24,6 +24,7 @@ from catalog.stats import load_stats
 from pipeline.cli_catalog import main as catalog_main
 from pipeline.jobs import export as export_module
 from pipeline.jobs.export import export
+from schemas.errors import DyanaError
 
 datasets = pytest.importorskip("datasets")
 
@@ -367,3 +368,27 @@ def test_settings_that_do_not_match_the_images_are_named_in_the_source(built, tm
     assert f"{source}/frames/" in message and "64x64 px" in message and "resolution 32" in message
     assert ".mp4" not in message
     assert not list((tmp_path / "out").rglob("*.mp4"))
+
+
+@pytest.mark.parametrize(("change", "named"), [
+    ({"source": None}, "source must be a folder or a list of folders, got None"),
+    ({"source": [5]}, r"source must be a folder or a list of folders, got \[5\]"),
+    ({"out": None}, "out must be a folder or file name"),
+    ({"settings": "lerobot"}, "settings must be an ExportSettings, got 'lerobot'"),
+    ({"overwrite": "no"}, "overwrite must be True or False, got 'no'"),
+])
+def test_export_names_a_bad_argument_before_reading_the_sources(tmp_path, change, named):
+    """Before: TypeError ('NoneType' object is not iterable, expected str, bytes or
+    os.PathLike), AttributeError for settings given as text; overwrite='no' was truthy."""
+    args = {"source": str(tmp_path / "absent"), "out": tmp_path / "export", "settings": ExportSettings("lerobot"),
+            "overwrite": False} | change
+    with pytest.raises(DyanaError, match=named):  # ExportError, or SpecError for out
+        export(**args)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("change", [{"format": {}}, {"codec": []}])
+def test_export_settings_name_an_unhashable_format_or_codec(change):
+    """Before: TypeError (unhashable type: 'dict') from the membership test."""
+    with pytest.raises(ExportError, match="--format|--codec"):
+        ExportSettings(**({"format": "lerobot"} | change))

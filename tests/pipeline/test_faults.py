@@ -294,3 +294,17 @@ def test_an_eval_where_every_episode_failed_is_written_then_exits_3(tmp_path):
     assert re.search(r"error: every episode failed \(2 of 2\); the first, episode 0: frame \d+: policy act raised "
                      r"ValueError: the model diverged", result.stderr), result.stderr
     assert (out / "catalog.json").is_file()
+
+
+def test_a_reply_over_the_limit_is_named_as_such(env):
+    """Before: 'policy process: connection closed (no close frame received)', which did not
+    say that the policy's 14 MB reply was over the client's 1 MiB."""
+    from pipeline.remote.isolated import IsolatedPolicy
+
+    child_policy = IsolatedPolicy("tests.pipeline.faulty_policies:HugeReply", timeout_s=30.0)
+    try:
+        child = run_episode(env, child_policy, SPEC, 30.0)
+    finally:
+        child_policy.close()
+    assert child.status == "error"
+    assert re.search(r"frame \d+: policy process: connection closed \(code 1009, a reply over 1 MiB\)", child.error), child.error

@@ -48,6 +48,7 @@ def test_answers_are_read_leniently(content, expected):
     ('{"palm_target": [1, 2, "x"], "closure": 0}', None, "stop", "parse_error"),
     ('{"palm_target": [1, 2, 3], "closure": NaN}', None, "stop", "parse_error"),
     ('{"palm_target": [1, 2, 3]', None, "stop", "parse_error"),
+    ('{"palm_target": [' + "9" * 5000 + ', 2, 3], "closure": 0}', None, "stop", "parse_error"),  # was a ValueError
 ])
 def test_unusable_answers_name_their_kind(content, refusal, finish, kind):
     with pytest.raises(AnswerError) as caught:

@@ -482,3 +482,13 @@ def test_the_bars_leave_out_motion_types_no_run_holds(tmp_path):
     one, both = evaluate([str(linear)]), evaluate([str(linear), str(circular)])
     assert bar_groups(one) == ["linear"]  # no circular or harmonic episode: no empty n/a group
     assert bar_groups(both) == ["linear", "circular"]  # one run without circular still shows n/a there
+
+
+def test_a_latency_plot_of_no_run_with_a_latency_is_refused_before_any_output(tmp_path, capsys):
+    """Before: a built slice's --latency-plot wrote an empty figure with exit 0 and a
+    matplotlib UserWarning ('No artists with labels found') on stderr."""
+    folder = write_run(tmp_path / "linear-fast", [Ep(**GOOD)], policy=None)
+    plot, table = tmp_path / "latency.png", tmp_path / "table.csv"
+    code, _, err = run_main(capsys, "eval", str(folder), "--latency-plot", str(plot), "--csv", str(table))
+    assert code == 2 and "--latency-plot: no run to plot" in err and len(err.strip().splitlines()) == 1
+    assert not plot.exists() and not table.exists()

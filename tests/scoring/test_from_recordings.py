@@ -7,6 +7,7 @@ import pytest
 
 from schemas.errors import SpecError
 from scoring.io import from_recordings
+from scoring.report import report_dict, score_run
 from tests.catalog.conftest import make_episode
 
 
@@ -45,3 +46,26 @@ def test_bad_arguments_are_a_spec_error_naming_the_argument(pair, change, messag
                  "policy": "oracle", "errors": [None], **change}
     with pytest.raises(SpecError, match=message):
         from_recordings(**arguments)
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda run: score_run(None), "data must be a RunData"),
+        (lambda run: score_run("run-folder"), "data must be a RunData"),
+        (lambda run: score_run(run, 5), "label must be text or None, got 5"),
+        (lambda run: score_run(run, reading="x" * 10_000), r"reading must be one of \['lenient', 'paper'\], got 'xxx.*characters\)$"),
+        (lambda run: score_run(run, reading={}), r"reading must be one of .*got \{\}"),
+        (lambda run: score_run(run, reading=None), "reading must be one of .*got None"),
+        (lambda run: score_run(run, obstacle_contact=[]), r"obstacle_contact must be one of .*got \[\]"),
+        (lambda run: report_dict(None), "report must be a RunReport"),
+        (lambda run: report_dict(run), "report must be a RunReport"),
+    ],
+)
+def test_score_run_and_report_dict_name_a_bad_argument(pair, call, message):
+    """Before: AttributeError ('NoneType' object has no attribute 'offsets'), a plain
+    ValueError for an unknown reading and a TypeError for an unhashable one."""
+    spec, frames = pair
+    run = from_recordings("gt", "linear-fast", [spec], [frames])
+    with pytest.raises(SpecError, match=message):
+        call(run)
