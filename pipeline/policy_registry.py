@@ -35,8 +35,9 @@ from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 from urllib.parse import urlsplit, urlunsplit
 
+from catalog.hashing import sha256_file
 from pipeline.loop.rollout import WATCHDOG_S
-from pipeline.policies.base import Policy, make_policy
+from pipeline.policies.base import Policy, make_policy, module_file
 from schemas.errors import PolicyError, SpecError
 from schemas.names import shorten
 
@@ -260,7 +261,17 @@ def make_builtin(ref: str, options: OpenOptions) -> Policy:
 
 
 register(PolicyKind("builtin", lambda ref: True, make_builtin))
-register(PolicyKind("module", lambda ref: ":" in ref, make_module))
+def configure_module(ref: str, config: Config | None) -> Config | None:
+    """The sha256 of the module's source file (None when it has none), recorded in the
+    run's manifest: an edited policy file makes a re-run or a resume refuse the folder
+    instead of calling it up to date or mixing episodes of two versions. Files the module
+    imports or loads (weights) are not covered: ``--overwrite`` after changing them."""
+    no_config(ref, config)
+    path = module_file(ref)
+    return {"source_sha256": None if path is None else sha256_file(path)}
+
+
+register(PolicyKind("module", lambda ref: ":" in ref, make_module, configure=configure_module, manifest_key="module"))
 register(PolicyKind("remote", lambda ref: ref.startswith(("ws://", "wss://")), make_remote, names_ref=True))
 register(PolicyKind("vlm", lambda ref: ref.startswith(VLM_PREFIX), make_vlm, configure=configure_vlm,
                     manifest_key="vlm", audit_dir="vlm", replay=replay_vlm, summarize_audit=summarize_vlm,

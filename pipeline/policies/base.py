@@ -25,8 +25,11 @@ and the choice between them are :mod:`pipeline.policy_registry`'s.
 from __future__ import annotations
 
 import importlib
+import importlib.machinery
+import importlib.util
 import inspect
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, NotRequired, Protocol, TypedDict, runtime_checkable
 
 import numpy as np
@@ -161,6 +164,26 @@ def _resolve(ref: str) -> Any:
         except AttributeError:
             raise SpecError(f"policy {shorten(repr(ref))}: {module_name!r} has no attribute {attr!r}") from None
     return target
+
+
+def module_file(ref: str) -> Path | None:
+    """The source file of a ``module:callable`` reference's module, found the way an
+    import would find it but without running any of its code (a dotted module's parent
+    packages are searched, not imported); None when there is none (not found, or not a
+    file: a namespace package, a compiled or built-in module)."""
+    module_name = ref.partition(":")[0]
+    parts = module_name.split(".")
+    if not module_name or not all(part.isidentifier() for part in parts):
+        return None
+    try:
+        spec = importlib.util.find_spec(parts[0])
+        for part in parts[1:]:
+            search = None if spec is None else spec.submodule_search_locations
+            spec = None if search is None else importlib.machinery.PathFinder.find_spec(part, list(search))
+    except (ImportError, ValueError):
+        return None
+    origin = None if spec is None else spec.origin
+    return Path(origin) if origin and origin.endswith(".py") and Path(origin).is_file() else None
 
 
 def make_policy(ref: str) -> Policy:

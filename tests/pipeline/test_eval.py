@@ -3,6 +3,7 @@ CLI, scored by `scoring eval`; resume after an interruption; bad input."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -291,3 +292,28 @@ def test_a_slow_policy_fails_only_with_an_explicit_deadline(tmp_path, monkeypatc
     assert statuses(relaxed, tmp_path / "relaxed") == [("ok", "")]
     [(status, error)] = statuses(strict, tmp_path / "strict")
     assert status == "error" and "exceeded its deadline of 0.05 s" in error
+
+
+def test_an_edited_policy_file_is_not_up_to_date(tmp_path):
+    """The run records its module:callable policy's source sha256: after an edit, a re-run
+    into the same folder is refused in one line naming it (not "up to date" with the old
+    policy's episodes), and --overwrite runs the new one."""
+    (tmp_path / "mine.py").write_text("import numpy as np\n\ndef hold(obs):\n"
+                                      "    return np.concatenate([obs['palm_pose'][:3], obs['joint_angles']])\n")
+    argv = [str(BIN / "pipeline"), "eval", "--policy", "mine:hold", "--slice", "test-1k", "--episodes", "1",
+            "--resolution", "32", "--out", "run", "--quiet"]
+
+    def run(*extra: str) -> subprocess.CompletedProcess:
+        return subprocess.run([*argv, *extra], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+
+    assert run().returncode == 0
+    again = run()
+    assert again.returncode == 0 and "up to date" in again.stdout + again.stderr
+    with open(tmp_path / "mine.py", "a") as handle:
+        handle.write("# tuned\n")
+    edited = run()
+    assert edited.returncode == 2 and edited.stderr.count("\n") == 1 and "Traceback" not in edited.stderr
+    assert "holds another job (extra.module" in edited.stderr and "--overwrite" in edited.stderr
+    assert run("--overwrite").returncode == 0
+    assert load_manifest(tmp_path / "run").extra["module"]["source_sha256"] == hashlib.sha256(
+        (tmp_path / "mine.py").read_bytes()).hexdigest()

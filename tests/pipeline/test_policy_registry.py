@@ -3,6 +3,8 @@ and a new kind is one registration that the job layer uses without a case of its
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -62,3 +64,24 @@ def test_a_new_kind_is_one_registration(monkeypatch):
     assert describe_policy("fixed:anything") == ("fixed", False)
     with pytest.raises(SpecError, match="takes a PolicyKind"):
         register("fixed")  # type: ignore[arg-type]  # the mistake under test
+
+
+def test_a_module_policy_records_its_source_file_without_running_it(tmp_path, monkeypatch):
+    """The module kind's configuration is the sha256 of the file that defines the module,
+    found without importing it (a package's __init__ that would fail is never run): an
+    edited file is another configuration, so another job for the same folder."""
+    package = tmp_path / "mypkg"
+    package.mkdir()
+    (package / "__init__.py").write_text("raise RuntimeError('imported')\n")
+    policy_file = package / "pol.py"
+    policy_file.write_text("def hold(obs):\n    return obs\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    kind = kind_of("mypkg.pol:hold")
+    config = kind.configure("mypkg.pol:hold", None)
+    assert config == {"source_sha256": hashlib.sha256(policy_file.read_bytes()).hexdigest()}
+    assert kind.manifest(config) == {"module": config}
+    policy_file.write_text("def hold(obs):\n    return obs  # edited\n")
+    assert kind.configure("mypkg.pol:hold", None) != config
+    assert kind.configure("nosuchmodule_xyz:make", None) == {"source_sha256": None}  # describing it then fails
+    with pytest.raises(SpecError, match="for vlm:URL policies"):
+        kind.configure("mypkg.pol:hold", {"model": "m"})
