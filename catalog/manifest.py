@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import stat
 import subprocess
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -35,6 +34,7 @@ from catalog.versions import VERSIONS_KEY, checked_versions
 from schemas.errors import ShardError, SpecError
 from schemas.formats import stored_formats
 from schemas.names import printable, shorten
+from schemas.regular_files import file_kind, open_regular
 from schemas.versions import CODE_VERSION
 
 MANIFEST_NAME = "catalog.json"
@@ -325,13 +325,10 @@ def write_manifest(directory: str | os.PathLike[str], manifest: Manifest) -> Pat
 def _read_regular(path: Path) -> str:
     """A local file's text, if it is a regular file: a FIFO (or a link to a device such as
     /dev/zero) in catalog.json's place would block every reader or stream for ever."""
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO opens at once, to be refused
-    mode = os.fstat(fd).st_mode
-    if not stat.S_ISREG(mode):
-        os.close(fd)
-        kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device or socket"
-        raise ShardError(f"{path}: not a regular file ({kind}), so not a manifest")
-    with os.fdopen(fd, "rb") as handle:
+    opened, status = open_regular(path)
+    if opened is None:
+        raise ShardError(f"{path}: not a regular file ({file_kind(status.st_mode)}), so not a manifest")
+    with opened as handle:
         return handle.read().decode("utf-8")
 
 

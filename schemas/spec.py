@@ -10,8 +10,6 @@ import hashlib
 import json
 import math
 import numbers
-import os
-import stat
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,6 +19,7 @@ from schemas.motion import Motion
 from schemas.names import shorten, validate_name
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle, obstacles_from_list, obstacles_to_list
+from schemas.regular_files import file_kind, open_regular
 from schemas.scene import (
     COMPLEX_MOTION_TYPES,
     GRASP_FRAMES,
@@ -309,17 +308,16 @@ def read_specs_lines(path: str) -> list[tuple[int, EpisodeSpec]]:
     :data:`MAX_SPEC_LINE_BYTES`, is read (never a device or FIFO, which could stream for ever)."""
     specs: list[tuple[int, EpisodeSpec]] = []
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO opens at once, to be refused
+        opened, status = open_regular(path)
     except (OSError, TypeError, ValueError) as exc:
         raise SpecError(f"cannot read specs file {path}: {getattr(exc, 'strerror', None) or exc}") from exc
-    status = os.fstat(fd)
-    if not stat.S_ISREG(status.st_mode) or status.st_size > MAX_SPECS_FILE_BYTES:
-        os.close(fd)
-        if not stat.S_ISREG(status.st_mode):
-            raise SpecError(f"specs file {path} is not a regular file ({_file_kind(status.st_mode)})")
+    if opened is None:
+        raise SpecError(f"specs file {path} is not a regular file ({file_kind(status.st_mode)})")
+    if status.st_size > MAX_SPECS_FILE_BYTES:
+        opened.close()
         raise SpecError(f"specs file {path} holds {status.st_size:,} bytes, more than the "
                         f"{MAX_SPECS_FILE_BYTES:,} a specs file may hold")
-    with os.fdopen(fd, "rb") as handle:
+    with opened as handle:
         total = 0
         for lineno, raw in enumerate(iter(lambda: handle.readline(MAX_SPEC_LINE_BYTES + 1), b""), start=1):
             total += len(raw)
@@ -342,7 +340,3 @@ def read_specs_lines(path: str) -> list[tuple[int, EpisodeSpec]]:
     return specs
 
 
-def _file_kind(mode: int) -> str:
-    kinds = ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-             (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"))
-    return next((name for test, name in kinds if test(mode)), "not a regular file")
