@@ -42,10 +42,6 @@ class VerifyReport:
 
 
 def _sample_shards(manifest: Manifest, sample: int | None, rng: np.random.Generator) -> list[ShardRecord]:
-    if sample is not None and (isinstance(sample, bool) or not isinstance(sample, int) or sample < 1):
-        raise SpecError(f"--sample must be an integer >= 1, got {shorten(repr(sample))}")
-    if not isinstance(rng, np.random.Generator):
-        raise SpecError(f"rng must be a numpy.random.Generator, got {shorten(repr(rng))}")
     shards = list(manifest.shards)
     if sample is None or sample >= len(shards):
         return shards
@@ -75,8 +71,13 @@ def verify(
 
     ``progress`` (default: whether ``on_shard`` is given) prints episode progress lines of
     the rebuild on stderr. A run drawn from a private seed needs it (``test_seed``)."""
-    directory = as_location(directory)
+    # the arguments before any file is read (the sha256 pass below reads the whole folder)
+    if sample is not None and (isinstance(sample, bool) or not isinstance(sample, int) or sample < 1):
+        raise SpecError(f"--sample must be an integer >= 1, got {shorten(repr(sample))}")
     rng = np.random.default_rng(0) if rng is None else rng
+    if not isinstance(rng, np.random.Generator):
+        raise SpecError(f"rng must be a numpy.random.Generator, got {shorten(repr(rng))}")
+    directory = as_location(directory, "directory")
     private_seed(directory, load_manifest(directory), test_seed)  # a missing or wrong seed: one line, before the work
     manifest = verify_files(directory)
     shards = _sample_shards(manifest, sample, rng)

@@ -91,9 +91,6 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
 
     A write that fails (a full disk) leaves no file and is one DyanaError naming ``out``;
     rerun's own log lines are kept off the terminal (``RUST_LOG``, unless the user set it)."""
-    os.environ.setdefault("RUST_LOG", "off")
-    import rerun as rr
-
     if isinstance(episode, bool) or not isinstance(episode, (int, np.integer)):
         raise SpecError(f"--episode must be an integer, got {shorten(repr(episode))}")
     as_location(out, "out")  # a name (str or path-like), before check_output looks at it
@@ -103,6 +100,8 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
         raise SpecError(f"--out must end in .rrd, got {str(out)!r}")
     check_output(out, [directory], "--out")  # never over a device or a file of the folder read
     check_writable(out)
+    os.environ.setdefault("RUST_LOG", "off")
+    import rerun as rr  # after the checks: a bad argument costs no rerun import
     manifest, rows, meta = _episode_rows(directory, episode)
     images = rows.column("image").to_pylist()
     phases = rows.column("phase").to_pylist()
