@@ -209,16 +209,16 @@ def register(kind: PolicyKind) -> PolicyKind:
         clash = next(((mine, theirs) for mine in kind.prefixes for theirs in other.prefixes
                       if other.name != kind.name and (mine.startswith(theirs) or theirs.startswith(mine))), None)
         if clash is not None:
-            raise SpecError(f"policy kind {kind.name!r}: prefix {clash[0]!r} overlaps kind {other.name!r}'s "
-                            f"{clash[1]!r}, so a reference could have two kinds")
+            raise SpecError(f"policy kind {kind.name!r}: prefix {clash[0]!r} overlaps {clash[1]!r} of kind "
+                            f"{other.name!r}, so a reference could have two kinds")
     names = [k.name for k in KINDS]
     kinds = [kind if k.name == kind.name else k for k in KINDS] + ([] if kind.name in names else [kind])
     for owner in kinds:
         for example in owner.examples:
             found = [k.name for k in claimants(example, kinds)]
             if found != [owner.name]:
-                raise SpecError(f"policy kind {kind.name!r}: {owner.name!r}'s example {shorten(repr(example))} would "
-                                f"be claimed by {found or 'no kind'}")
+                raise SpecError(f"policy kind {kind.name!r}: example {shorten(repr(example))} of kind {owner.name!r} "
+                                f"would be claimed by {found or 'no kind'}")
     KINDS[:] = kinds
     return kind
 

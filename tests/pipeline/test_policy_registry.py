@@ -108,11 +108,11 @@ def test_a_kind_whose_claim_clashes_is_refused(monkeypatch):
         return Fixed()
 
     for prefix, other in (("vlm:h", "vlm"), ("v", "vlm"), ("ws://", "remote"), (("x:", "lerobot:ckpt"), "lerobot")):
-        with pytest.raises(SpecError, match=f"overlaps kind '{other}'"):
+        with pytest.raises(SpecError, match=f"of kind '{other}', so a reference could have two kinds"):
             register(PolicyKind("clash", prefix, make))
-    with pytest.raises(SpecError, match=r"'builtin''s example 'still' would be claimed by \['builtin', 'all'\]"):
+    with pytest.raises(SpecError, match=r"example 'still' of kind 'builtin' would be claimed by \['builtin', 'all'\]"):
         register(PolicyKind("all", lambda ref: True, make))  # a predicate that takes the built-in names too
-    with pytest.raises(SpecError, match="'mine''s example 'chase' would be claimed by \\['builtin'\\]"):
+    with pytest.raises(SpecError, match=r"example 'chase' of kind 'mine' would be claimed by \['builtin'\]"):
         register(PolicyKind("mine", "mine:", make, examples=("chase",)))  # an example it does not claim
     assert policy_registry.KINDS == before  # nothing was added
     replaced = register(PolicyKind("vlm", "vlm:", make))  # a kind replaces its namesake, in its place
