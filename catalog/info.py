@@ -13,6 +13,7 @@ from catalog.storage import as_location, is_remote
 from catalog.versions import installed_versions, version_differences
 from schemas.errors import ShardError
 from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
+from schemas.runs import is_run
 from schemas.versions import READABLE_DATASET_VERSIONS
 
 #: The folder kinds: a built slice (ground truth) or a policy's evaluated rollouts.
@@ -140,7 +141,7 @@ def folder_info(location: str) -> FolderInfo:
     version = manifest.settings.get("dataset_version")
     return FolderInfo(
         path=str(location),
-        kind="rollouts" if policy is not None else "slice",
+        kind="rollouts" if is_run(manifest.extra) else "slice",
         policy=None if policy is None else str(policy),
         slice=manifest.slice,
         seed=manifest.seed,

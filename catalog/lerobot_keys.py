@@ -1,7 +1,7 @@
 """Items keyed as LeRobot's ``LeRobotDataset`` keys them: ``catalog.open(..., keys="lerobot")``.
 
 A LeRobot policy's training step then takes Dyana batches as they come, with no export
-and at Dyana's reading speed. The mapping is the export's (:mod:`catalog.export.layout`):
+and at Dyana's reading speed. The names are the export's (:mod:`catalog.lerobot_names`):
 
 ================================  ============================================================
 key                               value (``history=K`` adds a leading K+1 axis to observations)
@@ -28,9 +28,13 @@ from typing import Any
 import cv2
 import numpy as np
 
+from catalog.lerobot_names import ACTION_KEY, ENV_KEY, IMAGE_KEY, IMAGE_SOURCE, STATE_KEY, VECTOR_SOURCES, pad_key
+
 KEYS = ("dyana", "lerobot")
 IMAGE_DTYPES = ("float32", "uint8")
-IMAGE_KEY = "observation.images.ego"
+_PALM_POSE, _JOINT_ANGLES = VECTOR_SOURCES[STATE_KEY]  # observation_features' order
+(_ENV_COLUMN,) = VECTOR_SOURCES[ENV_KEY]
+(_ACTION_COLUMN,) = VECTOR_SOURCES[ACTION_KEY]
 _MAX = np.float32(255.0)
 
 
@@ -60,20 +64,21 @@ def _chw(image: np.ndarray, image_dtype: str) -> np.ndarray:
 
 def observation_features(image: np.ndarray, palm_pose: np.ndarray, joint_angles: np.ndarray,
                          image_dtype: str = "float32") -> dict[str, np.ndarray]:
-    """What a policy observes, under LeRobot's keys: the image (channels first) and the state.
+    """What a policy observes, under LeRobot's keys: the image (channels first) and the state
+    (its :data:`~catalog.lerobot_names.VECTOR_SOURCES`: the palm pose, then the joint angles).
     The closed loop (:mod:`pipeline.policies.lerobot_adapter`) and :func:`lerobot_item` share it."""
     return {
         IMAGE_KEY: _chw(image, image_dtype),
-        "observation.state": np.concatenate([palm_pose, joint_angles], axis=-1).astype(np.float32, copy=False),
+        STATE_KEY: np.concatenate([palm_pose, joint_angles], axis=-1).astype(np.float32, copy=False),
     }
 
 
 def lerobot_item(item: dict[str, Any], index: int, task_index: int, image_dtype: str) -> dict[str, Any]:
     """A Dyana item (see :mod:`catalog.dataset`) under LeRobot's keys."""
     out: dict[str, Any] = {
-        **observation_features(item["image"], item["palm_pose"], item["joint_angles"], image_dtype),
-        "observation.environment_state": item["object_pose"],
-        "action": item["action"],
+        **observation_features(item[IMAGE_SOURCE], item[_PALM_POSE], item[_JOINT_ANGLES], image_dtype),
+        ENV_KEY: item[_ENV_COLUMN],
+        ACTION_KEY: item[_ACTION_COLUMN],
         "timestamp": np.float32(item["timestamp"]),
         "frame_index": np.int64(item["frame_index"]),
         "episode_index": np.int64(item["episode_index"]),
@@ -82,9 +87,9 @@ def lerobot_item(item: dict[str, Any], index: int, task_index: int, image_dtype:
         "task": item["text"],
     }
     if "image_is_pad" in item:
-        out[f"{IMAGE_KEY}_is_pad"] = item["image_is_pad"]
-        out["observation.state_is_pad"] = item["palm_pose_is_pad"]
-        out["observation.environment_state_is_pad"] = item["object_pose_is_pad"]
-    if "action_is_pad" in item:
-        out["action_is_pad"] = item["action_is_pad"]
+        out[pad_key(IMAGE_KEY)] = item["image_is_pad"]
+        out[pad_key(STATE_KEY)] = item[pad_key(_PALM_POSE)]
+        out[pad_key(ENV_KEY)] = item[pad_key(_ENV_COLUMN)]
+    if pad_key(_ACTION_COLUMN) in item:
+        out[pad_key(ACTION_KEY)] = item[pad_key(_ACTION_COLUMN)]
     return out

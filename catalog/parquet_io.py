@@ -36,6 +36,7 @@ import pyarrow.parquet as pq
 from catalog.storage import is_remote, open_binary
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
+from schemas.runs import is_run
 from schemas.scene import PHASES
 from schemas.spec import EpisodeSpec
 from schemas.tables import (
@@ -323,7 +324,7 @@ def table_kind(parquet: pq.ParquetFile) -> str:
     names = set(parquet.schema_arrow.names)
     if "frame_index" in names:
         return "frames"
-    return "rollout_episodes" if "policy" in names else "episodes"
+    return "rollout_episodes" if is_run(names) else "episodes"
 
 
 def _contract(kind: str, parquet: pq.ParquetFile) -> pa.Schema:

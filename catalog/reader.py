@@ -52,6 +52,7 @@ from schemas.errors import (
     SpecError,
 )
 from schemas.names import shorten
+from schemas.runs import is_run
 from schemas.versions import FPS, READABLE_DATASET_VERSIONS
 
 VERIFY_MODES = ("size", "sha256")
@@ -242,7 +243,7 @@ def _open_folder(root: Path, directory: object, verify: str, expect: Mapping[str
         raise ShardError(f"{directory}: no such folder (expected a built slice or run holding catalog.json)")
     manifest = load_manifest(root)
     check_settings(root, manifest.settings, expect)
-    rollout = "policy" in manifest.extra
+    rollout = is_run(manifest.extra)
     shards = []
     for record in manifest.shards:
         path = check_file(root, record.files["episodes"], "size")

@@ -9,8 +9,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pipeline.policy_registry import config_from_flags, flag_defaults, kind_of, policy_help
+from pipeline.remote.wires import PROTOCOLS
 from schemas import cli
-from schemas.errors import DyanaError, SpecError
+from schemas.errors import DyanaError
 
 if TYPE_CHECKING:  # the commands import their modules when run, so --help stays fast
     from catalog.records import ShardRecord
@@ -72,23 +74,14 @@ def cmd_build(args: argparse.Namespace) -> int:
 
 
 def _importable_cwd(policy: str) -> None:
-    """Let ``module:callable`` refs name modules in the current folder, as ``python -m`` does
-    (Dask's local workers inherit the path)."""
-    if ":" in policy and not policy.startswith(("ws://", "wss://")) and "" not in sys.path and "." not in sys.path:
+    """Let ``module:callable`` refs (a kind that imports a module) name modules in the current
+    folder, as ``python -m`` does (Dask's local workers inherit the path)."""
+    if kind_of(policy).imports_module and "" not in sys.path and "." not in sys.path:
         sys.path.insert(0, "")
 
 
-#: The --vlm-* flags' defaults (one place: the parser and the check that they are unused elsewhere).
-VLM_DEFAULTS = {"vlm_every": 5, "vlm_latency_frames": 0, "vlm_observe_images": 2, "vlm_on_fault": "error",
-                "vlm_timeout": 60.0, "vlm_template": "v1", "vlm_api_key_env": "OPENAI_API_KEY",
-                "vlm_no_json_schema": False, "vlm_temperature": 0.0, "vlm_seed": 0}
-
-
 def _eval_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--policy", required=True,
-                   help="oracle, still, chase, predictive, module:callable, ws://HOST:PORT, vlm:URL "
-                   "(an OpenAI-compatible endpoint, e.g. vlm:http://127.0.0.1:8000/v1) or lerobot:PATH "
-                   "(a LeRobot checkpoint folder, run with the lerobot installed here)")
+    p.add_argument("--policy", required=True, help=policy_help())
     p.add_argument("--policy-device", metavar="DEVICE",
                    help="where a lerobot:PATH policy runs: cpu (default), cuda, cuda:N or mps")
     p.add_argument("--slice", default="test-1k", help="slice whose episodes to run (default: test-1k)")
@@ -131,7 +124,7 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
                           help="run every episode K times (repeat r seeds its own perturbation): RUN/repeat-NN "
                           "plus RUN/repeats.json, scored together by scoring eval RUN (default: 1)")
     vlm = p.add_argument_group("VLM policies (--policy vlm:URL)")
-    p.set_defaults(**VLM_DEFAULTS)
+    p.set_defaults(**flag_defaults())  # each policy kind's flags: a set one is refused for another kind
     vlm.add_argument("--model", help="the model name the endpoint serves (required for vlm:URL)")
     vlm.add_argument("--vlm-every", type=cli.positive_int, metavar="K",
                      help="ask the model every K acting frames, moving toward its answer in between (default: 5)")
@@ -153,31 +146,9 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     vlm.add_argument("--vlm-seed", type=int, help="sampling seed sent with every request (default: 0)")
 
 
-def _vlm_options(args: argparse.Namespace) -> dict | None:
-    """The VLM configuration from the flags, or None for other policies (which may not take them)."""
-    if not args.policy.startswith("vlm:"):
-        changed = [f"--{k.replace('_', '-')}" for k, default in VLM_DEFAULTS.items() if getattr(args, k) != default]
-        if args.model is not None or changed:
-            raise SpecError(f"{(['--model'] if args.model else changed)[0]} is for --policy vlm:URL only")
-        return None
-    if not args.model:
-        raise SpecError("--policy vlm:URL needs --model NAME (the model the endpoint serves)")
-    return {
-        "model": args.model, "every": args.vlm_every, "latency_frames": args.vlm_latency_frames,
-        "observe_images": args.vlm_observe_images, "on_fault": args.vlm_on_fault, "timeout_s": args.vlm_timeout,
-        "template": args.vlm_template, "api_key_env": args.vlm_api_key_env, "json_schema": not args.vlm_no_json_schema,
-        "temperature": args.vlm_temperature, "seed": args.vlm_seed,
-    }
-
-
 def _policy_config(args: argparse.Namespace) -> dict | None:
-    """The policy kind's configuration from the flags: a VLM's, or a LeRobot checkpoint's device."""
-    vlm = _vlm_options(args)
-    if args.policy.startswith("lerobot:"):
-        return {"device": args.policy_device or "cpu"}
-    if args.policy_device is not None:
-        raise SpecError("--policy-device is for --policy lerobot:PATH only")
-    return vlm
+    """The policy kind's configuration from its flags (a VLM's, a LeRobot checkpoint's device)."""
+    return config_from_flags(args.policy, vars(args))
 
 
 def _protocol(args: argparse.Namespace) -> EvalProtocol:
@@ -195,8 +166,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     config = _policy_config(args)
     protocol = _protocol(args)
-    if config is None:
-        _importable_cwd(args.policy)
+    _importable_cwd(args.policy)
     options = dict(deadline_s=args.deadline, isolate=not args.in_process, config=config, require_success=True,
                    test_seed=cli.read_test_seed(args), **cli.job_options(args))
     if args.repeats != 1:
@@ -207,7 +177,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _serve_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--policy", required=True, help="oracle, still, chase, predictive or module:callable")
+    p.add_argument("--policy", required=True, help=policy_help(servable=True))
     p.add_argument("--host", default="127.0.0.1", help="interface to listen on (default: 127.0.0.1)")
     p.add_argument("--port", type=cli.port, default=8000, help="port (default: 8000; 0 picks a free one, printed)")
     p.add_argument(
@@ -219,7 +189,7 @@ def _serve_arguments(p: argparse.ArgumentParser) -> None:
         help="connections served at once; more are told the server is busy (default: 4)",
     )
     p.add_argument(
-        "--protocol", choices=("dyana", "openpi"), default="dyana",
+        "--protocol", choices=tuple(PROTOCOLS), default="dyana",
         help="wire protocol: dyana (dyana/1, default) or openpi (for openpi_client; docs/guides/openpi.md)",
     )
     p.add_argument(

@@ -203,11 +203,12 @@ def cmd_export(args: argparse.Namespace) -> int:
 def _export_arguments(p: argparse.ArgumentParser) -> None:
     from catalog.export.layout import FORMATS
     from catalog.export.video import CODECS
+    from catalog.lerobot_names import ENV_KEY
 
     p.add_argument("dirs", metavar="DIR", nargs="+", help="built slice or evaluated run folders (holding "
                    "catalog.json); several become one dataset, episodes renumbered in the order given")
     p.add_argument("--environment-state", action="store_true",
-                   help="also export the object's true pose as observation.environment_state (privileged: LeRobot "
+                   help=f"also export the object's true pose as {ENV_KEY} (privileged: LeRobot "
                    "policies take every observation.* feature, and the closed loop never gives this one)")
     p.add_argument("--format", choices=sorted(FORMATS), default="lerobot",
                    help="lerobot: LeRobot v3.0; lerobot-v2.1: LeRobot v2.1 with GR00T's meta/modality.json")

@@ -1,7 +1,11 @@
 """Where every kind of policy reference is resolved: one registration per kind.
 
-A ``--policy`` reference is matched against the registered kinds in order; the first
-whose ``matches`` accepts it makes the policy. Built in:
+Each kind claims its references by an explicit rule, never by registration order: a
+kind with a ``claim`` prefix (``vlm:``) owns every reference that starts with it, and the
+prefixes of two kinds may not overlap (:func:`register` refuses the second); a kind with a
+``claim`` predicate (the fallbacks ``module`` and ``builtin``) is asked only about
+references that no prefix owns, and two predicates accepting one reference is an error
+naming both. So every reference has one kind or none (:func:`claimants`). Built in:
 
 =============  ==================  ===========================================================
 kind           reference           makes
@@ -22,7 +26,8 @@ kind           reference           makes
 =============  ==================  ===========================================================
 
 A new kind (a LeRobot checkpoint, an openpi server) is one :func:`register` call with a
-:class:`PolicyKind`; the job layer (:mod:`pipeline.jobs.evaluate`, :mod:`pipeline.jobs.replay`)
+:class:`PolicyKind`, whose ``form``, ``flags`` and ``from_flags`` are all the command line
+needs (``pipeline eval --policy``'s help, which flags it takes); the job layer (:mod:`pipeline.jobs.evaluate`, :mod:`pipeline.jobs.replay`)
 only talks to kinds. Optional abilities of a made policy are protocols, checked with
 ``isinstance``: :class:`Closable`, :class:`Timed` (remote round trips), :class:`Audited`
 (an audit trail, e.g. a VLM's exchanges).
@@ -30,16 +35,18 @@ only talks to kinds. Optional abilities of a made policy are protocols, checked 
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 from urllib.parse import urlsplit, urlunsplit
 
 from catalog.hashing import sha256_file
-from pipeline.loop.rollout import WATCHDOG_S
-from pipeline.policies.base import Policy, make_policy, module_file
 from schemas.errors import PolicyError, SpecError
 from schemas.names import shorten
+
+if TYPE_CHECKING:  # the command line reads the kinds to build its parser: the loop is imported when used
+    from pipeline.policies.base import Policy
 
 #: Extra seconds a remote policy's socket waits beyond the deadline or watchdog (the
 #: rollout's fires first and names the fault).
@@ -49,12 +56,19 @@ REMOTE_SLACK_S = 5.0
 Config = dict[str, Any]
 
 
+def watchdog_s() -> float:
+    """The rollout's watchdog (:data:`pipeline.loop.rollout.WATCHDOG_S`), the default timeout."""
+    from pipeline.loop.rollout import WATCHDOG_S
+
+    return WATCHDOG_S
+
+
 @dataclass(frozen=True)
 class OpenOptions:
     """How to make a policy: the per-call timeout it may wait (a socket's), whether a
     user's code runs in a child process, and the kind's configuration (None: none)."""
 
-    timeout_s: float = WATCHDOG_S
+    timeout_s: float = field(default_factory=watchdog_s)
     isolate: bool = True
     config: Config | None = None
 
@@ -87,24 +101,37 @@ def no_config(ref: str, config: Config | None) -> Config | None:
     return None
 
 
+#: A kind's claim: a prefix (or several) it owns, or a predicate over the references no prefix owns.
+Claim = str | tuple[str, ...] | Callable[[str], bool]
+
+
 @dataclass(frozen=True)
 class PolicyKind:
     """One kind of policy reference.
 
-    ``matches(ref)`` says whether a reference is of this kind; ``make(ref, options)``
-    makes a fresh policy; ``configure(ref, config)`` checks and completes the kind's
-    configuration in the driver (default: none allowed); ``manifest_key`` names the
-    configuration's key in the run's manifest (its URL without credentials); an
-    ``audit_dir`` keeps the policies' :class:`Audited` records beside the shards, and
-    ``replay(config, records)`` makes the policy that re-runs an episode from them
-    (``summarize_audit(records)``: the run summary's line about them).
+    ``claim`` says which references are of this kind (see the module docstring): a prefix
+    or a tuple of prefixes, or a predicate asked only about references no prefix owns.
+    ``make(ref, options)`` makes a fresh policy; ``configure(ref, config)`` checks and
+    completes the kind's configuration in the driver (default: none allowed);
+    ``manifest_key`` names the configuration's key in the run's manifest (its URL without
+    credentials); an ``audit_dir`` keeps the policies' :class:`Audited` records beside the
+    shards, and ``replay(config, records)`` makes the policy that re-runs an episode from
+    them (``summarize_audit(records)``: the run summary's line about them).
     ``names_ref`` prefixes the reference to the errors of describing the policy.
     ``check(config)`` makes sure, in the driver before the first episode, that what every
     episode needs is there (a VLM's endpoint accepts a connection): PolicyError if not.
+
+    What the command line asks of a kind: ``form`` (how a reference is written, e.g.
+    ``vlm:URL``) and ``about`` make ``--policy``'s help; ``flags`` are the command-line
+    options (argparse names -> defaults) only this kind takes, ``from_flags(ref, values)``
+    its configuration from their values; ``imports_module``: the reference names a module
+    that the current folder may hold; ``servable``: ``pipeline serve`` can serve it.
+    ``examples`` are references of this kind: :func:`register` refuses a kind that claims
+    another's example or leaves one of its own to another kind.
     """
 
     name: str
-    matches: Callable[[str], bool]
+    claim: Claim
     make: Callable[[str, OpenOptions], Policy]
     configure: Callable[[str, Config | None], Config | None] = no_config
     manifest_key: str | None = None
@@ -113,6 +140,40 @@ class PolicyKind:
     summarize_audit: Callable[[list[dict[str, Any]]], str] | None = None
     names_ref: bool = False
     check: Callable[[Config | None], None] | None = None
+    form: str = ""
+    about: str = ""
+    flags: Mapping[str, Any] = field(default_factory=dict)
+    from_flags: Callable[[str, Mapping[str, Any]], Config | None] | None = None
+    imports_module: bool = False
+    servable: bool = False
+    examples: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise SpecError(f"a policy kind's name must be a non-empty str, got {shorten(repr(self.name))}")
+        prefixes = (self.claim,) if isinstance(self.claim, str) else self.claim
+        if isinstance(prefixes, tuple):
+            if not prefixes or not all(isinstance(p, str) and p for p in prefixes):
+                raise SpecError(f"policy kind {self.name!r}: claim must be a non-empty prefix, a tuple of them or a "
+                                f"predicate, got {shorten(repr(self.claim))}")
+        elif not callable(self.claim):
+            raise SpecError(f"policy kind {self.name!r}: claim must be a prefix, a tuple of prefixes or a predicate, "
+                            f"got {shorten(repr(self.claim))}")
+        if not isinstance(self.examples, tuple) or not all(isinstance(e, str) and e for e in self.examples):
+            raise SpecError(f"policy kind {self.name!r}: examples must be a tuple of references, "
+                            f"got {shorten(repr(self.examples))}")
+        object.__setattr__(self, "flags", MappingProxyType(dict(self.flags)))
+
+    @property
+    def prefixes(self) -> tuple[str, ...]:
+        """The prefixes this kind owns (none for a predicate kind)."""
+        return (self.claim,) if isinstance(self.claim, str) else self.claim if isinstance(self.claim, tuple) else ()
+
+    @property
+    def usage(self) -> str:
+        """This kind in ``--policy``'s help: its form and what it is."""
+        form = self.form or (self.prefixes[0] + "..." if self.prefixes else self.name)
+        return f"{form} ({self.about})" if self.about else form
 
     def manifest(self, config: Config | None) -> dict[str, Any]:
         """The run manifest's keys for this configuration."""
@@ -124,30 +185,57 @@ class PolicyKind:
         return {self.manifest_key: public}
 
 
+#: The registered kinds, in the order ``--policy``'s help lists them (the order decides nothing else).
 KINDS: list[PolicyKind] = []
 
 
-def register(kind: PolicyKind, first: bool = True) -> PolicyKind:
-    """Add a kind (replacing one of the same name); ``first`` puts it before the others
-    (so a specific prefix wins over the built-in fallbacks)."""
+def claimants(ref: str, kinds: list[PolicyKind] | None = None) -> list[PolicyKind]:
+    """The kinds that claim ``ref``: those owning a prefix it starts with, else the predicate
+    kinds accepting it. One in a sound registry; none for a reference no kind takes."""
+    kinds = KINDS if kinds is None else kinds
+    owners = [kind for kind in kinds if kind.prefixes and ref.startswith(kind.prefixes)]
+    if owners:
+        return owners
+    return [kind for kind in kinds if not kind.prefixes and callable(kind.claim) and kind.claim(ref)]
+
+
+def register(kind: PolicyKind) -> PolicyKind:
+    """Add a kind, or replace the one of the same name in its place. SpecError, leaving the
+    registry as it was, when a prefix overlaps another kind's (one starts with the other) or
+    an example of any kind would then be claimed by another kind or by two."""
     if not isinstance(kind, PolicyKind):
         raise SpecError(f"register() takes a PolicyKind, got {type(kind).__name__}")
-    KINDS[:] = [k for k in KINDS if k.name != kind.name]
-    if first:
-        KINDS.insert(0, kind)
-    else:
-        KINDS.append(kind)
+    for other in KINDS:
+        clash = next(((mine, theirs) for mine in kind.prefixes for theirs in other.prefixes
+                      if other.name != kind.name and (mine.startswith(theirs) or theirs.startswith(mine))), None)
+        if clash is not None:
+            raise SpecError(f"policy kind {kind.name!r}: prefix {clash[0]!r} overlaps {clash[1]!r} of kind "
+                            f"{other.name!r}, so a reference could have two kinds")
+    names = [k.name for k in KINDS]
+    kinds = [kind if k.name == kind.name else k for k in KINDS] + ([] if kind.name in names else [kind])
+    for owner in kinds:
+        for example in owner.examples:
+            found = [k.name for k in claimants(example, kinds)]
+            if found != [owner.name]:
+                raise SpecError(f"policy kind {kind.name!r}: example {shorten(repr(example))} of kind {owner.name!r} "
+                                f"would be claimed by {found or 'no kind'}")
+    KINDS[:] = kinds
     return kind
 
 
 def kind_of(ref: str) -> PolicyKind:
-    """The kind of ``ref``; SpecError when it is not a non-empty string."""
+    """The one kind that claims ``ref``; SpecError when it is not a non-empty string, when no
+    kind claims it, or when two predicate kinds both do (a registry fault, named)."""
+    forms = ", ".join(kind.form or kind.name for kind in KINDS)
     if not isinstance(ref, str) or not ref:
-        raise SpecError(f"--policy must be a name, module:callable or ws://HOST:PORT, got {shorten(repr(ref))}")
-    for kind in KINDS:
-        if kind.matches(ref):
-            return kind
-    raise SpecError(f"no policy kind accepts {shorten(repr(ref))}")  # unreachable while "builtin" accepts everything
+        raise SpecError(f"--policy must be one of the forms {forms}, got {shorten(repr(ref))}")
+    found = claimants(ref)
+    if len(found) == 1:
+        return found[0]
+    if not found:
+        raise SpecError(f"no policy kind claims {shorten(repr(ref))}: expected one of the forms {forms}")
+    raise SpecError(f"policy {shorten(repr(ref))} is claimed by kinds {[k.name for k in found]}: "
+                    f"a registered claim overlaps another")
 
 
 def kind_named(name: str) -> PolicyKind:
@@ -155,6 +243,31 @@ def kind_named(name: str) -> PolicyKind:
         if kind.name == name:
             return kind
     raise SpecError(f"unknown policy kind {name!r}: registered {[k.name for k in KINDS]}")
+
+
+def policy_help(servable: bool = False) -> str:
+    """The registered kinds' usages (only those ``pipeline serve`` can serve, if asked), as
+    ``--policy``'s help lists them."""
+    usages = [kind.usage for kind in KINDS if kind.servable or not servable]
+    return ", ".join(usages[:-1]) + " or " + usages[-1] if len(usages) > 1 else "".join(usages)
+
+
+def flag_defaults() -> dict[str, Any]:
+    """Every kind's command-line flags and their defaults (a parser's ``set_defaults``)."""
+    return {dest: default for kind in KINDS for dest, default in kind.flags.items()}
+
+
+def config_from_flags(ref: str, values: Mapping[str, Any]) -> Config | None:
+    """The configuration ``ref``'s kind takes from the command line (``values``: argparse
+    names -> values); SpecError naming a flag of another kind that is set."""
+    kind = kind_of(ref)
+    for other in KINDS:
+        for dest, default in other.flags.items():
+            if other is not kind and values.get(dest, default) != default:
+                raise SpecError(f"--{dest.replace('_', '-')} is for --policy {other.form or other.name} only")
+    if kind.from_flags is None:
+        return None
+    return kind.from_flags(ref, {dest: values.get(dest, default) for dest, default in kind.flags.items()})
 
 
 def open_policy(ref: str, options: OpenOptions | None = None) -> Policy:
@@ -242,6 +355,25 @@ def summarize_vlm(records: list[dict[str, Any]]) -> str:
     return audit_summary(records)
 
 
+#: The --model and --vlm-* flags (argparse names) and their defaults: the parser's and the
+#: check that no other kind is given them.
+VLM_FLAGS = {"model": None, "vlm_every": 5, "vlm_latency_frames": 0, "vlm_observe_images": 2, "vlm_on_fault": "error",
+             "vlm_timeout": 60.0, "vlm_template": "v1", "vlm_api_key_env": "OPENAI_API_KEY",
+             "vlm_no_json_schema": False, "vlm_temperature": 0.0, "vlm_seed": 0}
+
+
+def vlm_from_flags(ref: str, values: Mapping[str, Any]) -> Config:
+    if not values["model"]:
+        raise SpecError("--policy vlm:URL needs --model NAME (the model the endpoint serves)")
+    return {
+        "model": values["model"], "every": values["vlm_every"], "latency_frames": values["vlm_latency_frames"],
+        "observe_images": values["vlm_observe_images"], "on_fault": values["vlm_on_fault"],
+        "timeout_s": values["vlm_timeout"], "template": values["vlm_template"],
+        "api_key_env": values["vlm_api_key_env"], "json_schema": not values["vlm_no_json_schema"],
+        "temperature": values["vlm_temperature"], "seed": values["vlm_seed"],
+    }
+
+
 def make_remote(ref: str, options: OpenOptions) -> Policy:
     from pipeline.remote.client import RemotePolicy  # lazy: websockets
 
@@ -249,6 +381,8 @@ def make_remote(ref: str, options: OpenOptions) -> Policy:
 
 
 def make_module(ref: str, options: OpenOptions) -> Policy:
+    from pipeline.policies.base import make_policy
+
     if not options.isolate:
         return make_policy(ref)
     from pipeline.remote.isolated import IsolatedPolicy  # lazy: the child-process runner
@@ -257,25 +391,21 @@ def make_module(ref: str, options: OpenOptions) -> Policy:
 
 
 def make_builtin(ref: str, options: OpenOptions) -> Policy:
+    from pipeline.policies.base import make_policy
+
     return make_policy(ref)
 
 
-register(PolicyKind("builtin", lambda ref: True, make_builtin))
 def configure_module(ref: str, config: Config | None) -> Config | None:
     """The sha256 of the module's source file (None when it has none), recorded in the
     run's manifest: an edited policy file makes a re-run or a resume refuse the folder
     instead of calling it up to date or mixing episodes of two versions. Files the module
     imports or loads (weights) are not covered: ``--overwrite`` after changing them."""
+    from pipeline.policies.base import module_file
+
     no_config(ref, config)
     path = module_file(ref)
     return {"source_sha256": None if path is None else sha256_file(path)}
-
-
-register(PolicyKind("module", lambda ref: ":" in ref, make_module, configure=configure_module, manifest_key="module"))
-register(PolicyKind("remote", lambda ref: ref.startswith(("ws://", "wss://")), make_remote, names_ref=True))
-register(PolicyKind("vlm", lambda ref: ref.startswith(VLM_PREFIX), make_vlm, configure=configure_vlm,
-                    manifest_key="vlm", audit_dir="vlm", replay=replay_vlm, summarize_audit=summarize_vlm,
-                    check=check_vlm))
 
 
 def make_lerobot(ref: str, options: OpenOptions) -> Policy:
@@ -290,8 +420,8 @@ def configure_lerobot(ref: str, config: Config | None) -> Config:
     return configure(ref, config)
 
 
-register(PolicyKind("lerobot", lambda ref: ref.startswith("lerobot:"), make_lerobot, configure=configure_lerobot,
-                    manifest_key="lerobot"))
+def lerobot_from_flags(ref: str, values: Mapping[str, Any]) -> Config:
+    return {"device": values["policy_device"] or "cpu"}
 
 
 # openpi policy servers: openpi:ws://HOST:PORT[?key=value...] ---------------------------------
@@ -316,5 +446,22 @@ def make_openpi(ref: str, options: OpenOptions) -> Policy:
     return OpenpiPolicy(url, config, timeout_s=options.timeout_s + REMOTE_SLACK_S)
 
 
-register(PolicyKind("openpi", lambda ref: ref.startswith("openpi:"), make_openpi, configure=configure_openpi,
-                    manifest_key="openpi", names_ref=True))
+# the two predicate kinds split what no prefix owns: a name, or module:callable (it has a colon)
+register(PolicyKind("builtin", lambda ref: ":" not in ref, make_builtin, form="oracle, still, chase, predictive",
+                    servable=True, examples=("still", "oracle", "blind-centre", "nosuch")))
+register(PolicyKind("module", lambda ref: ":" in ref, make_module, configure=configure_module, manifest_key="module",
+                    form="module:callable", imports_module=True, servable=True,
+                    examples=("mypkg.policies:make", "vlm.x:make", "ws:x")))
+register(PolicyKind("remote", ("ws://", "wss://"), make_remote, names_ref=True, form="ws://HOST:PORT",
+                    about="a pipeline serve or other dyana/1 server", examples=("ws://127.0.0.1:8000", "wss://h/p")))
+register(PolicyKind("vlm", VLM_PREFIX, make_vlm, configure=configure_vlm, manifest_key="vlm", audit_dir="vlm",
+                    replay=replay_vlm, summarize_audit=summarize_vlm, check=check_vlm, form="vlm:URL",
+                    about="an OpenAI-compatible endpoint, e.g. vlm:http://127.0.0.1:8000/v1", flags=VLM_FLAGS,
+                    from_flags=vlm_from_flags, examples=("vlm:http://127.0.0.1:8000/v1",)))
+register(PolicyKind("lerobot", "lerobot:", make_lerobot, configure=configure_lerobot, manifest_key="lerobot",
+                    form="lerobot:PATH", about="a LeRobot checkpoint folder, run with the lerobot installed here",
+                    flags={"policy_device": None}, from_flags=lerobot_from_flags,
+                    examples=("lerobot:outputs/train/pretrained_model", "lerobot:ckpt")))
+register(PolicyKind("openpi", "openpi:", make_openpi, configure=configure_openpi, manifest_key="openpi",
+                    names_ref=True, form="openpi:ws://HOST:PORT", about="an openpi policy server",
+                    examples=("openpi:ws://127.0.0.1:8000?image=observation/image",)))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import pyarrow as pa
 
+from schemas.runs import RUN_KEY
+
 #: Fixed widths of the per-frame float arrays.
 ARRAY_WIDTHS = {
     "object_pose": 7,
@@ -69,7 +71,7 @@ EPISODES_SCHEMA = pa.schema(
 
 #: Columns evaluated rollouts add to the episodes table.
 ROLLOUT_FIELDS = [
-    pa.field("policy", pa.string(), nullable=False),
+    pa.field(RUN_KEY, pa.string(), nullable=False),
     pa.field("privileged", pa.bool_(), nullable=False),
     pa.field("status", pa.string(), nullable=False),
     pa.field("error", pa.string(), nullable=False),

@@ -1,6 +1,7 @@
 """How a Dyana folder maps onto a LeRobot dataset: features, file paths, metadata files.
 
-Field mapping (one LeRobot frame per Dyana frame, same order):
+Field mapping (one LeRobot frame per Dyana frame, same order; the names are
+:mod:`catalog.lerobot_names`'):
 
 =================================  ======================================================
 LeRobot feature                    Dyana source
@@ -36,26 +37,21 @@ from __future__ import annotations
 
 from typing import Any
 
+from catalog.lerobot_names import ACTION_KEY, ENV_KEY, IMAGE_KEY, INDEX_FEATURES, STATE_KEY
 from schemas.joints import ACTION_NAMES, JOINT_NAMES, OBJECT_POSE_NAMES, PALM_POSE_NAMES
 
 #: Export formats: name -> LeRobot codebase version.
 FORMATS = {"lerobot": "v3.0", "lerobot-v2.1": "v2.1"}
-VIDEO_KEY = "observation.images.ego"
-ENV_KEY = "observation.environment_state"
+#: The exported video's feature: the image's.
+VIDEO_KEY = IMAGE_KEY
 STATE_NAMES = PALM_POSE_NAMES + JOINT_NAMES
-#: LeRobot feature -> the Dyana frames columns it concatenates.
-VECTOR_SOURCES = {
-    "observation.state": ("palm_pose", "joint_angles"),
-    "observation.environment_state": ("object_pose",),
-    "action": ("action",),
-}
+#: Each vector feature's element names.
 VECTOR_NAMES = {
-    "observation.state": STATE_NAMES,
-    "observation.environment_state": OBJECT_POSE_NAMES,
-    "action": ACTION_NAMES,
+    STATE_KEY: STATE_NAMES,
+    ENV_KEY: OBJECT_POSE_NAMES,
+    ACTION_KEY: ACTION_NAMES,
 }
 PROVENANCE = ("source_hash", "source_episode_index")
-INDEX_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 #: Episode facts kept beside LeRobot's own (``dyana/<name>``), from the episodes table.
 EPISODE_FACTS = (
     "episode_id", "slice", "motion_type", "intercept_setting", "object", "object_size", "hand", "rollout_format",
@@ -114,7 +110,7 @@ def modality(version: str) -> dict[str, Any]:
             "palm_orientation": {"start": 3, "end": 6, "rotation_type": "euler_angles_rpy"},
             "finger_joints": {"start": 6, "end": 21},
         },
-        "action": {
+        ACTION_KEY: {
             "palm_position": {"start": 0, "end": 3, "absolute": True},
             "finger_joints": {"start": 3, "end": 18, "absolute": True},
         },

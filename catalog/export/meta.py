@@ -24,7 +24,6 @@ from catalog.export.layout import (
     V30_DATA_PATH,
     V30_EPISODES_PATH,
     V30_VIDEO_PATH,
-    VECTOR_SOURCES,
     VIDEO_KEY,
     features,
     modality,
@@ -32,6 +31,7 @@ from catalog.export.layout import (
 )
 from catalog.export.lerobot import ExportSettings, Json, Part
 from catalog.hashing import sha256_file
+from catalog.lerobot_names import IMAGE_SOURCE, VECTOR_SOURCES
 from catalog.reader import FolderReader
 from catalog.stats import load_stats
 from schemas.versions import CODE_VERSION, FPS
@@ -208,7 +208,7 @@ def assemble(out: Path, readers: Sequence[FolderReader], settings: ExportSetting
         "sources": [_source(reader, int(first)) for reader, first in zip(readers, firsts)],
         "code_version": CODE_VERSION,
         "mapping": {key: list(VECTOR_SOURCES[key]) for key in vector_names(settings.environment_state)}
-        | {VIDEO_KEY: ["image"]},
+        | {VIDEO_KEY: [IMAGE_SOURCE]},
         "files": dict(sorted(files.items())),
     })
 

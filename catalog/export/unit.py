@@ -22,7 +22,6 @@ from catalog.atomic import atomic_open, atomic_write_text
 from catalog.export.episode_stats import Moments
 from catalog.export.layout import (
     EPISODE_FACTS,
-    INDEX_FEATURES,
     PROVENANCE,
     ROLLOUT_FACTS,
     V21_DATA_PATH,
@@ -30,7 +29,6 @@ from catalog.export.layout import (
     V30_DATA_PATH,
     V30_VIDEO_PATH,
     VECTOR_NAMES,
-    VECTOR_SOURCES,
     VIDEO_KEY,
     chunk_of,
     vector_names,
@@ -38,6 +36,7 @@ from catalog.export.layout import (
 from catalog.export.lerobot import ExportError, ExportPlan, Json, Part, Unit, json_int, part_path
 from catalog.export.video import VideoWriter
 from catalog.hashing import sha256_file
+from catalog.lerobot_names import IMAGE_SOURCE, INDEX_FEATURES, VECTOR_SOURCES
 from catalog.parquet_io import column_to_numpy
 from catalog.reader import ShardReader, open_folder
 from catalog.records import FileRecord
@@ -152,11 +151,11 @@ def export_unit(plan: ExportPlan, first: int, report: EpisodeReport | None = Non
         raise ExportError(f"{plan.sources[unit.source]}: changed since the export started (its slice hash differs)")
     shard = next(s for s in reader.shards if s.record.first == unit.source_first)
     episodes = shard.episodes()
-    names = ("image", "frame_index", "palm_pose", "joint_angles", "object_pose", "action")
+    names = (IMAGE_SOURCE, "frame_index", *(name for sources in VECTOR_SOURCES.values() for name in sources))
     table, runs = shard.indexed_frames(names, episodes)
-    columns = {name: column_to_numpy(table.column(name)) for name in names if name != "image"}
+    columns = {name: column_to_numpy(table.column(name)) for name in names if name != IMAGE_SOURCE}
     out = Path(plan.out)
-    records, files = _write_episodes(plan, number, unit, shard, episodes.to_pylist(), table.column("image"), runs,
+    records, files = _write_episodes(plan, number, unit, shard, episodes.to_pylist(), table.column(IMAGE_SOURCE), runs,
                                      columns, out, report)
     part = Part(number, tuple(records),
                 tuple(FileRecord(p.relative_to(out).as_posix(), sha256_file(p), p.stat().st_size) for p in files))

@@ -58,6 +58,7 @@ from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import printable, shorten
 from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of
+from schemas.runs import is_run
 
 DEFAULT_SHARD_SIZE = 32
 
@@ -256,7 +257,7 @@ def summarize(run_dir: str | Path) -> EvalSummary:
 
     root = as_location(run_dir)
     manifest = load_manifest(root)
-    if "policy" not in manifest.extra:
+    if not is_run(manifest.extra):
         raise SpecError(f"{root}: not a rollout run (catalog.json has no policy)")
     data = load_run(root)
     overall = score_run(data).overall

@@ -31,6 +31,7 @@ from pipeline.jobs.replay import check_rebuildable, private_seed, replay, replay
 from schemas.cli import ProgressMeter
 from schemas.errors import ReplayMismatch, ShardError, SpecError
 from schemas.names import shorten
+from schemas.runs import is_run
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,7 @@ def verify(
     private_seed(directory, load_manifest(directory), test_seed)  # a missing or wrong seed: one line, before the work
     manifest = verify_files(directory)
     shards = _sample_shards(manifest, sample, rng)
-    if "policy" in manifest.extra:
+    if is_run(manifest.extra):
         replay(directory, shards=[s.first for s in shards], test_seed=test_seed)
         return VerifyReport(manifest.slice, len(manifest.shards), len(shards), 0)
     check_build_settings(directory, manifest)

@@ -32,9 +32,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from catalog.lerobot_keys import IMAGE_KEY
-
-STATE_KEY = "observation.state"
+from catalog.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY, pad_key
 
 
 @dataclass(frozen=True)
@@ -90,7 +88,7 @@ class ChunkCNNPolicy(nn.Module):
             nn.Linear(config.hidden, config.hidden), nn.ReLU(),
             nn.Linear(config.hidden, config.chunk * config.action_dim),
         )
-        for key in (IMAGE_KEY, STATE_KEY, "action"):
+        for key in (IMAGE_KEY, STATE_KEY, ACTION_KEY):
             mean = torch.as_tensor(stats[key]["mean"], dtype=torch.float32).reshape(-1)
             std = torch.as_tensor(stats[key]["std"], dtype=torch.float32).reshape(-1)
             self.register_buffer(f"{key.replace('.', '_')}_mean", mean)
@@ -125,8 +123,8 @@ class ChunkCNNPolicy(nn.Module):
     def forward(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, float]]:
         """Training loss: mean squared error of the normalised chunk over unpadded actions."""
         predicted = self.head(self._encode(batch)).reshape(-1, self.config.chunk, self.config.action_dim)
-        target = self._norm("action", batch["action"])
-        keep = (~batch["action_is_pad"]).unsqueeze(-1).to(predicted.dtype)
+        target = self._norm(ACTION_KEY, batch[ACTION_KEY])
+        keep = (~batch[pad_key(ACTION_KEY)]).unsqueeze(-1).to(predicted.dtype)
         loss = (((predicted - target) ** 2) * keep).sum() / (keep.sum() * self.config.action_dim).clamp(min=1.0)
         return loss, {"loss": float(loss.detach())}
 
@@ -159,7 +157,7 @@ class ChunkCNNPolicy(nn.Module):
         config = ChunkCNNConfig(**values)
         state = torch.load(folder / "model.pt", map_location="cpu", weights_only=True)
         blank = {key: {"mean": torch.zeros(n), "std": torch.ones(n)}
-                 for key, n in ((IMAGE_KEY, 3), (STATE_KEY, config.state_dim), ("action", config.action_dim))}
+                 for key, n in ((IMAGE_KEY, 3), (STATE_KEY, config.state_dim), (ACTION_KEY, config.action_dim))}
         policy = cls(config, blank)
         policy.load_state_dict(state)
         policy.eval()

@@ -18,8 +18,8 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 import catalog
-from catalog.lerobot_keys import IMAGE_KEY
-from pipeline.policies.chunk_cnn import STATE_KEY, ChunkCNNConfig, ChunkCNNPolicy
+from catalog.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY, VECTOR_SOURCES, pad_key
+from pipeline.policies.chunk_cnn import ChunkCNNConfig, ChunkCNNPolicy
 
 
 def acting_positions(dataset: Any) -> list[int]:
@@ -47,8 +47,8 @@ def normalisation(dataset: Any, sample: int = 400) -> dict[str, dict[str, np.nda
     channels = pixels.transpose(1, 0, 2, 3).reshape(3, -1).astype(np.float64)
     return {
         IMAGE_KEY: {"mean": channels.mean(axis=1), "std": channels.std(axis=1)},
-        STATE_KEY: _vector_stats(dataset.stats, ("palm_pose", "joint_angles")),
-        "action": _vector_stats(dataset.stats, ("action",)),
+        STATE_KEY: _vector_stats(dataset.stats, VECTOR_SOURCES[STATE_KEY]),
+        ACTION_KEY: _vector_stats(dataset.stats, VECTOR_SOURCES[ACTION_KEY]),
     }
 
 
@@ -81,7 +81,7 @@ def train(
     optimiser = torch.optim.AdamW(policy.parameters(), lr=lr, weight_decay=1e-4)
     total_steps = epochs * len(loader) if max_steps is None else min(max_steps, epochs * len(loader))
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=max(total_steps, 1))
-    keys = (IMAGE_KEY, STATE_KEY, "action", "action_is_pad")
+    keys = (IMAGE_KEY, STATE_KEY, ACTION_KEY, pad_key(ACTION_KEY))
     losses: list[float] = []
     step = 0
     for epoch in range(epochs):

@@ -32,7 +32,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from catalog.lerobot_keys import IMAGE_KEY, observation_features
+from catalog.lerobot_keys import observation_features
+from catalog.lerobot_names import IMAGE_KEY, STATE_KEY, pad_key
 from pipeline.policies.base import Observation, Task
 from schemas.errors import PolicyError
 
@@ -105,10 +106,10 @@ class LeRobotAdapter:
             for key, value in current.items():
                 out[key] = torch.from_numpy(value).unsqueeze(0).to(self.device)
             return out
-        for key in (IMAGE_KEY, "observation.state"):
+        for key in (IMAGE_KEY, STATE_KEY):
             stacked = np.stack([frame[key] for frame in self._frames])
             out[key] = torch.from_numpy(stacked).unsqueeze(0).to(self.device)
-            out[f"{key}_is_pad"] = torch.tensor([list(self._pads)], dtype=torch.bool, device=self.device)
+            out[pad_key(key)] = torch.tensor([list(self._pads)], dtype=torch.bool, device=self.device)
         return out
 
     def act(self, obs: Observation) -> np.ndarray:

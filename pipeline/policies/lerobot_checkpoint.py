@@ -33,6 +33,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from catalog.lerobot_names import ACTION_KEY, ENV_KEY, IMAGE_KEY, STATE_KEY
 from pipeline.policies.base import Task
 from pipeline.policies.lerobot_adapter import LeRobotAdapter
 from schemas.errors import PolicyError, SpecError
@@ -42,11 +43,10 @@ PREFIX = "lerobot:"
 PREPROCESSOR = "policy_preprocessor.json"
 POSTPROCESSOR = "policy_postprocessor.json"
 DEVICE = re.compile(r"^(cpu|mps|cuda(:\d+)?)$")
-STATE_KEY = "observation.state"
 STATE_SIZE = 21
 ACTION_SIZE = 18
 INSTALL = "pip install 'lerobot>=0.4' (see docs/guides/export-lerobot.md)"
-PRIVILEGED = {"observation.environment_state": "the object's true pose, which the closed loop never shows a policy; "
+PRIVILEGED = {ENV_KEY: "the object's true pose, which the closed loop never shows a policy; "
               "export without it (the default) and train again"}
 
 
@@ -79,7 +79,7 @@ class Checkpoint:
         if (self.image_key is None) != (self.image_size is None):
             raise SpecError("Checkpoint: image_key and image_size go together")
         if self.image_key is None and not self.state:
-            raise PolicyError(f"{shorten(self.folder)}: the policy takes neither an image nor observation.state")
+            raise PolicyError(f"{shorten(self.folder)}: the policy takes neither an image nor {STATE_KEY}")
 
     @property
     def model_sha256(self) -> str:
@@ -93,7 +93,7 @@ class Checkpoint:
         """Dyana's batch key -> the policy's input key."""
         out = {STATE_KEY: STATE_KEY} if self.state else {}
         if self.image_key is not None:
-            out["observation.images.ego"] = self.image_key
+            out[IMAGE_KEY] = self.image_key
         return out
 
 
@@ -118,10 +118,10 @@ def read_checkpoint(path: str) -> Checkpoint:
     inputs, outputs = (config.get(k) if isinstance(config, dict) else None for k in ("input_features", "output_features"))
     if not isinstance(inputs, dict) or not isinstance(outputs, dict) or not isinstance(config.get("type"), str):
         raise PolicyError(f"{name}/config.json: no type, input_features or output_features (not a LeRobot policy config)")
-    action = outputs.get("action")
-    if action is None or _shape(name, "action", action) != [ACTION_SIZE] or set(outputs) != {"action"}:
+    action = outputs.get(ACTION_KEY)
+    if action is None or _shape(name, ACTION_KEY, action) != [ACTION_SIZE] or set(outputs) != {ACTION_KEY}:
         raise PolicyError(f"{name}: the policy outputs {shorten(json.dumps(outputs, sort_keys=True))}; "
-                          f"Dyana takes one 'action' of {ACTION_SIZE} (palm xyz, 15 joints)")
+                          f"Dyana takes one {ACTION_KEY!r} of {ACTION_SIZE} (palm xyz, 15 joints)")
     image_key: str | None = None
     image_size: tuple[int, int] | None = None
     state = False

@@ -105,3 +105,27 @@ def test_an_empty_out_is_refused_not_taken_as_the_current_folder(args, tmp_path)
     result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert result.returncode == 2 and "out must be a folder or file name (str or path-like), got ''" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and list(tmp_path.iterdir()) == []
+
+
+def _subparser(command: str):
+    from pipeline.cli import COMMANDS
+    from schemas.cli import make_parser
+
+    parser = make_parser("pipeline", "", COMMANDS)
+    sub = next(a for a in parser._actions if a.dest == "command")
+    return {a.dest: a for a in sub.choices[command]._actions}
+
+
+def test_the_policy_and_protocol_options_are_the_registries():
+    """--policy's help lists the registered policy kinds (serve's: those it can serve), and
+    --protocol's choices are the wires' names: a new kind or wire needs no CLI edit."""
+    from pipeline.policy_registry import KINDS, policy_help
+    from pipeline.remote.wires import PROTOCOLS
+
+    eval_options, serve_options = _subparser("eval"), _subparser("serve")
+    assert eval_options["policy"].help == policy_help()
+    assert all(kind.form in policy_help() for kind in KINDS) and "openpi:ws://HOST:PORT" in policy_help()
+    assert serve_options["policy"].help == policy_help(servable=True) == "oracle, still, chase, predictive or module:callable"
+    assert serve_options["protocol"].choices == tuple(PROTOCOLS) == ("dyana", "openpi")
+    flags = {dest for kind in KINDS for dest in kind.flags}
+    assert flags and flags <= set(eval_options)  # every kind's flags are eval's options
