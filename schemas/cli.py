@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import AllEpisodesFailed, DyanaError, ReplayMismatch, SpecError
-from schemas.names import printable, shorten
+from schemas.names import printable, redact_credentials, shorten
 from schemas.renderers import DEFAULT_RENDERER, RENDERER_VERSIONS, RENDERERS
 from schemas.storage_faults import describe_storage_fault, is_storage_fault
 from schemas.versions import CODE_VERSION, DATASET_VERSION
@@ -409,7 +409,7 @@ def run(prog: str, description: str, commands: Sequence[Command], argv: Sequence
             _silence_stdout()
             message = f"cannot write the output: {exc.strerror}"
         else:
-            message = one_line(exc)
+            message = redact_credentials(one_line(exc))
         print(f"{where}: error: {message}", file=sys.stderr)
         return exit_code(exc)
     except Exception as exc:
