@@ -45,3 +45,18 @@ def test_bad_policy_refs_are_one_line_without_the_password(tmp_path, capsys, ref
     lines = out.err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and message in lines[0], out.err
     assert "S3CRETPW" not in out.err + out.out
+
+
+@pytest.mark.parametrize("command", [["eval", "--policy", "still", "--slice", "test-1k", "--episodes", "1"], ["replay"]])
+def test_a_test_seed_file_that_is_a_fifo_is_refused_at_once(tmp_path, capsys, command):
+    import os
+    import time
+
+    fifo = tmp_path / "secret"
+    os.mkfifo(fifo)  # no writer: reading it would block for ever
+    argv = [command[0], *([str(tmp_path)] if command[0] == "replay" else ["--out", str(tmp_path / "run")]), *command[1:]]
+    start = time.monotonic()
+    code = main([*argv, "--test-seed-file", str(fifo)])
+    err = capsys.readouterr().err
+    assert code == 2 and "--test-seed-file" in err and "a FIFO, not a regular file" in err, err
+    assert time.monotonic() - start < 30
