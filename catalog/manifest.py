@@ -332,6 +332,14 @@ def _read_regular(path: Path) -> str:
         return handle.read().decode("utf-8")
 
 
+class _NotJson(ValueError):
+    """``NaN``, ``Infinity`` or ``-Infinity`` in a JSON text: Python reads them, JSON has none."""
+
+
+def _refuse_constant(name: str) -> float:
+    raise _NotJson(name)
+
+
 def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> Manifest:
     """Read and validate ``DIR/catalog.json``, its seal first; ShardError naming the file
     on any problem. ``sealed=False`` accepts a manifest without a seal (``catalog migrate``
@@ -347,9 +355,11 @@ def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> 
     except (OSError, UnicodeDecodeError) as exc:
         raise ShardError(f"{path}: cannot read: {exc}") from None
     try:
-        data = json.loads(text)
+        data = json.loads(text, parse_constant=_refuse_constant)
     except json.JSONDecodeError as exc:
         raise ShardError(f"{path}: not valid JSON: {exc}") from None
+    except _NotJson as exc:
+        raise ShardError(f"{path}: holds {exc}, which JSON does not allow (and Dyana never writes)") from None
     except ValueError as exc:  # an integer of more digits than Python converts (sys.int_info)
         raise ShardError(f"{path}: holds a number Dyana cannot read: {shorten(str(exc), 160)}") from None
     except RecursionError:

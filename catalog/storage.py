@@ -26,12 +26,16 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from schemas.errors import ShardError, SpecError, StorageError
-from schemas.names import shorten
+from schemas.names import printable, shorten
 from schemas.storage_faults import describe_storage_fault, is_storage_fault
 
 _URL = re.compile(r"^([a-z][a-z0-9+.-]*)://", re.IGNORECASE)
 #: Bytes fetched per ranged read when a remote file is walked (Parquet page headers).
 READ_AHEAD = 64 * 1024
+#: botocore's client timeouts for a URL Dyana opens (its defaults are 60 s each): an endpoint
+#: that accepts and never answers fails after its attempts (AWS_MAX_ATTEMPTS, botocore's
+#: default 5) of 10 s each, not never. An endpoint that trickles bytes is not cut by them.
+CLIENT_TIMEOUTS = {"connect_timeout": 5, "read_timeout": 10}
 
 
 def is_url(location: Any) -> bool:
@@ -57,9 +61,12 @@ def as_location(location: str | os.PathLike[str], name: str = "path") -> Path:
             raise ShardError(f"{str(location)[:80]}: object storage needs universal-pathlib and s3fs "
                              "(pip install 'dyana[s3]')") from None
         if not str(location).split("://", 1)[1].split("/", 1)[0]:
-            raise SpecError(f"{name}: {shorten(repr(location))} names no bucket (expected e.g. s3://bucket/folder)")
+            raise SpecError(f"{name}: {printable(repr(location))} names no bucket (expected e.g. s3://bucket/folder)")
+        if "//" in str(location).split("://", 1)[1].rstrip("/") or not str(location).isprintable():
+            # s3://bucket//x writes keys under "/x/": a folder no reader finds again
+            raise SpecError(f"{name}: {printable(repr(location))} has an empty folder name or a control character")
         try:
-            path = UPath(str(location))
+            path = UPath(str(location), config_kwargs=dict(CLIENT_TIMEOUTS))
             path.fs  # noqa: B018  # the file system's class: an uninstalled one (gs:// without gcsfs) fails here
         except (ValueError, ImportError) as exc:
             raise ShardError(f"{str(location)[:80]}: not a storage URL this installation reads ({exc})") from None
@@ -96,8 +103,9 @@ class RangeReader:
 
 
 def where(location: Any) -> str:
-    """A location as a short text for a message (a UPath without its options)."""
-    return shorten(str(location))
+    """A location as a short, printable text for a message (a UPath without its options;
+    an escape sequence in a URL never reaches the terminal)."""
+    return printable(str(location))
 
 
 @contextmanager

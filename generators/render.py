@@ -81,15 +81,13 @@ from generators.scene import (
 from generators.window import ShapeBoxes, WindowCamera, shape_boxes, world_corners
 from schemas.errors import DyanaError, SpecError
 from schemas.frames import EpisodeFrames
+from schemas.limits import MAX_RESOLUTION, MIN_RESOLUTION
 from schemas.names import shorten
 from schemas.objects import object_category
 from schemas.renderers import DEFAULT_RENDERER, check_renderer
 from schemas.scene import DEFAULT_RESOLUTION, HANDS
 
 #: Light settings passed to every ``getCameraImage`` call (no defaults relied on).
-#: Largest image side rendered: the largest a build writes (1024 px, 3 MB a frame), and a
-#: bound that keeps a mistyped resolution from asking for gigabytes before any check.
-MAX_RESOLUTION = 1024
 LIGHT_DIRECTION = (0.3, 1.0, -0.5)
 LIGHT_COLOR = (1.0, 1.0, 1.0)
 LIGHT_DISTANCE = 10.0
@@ -124,9 +122,9 @@ class _Hand:
 
 
 def check_resolution(name: str, value: object) -> int:
-    """An image side in pixels in [8, MAX_RESOLUTION], or SpecError naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 8 <= value <= MAX_RESOLUTION:
-        raise SpecError(f"{name} must be an integer in [8, {MAX_RESOLUTION}], got {shorten(value)}")
+    """An image side in pixels in [MIN_RESOLUTION, MAX_RESOLUTION], or SpecError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not MIN_RESOLUTION <= value <= MAX_RESOLUTION:
+        raise SpecError(f"{name} must be an integer in [{MIN_RESOLUTION}, {MAX_RESOLUTION}], got {shorten(value)}")
     return int(value)
 
 

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import AllEpisodesFailed, DyanaError, ReplayMismatch, SpecError
-from schemas.names import printable, shorten
+from schemas.names import printable, redact_credentials, shorten
+from schemas.regular_files import file_kind, open_regular
 from schemas.renderers import DEFAULT_RENDERER, RENDERER_VERSIONS, RENDERERS
 from schemas.storage_faults import describe_storage_fault, is_storage_fault
 from schemas.versions import CODE_VERSION, DATASET_VERSION
@@ -194,7 +195,10 @@ def read_test_seed(args: argparse.Namespace) -> str | None:
         return getattr(args, "test_seed", None)
     path = args.test_seed_file
     try:
-        with open(path, "rb") as handle:
+        handle, status = open_regular(path)  # a FIFO with no writer would block for ever
+        if handle is None:
+            raise SpecError(f"--test-seed-file {shorten(path, 80)}: {file_kind(status.st_mode)}, not a regular file")
+        with handle:
             data = handle.read(TEST_SEED_FILE_BYTES + 1)
     except OSError as exc:
         raise SpecError(f"--test-seed-file {shorten(path, 80)}: cannot read it ({exc.strerror or exc})") from None
@@ -409,7 +413,7 @@ def run(prog: str, description: str, commands: Sequence[Command], argv: Sequence
             _silence_stdout()
             message = f"cannot write the output: {exc.strerror}"
         else:
-            message = one_line(exc)
+            message = redact_credentials(one_line(exc))
         print(f"{where}: error: {message}", file=sys.stderr)
         return exit_code(exc)
     except Exception as exc:

@@ -27,6 +27,7 @@ every limit (its longest episode is 140 frames, its fastest target 3 units/s). U
 | `MAX_OVERLAYS` | 16 | overlay tracks of a motion | the recipe uses none |
 | `MAX_TEXT` | 10,000 characters | `text` | an instruction is a sentence |
 | `MAX_NUMBER_DIGITS` | 40 | digits of any integer in the JSON | `seed` (int64) needs 19 |
+| `MIN_RESOLUTION`, `MAX_RESOLUTION` | 8, 1,024 px | an image side, a task's `resolution` | 3 MB a frame, not gigabytes |
 | `MAX_SPEC_LINE_BYTES` | 2 MiB | one line of a specs file | the largest spec these limits admit fits |
 | `MAX_SPECS_FILE_BYTES` | 256 MiB | a specs file | Dyana-12M's 184,718 specs (~90 MB) fit |
 
@@ -57,5 +58,7 @@ MAX_TRACK_TOKENS = 256
 MAX_OVERLAYS = 16
 MAX_TEXT = 10_000
 MAX_NUMBER_DIGITS = 40
+MIN_RESOLUTION = 8
+MAX_RESOLUTION = 1024
 MAX_SPEC_LINE_BYTES = 2 * 1024 * 1024
 MAX_SPECS_FILE_BYTES = 256 * 1024 * 1024

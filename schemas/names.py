@@ -4,7 +4,8 @@ A slice name, a policy name or an episode id from a spec, a manifest or the comm
 line is a *name*, never a path: :func:`validate_name` accepts a short lower-case word
 (letters, digits, ``.``, ``_``, ``-``; no separator, no leading dot, not ``.``/``..``),
 so joining it under an output folder cannot leave that folder. :func:`shorten` keeps
-an echoed value short, so a 100 MB field gives a one-line error.
+an echoed value short, so a 100 MB field gives a one-line error; it and :func:`printable`
+also hide a URL's password (:func:`redact_credentials`), so no message prints one.
 """
 
 from __future__ import annotations
@@ -16,22 +17,37 @@ from schemas.errors import SpecError
 
 NAME_PATTERN = re.compile(r"[a-z0-9][a-z0-9._-]{0,63}")
 ECHO_LIMIT = 120
+#: ``scheme://userinfo@``: what a URL's credentials look like anywhere in a text.
+_USERINFO = re.compile(r"\b([A-Za-z][A-Za-z0-9+.-]*://)([^/?#@\s]*)@")
+
+
+def redact_credentials(text: str) -> str:
+    """``text`` with every URL's ``user:password@`` as ``user:***@`` (a bare ``token@`` as
+    ``***@``): a URL given on the command line may carry a secret, and messages, progress
+    and stored reasons repeat URLs."""
+    def hide(found: re.Match[str]) -> str:
+        user, colon, _ = found.group(2).partition(":")
+        return f"{found.group(1)}{user + ':***' if colon else '***'}@"
+
+    return _USERINFO.sub(hide, text) if "@" in text else text
 
 
 def shorten(value: Any, limit: int = ECHO_LIMIT) -> str:
-    """``value`` as text of at most ``limit`` characters (``...`` and the full length when cut)."""
+    """``value`` as text of at most ``limit`` characters (``...`` and the full length when cut),
+    credentials redacted."""
     text = value if isinstance(value, str) else repr(value)
     if len(text) <= limit:
-        return text
-    return f"{text[: limit - 3]}... ({len(text):,} characters)"
+        return redact_credentials(text)
+    head = redact_credentials(text[: limit + 4096])  # a password across the cut is still found
+    return f"{head[: limit - 3]}... ({len(text):,} characters)"
 
 
 def printable(value: Any, limit: int = ECHO_LIMIT) -> str:
     """A peer's text (a server's error, a policy's name) safe to print on a terminal:
     characters that are not printable (escape sequences, newlines) become backslash
-    escapes (``\\x1b``, ``\\n``), and the result is cut to ``limit`` characters."""
+    escapes (``\\x1b``, ``\\n``), and the result is cut to ``limit`` characters; credentials redacted."""
     text = value if isinstance(value, str) else repr(value)
-    head = text[: limit + 1]
+    head = redact_credentials(text[: limit + 4096])[: limit + 1]
     safe = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in head)
     if len(text) <= limit and len(safe) <= limit:
         return safe

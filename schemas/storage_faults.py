@@ -12,8 +12,9 @@ from __future__ import annotations
 
 from urllib.parse import urlsplit
 
-#: Top-level packages whose exceptions are an object store's failures.
-STORAGE_PACKAGES = ("botocore", "aiobotocore", "s3fs")
+#: Top-level packages whose exceptions are an object store's failures (aiohttp: s3fs's
+#: HTTP client, whose ClientPayloadError is a body shorter than its announced length).
+STORAGE_PACKAGES = ("botocore", "aiobotocore", "s3fs", "aiohttp")
 _CREDENTIALS = ("NoCredentialsError", "PartialCredentialsError", "CredentialRetrievalError",
                 "NoAuthTokenError", "UnauthorizedSSOTokenError")
 _UNREACHABLE = ("EndpointConnectionError", "ConnectTimeoutError", "ReadTimeoutError", "ConnectionClosedError",
@@ -50,6 +51,8 @@ def describe_storage_fault(exc: BaseException) -> str:
     if names & set(_UNREACHABLE):
         endpoint = _endpoint(exc)
         return f"cannot reach the object store{' at ' + endpoint if endpoint else ''} ({type(exc).__name__})"
+    if "ClientPayloadError" in names:
+        return "the object store's reply was cut short (fewer bytes than it announced)"
     response = getattr(exc, "response", None)
     error = response.get("Error") if isinstance(response, dict) else None
     if isinstance(error, dict) and error.get("Code"):

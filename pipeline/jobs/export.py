@@ -225,6 +225,21 @@ def _plan(readers: Sequence[FolderReader], names: Sequence[str], target: Path, s
                       settings, tasks_of(readers), size, size, tuple(units))
 
 
+def refuse_nested(sources: Sequence[str], out: Path) -> None:
+    """ExportError when ``out`` is a source folder, lies inside one, or holds one: the export
+    would write into (or, replacing its folder, delete) what it reads, and ``catalog verify``
+    of that source would then fail on files its manifest does not list."""
+    target = out.resolve()
+    for name in sources:
+        if is_remote(name):
+            continue
+        folder = Path(name).resolve()
+        if target == folder or folder in target.parents or target in folder.parents:
+            where = "is" if target == folder else "lies inside" if folder in target.parents else "holds"
+            raise ExportError(f"--out {shorten(str(out))} {where} the source {shorten(name)}: "
+                              "write the export to a folder apart from every source")
+
+
 def export(
     source: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     out: str | os.PathLike[str],
@@ -252,6 +267,7 @@ def export(
     names = [os.fspath(item) for item in items]
     if not names:
         raise ExportError("nothing to export: give at least one source folder")
+    refuse_nested(names, Path(out))
     start = time.perf_counter()
     readers = tuple(open_folder(name, verify="sha256") for name in names)
     target = Path(out)

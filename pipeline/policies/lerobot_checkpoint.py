@@ -52,7 +52,10 @@ PRIVILEGED = {ENV_KEY: "the object's true pose, which the closed loop never show
 
 def checkpoint_folder(path: str) -> Path:
     """The ``pretrained_model`` folder ``path`` names (itself, or inside a training output)."""
-    root = Path(path).expanduser()
+    try:
+        root = Path(path).expanduser()
+    except RuntimeError:  # ~name of no such user
+        raise PolicyError(f"{shorten(path)}: no such checkpoint folder (its ~user is not a user here)") from None
     for candidate in (root, root / "pretrained_model", root / "checkpoints" / "last" / "pretrained_model"):
         if (candidate / "config.json").is_file():
             return candidate.resolve()
@@ -113,6 +116,8 @@ def read_checkpoint(path: str) -> Checkpoint:
         config = json.loads((folder / "config.json").read_text())
     except (OSError, ValueError) as exc:
         raise PolicyError(f"{name}/config.json: unreadable ({shorten(str(exc))})") from None
+    except RecursionError:
+        raise PolicyError(f"{name}/config.json: unreadable (nested too deeply)") from None
     if not (folder / "model.safetensors").is_file():
         raise PolicyError(f"{name}: no model.safetensors beside config.json")
     inputs, outputs = (config.get(k) if isinstance(config, dict) else None for k in ("input_features", "output_features"))

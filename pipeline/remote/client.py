@@ -25,7 +25,7 @@ import numpy as np
 from pipeline.policies.base import Observation, Task
 from pipeline.remote import protocol
 from schemas.errors import PolicyError, SpecError
-from schemas.names import shorten
+from schemas.names import redact_credentials, shorten
 
 if TYPE_CHECKING:  # websockets is imported when a connection is made
     from websockets.sync.client import ClientConnection
@@ -199,7 +199,7 @@ class RemotePolicy:
 
 
 def _describe(exc: BaseException) -> str:
-    text = str(exc)
+    text = redact_credentials(str(exc))
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 

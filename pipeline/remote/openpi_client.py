@@ -25,7 +25,7 @@ from pipeline.remote import openpi_wire
 from pipeline.remote.openpi_keys import OpenpiConfig, chunk_from, request_for
 from pipeline.remote.protocol import MAX_REPLY_BYTES, ProtocolError
 from schemas.errors import PolicyError, SpecError
-from schemas.names import shorten
+from schemas.names import redact_credentials, shorten
 
 if TYPE_CHECKING:  # websockets is imported when a connection is made
     from websockets.sync.client import ClientConnection
@@ -39,16 +39,16 @@ def split_ref(ref: str) -> tuple[str, OpenpiConfig]:
     """``openpi:ws://HOST:PORT[/PATH][?key=value&...]`` -> the server's URL (without the
     query) and the configuration the query sets; SpecError names a bad part."""
     if not isinstance(ref, str) or not ref.startswith(PREFIX):
-        raise SpecError(f"an openpi policy is openpi:ws://HOST:PORT, got {ref!r:.80}")
+        raise SpecError(f"an openpi policy is openpi:ws://HOST:PORT, got {shorten(repr(ref), 80)}")
     url = ref[len(PREFIX):]
-    parts = urlsplit(url)
-    if parts.scheme not in ("ws", "wss") or not parts.hostname:
-        raise SpecError(f"an openpi policy is openpi:ws://HOST:PORT (or wss://), got {ref!r:.80}")
     try:
+        parts = urlsplit(url)  # raises on an unclosed [IPv6 address
+        if parts.scheme not in ("ws", "wss") or not parts.hostname:
+            raise SpecError(f"an openpi policy is openpi:ws://HOST:PORT (or wss://), got {shorten(repr(ref), 80)}")
         parts.port  # noqa: B018  # raises on a port out of range
         pairs = parse_qsl(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
     except ValueError as exc:
-        raise SpecError(f"openpi policy {ref!r:.80}: {exc}") from None
+        raise SpecError(f"openpi policy {shorten(repr(ref), 80)}: {exc}") from None
     return urlunsplit((parts.scheme, parts.netloc, parts.path, "", "")), OpenpiConfig.from_pairs(pairs)
 
 
@@ -176,7 +176,7 @@ class OpenpiPolicy:
 
 
 def _describe(exc: BaseException) -> str:
-    text = str(exc)
+    text = redact_credentials(str(exc))
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 

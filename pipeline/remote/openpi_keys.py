@@ -102,7 +102,7 @@ def _parse(key: str, text: str) -> Any:
             raise SpecError(f"openpi extras must be on or off, got {text!r:.40}")
         return _BOOL[text.lower()]
     if key == "steps":
-        if not text.isdigit():
+        if not (text.isascii() and text.isdigit() and len(text) <= 9):  # '²' is a digit to str.isdigit
             raise SpecError(f"openpi steps must be an integer >= 1, got {text!r:.40}")
         return int(text)
     return text

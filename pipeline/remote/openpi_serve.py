@@ -19,6 +19,7 @@ from typing import Any
 from pipeline.loop.fault_text import raised, split_reason
 from pipeline.loop.worker_thread import WorkerThread
 from pipeline.remote import openpi_wire, protocol
+from pipeline.remote.limits import LimitError, check_images, check_task
 from pipeline.remote.openpi_keys import TASK, OpenpiConfig, observation_from, reply_for, task_from
 from pipeline.remote.serve import Wire
 from schemas.errors import PolicyError, SpecError
@@ -66,12 +67,18 @@ def openpi_wire_for(settings: Iterable[tuple[str, str]] = ()) -> Wire:
 
     async def answer(websocket, worker: WorkerThread, policy: Any) -> None:
         started = False
+        resolution: int | None = None
         async for data in websocket:
             try:
                 request = openpi_wire.decode(data)
                 obs = observation_from(request, config)
+                check_images(obs, None)  # what the policy would allocate for, bounded first
                 task = task_from(request, obs) if not started or TASK in request else None
-            except protocol.ProtocolError as exc:
+                if task is not None:
+                    check_task(task)
+                    resolution = task.get("resolution")
+                check_images(obs, resolution)
+            except (protocol.ProtocolError, LimitError) as exc:
                 await _fail(websocket, f"bad request: {exc}")
                 return
             what = "reset"

@@ -20,6 +20,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from pipeline.remote.limits import LimitError, check_shape, scan
 from pipeline.remote.protocol import MAX_NDIM, ProtocolError
 
 ARRAY = b"__ndarray__"
@@ -70,6 +71,10 @@ def _array(obj: dict[Any, Any]) -> np.ndarray:
         or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)
     ):
         raise ProtocolError(f"array shape must be a list of at most {MAX_NDIM} integers >= 0, got {shape!r:.80}")
+    try:
+        check_shape(shape)
+    except LimitError as exc:
+        raise ProtocolError(str(exc)) from None
     if not isinstance(data, bytes):
         raise ProtocolError(f"array data must be msgpack bin, got {type(data).__name__}")
     expected = math.prod(shape) * dtype.itemsize
@@ -124,9 +129,12 @@ def decode(data: bytes | str) -> dict[str, Any]:
     if isinstance(data, str):
         raise ProtocolError(f"openpi messages are binary frames of msgpack, got a text frame: {data[:80]!r}")
     try:
+        scan(data)  # bounded: nothing is built for a message of millions of values
         message = msgpack.unpackb(data, raw=False, object_hook=_object_hook, ext_hook=_ext_hook, strict_map_key=False)
     except ProtocolError:
         raise
+    except LimitError as exc:
+        raise ProtocolError(str(exc)) from None
     except Exception as exc:  # msgpack raises several unrelated exception types
         raise ProtocolError(f"not a msgpack message ({type(exc).__name__}: {exc})") from None
     if not isinstance(message, dict):

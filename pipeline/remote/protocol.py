@@ -25,6 +25,7 @@ import msgpack
 import numpy as np
 
 from pipeline.loop.actions import float32_copy
+from pipeline.remote.limits import LimitError, check_shape, scan
 from schemas.errors import PolicyError
 
 PROTOCOL = "dyana/1"
@@ -119,7 +120,11 @@ def _array(obj: dict[str, Any]) -> np.ndarray:
         or len(shape) > MAX_NDIM
         or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)
     ):
-        raise ProtocolError(f"array shape must be a list of at most {MAX_NDIM} integers >= 0, got {shape!r}")
+        raise ProtocolError(f"array shape must be a list of at most {MAX_NDIM} integers >= 0, got {shape!r:.80}")
+    try:
+        check_shape(shape)
+    except LimitError as exc:
+        raise ProtocolError(str(exc)) from None
     if not isinstance(data, bytes):
         raise ProtocolError(f"array data must be msgpack bin, got {type(data).__name__}")
     dtype = _DTYPES[text]
@@ -160,6 +165,7 @@ def decode(data: bytes | str) -> dict[str, Any]:
     if isinstance(data, str):
         raise ProtocolError(f"{PROTOCOL} messages are binary frames of msgpack, got a text frame: {data[:80]!r}")
     try:
+        scan(data)  # bounded: nothing is built for a message of millions of values
         message = msgpack.unpackb(
             data,
             raw=False,
@@ -169,6 +175,8 @@ def decode(data: bytes | str) -> dict[str, Any]:
         )
     except ProtocolError:
         raise
+    except LimitError as exc:
+        raise ProtocolError(str(exc)) from None
     except Exception as exc:  # msgpack raises several unrelated exception types
         raise ProtocolError(f"not a msgpack message ({type(exc).__name__}: {exc})") from None
     if not isinstance(message, dict):

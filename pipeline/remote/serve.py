@@ -26,6 +26,7 @@ from pipeline.loop.fault_text import raised
 from pipeline.loop.worker_thread import WorkerThread
 from pipeline.policies.base import make_policy
 from pipeline.remote import protocol
+from pipeline.remote.limits import LimitError, check_images, check_task
 from schemas.errors import DyanaError, PolicyError
 
 PolicyFactory = Callable[[], Any]
@@ -130,10 +131,16 @@ async def _session(websocket, factory: PolicyFactory, wire: Wire) -> None:
 async def _answer(websocket, worker: WorkerThread, policy: Any) -> None:
     """Answer reset/act requests until the client closes."""
     reset_done = False
+    resolution: int | None = None
     async for data in websocket:
         try:
             request = protocol.parse(data, ("reset", "act"))
-        except protocol.ProtocolError as exc:
+            if request["type"] == "reset":  # what the policy would allocate for, bounded first
+                check_task(request["task"])
+                resolution = request["task"].get("resolution")
+            elif request["type"] == "act":
+                check_images(request["observation"], resolution)
+        except (protocol.ProtocolError, LimitError) as exc:
             await _send(websocket, protocol.error_message(f"bad request: {exc}"))
             continue
         kind = request["type"]

@@ -237,3 +237,15 @@ def test_a_catalog_json_nested_too_deeply_is_named(slice_dir):
     path.write_text(text[:-1] + ', "x": ' + "[" * 200_000 + "]" * 200_000 + "}")
     with pytest.raises(ShardError, match="catalog.json: JSON nested too deeply"):
         load_manifest(slice_dir)
+
+
+@pytest.mark.parametrize("constant", ["NaN", "Infinity", "-Infinity"])
+def test_a_catalog_json_holding_nan_is_named_by_every_reader(slice_dir, constant):
+    """Before: a NaN in settings (re-sealed: Python's json writes and reads it) was a
+    ValueError traceback in catalog verify, scoring eval, ds[i] and .stats."""
+    path = slice_dir / "catalog.json"
+    data = json.loads(path.read_text())
+    data["settings"]["resolution"] = float(constant.replace("Infinity", "inf"))
+    path.write_text(json.dumps(data))
+    with pytest.raises(ShardError, match=f"catalog.json: holds {constant}, which JSON does not allow"):
+        load_manifest(slice_dir)

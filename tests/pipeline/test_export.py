@@ -323,6 +323,21 @@ def test_an_export_is_not_written_into_a_build(built, tmp_path, capsys):
     assert _tree(target) == before
 
 
+@pytest.mark.parametrize("inside, words", [("frames/exp", "lies inside"), ("exp", "lies inside"), (".", "is"),
+                                           ("..", "holds")])
+def test_an_export_into_or_around_a_source_is_refused_and_the_source_stays_verifiable(built, tmp_path, capsys,
+                                                                                       inside, words):
+    """Before: `catalog export A B --out B/frames/exp` exited 0 and `catalog verify B` then failed."""
+    source = tmp_path / "src"
+    shutil.copytree(built, source)
+    before = _tree(source)
+    code = catalog_main(["export", str(built), str(source), "--out", str(source / inside), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and f"{words} the source" in err, err
+    assert _tree(source) == before
+    assert catalog_main(["verify", str(source)]) == 0
+
+
 def test_an_object_store_out_is_refused_in_one_line_and_makes_no_local_folder(built, tmp_path, capsys,
                                                                               monkeypatch):
     monkeypatch.chdir(tmp_path)

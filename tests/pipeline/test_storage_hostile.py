@@ -1,0 +1,73 @@
+"""Object-store URLs and endpoints from input (issue 39's findings): a URL no reader would
+find again or that carries a control character is refused before any work, an endpoint
+that never answers times out, and a reply cut short is one line."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import pytest
+
+import catalog.storage
+from catalog.storage import as_location, where
+from pipeline.cli_catalog import main as catalog_main
+from schemas.errors import SpecError
+from schemas.storage_faults import describe_storage_fault, is_storage_fault
+
+from .test_object_store import no_aws  # noqa: F401  # the fixture
+
+
+@pytest.mark.parametrize("url", ["s3://bucket//x", "s3://bucket/a//b/", "s3://bucket/\x1b[2Jx"])
+def test_a_url_with_an_empty_folder_or_a_control_character_is_refused(url):
+    with pytest.raises(SpecError, match="has an empty folder name or a control character") as refused:
+        as_location(url, "out")
+    assert "\x1b" not in str(refused.value)
+
+
+def test_where_never_prints_an_escape_sequence():
+    assert where("s3://bucket/\x1b[2Jx") == "s3://bucket/\\x1b[2Jx"
+
+
+def test_a_reply_cut_short_is_a_storage_fault_named_as_such():
+    aiohttp = pytest.importorskip("aiohttp")
+    exc = aiohttp.ClientPayloadError("Response payload is not completed")
+    assert is_storage_fault(exc)
+    assert describe_storage_fault(exc) == "the object store's reply was cut short (fewer bytes than it announced)"
+
+
+def test_an_endpoint_that_accepts_and_never_answers_times_out(no_aws, monkeypatch, capsys):  # noqa: F811
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(16)
+    held: list[socket.socket] = []
+    stop = threading.Event()
+
+    def accept() -> None:  # accept every connection and never answer it
+        listener.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                held.append(listener.accept()[0])
+            except OSError:
+                continue
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{listener.getsockname()[1]}")
+    monkeypatch.setenv("AWS_ACCESS_KEY_ID", "dyana-test")
+    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "dyana-test-secret")
+    monkeypatch.setattr(catalog.storage, "CLIENT_TIMEOUTS", {"connect_timeout": 1, "read_timeout": 1})
+    try:
+        start = time.monotonic()
+        code = catalog_main(["info", "s3://dyana-test/silent"])
+        elapsed = time.monotonic() - start
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        for connection in held:
+            connection.close()
+        listener.close()
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "s3://dyana-test/silent" in err, err
+    assert elapsed < 30, elapsed
