@@ -14,7 +14,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from schemas.errors import SpecError
-from schemas.limits import MAX_NUM_FRAMES, MAX_SPEC_LINE_BYTES, MAX_SPECS_FILE_BYTES, MAX_TEXT
+from schemas.limits import (
+    MAX_NUM_FRAMES,
+    MAX_OVERLAYS,
+    MAX_SPEC_LINE_BYTES,
+    MAX_SPECS_FILE_BYTES,
+    MAX_TEXT,
+    MAX_TRACK_TOKENS,
+)
 from schemas.motion import Motion
 from schemas.names import shorten, validate_name
 from schemas.objects import object_category
@@ -302,6 +309,22 @@ def read_specs_jsonl(path: str) -> list[EpisodeSpec]:
     return [spec for _, spec in read_specs_lines(path)]
 
 
+#: The keys whose value can make a line too long -> (the field, its limit: schemas.limits).
+_LONG_FIELDS = {b'"text"': ("text", f"at most {MAX_TEXT:,} characters"),
+                b'"base"': ("motion.base", f"at most {MAX_TRACK_TOKENS} tokens"),
+                b'"overlays"': ("motion.overlays", f"at most {MAX_OVERLAYS} tracks")}
+
+
+def overlong_field(head: bytes) -> str:
+    """``": its FIELD runs past the cut (at most N ...)"`` for the field of a spec still open
+    where an over-long line was cut (the last such key before the cut), or ``""``."""
+    key = max(_LONG_FIELDS, key=head.rfind)
+    if head.rfind(key) < 0:
+        return ""
+    name, limit = _LONG_FIELDS[key]
+    return f": its {name} runs past the cut ({limit})"
+
+
 def read_specs_lines(path: str) -> list[tuple[int, EpisodeSpec]]:
     """:func:`read_specs_jsonl` with each spec's line number, for later messages. Only a
     regular file of at most :data:`MAX_SPECS_FILE_BYTES`, with lines of at most
@@ -322,7 +345,8 @@ def read_specs_lines(path: str) -> list[tuple[int, EpisodeSpec]]:
         for lineno, raw in enumerate(iter(lambda: handle.readline(MAX_SPEC_LINE_BYTES + 1), b""), start=1):
             total += len(raw)
             if len(raw) > MAX_SPEC_LINE_BYTES:
-                raise SpecError(f"{path}:{lineno}: line longer than {MAX_SPEC_LINE_BYTES:,} bytes (a spec holds less)")
+                raise SpecError(f"{path}:{lineno}: line longer than {MAX_SPEC_LINE_BYTES:,} bytes (a spec holds less)"
+                                f"{overlong_field(raw)}")
             if total > MAX_SPECS_FILE_BYTES:
                 raise SpecError(f"specs file {path} grew past the {MAX_SPECS_FILE_BYTES:,} bytes a specs file may hold")
             try:

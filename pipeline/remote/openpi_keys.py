@@ -63,6 +63,9 @@ class OpenpiConfig:
         for key in keys:
             if not isinstance(key, str) or not key or key.startswith(EXTRA):
                 raise SpecError(f"openpi key names are non-empty strings outside dyana/, got {key!r:.60}")
+            if not key.isprintable() or any(0xD800 <= ord(c) <= 0xDFFF for c in key):
+                # undecodable argv bytes arrive as lone surrogates, which msgpack cannot send
+                raise SpecError(f"openpi key names are printable UTF-8 text, got {key!r:.60}")
         if len(set(keys[:3])) != 3:
             raise SpecError(f"openpi image, state and prompt keys must differ, got {keys[:3]}")
         if not isinstance(self.extras, bool):

@@ -60,3 +60,13 @@ def test_a_test_seed_file_that_is_a_fifo_is_refused_at_once(tmp_path, capsys, co
     err = capsys.readouterr().err
     assert code == 2 and "--test-seed-file" in err and "a FIFO, not a regular file" in err, err
     assert time.monotonic() - start < 30
+
+
+def test_an_openpi_key_of_undecodable_bytes_is_refused_before_serving(capsys):
+    """Before: `pipeline serve --openpi-key image=$'\\xff'` started serving, then failed every connection."""
+    import os
+
+    code = main(["serve", "--policy", "still", "--protocol", "openpi", "--port", "0",
+                 "--openpi-key", "image=" + os.fsdecode(b"obs/\xff")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "openpi key names are printable UTF-8 text" in err, err

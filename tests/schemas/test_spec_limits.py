@@ -168,6 +168,21 @@ def test_a_line_over_the_cap_is_refused_by_line_number(tmp_path, capsys):
     assert f"specs.jsonl:2: line longer than {limits.MAX_SPEC_LINE_BYTES:,} bytes" in _build(tmp_path, capsys, text)
 
 
+@pytest.mark.parametrize("field, named", [
+    ("text", "its text runs past the cut (at most 10,000 characters)"),
+    ("tokens", "its motion.base runs past the cut (at most 256 tokens)"),
+    ("overlays", "its motion.overlays runs past the cut (at most 16 tracks)"),
+])
+def test_a_line_over_the_cap_names_the_field_that_made_it_long(tmp_path, capsys, field, named):
+    """Before: 50 MB of text, 100,000 tokens or 100,000 overlays were refused as a long line
+    without naming the field or its limit."""
+    base = GOOD["motion"]["base"]
+    spec = {"text": _spec(text="x" * (limits.MAX_SPEC_LINE_BYTES + 10)),
+            "tokens": _spec(motion={"base": base * 100_000}),
+            "overlays": _spec(motion={"base": base, "overlays": [base] * 100_000})}[field]
+    assert named in _build(tmp_path, capsys, json.dumps(spec) + "\n")
+
+
 # --- the limits at their boundary: the limit itself is accepted, just past it refused ---
 
 def _past(value: float) -> float:
