@@ -126,6 +126,19 @@ def files_intact(out: Path, files: Json) -> bool:
     return all(file_intact(out, record) for record in records)
 
 
+#: The export's folders that LeRobot and ``datasets`` read whole: a file there that
+#: ``meta/dyana.json`` does not list would be loaded as part of the dataset.
+READ_FOLDERS = ("data", "videos", "meta")
+
+
+def stray_files(out: Path, files: Json) -> list[Path]:
+    """Files under the export's :data:`READ_FOLDERS` that its ``meta/dyana.json`` does not list."""
+    listed = set(files) if isinstance(files, dict) else set()
+    listed.add(DYANA_META)
+    return sorted(path for name in READ_FOLDERS for path in (out / name).rglob("*")
+                  if path.is_file() and path.relative_to(out).as_posix() not in listed)
+
+
 @dataclass(frozen=True)
 class LeRobotProduct:
     """A LeRobot export folder as the engine's product (see the module docstring)."""
@@ -144,7 +157,8 @@ class LeRobotProduct:
         finished, job = folder / DYANA_META, folder / WORK_DIR / JOB_FILE
         meta = _read_json(finished) if finished.is_file() else None
         same = isinstance(meta, dict) and meta.get("job") == self.identity and not overwrite
-        if same and isinstance(meta, dict) and files_intact(folder, meta.get("files")):
+        if same and isinstance(meta, dict) and files_intact(folder, meta.get("files")) \
+                and not stray_files(folder, meta.get("files")):
             _remove_work(folder)  # a driver killed after dyana.json, before it cleaned up
             return Previous(finished=Exported(sum(r.manifest.episodes for r in self.readers),
                                               sum(r.manifest.frames for r in self.readers)))
@@ -185,6 +199,9 @@ class LeRobotProduct:
     def finish(self, folder: Path, commit: str | None, units: Sequence[Part]) -> Exported:
         assemble(folder, self.readers, self.settings, units, self.plan.tasks, self.identity, self.plan.height,
                  self.plan.width)
+        meta = _read_json(folder / DYANA_META)
+        for path in stray_files(folder, meta.get("files") if isinstance(meta, dict) else None):
+            path.unlink()  # a stray file in data/, videos/ or meta/ would be read as part of the dataset
         _remove_work(folder)
         return Exported(sum(len(p.episodes) for p in units), sum(p.frames for p in units))
 

@@ -209,7 +209,7 @@ def test_a_finished_export_is_up_to_date_and_another_is_refused_without_overwrit
     assert not (target / "data/chunk-000/file-000.parquet").exists()
 
 
-@pytest.mark.parametrize("damage", ["flip", "truncate"])
+@pytest.mark.parametrize("damage", ["flip", "truncate", "stray"])
 def test_a_damaged_export_is_not_up_to_date_and_is_exported_again(built, exports, tmp_path, damage):
     target = tmp_path / "damaged"
     shutil.copytree(exports["lerobot"], target)
@@ -219,7 +219,10 @@ def test_a_damaged_export_is_not_up_to_date_and_is_exported_again(built, exports
         data[len(data) // 2] ^= 0xFF  # same size: only the sha256 tells
     else:
         data = data[:-10]
-    victim.write_bytes(bytes(data))
+    if damage == "stray":  # before: a stray data file left the export "up to date", and load_dataset read it
+        shutil.copy(victim, victim.with_name("file-999.parquet"))
+    else:
+        victim.write_bytes(bytes(data))
     report = export(built, target, ExportSettings("lerobot"))
     assert not report.up_to_date and report.units_done == 3
     assert _tree(target) == _tree(exports["lerobot"])
