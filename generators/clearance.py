@@ -394,16 +394,16 @@ def object_clearances(category: str, size: float, poses: np.ndarray, obstacles) 
         return np.full((n, 0), np.inf)
     oc, orot, oh = (v[None] for v in obstacle_frames(obstacles))
     centre = poses[:, None, :3]
-    if cat.shape == "sphere":
+    solid = cat.geometry.solid(dims, cat.lying)
+    if solid.kind == "sphere":
         local = np.moveaxis(_local(centre[:, :, None], oc, orot)[:, :, 0], -1, 0)
-        return _box_sd(local, np.moveaxis(oh, -1, 0)) - dims[0]
-    rot = quaternion_to_matrix(poses[:, 3:])[:, None]
+        return _box_sd(local, np.moveaxis(oh, -1, 0)) - solid.dims[0]
+    frame = quaternion_to_matrix(poses[:, 3:])[:, None][..., list(solid.axes)]
     rows = _Rows((n, m))
-    if cat.shape == "box":
-        _add_box_box(rows, centre, rot, np.asarray(dims)[None, None], oc, orot, oh)
+    if solid.kind == "box":
+        _add_box_box(rows, centre, frame, np.asarray(solid.dims)[None, None], oc, orot, oh)
     else:
-        frame = rot[..., [1, 2, 0]] if cat.lying else rot[..., [2, 0, 1]]
-        _add_cylinder_box(rows, centre, frame, dims[0], dims[1] / 2.0, oc, orot, oh)
+        _add_cylinder_box(rows, centre, frame, solid.dims[0], solid.dims[1], oc, orot, oh)
     return rows.minimum()
 
 

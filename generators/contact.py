@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas.errors import SpecError
 from schemas.objects import object_category
 from schemas.rotations import quaternion_to_matrix
+from schemas.shapes import shape_named
 
 
 def to_local(points: np.ndarray, object_pose: np.ndarray) -> np.ndarray:
@@ -26,29 +26,18 @@ def to_local(points: np.ndarray, object_pose: np.ndarray) -> np.ndarray:
 
 
 def cylinder_axis(category: str) -> int:
-    """Index of the local axis a category's cylinder runs along (0 = X lying, 1 = Y upright)."""
-    return 0 if object_category(category).lying else 1
+    """Index of the local axis a category's round shape runs along (0 = X lying, 1 = Y upright)."""
+    cat = object_category(category)
+    return cat.geometry.axis(cat.lying)
 
 
 def signed_distance_local(points: np.ndarray, shape: str, dims: tuple[float, ...], axis: int = 2) -> np.ndarray:
-    """Signed distance (..., ) of local points (..., 3) to a primitive's surface (negative inside).
+    """Signed distance (..., ) of local points (..., 3) to a shape's surface (negative inside),
+    :meth:`schemas.shapes.ObjectShape.signed_distance` of the registered ``shape``.
 
     ``axis`` is the local axis of a cylinder (2 = Z, pybullet's own primitive).
     """
-    p = np.asarray(points, dtype=np.float64)
-    if shape == "sphere":
-        return np.linalg.norm(p, axis=-1) - dims[0]
-    if shape == "cylinder":
-        u, v = [k for k in range(3) if k != axis]
-        radial = np.hypot(p[..., u], p[..., v]) - dims[0]
-        axial = np.abs(p[..., axis]) - dims[1] / 2.0
-        outside = np.hypot(np.maximum(radial, 0.0), np.maximum(axial, 0.0))
-        return outside + np.minimum(np.maximum(radial, axial), 0.0)
-    if shape == "box":
-        q = np.abs(p) - np.asarray(dims)
-        outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
-        return outside + np.minimum(q.max(axis=-1), 0.0)
-    raise SpecError(f"unknown shape {shape!r}")
+    return shape_named(shape).signed_distance(np.asarray(points, dtype=np.float64), dims, axis)
 
 
 def signed_distance(points: np.ndarray, category: str, size: float, object_pose: np.ndarray) -> np.ndarray:

@@ -55,7 +55,7 @@ def _finger_clearance(palm_pose: np.ndarray, closure: np.ndarray, category: str,
     points = starts[:, :, :, None] + w[:, None] * (ends - starts)[:, :, :, None]
     points = np.concatenate([points.reshape(len(closure), 5, -1, 3), pos[:, :, 3:]], axis=2)
     centre = np.array([0.0, cat.half_height(size), 0.0])
-    axis = 0 if cat.lying else 1  # world axis of a cylinder in the canonical placement
+    axis = cat.geometry.axis(cat.lying)  # world axis of a cylinder in the canonical placement
     dist = signed_distance_local(points - centre, cat.shape, cat.scaled_dims(size), axis)
     return dist.min(axis=-1) - FINGER_RADII
 

@@ -120,13 +120,7 @@ def _object_geometry() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         category = OBJECTS[name]
         for j, factor in enumerate(SIZE_FACTORS):
             size = round(category.nominal_size * factor, 4)
-            dims = category.scaled_dims(size)
-            if category.shape == "sphere":
-                radius = dims[0]
-            elif category.shape == "cylinder":
-                radius = math.hypot(dims[0], dims[1] / 2.0) if category.lying else dims[0]
-            else:
-                radius = math.hypot(dims[0], dims[2])
+            radius = category.geometry.reach(category.scaled_dims(size), category.lying)
             sizes[i, j] = size
             radii[i, j] = radius
             tops[i, j] = 2.0 * category.half_height(size)

@@ -43,8 +43,8 @@ LAUNCH_UP_SPEED = (0.0, 8.0)
 HORIZONTAL_SPEED = (0.4, 2.0)
 #: Coefficient of restitution (a tennis ball's is about 0.75).
 RESTITUTION = (0.7, 0.88)
-#: Objects thrown: the balls.
-BALLS = tuple(k for k, name in enumerate(OBJECT_NAMES) if OBJECTS[name].shape == "sphere")
+#: Objects thrown: the balls (those whose shape rolls as a ball).
+BALLS = tuple(k for k, name in enumerate(OBJECT_NAMES) if OBJECTS[name].geometry.roll_mode(OBJECTS[name].lying) == "ball")
 #: Lowest the object's bottom may be above the table at the interception frame (units).
 MIN_AIR = 0.2
 TEXTS = (

@@ -193,8 +193,8 @@ def _check_size(category: ObjectCategory, size: float) -> float:
         raise SpecError(f"not an object category: {category!r}")
     if isinstance(size, bool) or not isinstance(size, (int, float, np.floating)) or not math.isfinite(size) or size <= 0:
         raise SpecError(f"object size must be a finite number > 0, got {shorten(repr(size))}")
-    if category.rolling and not (category.shape == "sphere" or (category.shape == "cylinder" and category.lying)):
-        raise SpecError(f"object {category.name!r}: only spheres and lying cylinders can roll")
+    if category.rolling and category.geometry.roll_mode(category.lying) is None:
+        raise SpecError(f"object {category.name!r}: a {'lying ' if category.lying else ''}{category.shape} cannot roll")
     return float(size)
 
 
@@ -216,7 +216,7 @@ def object_orientation(motion: Motion, category: ObjectCategory | str, size: flo
     if not category.rolling:
         return np.tile(_IDENTITY, (t.shape[0], 1))
     radius = category.rolling_radius(size)
-    if category.shape == "sphere":
+    if category.geometry.roll_mode(category.lying) == "ball":
         return _sphere_orientation(motion, radius, t)
     state = _cylinder_state(motion, radius, t)
     q = qmul(qaxis(1, _FIRST_HEADING - state[:, 0]), qaxis(0, state[:, 1] / radius))
@@ -260,7 +260,7 @@ def object_angular_velocity(motion: Motion, category: ObjectCategory | str, size
         return np.zeros((n, 3))
     v, a = sample.velocity, sample.acceleration
     w = _roll_rate(v, category.rolling_radius(size))
-    if category.shape == "cylinder":
+    if category.geometry.roll_mode(category.lying) == "axle":
         speed2 = v[:, 0] ** 2 + v[:, 1] ** 2
         moving = speed2 > ZERO_SPEED**2
         rate = np.zeros(n)

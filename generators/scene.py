@@ -31,7 +31,6 @@ render for such ties.
 from __future__ import annotations
 
 import atexit
-import math
 import os
 import shutil
 import tempfile
@@ -44,6 +43,7 @@ from generators.hand_urdf import joint_indices, set_hand_state, write_hand_urdf
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle
 from schemas.scene import TABLE_X, TABLE_Z
+from schemas.shapes.base import IDENTITY
 
 RGBA = tuple[float, float, float, float]
 
@@ -82,9 +82,8 @@ MARKING_RGBA: dict[str, RGBA] = {
     "toy_cube": (0.97, 0.97, 0.97, 1.0),
 }
 
-_IDENTITY = (0.0, 0.0, 0.0, 1.0)
-_Z_TO_X = (0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5))  # rotates a cylinder's local Z axis onto X
-_Z_TO_Y = (-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5))  # ... onto Y
+#: pybullet's geometry of each primitive solid a shape's visual parts are made of.
+_SOLIDS = {"sphere": p.GEOM_SPHERE, "cylinder": p.GEOM_CYLINDER, "box": p.GEOM_BOX}
 
 
 @dataclass(frozen=True)
@@ -95,7 +94,7 @@ class Part:
     dims: tuple[float, ...]  # (radius,), (radius, length) or half extents
     rgba: RGBA
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    orientation: tuple[float, float, float, float] = _IDENTITY
+    orientation: tuple[float, float, float, float] = IDENTITY
 
 
 def _visual(client: int, part: Part) -> int:
@@ -118,14 +117,14 @@ def create_body(client: int, parts: list[Part], position=(0.0, 0.0, 0.0)) -> int
         baseCollisionShapeIndex=-1,
         baseVisualShapeIndex=base,
         basePosition=position,
-        baseOrientation=_IDENTITY,
+        baseOrientation=IDENTITY,
         linkMasses=[0.0] * n,
         linkCollisionShapeIndices=[-1] * n,
         linkVisualShapeIndices=links,
         linkPositions=[(0.0, 0.0, 0.0)] * n,
-        linkOrientations=[_IDENTITY] * n,
+        linkOrientations=[IDENTITY] * n,
         linkInertialFramePositions=[(0.0, 0.0, 0.0)] * n,
-        linkInertialFrameOrientations=[_IDENTITY] * n,
+        linkInertialFrameOrientations=[IDENTITY] * n,
         linkParentIndices=[0] * n,
         linkJointTypes=[p.JOINT_FIXED] * n,
         linkJointAxis=[(0.0, 0.0, 1.0)] * n,
@@ -174,36 +173,14 @@ def object_parts(name: str, size: float) -> list[Part]:
     """The visual parts of a category at ``size``, in the object's frame."""
     cat = object_category(name)
     dims = cat.scaled_dims(size)
-    mark = MARKING_RGBA[name]
-    if cat.shape == "sphere":
-        r = dims[0]
-        seam = (1.02 * r, 0.16 * r)
-        return [
-            Part(p.GEOM_SPHERE, (r,), cat.rgba),
-            Part(p.GEOM_CYLINDER, seam, mark, orientation=_Z_TO_X),
-            Part(p.GEOM_CYLINDER, seam, mark),
-        ]
-    if cat.shape == "cylinder":
-        r, length = dims
-        if cat.lying:
-            stripe = (0.49 * length, 0.04 * r, 0.22 * r)
-            return [
-                Part(p.GEOM_CYLINDER, (r, length), cat.rgba, orientation=_Z_TO_X),
-                Part(p.GEOM_BOX, stripe, mark, position=(0.0, 0.98 * r, 0.0)),
-                Part(p.GEOM_BOX, stripe, mark, position=(0.0, -0.98 * r, 0.0)),
-            ]
-        parts = [
-            Part(p.GEOM_CYLINDER, (r, length), cat.rgba, orientation=_Z_TO_Y),
-            Part(p.GEOM_CYLINDER, (0.82 * r, 0.02 * r), mark, (0.0, length / 2, 0.0), _Z_TO_Y),
-        ]
-        if name == "mug":
-            parts.append(Part(p.GEOM_BOX, (0.18 * r, 0.28 * length, 0.08 * r), cat.rgba, (1.12 * r, 0.0, 0.0)))
-        return parts
-    hx, hy, hz = dims
-    return [
-        Part(p.GEOM_BOX, (hx, hy, hz), cat.rgba),
-        Part(p.GEOM_BOX, (0.6 * hx, 0.02 * hy, 0.5 * hz), mark, (0.0, hy, 0.0)),
+    parts = [
+        Part(_SOLIDS[v.kind], v.dims, v.rgba, v.position, v.orientation)
+        for v in cat.geometry.visual_parts(dims, cat.lying, cat.rgba, MARKING_RGBA[name])
     ]
+    if name == "mug":  # the handle: the category's, not its shape's
+        r, length = dims
+        parts.append(Part(p.GEOM_BOX, (0.18 * r, 0.28 * length, 0.08 * r), cat.rgba, (1.12 * r, 0.0, 0.0)))
+    return parts
 
 
 def build_object(client: int, name: str, size: float, position=(0.0, 0.0, 0.0)) -> int:

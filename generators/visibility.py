@@ -52,56 +52,26 @@ from schemas.objects import object_category
 from schemas.obstacles import Obstacle
 from schemas.rotations import euler_to_matrix, quaternion_to_matrix
 from schemas.scene import CAMERA_EYE, CAMERA_NEAR, DEFAULT_RESOLUTION, MIN_OBSERVE_VISIBLE
+from schemas.shapes.base import BOX_SIGNS, UNIT_SPHERE, rim
 
 #: Sub-pixels per pixel side when filling silhouettes.
 SUPERSAMPLE = 4
 #: Fixed-point bits of the vertex coordinates given to ``cv2.fillConvexPoly``.
 _SHIFT = 4
-#: Directions on the unit sphere (Fibonacci lattice) sampling round surfaces.
-_SPHERE_POINTS = 96
-#: Points on a circle sampling a cylinder's rims.
-_RIM_POINTS = 48
 #: The wrist cylinder drawn behind the palm (generators.hand_urdf): radius factor, length.
 _WRIST_RADIUS_FACTOR = 0.7
 _WRIST_LENGTH = 0.5
 
 
-def _fibonacci_sphere(n: int) -> np.ndarray:
-    k = np.arange(n, dtype=np.float64) + 0.5
-    polar = np.arccos(1.0 - 2.0 * k / n)
-    azimuth = np.pi * (1.0 + 5.0**0.5) * k
-    return np.stack([np.cos(azimuth) * np.sin(polar), np.cos(polar), np.sin(azimuth) * np.sin(polar)], axis=-1)
-
-
-_UNIT_SPHERE = _fibonacci_sphere(_SPHERE_POINTS)
-_ANGLES = np.linspace(0.0, 2.0 * np.pi, _RIM_POINTS, endpoint=False)
-_UNIT_CIRCLE = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=-1)
 #: A sampled sphere's hull lies inside the sphere; occluders are grown by this factor so
 #: that their hulls contain the true shape (the lattice's largest gap is under 0.3 rad).
 _OCCLUDER_GROWTH = 1.05
 
 
-def _rim(centre: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:
-    """Points on the circle of ``radius`` about ``centre`` perpendicular to unit ``axis``."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
-    return centre + radius * (_UNIT_CIRCLE[:, :1] * u + _UNIT_CIRCLE[:, 1:] * v)
-
-
 def _object_local_points(category: str, size: float) -> np.ndarray:
     """(k, 3) points in the object's frame whose convex hull is the object."""
     cat = object_category(category)
-    dims = cat.scaled_dims(size)
-    if cat.shape == "sphere":
-        return dims[0] * _UNIT_SPHERE
-    if cat.shape == "cylinder":
-        radius, length = dims
-        axis = np.eye(3)[0 if cat.lying else 1]
-        return np.concatenate([_rim(s * length / 2.0 * axis, axis, radius) for s in (-1.0, 1.0)])
-    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
-    return signs * np.asarray(dims)
+    return cat.geometry.hull_points(cat.scaled_dims(size), cat.lying)
 
 
 def object_surface_points(category: str, size: float, poses: np.ndarray) -> np.ndarray:
@@ -118,15 +88,14 @@ def hand_parts(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> li
     the palm box, the wrist cylinder, and one capsule per finger segment."""
     palm = np.asarray(palm_pose, dtype=np.float64)
     rot = euler_to_matrix(palm[None, 3:])[0]
-    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
-    parts = [palm[:3] + (signs * np.asarray(PALM_HALF_EXTENTS)) @ rot.T]
+    parts = [palm[:3] + (BOX_SIGNS * np.asarray(PALM_HALF_EXTENTS)) @ rot.T]
     axis = rot[:, 2]
     wrist = palm[:3] + rot @ np.asarray(WRIST_OFFSET)
     radius = _OCCLUDER_GROWTH * _WRIST_RADIUS_FACTOR * PALM_HALF_EXTENTS[0]
-    parts.append(np.concatenate([_rim(wrist, axis, radius), _rim(wrist - _WRIST_LENGTH * axis, axis, radius)]))
+    parts.append(np.concatenate([rim(wrist, axis, radius), rim(wrist - _WRIST_LENGTH * axis, axis, radius)]))
     positions, _ = chain_frames(palm[None], np.asarray(joint_angles, dtype=np.float64)[None], side)
     for finger in range(5):
-        ball = _OCCLUDER_GROWTH * FINGER_RADII[finger] * _UNIT_SPHERE
+        ball = _OCCLUDER_GROWTH * FINGER_RADII[finger] * UNIT_SPHERE
         chain = positions[0, finger]
         for k in range(3):
             parts.append(np.concatenate([chain[k] + ball, chain[k + 1] + ball]))
@@ -260,13 +229,7 @@ def rest_shadow_z() -> float:
 def _footprint_near_z(category: str, size: float, poses: np.ndarray) -> np.ndarray:
     """(n,) the nearest table Z of each pose's object (its centre Z minus its reach)."""
     cat = object_category(category)
-    dims = np.asarray(cat.scaled_dims(size))
-    if cat.shape == "sphere" or (cat.shape == "cylinder" and not cat.lying):
-        reach = float(dims[0])
-    elif cat.shape == "cylinder":
-        reach = float(np.hypot(dims[0], dims[1] / 2.0))
-    else:
-        reach = float(np.hypot(dims[0], dims[2]))
+    reach = cat.geometry.reach(cat.scaled_dims(size), cat.lying, np.hypot)
     return np.asarray(poses, dtype=np.float64)[:, 2] - reach
 
 

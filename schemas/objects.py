@@ -1,4 +1,5 @@
 """The 11 target object categories (paper 3.4): spheres, cylinders and boxes, 6 rolling.
+Everything that depends on a category's shape is its shape's (:mod:`schemas.shapes`).
 
 Sizes are in scene units (1 unit = 10 cm). An episode's ``object_size`` is the
 object's characteristic width (sphere and cylinder diameter, box's longer horizontal
@@ -12,9 +13,7 @@ from dataclasses import dataclass
 
 from schemas.errors import SpecError
 from schemas.names import shorten
-
-SHAPES = ("sphere", "cylinder", "box")
-
+from schemas.shapes import ObjectShape, registered, shape_named
 
 #: An object's allowed width as multiples of its nominal width (see ObjectCategory.size_range).
 SIZE_RANGE = (0.5, 2.0)
@@ -22,8 +21,7 @@ SIZE_RANGE = (0.5, 2.0)
 
 @dataclass(frozen=True)
 class ObjectCategory:
-    """A category's nominal geometry. ``dims`` are, by shape:
-
+    """A category's nominal geometry. ``dims`` are its shape's (:attr:`ObjectShape.dims`):
     sphere ``(radius,)``; cylinder ``(radius, length)``; box half extents ``(hx, hy, hz)``.
     A ``lying`` cylinder's axis is horizontal; rolling objects roll without slipping.
     """
@@ -36,17 +34,22 @@ class ObjectCategory:
     lying: bool = False
 
     def __post_init__(self) -> None:
-        if self.shape not in SHAPES:
-            raise SpecError(f"object {shorten(repr(self.name))}: unknown shape {shorten(repr(self.shape))}")
-        expected = {"sphere": 1, "cylinder": 2, "box": 3}[self.shape]
-        if len(self.dims) != expected or not all(math.isfinite(d) and d > 0 for d in self.dims):
+        if not isinstance(self.shape, str) or self.shape not in registered():
+            raise SpecError(
+                f"object {shorten(repr(self.name))}: unknown shape {shorten(repr(self.shape))} "
+                f"(expected one of {sorted(registered())})"
+            )
+        if len(self.dims) != len(self.geometry.dims) or not all(math.isfinite(d) and d > 0 for d in self.dims):
             raise SpecError(f"object {shorten(repr(self.name))}: bad dims {shorten(repr(self.dims))}")
 
     @property
+    def geometry(self) -> ObjectShape:
+        """The registered shape (:mod:`schemas.shapes`) this category is."""
+        return shape_named(self.shape)
+
+    @property
     def nominal_size(self) -> float:
-        if self.shape == "box":
-            return 2.0 * max(self.dims[0], self.dims[2])
-        return 2.0 * self.dims[0]
+        return self.geometry.nominal_size(self.dims)
 
     @property
     def size_range(self) -> tuple[float, float]:
@@ -61,12 +64,7 @@ class ObjectCategory:
 
     def half_height(self, size: float) -> float:
         """Height of the object's centre above the table (its resting half height)."""
-        dims = self.scaled_dims(size)
-        if self.shape == "sphere":
-            return dims[0]
-        if self.shape == "cylinder":
-            return dims[0] if self.lying else dims[1] / 2.0
-        return dims[1]
+        return self.geometry.half_height(self.scaled_dims(size), self.lying)
 
     def rolling_radius(self, size: float) -> float:
         """Radius the object rolls on; only meaningful when ``rolling``."""

@@ -17,7 +17,8 @@ import numpy as np
 
 from schemas.errors import DyanaError
 from schemas.names import shorten
-from scoring.metrics import LOWER_IS_BETTER, METRIC_NAMES, Summary
+from scoring.metrics import Summary
+from scoring.registry import table_metrics
 
 CHANCE_LABEL = "chance (best blind)"
 
@@ -46,12 +47,13 @@ def chance_row(runs: Sequence[tuple[str, Summary]]) -> ChanceRow:
         raise ValueError("a chance row needs at least one blind run")
     metrics: dict[str, float | None] = {}
     best_of: dict[str, str | None] = {}
-    for name in METRIC_NAMES:
+    for metric in table_metrics():
+        name = metric.name
         given = [(value, label) for label, s in runs if (value := s.metrics[name]) is not None]
         if not given:
             metrics[name] = best_of[name] = None
             continue
-        pick = min if name in LOWER_IS_BETTER else max
+        pick = min if metric.lower_is_better else max
         value, label = pick(given, key=lambda pair: pair[0])
         metrics[name], best_of[name] = value, label
     return ChanceRow(tuple(label for label, _ in runs), runs[0][1].episodes, metrics, best_of)

@@ -5,13 +5,14 @@ and opened (``pipeline view RUN --episode N``). Statuses are applied as in
 :func:`scoring.metrics.aggregate`: an episode that ended in error is neither localized
 nor grasped and has R_time 0 whatever its frames show.
 
-Columns (:data:`EPISODE_FIELDS`): the run (label, folder, slice, policy); the episode
+Columns (:func:`episode_fields`): the run (label, folder, slice, policy); the episode
 (index, id, motion type, interception setting, object, hand, rollout format); its
 ``status`` (``ok``/``error``) and ``error`` message; ``acting_frames``; the event
 frames ``t_loc``, ``t_gra``, ``t_grasp_contact`` (counted from the first acting frame,
 null when the event never happened); the three successes as booleans; ``E_loc``,
 ``E_gra`` (null without acting frames), ``Q_smooth``, ``Q_line`` (null unless
-localized) and ``R_time``; ``min_obstacle_clearance`` and ``obstacle_contact`` (null without
+localized) and ``R_time`` (one column each per metric of :mod:`scoring.registry`);
+``min_obstacle_clearance`` and ``obstacle_contact`` (null without
 obstacles); the episode's ``failure`` class (:mod:`scoring.taxonomy`) and its evidence:
 ``palm_displacement`` (the palm's largest distance from its first acting position),
 ``path_miss`` (its closest approach to where the object was up to 10 frames before or
@@ -37,9 +38,11 @@ from catalog.outputs import open_output
 from schemas.errors import DyanaError
 from schemas.names import shorten
 from schemas.obstacles import CONTACT_CLEARANCE
+from scoring.registry import registered
 from scoring.report import RunReport
 
-EPISODE_FIELDS = [
+#: The columns before and after the metrics' (:func:`episode_fields`).
+_RUN_FIELDS = [
     pa.field("label", pa.string()),
     pa.field("run", pa.string()),
     pa.field("slice", pa.string()),
@@ -54,17 +57,8 @@ EPISODE_FIELDS = [
     pa.field("status", pa.string()),
     pa.field("error", pa.string()),
     pa.field("acting_frames", pa.int64()),
-    pa.field("t_loc", pa.int64()),
-    pa.field("t_gra", pa.int64()),
-    pa.field("t_grasp_contact", pa.int64()),
-    pa.field("localized", pa.bool_()),
-    pa.field("grasped", pa.bool_()),
-    pa.field("grasp_contact", pa.bool_()),
-    pa.field("E_loc", pa.float64()),
-    pa.field("E_gra", pa.float64()),
-    pa.field("Q_smooth", pa.float64()),
-    pa.field("Q_line", pa.float64()),
-    pa.field("R_time", pa.float64()),
+]
+_AFTER_FIELDS = [
     pa.field("min_obstacle_clearance", pa.float64()),
     pa.field("obstacle_contact", pa.bool_()),
     pa.field("failure", pa.string()),
@@ -73,7 +67,22 @@ EPISODE_FIELDS = [
     pa.field("crossing_offset", pa.int64()),
     pa.field("disturbance_time_s", pa.float64()),
 ]
-EPISODE_SCHEMA = pa.schema(EPISODE_FIELDS)
+
+
+def episode_fields() -> list[pa.Field]:
+    """The table's columns: the run's and episode's, then per registered metric
+    (:mod:`scoring.registry`, registration order) each rate's event frame, each rate's
+    success flag, each mean's value, then obstacles, failure class and its evidence."""
+    metrics = registered()
+    return (
+        _RUN_FIELDS
+        + [pa.field(m.event_column, pa.int64()) for m in metrics if m.is_rate]
+        + [pa.field(m.flag_column, pa.bool_()) for m in metrics if m.is_rate]
+        + [pa.field(m.name, pa.float64()) for m in metrics if not m.is_rate]
+        + _AFTER_FIELDS
+    )
+
+
 FORMATS = (".parquet", ".csv")
 
 
@@ -91,6 +100,8 @@ def run_episodes(report: RunReport) -> pa.Table:
     data, per, failures = report.data, report.per_episode, report.failures
     n = data.episodes
     ok = ~np.asarray(data.error, dtype=bool)
+    rates = [m for m in registered() if m.is_rate]
+    means = [m for m in registered() if not m.is_rate]
     columns = {
         "label": pa.array([report.label] * n, pa.string()),
         "run": pa.array([report.name] * n, pa.string()),
@@ -106,17 +117,9 @@ def run_episodes(report: RunReport) -> pa.Table:
         "status": pa.array(np.where(ok, "ok", "error").tolist(), pa.string()),
         "error": pa.array(data.error_message.tolist(), pa.string()),
         "acting_frames": pa.array(per.acting_frames, pa.int64()),
-        "t_loc": _event(per.t_loc),
-        "t_gra": _event(per.t_gra),
-        "t_grasp_contact": _event(per.t_contact),
-        "localized": pa.array(per.localized & ok, pa.bool_()),
-        "grasped": pa.array(per.grasped & ok, pa.bool_()),
-        "grasp_contact": pa.array(per.contact_grasped & ok, pa.bool_()),
-        "E_loc": _measure(per.e_loc),
-        "E_gra": _measure(per.e_gra),
-        "Q_smooth": _measure(np.where(per.localized & ok, per.q_smooth, np.nan)),
-        "Q_line": _measure(np.where(per.localized & ok, per.q_line, np.nan)),
-        "R_time": pa.array(np.where(ok, per.r_time, 0.0), pa.float64()),
+        **{m.event_column: _event(m.event(per)) for m in rates if m.event is not None},
+        **{m.flag_column: pa.array(m.success(per, ok), pa.bool_()) for m in rates},
+        **{m.name: _measure(m.per_episode(per, ok)) for m in means},
         **_obstacle_columns(data.min_clearance, n),
         "failure": pa.array(failures.failure.tolist(), pa.string()),
         "palm_displacement": _measure(failures.displacement),
@@ -124,7 +127,7 @@ def run_episodes(report: RunReport) -> pa.Table:
         "crossing_offset": pa.array(failures.crossing_offset, pa.int64(), mask=~failures.crossed),
         "disturbance_time_s": _measure(np.full(n, np.nan) if data.disturbance_time_s is None else data.disturbance_time_s),
     }
-    return pa.table(columns, schema=EPISODE_SCHEMA)
+    return pa.table(columns, schema=pa.schema(episode_fields()))
 
 
 def _obstacle_columns(min_clearance: np.ndarray | None, n: int) -> dict[str, pa.Array]:

@@ -19,21 +19,23 @@ from schemas.errors import SpecError
 from schemas.names import shorten
 from schemas.obstacles import CONTACT_CLEARANCE
 from schemas.scene import LOC_TOLERANCE, PALM_HOVER
+from scoring.registry import table_metrics
 
 #: Steps no longer than this are dropped before measuring smoothness (the ``lenient`` reading).
 STEP_MIN = 1e-4
 #: Segments (and chords) no longer than this have no direction.
 SEGMENT_MIN = 1e-8
-#: The eight metrics: Dyana's headline ``S_grasp_contact`` (success of the contact-grounded
-#: grasp, :func:`schemas.events.contact_grasp`), then the seven of the paper's Table 3 in its
-#: column order.
-METRIC_NAMES = ("S_grasp_contact", "S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
+#: The built-in metrics (:mod:`scoring.registry`, as registered at import; code that must
+#: see metrics registered later calls :func:`scoring.registry.table_metrics`): Dyana's
+#: headline ``S_grasp_contact`` (success of the contact-grounded grasp,
+#: :func:`schemas.events.contact_grasp`), then the seven of the paper's Table 3 in its order.
+METRIC_NAMES = tuple(m.name for m in table_metrics())
 #: The headline success, first in every table: the one a blind policy cannot win.
-HEADLINE = "S_grasp_contact"
+HEADLINE = next(m.name for m in table_metrics() if m.headline)
 #: The success rates among them (percent, with Wilson intervals).
-SUCCESS_RATE_NAMES = ("S_grasp_contact", "S_loc", "S_gra")
+SUCCESS_RATE_NAMES = tuple(m.name for m in table_metrics() if m.is_rate)
 #: Metrics where lower is better (the rest: higher is better).
-LOWER_IS_BETTER = ("E_loc", "E_gra")
+LOWER_IS_BETTER = tuple(m.name for m in table_metrics() if m.lower_is_better)
 #: Two-sided 95% normal quantile.
 Z95 = 1.959963984540054
 
@@ -346,9 +348,10 @@ def mean_interval(values: np.ndarray, z: float = Z95) -> tuple[float, float] | N
 
 @dataclass(frozen=True)
 class Summary:
-    """The eight metrics (:data:`METRIC_NAMES`) over a set of episodes, with counts and 95% intervals.
+    """The registered metrics (:func:`scoring.registry.metric_names`) over a set of episodes,
+    with counts and 95% intervals.
 
-    ``metrics`` maps :data:`METRIC_NAMES` to a float or None (success rates in
+    ``metrics`` maps each metric's name to a float or None (success rates in
     percent); ``intervals`` maps each to ``(low, high)`` or None, success rates by
     Wilson (percent), the means by the normal approximation.
     """
@@ -408,32 +411,19 @@ def aggregate(
         if contact_fails:
             error = error | collided
     n = int(keep.sum())
-    loc = per.localized & ~error & keep
-    gra = per.grasped & ~error & keep
-    n_loc, n_gra = int(loc.sum()), int(gra.sum())
-    n_contact = int((per.contact_grasped & ~error & keep).sum())
-    measured = keep & (per.acting_frames > 0)
-    r_time = np.where(error, 0.0, per.r_time)[keep]
-    values = {
-        "S_loc": 100.0 * n_loc / n if n else None,
-        "E_loc": per.e_loc[measured],
-        "S_gra": 100.0 * n_gra / n if n else None,
-        "S_grasp_contact": 100.0 * n_contact / n if n else None,
-        "E_gra": per.e_gra[measured],
-        "Q_smooth": per.q_smooth[loc],
-        "Q_line": per.q_line[loc],
-        "R_time": r_time,
-    }
+    ok = ~error
+    n_loc, n_gra = int((per.localized & ok & keep).sum()), int((per.grasped & ok & keep).sum())
     metrics: dict[str, float | None] = {}
     intervals: dict[str, tuple[float, float] | None] = {}
-    for name in METRIC_NAMES:
-        value = values[name]
-        if name in SUCCESS_RATE_NAMES:
-            metrics[name] = value
-            k = {"S_loc": n_loc, "S_gra": n_gra, "S_grasp_contact": n_contact}[name]
+    for metric in table_metrics():
+        if metric.is_rate:
+            k = int((metric.success(per, ok) & keep).sum())
+            metrics[metric.name] = 100.0 * k / n if n else None
             low, high = wilson_interval(k, n, z)
-            intervals[name] = (100.0 * low, 100.0 * high) if n else None
+            intervals[metric.name] = (100.0 * low, 100.0 * high) if n else None
         else:
-            metrics[name] = _mean(value)
-            intervals[name] = mean_interval(value, z)
+            assert metric.value is not None and metric.counted is not None
+            values = metric.value(per, ok)[metric.counted(per, ok) & keep]
+            metrics[metric.name] = _mean(values)
+            intervals[metric.name] = mean_interval(values, z)
     return Summary(n, errors, n_loc, n_gra, metrics, intervals, obstacle_episodes, collisions)

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from scoring.metrics import METRIC_NAMES
+from scoring.registry import metric_names, registered
 
-_TABLE_METRICS = ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
+
+def table_metrics() -> tuple[str, ...]:
+    """The paper's Table 3 columns: the registered metrics marked ``in_paper``, in order."""
+    return tuple(m.name for m in registered() if m.in_paper)
 
 
 @dataclass(frozen=True)
@@ -23,14 +26,14 @@ class PaperRow:
     values: tuple[float, ...]
 
     def __post_init__(self) -> None:
-        if len(self.values) != len(_TABLE_METRICS):
-            raise ValueError(f"paper row {self.label!r} needs {len(_TABLE_METRICS)} values, got {len(self.values)}")
+        if len(self.values) != len(table_metrics()):
+            raise ValueError(f"paper row {self.label!r} needs {len(table_metrics())} values, got {len(self.values)}")
 
     @property
     def metrics(self) -> dict[str, float | None]:
-        """The row in :data:`METRIC_NAMES` order; metrics the paper does not report are None."""
-        given = dict(zip(_TABLE_METRICS, self.values))
-        return {name: given.get(name) for name in METRIC_NAMES}
+        """The row in the tables' metric order; metrics the paper does not report are None."""
+        given = dict(zip(table_metrics(), self.values))
+        return {name: given.get(name) for name in metric_names()}
 
 
 PAPER_ROWS = (

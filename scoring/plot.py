@@ -29,21 +29,13 @@ import numpy as np  # noqa: E402
 
 from catalog.outputs import open_output  # noqa: E402
 from scoring.chance import CHANCE_LABEL, ChanceRow  # noqa: E402
-from scoring.metrics import SUCCESS_RATE_NAMES  # noqa: E402
 from scoring.paper import PAPER_ROWS, paper_label  # noqa: E402
+from scoring.registry import Metric, registered, table_metrics  # noqa: E402
 from scoring.report import RunReport  # noqa: E402
 
-#: The radar's axes: the paper's Table 3 columns; errors are shown as 1 / (1 + E).
-RADAR_METRICS = ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
-RADAR_LABELS = {
-    "S_loc": "S_loc",
-    "E_loc": "1/(1+E_loc)",
-    "S_gra": "S_gra",
-    "E_gra": "1/(1+E_gra)",
-    "Q_smooth": "Q_smooth",
-    "Q_line": "Q_line",
-    "R_time": "R_time",
-}
+#: The radar's axes: the paper's Table 3 columns (the registry's ``on_radar`` metrics);
+#: errors are shown as 1 / (1 + E).
+RADAR_METRICS = tuple(m.name for m in registered() if m.on_radar)
 #: Okabe-Ito colours, then line styles and markers cycled independently of them.
 COLOURS = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#F0E442", "#000000")
 STYLES = ("-", "--", ":", "-.")
@@ -64,20 +56,14 @@ class _Series:
     width: float
 
 
+def radar_metrics() -> tuple[Metric, ...]:
+    """The radar's axes: the registered metrics drawn on it (:attr:`Metric.on_radar`), in order."""
+    return tuple(m for m in registered() if m.on_radar)
+
+
 def radar_values(metrics: dict[str, float | None]) -> list[float]:
     """The radar's metrics mapped to [0, 1], higher better; a missing metric plots as 0."""
-    out = []
-    for name in RADAR_METRICS:
-        value = metrics.get(name)
-        if value is None:
-            out.append(0.0)
-        elif name in SUCCESS_RATE_NAMES:
-            out.append(value / 100.0)
-        elif name in ("E_loc", "E_gra"):
-            out.append(1.0 / (1.0 + max(value, 0.0)))
-        else:
-            out.append(min(max(value, 0.0), 1.0))
-    return out
+    return [m.radar_value(metrics.get(m.name)) for m in radar_metrics()]
 
 
 def _series(reports: Sequence[RunReport], paper: bool) -> list[_Series]:
@@ -96,7 +82,8 @@ def _series(reports: Sequence[RunReport], paper: bool) -> list[_Series]:
 
 
 def _radar(ax, series: Sequence[_Series], chance: ChanceRow | None = None) -> None:
-    angles = np.linspace(0.0, 2.0 * np.pi, len(RADAR_METRICS), endpoint=False)
+    axes = radar_metrics()
+    angles = np.linspace(0.0, 2.0 * np.pi, len(axes), endpoint=False)
     closed = np.concatenate([angles, angles[:1]])
     if chance is not None:
         values = radar_values(chance.metrics)
@@ -109,15 +96,15 @@ def _radar(ax, series: Sequence[_Series], chance: ChanceRow | None = None) -> No
     ax.set_theta_direction(-1)
     ax.set_xticks(angles)
     ax.set_xticklabels([])
-    for angle, name in zip(angles, RADAR_METRICS):
+    for angle, metric in zip(angles, axes):
         side = np.sin(angle)
         ha = "left" if side > 0.2 else "right" if side < -0.2 else "center"
         va = "bottom" if np.cos(angle) > 0.5 else "top" if np.cos(angle) < -0.5 else "center"
-        ax.text(angle, 1.1, RADAR_LABELS[name], ha=ha, va=va, fontsize=FONT_PT)
+        ax.text(angle, 1.1, metric.radar_label, ha=ha, va=va, fontsize=FONT_PT)
     ax.set_ylim(0.0, 1.0)
     ax.set_yticks([0.25, 0.5, 0.75, 1.0])
     ax.set_yticklabels(["", "0.5", "", "1"], fontsize=FONT_PT - 1, color="grey")
-    ax.set_rlabel_position(180.0 / len(RADAR_METRICS))
+    ax.set_rlabel_position(180.0 / len(axes))
     ax.grid(linewidth=0.4)
 
 
@@ -185,7 +172,8 @@ def plot_runs(
     bar_entries = len(reports) + (chance is not None and bool(chance.by_motion))
     bar_rows = -(-bar_entries // min(bar_entries, 3))
     # room for the radar's legend and, under it, the bars' title and legend
-    heights = [3.0, 0.2 * legend_rows + 0.12 * bar_rows + 0.15, 1.05, 1.05, 1.05]
+    rates = [m.name for m in table_metrics() if m.is_rate]
+    heights = [3.0, 0.2 * legend_rows + 0.12 * bar_rows + 0.15] + [1.05] * len(rates)
     figure = plt.figure(figsize=(COLUMN_WIDTH_IN, sum(heights) + 0.5), dpi=300)
     try:
         grid = figure.add_gridspec(len(heights), 1, height_ratios=heights, hspace=0.35)
@@ -197,9 +185,9 @@ def plot_runs(
         handles, labels = radar.get_legend_handles_labels()
         legend_ax.legend(handles, labels, loc="center", ncol=2, fontsize=FONT_PT - 0.5, frameon=False,
                          handlelength=2.6, columnspacing=1.0)
-        for k, metric in enumerate(SUCCESS_RATE_NAMES):
+        for k, metric in enumerate(rates):
             ax = figure.add_subplot(grid[2 + k, 0])
-            _bars(ax, reports, metric, show_groups=k == len(SUCCESS_RATE_NAMES) - 1, chance=chance)
+            _bars(ax, reports, metric, show_groups=k == len(rates) - 1, chance=chance)
             if k == 0:
                 ax.set_title("Success by motion type (95% Wilson intervals)", fontsize=FONT_PT + 1, pad=4 + 9 * bar_rows)
                 ax.legend(fontsize=FONT_PT - 1, ncol=min(bar_entries, 3), frameon=False, loc="lower center",

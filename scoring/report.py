@@ -1,7 +1,7 @@
 """Score loaded runs and present the results: JSON dict, terminal table, Markdown, CSV.
 
-The JSON keys follow the data contract (``docs/concepts/data-contract.md``): ``episodes``, ``errors``, the eight
-metrics of :data:`scoring.metrics.METRIC_NAMES` (the paper's seven of Table 3 and
+The JSON keys follow the data contract (``docs/concepts/data-contract.md``): ``episodes``, ``errors``, the
+registered metrics (:mod:`scoring.registry`: the paper's seven of Table 3 and
 ``S_grasp_contact``), ``by_motion``, ``by_speed``; plus ``intervals``, ``by_object`` and counts.
 Success rates are percentages; a metric with nothing to average over is ``null``.
 """
@@ -24,9 +24,6 @@ from scoring.chance import CHANCE_LABEL, ChanceRow
 from scoring.io import RunData
 from scoring.metrics import (
     DEFAULT_READING,
-    LOWER_IS_BETTER,
-    METRIC_NAMES,
-    SUCCESS_RATE_NAMES,
     EpisodeMetrics,
     Summary,
     aggregate,
@@ -35,6 +32,7 @@ from scoring.metrics import (
     wilson_interval,
 )
 from scoring.paper import PAPER_ROWS, paper_label
+from scoring.registry import Metric, metric_names, table_metrics
 from scoring.taxonomy import FAILURE_CLASSES, Failures, episode_failures
 
 #: Breakdowns: JSON key, the episode attribute grouped on, canonical group order, title.
@@ -194,7 +192,7 @@ def summary_dict(summary: Summary, failures: dict[str, int] | None = None) -> di
         "grasped": summary.grasped,
     }
     out.update(summary.metrics)
-    out["intervals"] = {name: _interval(summary.intervals[name]) for name in METRIC_NAMES}
+    out["intervals"] = {name: _interval(summary.intervals[name]) for name in metric_names()}
     if summary.obstacle_episodes:
         out["obstacles"] = obstacle_dict(summary)
     if failures is not None:
@@ -230,7 +228,7 @@ def report_dict(report: RunReport) -> dict[str, Any]:
         "localized": overall.localized,
         "grasped": overall.grasped,
         "metrics": dict(overall.metrics),
-        "intervals": {name: _interval(overall.intervals[name]) for name in METRIC_NAMES},
+        "intervals": {name: _interval(overall.intervals[name]) for name in metric_names()},
     }
     if overall.obstacle_episodes:
         out["obstacles"] = dict(obstacle_dict(overall), contact=report.obstacle_contact)
@@ -243,22 +241,27 @@ def report_dict(report: RunReport) -> dict[str, Any]:
 
 # --- tables -----------------------------------------------------------------------
 
-def _arrow(name: str) -> str:
-    return "v" if name in LOWER_IS_BETTER else "^"
+def _arrow(metric: Metric) -> str:
+    return "v" if metric.lower_is_better else "^"
 
 
-#: The main table: the headline (S_grasp_contact) first, then the paper's seven.
-MAIN_HEADERS = ("Run", "Episodes", "Errors") + tuple(
-    header
-    for name in METRIC_NAMES
-    for header in (
-        (f"{name} (%) ^", f"{name} 95% CI") if name in SUCCESS_RATE_NAMES else (f"{name} {_arrow(name)}",)
+def main_headers() -> tuple[str, ...]:
+    """The main table's columns: the headline (S_grasp_contact) first, then the paper's
+    seven (:func:`scoring.registry.table_metrics`); a rate has its unit and a CI column."""
+    return ("Run", "Episodes", "Errors") + tuple(
+        header
+        for m in table_metrics()
+        for header in (
+            (f"{m.name} ({m.unit}) {_arrow(m)}", f"{m.name} 95% CI") if m.is_rate else (f"{m.name} {_arrow(m)}",)
+        )
     )
-)
-#: One column per metric, in :data:`METRIC_NAMES` order.
-GROUP_HEADERS = ("Run", "Group", "Episodes", "Errors") + tuple(
-    f"{name} (%)" if name in SUCCESS_RATE_NAMES else name for name in METRIC_NAMES
-)
+
+
+def group_headers() -> tuple[str, ...]:
+    """The breakdown tables' columns: one per metric, in the tables' order."""
+    return ("Run", "Group", "Episodes", "Errors") + tuple(
+        f"{m.name} ({m.unit})" if m.is_rate else m.name for m in table_metrics()
+    )
 LEGEND = (
     "^ higher is better, v lower is better; CI: 95% Wilson interval; - : nothing to average over; "
     "(privileged): the policy read the ground-truth spec (an upper bound, not a fair entry). "
@@ -293,10 +296,10 @@ def _ci(value: tuple[float, float] | None) -> str:
 def _cells(metrics: dict[str, float | None], intervals: dict[str, tuple[float, float] | None] | None) -> list[str]:
     """The metric cells of a main-table row (intervals None: "-" for every CI)."""
     cells = []
-    for name in METRIC_NAMES:
-        cells.append(_num(metrics[name]))
-        if name in SUCCESS_RATE_NAMES:
-            cells.append(_ci(None if intervals is None else intervals[name]))
+    for m in table_metrics():
+        cells.append(_num(metrics[m.name]))
+        if m.is_rate:
+            cells.append(_ci(None if intervals is None else intervals[m.name]))
     return cells
 
 
@@ -324,7 +327,7 @@ def _group_rows(reports: Sequence[RunReport], key: str) -> list[list[str]]:
     rows = []
     for report in reports:
         for group, s in report.breakdowns[key].items():
-            rows.append([report.label, group, str(s.episodes), str(s.errors)] + [_num(s.metrics[n]) for n in METRIC_NAMES])
+            rows.append([report.label, group, str(s.episodes), str(s.errors)] + [_num(s.metrics[n]) for n in metric_names()])
     return rows
 
 
@@ -384,10 +387,10 @@ def format_table(reports: Sequence[RunReport], paper: bool = False, chance: Chan
     ``chance`` the chance row follows, with ``paper`` the published rows), then by motion
     and by interception, and obstacle contacts for runs with obstacles."""
     main_rows = _main_rows(reports, paper, chance)
-    parts = [_aligned(MAIN_HEADERS, main_rows),
+    parts = [_aligned(main_headers(), main_rows),
              LEGEND + (CHANCE_NOTE if chance else "") + (PAPER_NOTE if paper else ""), reading_note(reports)]
     for key, _, _, title in BREAKDOWNS[:2]:
-        parts += ["", f"By {title}:", _aligned(GROUP_HEADERS, _group_rows(reports, key), text_columns=2)]
+        parts += ["", f"By {title}:", _aligned(group_headers(), _group_rows(reports, key), text_columns=2)]
     obstacle_rows = _obstacle_rows(reports)
     if obstacle_rows:
         parts += ["", "Obstacles:", _aligned(OBSTACLE_HEADERS, obstacle_rows), OBSTACLE_NOTE]
@@ -406,14 +409,14 @@ def _markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> st
 def markdown(reports: Sequence[RunReport], paper: bool = False, chance: ChanceRow | None = None) -> str:
     """Markdown export: the main table (the chance row, then with ``paper`` the paper's rows,
     after ours) and every breakdown."""
-    headers = [h.replace(" ^", " ↑").replace(" v", " ↓") for h in MAIN_HEADERS]
+    headers = [h.replace(" ^", " ↑").replace(" v", " ↓") for h in main_headers()]
     main_rows = _main_rows(reports, paper, chance)
     parts = ["## Scores", "", _markdown_table(headers, main_rows), "",
              "↑ higher is better, ↓ lower is better. CI: 95% Wilson interval. -: nothing to average over. "
              "S_grasp_contact, the contact-grounded grasp, is the headline: blind play cannot win it."
              + (CHANCE_NOTE if chance else "") + (PAPER_NOTE if paper else ""), "", reading_note(reports), ""]
     for key, _, _, title in BREAKDOWNS:
-        parts += [f"### By {title}", "", _markdown_table(GROUP_HEADERS, _group_rows(reports, key)), ""]
+        parts += [f"### By {title}", "", _markdown_table(group_headers(), _group_rows(reports, key)), ""]
     obstacle_rows = _obstacle_rows(reports)
     if obstacle_rows:
         headers = [h.replace(" v", " ↓") for h in OBSTACLE_HEADERS]
@@ -422,10 +425,10 @@ def markdown(reports: Sequence[RunReport], paper: bool = False, chance: ChanceRo
     return "\n".join(parts)
 
 
-CSV_FIELDS = ["label", "run", "slice", "policy", "reading", "breakdown", "group", "episodes", "errors", "localized",
-              "grasped"] + [
-    f"{name}{suffix}" for name in METRIC_NAMES for suffix in ("", "_low", "_high")
-]
+def csv_fields() -> list[str]:
+    """The CSV's columns: the row's run and group, counts, then each metric and its interval."""
+    return ["label", "run", "slice", "policy", "reading", "breakdown", "group", "episodes", "errors", "localized",
+            "grasped"] + [f"{name}{suffix}" for name in metric_names() for suffix in ("", "_low", "_high")]
 
 
 def _csv_value(value: Any) -> Any:
@@ -440,7 +443,7 @@ def _csv_row(report: RunReport, breakdown: str, group: str, s: Summary) -> dict[
         "reading": report.reading, "breakdown": breakdown, "group": group, "episodes": s.episodes, "errors": s.errors,
         "localized": s.localized, "grasped": s.grasped,
     }
-    for name in METRIC_NAMES:
+    for name in metric_names():
         interval = s.intervals[name]
         row[name] = _csv_value(s.metrics[name])
         row[f"{name}_low"] = _csv_value(None if interval is None else float(interval[0]))
@@ -453,7 +456,8 @@ def csv_text(reports: Sequence[RunReport], chance: ChanceRow | None = None) -> s
     row; with ``chance`` a last row labelled :data:`~scoring.chance.CHANCE_LABEL` (overall
     only, no intervals)."""
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=CSV_FIELDS, lineterminator="\n")
+    fields = csv_fields()
+    writer = csv.DictWriter(buffer, fieldnames=fields, lineterminator="\n")
     writer.writeheader()
     for report in reports:
         writer.writerow(_csv_row(report, "all", "all", report.overall))
@@ -461,10 +465,10 @@ def csv_text(reports: Sequence[RunReport], chance: ChanceRow | None = None) -> s
             for group, s in report.breakdowns[key].items():
                 writer.writerow(_csv_row(report, key.removeprefix("by_"), group, s))
     if chance is not None:
-        row: dict[str, Any] = {name: "" for name in CSV_FIELDS}
+        row: dict[str, Any] = {name: "" for name in fields}
         row.update({"label": CHANCE_LABEL, "run": " ".join(chance.runs), "slice": reports[0].slice if reports else "",
                     "reading": reports[0].reading if reports else "", "breakdown": "all", "group": "all",
                     "episodes": chance.episodes})
-        row.update({name: _csv_value(chance.metrics[name]) for name in METRIC_NAMES})
+        row.update({name: _csv_value(chance.metrics[name]) for name in metric_names()})
         writer.writerow(row)
     return buffer.getvalue()

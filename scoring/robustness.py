@@ -4,10 +4,11 @@ visually negligible perturbations (``pipeline eval --repeats K --perturb ...``).
 Per episode, over its K repeats:
 
 * **consistency**: ``all`` repeats succeed, ``none`` does, or ``mixed``; for localization
-  (S_loc's event) and for the contact grasp (S_grasp_contact's);
-* **spread**: the standard deviation across repeats of each per-episode measure (E_loc,
-  E_gra, Q_smooth, Q_line, R_time), averaged over episodes; and the standard deviation of
-  each success rate across the K runs;
+  (S_loc's event) and for the contact grasp (S_grasp_contact's): the rates of
+  :mod:`scoring.registry` that name a ``consistency``;
+* **spread**: the standard deviation across repeats of each per-episode measure (the
+  registry's means: E_loc, E_gra, Q_smooth, Q_line, R_time), averaged over episodes; and
+  the standard deviation of each of those success rates across the K runs;
 * **action divergence**: the mean distance between the palm targets two repeats issued at
   the same acting frame (over the frames both recorded), in units of the 0.3-unit
   localization tolerance, averaged over repeat pairs and episodes: 0 means the
@@ -35,10 +36,9 @@ from schemas.errors import ShardError
 from schemas.scene import LOC_TOLERANCE
 from scoring.io import RunData, load_run
 from scoring.metrics import DEFAULT_READING, EpisodeMetrics, episode_metrics, reading_named
+from scoring.registry import registered
 
 REPEATS_FILE = "repeats.json"
-MEASURES = ("E_loc", "E_gra", "Q_smooth", "Q_line", "R_time")
-_ATTRIBUTES = {"E_loc": "e_loc", "E_gra": "e_gra", "Q_smooth": "q_smooth", "Q_line": "q_line", "R_time": "r_time"}
 
 
 def is_repeats_folder(folder: str | os.PathLike[str]) -> bool:
@@ -125,23 +125,23 @@ def _divergence(targets: tuple[dict[int, np.ndarray], ...], episodes: list[int])
 
 def _summary(repeats: RepeatSet, per: list[EpisodeMetrics], select: np.ndarray) -> dict[str, Any]:
     ok = [~np.asarray(r.error, dtype=bool) for r in repeats.runs]
-    loc = np.stack([p.localized & o for p, o in zip(per, ok)])[:, select]
-    contact = np.stack([p.contact_grasped & o for p, o in zip(per, ok)])[:, select]
+    tracked = [m for m in registered() if m.is_rate and m.consistency]
+    success = {m.name: np.stack([m.success(p, o) for p, o in zip(per, ok)])[:, select] for m in tracked}
     spread = {}
-    for name in MEASURES:
-        values = np.stack([getattr(p, _ATTRIBUTES[name]) for p in per])[:, select].astype(np.float64)
+    for metric in registered():
+        if metric.is_rate:
+            continue
+        # each repeat's own value, statuses not applied (an error's frames still measure)
+        values = np.stack([metric.per_episode(p, np.ones(len(p), dtype=bool)) for p in per])[:, select].astype(np.float64)
         counted = np.isfinite(values).sum(axis=0) >= 2
         stds = np.array([np.std(column[np.isfinite(column)]) for column in values.T[counted]])
-        spread[name] = float(stds.mean()) if len(stds) else None
+        spread[metric.name] = float(stds.mean()) if len(stds) else None
     n = int(select.sum())
-    rates = {
-        "S_loc": [100.0 * float(row.mean()) for row in loc] if n else [],
-        "S_grasp_contact": [100.0 * float(row.mean()) for row in contact] if n else [],
-    }
+    rates = {name: [100.0 * float(row.mean()) for row in rows] if n else [] for name, rows in success.items()}
     episodes = [int(i) for i in repeats.runs[0].episode_index[select]]
     return {
         "episodes": n,
-        "consistency": {"localization": _consistency(loc), "grasp_contact": _consistency(contact)},
+        "consistency": {m.consistency: _consistency(success[m.name]) for m in tracked},
         "spread": spread,
         "rate_std": {k: float(np.std(v)) if v else None for k, v in rates.items()},
         "rates": rates,

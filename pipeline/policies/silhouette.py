@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.policies.camera_model import project
-from pipeline.policies.hand_shape import BOX_SIGNS, convex_hull, hull_depth, pixel_window
+from pipeline.policies.hand_shape import convex_hull, hull_depth, pixel_window
 from schemas.objects import ObjectCategory
 
 #: Silhouette templates are grown by this many pixels to match JPEG's halo.
@@ -31,28 +31,12 @@ def surface_points(category: ObjectCategory, size: float, heading: float) -> np.
 
 
 def body_points(category: ObjectCategory, size: float, heading: float) -> np.ndarray:
-    dims = category.scaled_dims(size)
-    ring = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
-    if category.shape == "sphere":
-        u, v = np.meshgrid(np.linspace(0.0, np.pi, 9), ring)
-        return dims[0] * np.stack([np.sin(u) * np.cos(v), np.cos(u), np.sin(u) * np.sin(v)], axis=-1).reshape(-1, 3)
-    if category.shape == "cylinder":
-        r, length = dims
-        if category.lying:
-            axis = np.array([np.cos(heading), 0.0, np.sin(heading)])
-            side = np.cross(axis, [0.0, 1.0, 0.0])
-            rim = np.outer(r * np.cos(ring), side) + np.outer(r * np.sin(ring), [0.0, 1.0, 0.0])
-            return np.vstack([rim + axis * length / 2, rim - axis * length / 2])
-        rim = np.stack([r * np.cos(ring), np.zeros(len(ring)), r * np.sin(ring)], axis=-1)
-        return np.vstack([rim + [0.0, length / 2, 0.0], rim - [0.0, length / 2, 0.0]])
-    return BOX_SIGNS * np.asarray(dims)
+    return category.geometry.silhouette_points(category.scaled_dims(size), category.lying, heading)
 
 
 def headings(category: ObjectCategory) -> tuple[float, ...]:
     """The orientations a template search tries: six headings for lying cylinders."""
-    if category.shape == "cylinder" and category.lying:
-        return tuple(np.linspace(0.0, np.pi, 6, endpoint=False))
-    return (0.0,)
+    return category.geometry.headings(category.lying)
 
 
 @dataclass(frozen=True)
