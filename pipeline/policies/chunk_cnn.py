@@ -180,8 +180,9 @@ def pretrained():
 
     folder = Path(os.environ.get("DYANA_CHUNK_CNN", DEFAULT_CHECKPOINT))
     if not (folder / "config.json").is_file() or not (folder / "model.pt").is_file():
-        raise PolicyError(f"chunk_cnn: no checkpoint (config.json, model.pt) in {printable(str(folder))}: set "
-                          "DYANA_CHUNK_CNN to one (an installed wheel has none; a checkout's is benchmarks/results/chunk_cnn)")
+        # An installed wheel has none: the committed one is a checkout's benchmarks/results/chunk_cnn.
+        raise PolicyError(f"chunk_cnn: no checkpoint (config.json, model.pt) in {printable(str(folder))}; "
+                          "set DYANA_CHUNK_CNN")
     policy = ChunkCNNPolicy.load(folder)
     torch.set_num_threads(1)
     return LeRobotAdapter(policy, "chunk_cnn", history=policy.config.history, image_size=policy.config.image_size)

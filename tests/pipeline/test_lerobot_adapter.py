@@ -108,5 +108,5 @@ def test_pretrained_without_a_checkpoint_is_one_clear_error(tmp_path, monkeypatc
     from schemas.errors import PolicyError
 
     monkeypatch.setenv("DYANA_CHUNK_CNN", str(tmp_path / "nowhere"))
-    with pytest.raises(PolicyError, match=r"no checkpoint .* in .*nowhere: set DYANA_CHUNK_CNN"):
+    with pytest.raises(PolicyError, match=r"no checkpoint .* in .*nowhere; set DYANA_CHUNK_CNN$"):
         pretrained()
