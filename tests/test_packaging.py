@@ -18,8 +18,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("schemas", "generators", "catalog", "pipeline", "scoring")
 # Build products and caches: never in the copy, or a stale build/lib could fill the wheel.
-IGNORED = shutil.ignore_patterns(".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", "*.pyc",
-                                 ".mypy_cache", ".pytest_cache", ".hypothesis", ".ruff_cache", "site", "out", "runs")
+IGNORED = shutil.ignore_patterns(".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", "*.pyc", "*.rrd",
+                                 ".mypy_cache", ".pytest_cache", ".hypothesis", ".ruff_cache", ".import_linter_cache",
+                                 ".train-data", "site", "out", "runs")
 
 
 def _source_files() -> list[str]:
