@@ -9,8 +9,9 @@ deterministic mode. The schema records are the ``FileDescriptorSet`` of the
 installed ``foxglove-schemas-protobuf``, so the bytes depend on that package's
 version (and on ``mcap``'s record layout). The per-frame messages are encoded directly
 (:mod:`catalog.mcap_encode`: the bytes the protobuf runtime gives, without building
-~600 fields a frame in Python); the obstacles' cubes go through the runtime. Nothing pins those versions: pyproject.toml only
-bounds them, and ``catalog verify`` reports a shard whose rebuild comes out different.
+~600 fields a frame in Python); the obstacles' cubes go through the runtime. The lock
+``.ci/constraints.txt`` pins those versions (pyproject.toml only bounds them), and
+``catalog verify`` reports a shard whose rebuild comes out different.
 """
 
 from __future__ import annotations

@@ -54,8 +54,8 @@ class ShardWriter:
     """Writes episodes ``[first_episode, last_episode_exclusive)`` of a slice folder.
 
     ``settings`` are the slice's settings (as in ``catalog.json``): ``fps`` (default 20)
-    times the rows, ``image_format`` (``jpeg`` default, or ``png``) names the image
-    encoding and ``resolution`` (square images) sets the MCAP camera calibration.
+    times the rows, ``image_format`` names the image encoding (``jpeg``, the only
+    one the reader accepts) and ``resolution`` (square images) sets the MCAP camera calibration.
     ``rollout`` shards store the rollout episodes schema (``policy``, ``status``, ``error``).
     Every episode of the range must be added, in increasing order.
     """

@@ -77,6 +77,8 @@ def test_the_byte_determining_distributions_are_pinned():
     ("README.md", ".venv/bin/pip install -c .ci/constraints.txt -e ."),
     (".ci/run", "pip install -q -c .ci/constraints.txt -e '.[test,docs]'"),
     (".ci/run", "pip install -q -c .ci/constraints.txt torch==2.13.0"),
+    (".ci/run", "\n.ci/wheel-check\n"),
+    (".ci/wheel-check", 'install -q --no-compile -c "$ROOT/.ci/constraints.txt" "$wheel"'),
 ])
 def test_the_documented_installs_use_the_lock(path, needle):
     assert needle in (ROOT / path).read_text(encoding="utf-8")

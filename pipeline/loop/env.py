@@ -1,114 +1,8 @@
-"""The closed-loop environment: a policy's actions drive the hand, at 20 FPS, through
-the same stages as the build (object motion, hand kinematics, render, JPEG).
-
-:class:`DyanaEnv` is a ``gymnasium.Env[Observation, np.ndarray]``, registered as
-:data:`ENV_ID`. It only simulates: recording and the evaluation protocols wrap it
-(:mod:`pipeline.loop.wrappers`: :class:`~pipeline.loop.wrappers.RecordEpisode`,
-``Latency``, ``PerturbObservation``, ``DisturbMotion``; :func:`~pipeline.loop.wrappers.loop_env`
-stacks them for a protocol), as Gymnasium's own recorders wrap an environment. It renders
-with the :class:`~generators.render.Renderer` it is given (by default one of its own, of
-the kind named by its ``renderer`` option, ``"window"`` unless told, closed by
-:meth:`DyanaEnv.close`).
-
-* ``reset(seed=None, options={"spec": spec})`` runs the observe window inside (the
-  hand held still at rest while the object moves) and returns the observation of the
-  first acting frame ``a = spec.observe_frames``. The spec may be an
-  :class:`~schemas.spec.EpisodeSpec`, its dict or its JSON; without one, the env's
-  ``episodes`` source (a constructor argument, e.g. :class:`SliceEpisodes`; the
-  registered env's is test-1k) gives episode ``seed % len(episodes)`` (no seed: the
-  episode after the last one picked that way, starting at 0).
-* ``step(action)`` takes one (18,) action, the dataset's ``action`` meaning: the
-  palm position and the 15 joint angles of the NEXT frame. Joints are clipped to the
-  hand's limits and the palm to :data:`~pipeline.loop.spaces.PALM_BOX`; the palm keeps the rest
-  orientation, as in the ground truth. The action is cast to float32 first (what the
-  recording keeps), so a replay of the recorded actions gives the same states. A
-  wrong shape or a NaN/inf raises :class:`~schemas.errors.PolicyError`: the
-  environment never repairs an action, and the frame does not advance.
-  :func:`pipeline.loop.actions.run_chunk` executes an (H, 18) chunk open loop, one row
-  per step.
-
-Observation (every step, same keys; typed as :class:`pipeline.policies.base.Observation`): ``image`` (H, W, 3) uint8 RGB, the JPEG-decoded
-frame, so that the pixels a policy sees in process, over the wire and in the
-recorded shard are the same; ``palm_pose`` (6,), ``joint_angles`` (15,),
-``joint_poses`` (90,), ``keypoints`` (36,) float32; ``text``; ``frame_index`` int;
-``timestamp`` a 0-d float64 array (``frame_index / 20``; ``float(obs["timestamp"])``
-gives the number); ``observe_images`` (K, H, W, 3) uint8: the K = ``observe_frames``
-frames of the observe window in the first observation, empty (0, H, W, 3)
-afterwards.
-
-Spaces (every observation lies in ``observation_space`` exactly, dtypes and shapes
-included, so Gymnasium's passive checker runs under ``gymnasium.make`` and stays
-silent):
-
-* Observations are bounded by what the environment itself enforces: the palm
-  position by :data:`~pipeline.loop.spaces.PALM_BOX` (actions are clipped to it), the joint angles by the
-  hand's limits (``generators.hand.JOINT_LOWER`` / ``JOINT_UPPER``), the joint and
-  keypoint positions by the palm box grown by :data:`~pipeline.loop.spaces.HAND_REACH` on every side (the
-  longest chain from the palm centre, finger root plus segments, is 1.42 units), the
-  Euler angles (roll, pitch, yaw) by [-pi, pi] x [-pi/2, pi/2] x [-pi, pi] (the range
-  of ``schemas.rotations.matrix_to_euler``), ``frame_index`` by
-  :class:`~pipeline.loop.spaces.FrameIndex` (a ``Discrete(MAX_FRAMES)``) and the timestamp by
-  ``(MAX_FRAMES - 1) / 20``; ``text`` is an :class:`~pipeline.loop.spaces.Instruction` (a
-  ``Text``) of printable ASCII up to ``schemas.spec.MAX_TEXT`` characters (all the
-  built-in slices' instructions are; a custom spec with other characters is outside
-  it, and Gymnasium's checker says so).
-* The action space is the Box [palm box, joint limits], deliberately NOT normalised
-  to [-1, 1]: an action is the dataset's ``action`` column (absolute palm xyz in
-  scene units, joint angles in radians), so the actions a policy issues, the
-  recorded ones, the ground truth's and a replay's are the same numbers. Values
-  outside the Box are accepted and clipped, never rescaled. A learner that wants
-  [-1, 1] wraps the env in ``gymnasium.wrappers.RescaleAction(env, np.float32(-1),
-  np.float32(1))``, a linear map onto this finite Box, or is made with
-  ``normalize_actions=True``, the same map inside. Gymnasium's ``check_env`` recommends
-  a normalised action space: with the default, that one warning is this choice.
-* ``observe_images`` is an :class:`~pipeline.loop.spaces.ObserveWindow`, a stacked ``Sequence`` of images:
-  its length is the episode's ``observe_frames`` at reset (0 for direct-act, up to
-  100 in the built-in slices) and 0 afterwards. It stays in the observation because
-  policies read it there (``predictive`` fits the object's motion to every frame of
-  the window; the wire protocol sends it once, with the first observation). A
-  fixed-shape Box would have to be padded to the longest window on every step (15 MB
-  per step at 224 px) with padding every policy would have to know to skip.
-  Instead, an ``ObserveWindow`` flattens to zero entries, so the observation is
-  flattenable: ``gymnasium.wrappers.FlattenObservation`` gives the current frame's
-  state (image, poses, frame index, timestamp) on every step, reset included,
-  without the window; an agent that needs the window reads the unflattened
-  observation. Flattened, ``frame_index`` is one entry (its value) and ``text`` none
-  (it is constant over an episode): 12,437 numbers at 64 px, 12,288 of them the image.
-
-Options (keyword arguments of the constructor and of ``gymnasium.make``):
-``obs="image" | "state" | "both"`` observes a fixed-shape view instead of the full dict
-and ``normalize_actions=True`` takes actions in [-1, 1] (:mod:`pipeline.loop.views`), so
-learning libraries (Stable-Baselines3's ``check_env`` and ``PPO``) and vector
-environments with their defaults take the environment as it is. The recorder and the
-protocol wrappers need the defaults: they read the full observation and issue real actions.
-
-Events are checked on every acting frame from the recorded float32 values with the
-functions ``scoring`` uses (:mod:`schemas.events`: localization when the palm's XZ
-distance to the object's centre is within the tolerance, grasp completion when every
-joint reaches 0.8 of the ground-truth grasp angles).
-``info``: ``localized``, ``grasped``, ``t_loc``, ``t_gra`` (acting frames from the
-first acting frame to the event, -1 before it), ``palm_distance`` and
-``fingertip_distance`` of the current frame. Reward: 1.0 on the step where the grasp
-completes, else 0.0. ``terminated`` = grasp completion; ``truncated`` = the horizon
-(:func:`horizon` acting frames, the first acting frame included) is reached.
-
-:meth:`pipeline.loop.wrappers.RecordEpisode.recording` returns every frame so far in the
-dataset's format, with the JPEG bytes exactly as encoded (:attr:`DyanaEnv.new_frames`
-gives the frames each ``reset``/``step`` made, which is all the recorder reads). Phases: ``observe`` in the window, then
-``approach`` until the localization frame, ``grasp`` from it on (``hold`` would
-follow grasp completion, but completion ends the episode). The ground truth labels
-by its plan instead (``grasp`` from the planned interception frame for
-``GRASP_FRAMES`` frames, then ``hold``), and its palm is often within tolerance a
-frame or two before that: fed the ground truth's actions, the environment
-reproduces its states and images exactly, and labels localization where it happens
-(joint poses, keypoints and distances come from the same function,
-:func:`pipeline.stages.episode.measure_hand`, fed the float32 states the env records,
-the ground truth's float64 plan: they agree to a float32 rounding step).
-``action`` per frame is the action issued at that frame (observe frames: the rest
-pose, as in the ground truth); the last frame, which has issued none, repeats its
-own state, as in the ground truth.
-
-Deterministic: the same spec and the same actions give identical arrays and bytes.
+"""The closed-loop environment :class:`DyanaEnv`, registered as :data:`ENV_ID`: a policy's
+actions drive the hand at 20 FPS through the build's stages (object motion, hand
+kinematics, render, JPEG). It only simulates; recording and the evaluation protocols wrap
+it (:mod:`pipeline.loop.wrappers`). The same spec and actions give the same bytes.
+Observation, spaces, events and recording: docs/guides/your-policy.md.
 """
 
 from __future__ import annotations
@@ -201,7 +95,7 @@ class SimFrame:
 
 
 class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
-    """Closed-loop dynamic grasping (module docstring): simulates one episode at a time.
+    """Closed-loop dynamic grasping: simulates one episode at a time (docs/guides/your-policy.md).
 
     Args:
         resolution: image side in pixels, 8 to 1024 (``generators.render.MAX_RESOLUTION``,
@@ -216,7 +110,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             or a built-in slice's name for its :class:`SliceEpisodes`); None: such a reset
             is refused.
         obs: the observation's view (:mod:`pipeline.loop.views`): ``"full"`` (the policy
-            contract, module docstring), ``"image"``, ``"state"`` or ``"both"``.
+            contract, :class:`~pipeline.policies.base.Observation`), ``"image"``, ``"state"`` or ``"both"``.
         normalize_actions: actions in [-1, 1], mapped linearly onto the real action Box
             (False: the dataset's absolute targets).
     """
@@ -301,7 +195,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             options: ``{"spec": EpisodeSpec | dict | JSON}`` runs that episode instead.
 
         Returns:
-            observation: the dict described in the module docstring, at the first acting
+            observation: the :class:`~pipeline.policies.base.Observation` dict, at the first acting
                 frame, with the observe window's frames in ``observe_images``.
             info: ``localized``, ``grasped``, ``t_loc``, ``t_gra``, ``palm_distance``,
                 ``fingertip_distance``.

@@ -2,7 +2,7 @@
 
 Every observation lies in :func:`observation_space` exactly, dtypes and shapes included,
 so Gymnasium's passive checker runs under ``gymnasium.make`` and stays silent; the
-bounds are what the environment itself enforces (:mod:`pipeline.loop.env`, "Spaces").
+bounds are what the environment itself enforces (docs/guides/your-policy.md, "The environment in detail").
 :class:`Observation` and :class:`StepInfo` are the same contract for the type checker.
 """
 

@@ -58,7 +58,7 @@ DEFAULT_INTERCEPT_TIME_S = 1.0
 
 
 class Observation(TypedDict):
-    """What ``act`` receives every step (:mod:`pipeline.loop.env` says what each is)."""
+    """What ``act`` receives every step (docs/guides/your-policy.md says what each is)."""
 
     #: (H, W, 3) uint8 RGB, the JPEG-decoded frame.
     image: np.ndarray

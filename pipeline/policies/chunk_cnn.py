@@ -33,6 +33,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from catalog.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY, pad_key
+from schemas.errors import PolicyError
+from schemas.names import printable
 
 
 @dataclass(frozen=True)
@@ -164,7 +166,8 @@ class ChunkCNNPolicy(nn.Module):
         return policy
 
 
-#: Where ``pretrained`` looks for the checkpoint unless ``DYANA_CHUNK_CNN`` names another.
+#: Where ``pretrained`` looks for the checkpoint unless ``DYANA_CHUNK_CNN`` names another
+#: (a checkout's; the wheel does not carry it).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "chunk_cnn"
 
 
@@ -174,6 +177,10 @@ def pretrained():
     from pipeline.policies.lerobot_adapter import LeRobotAdapter
 
     folder = Path(os.environ.get("DYANA_CHUNK_CNN", DEFAULT_CHECKPOINT))
+    if not (folder / "config.json").is_file() or not (folder / "model.pt").is_file():
+        # An installed wheel has none: the committed one is a checkout's benchmarks/results/chunk_cnn.
+        raise PolicyError(f"chunk_cnn: no checkpoint (config.json, model.pt) in {printable(str(folder))}; "
+                          "set DYANA_CHUNK_CNN")
     policy = ChunkCNNPolicy.load(folder)
     torch.set_num_threads(1)
     return LeRobotAdapter(policy, "chunk_cnn", history=policy.config.history, image_size=policy.config.image_size)

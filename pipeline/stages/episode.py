@@ -4,7 +4,7 @@
 the object's motion at the frame times ``k / FPS`` and the interception), runs the
 hand's forward kinematics and measures the events (palm XZ distance to the object's
 centre, fingertip distance to its surface): :func:`assemble_frames`. The build records
-its output; the closed loop's recorder (:class:`pipeline.loop.record.RecordEpisode`)
+its output; the closed loop's recorder (:class:`pipeline.loop.wrappers.RecordEpisode`)
 turns the states its policy produced into the same arrays with the same function.
 
 ``pipeline.episode(spec)`` is this module's :func:`episode`, loaded on first call.

@@ -1,9 +1,10 @@
-"""Reading the executable blocks of README.md and docs/**/*.md (DOCS_CONVENTIONS.md).
+"""Reading the executable blocks of README.md and docs/**/*.md.
 
 A page is a list of :class:`Block` in page order: fenced ``bash`` and ``python`` blocks,
-each with the marker written on the line right before its fence, plus the page's
-``<!-- docs-setup: COMMAND -->`` commands. ``text`` (and any other language) blocks are
-output and are not run.
+each with the marker written on the line right before its fence
+(``<!-- docs-test: slow -->``, ``<!-- docs-test: needs MODULE -->`` or
+``<!-- docs-test: skip REASON -->``), plus the page's ``<!-- docs-setup: COMMAND -->``
+commands. ``text`` (and any other language) blocks are output and are not run.
 """
 
 from __future__ import annotations

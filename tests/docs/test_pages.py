@@ -1,4 +1,4 @@
-"""Every ```bash and ```python block of README.md and docs/**/*.md runs (DOCS_CONVENTIONS.md).
+"""Every ```bash and ```python block of README.md and docs/**/*.md runs (the markers: pages.py).
 
 One test per page (and a second, marked slow, for a page with ``slow`` blocks): its
 blocks in page order in a fresh temporary folder, in a process of its own (runner.py);

@@ -100,3 +100,13 @@ def test_the_baseline_trains_saves_loads_and_runs_in_the_loop(tmp_path, monkeypa
              progress=False, summary=False, stream=io.StringIO())
     with catalog.open(run) as ds:
         assert ds.episodes[0].status == "ok" and ds.episodes[0].policy == "chunk_cnn"
+
+
+def test_pretrained_without_a_checkpoint_is_one_clear_error(tmp_path, monkeypatch):
+    # An installed wheel has no benchmarks/results/chunk_cnn: one line naming the folder and the fix.
+    from pipeline.policies.chunk_cnn import pretrained
+    from schemas.errors import PolicyError
+
+    monkeypatch.setenv("DYANA_CHUNK_CNN", str(tmp_path / "nowhere"))
+    with pytest.raises(PolicyError, match=r"no checkpoint .* in .*nowhere; set DYANA_CHUNK_CNN$"):
+        pretrained()
