@@ -10,7 +10,6 @@ folder, or uploaded to the object store from the worker: :mod:`pipeline.jobs.sin
 from __future__ import annotations
 
 import hashlib
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,57 +23,11 @@ from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import shorten
-from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of, renderer_of
+from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of
+from schemas.settings import BuildSettings
 from schemas.spec import EpisodeSpec
-from schemas.versions import DATASET_VERSION, FPS
 
 DEFAULT_SHARD_SIZE = 128
-
-
-@dataclass(frozen=True)
-class BuildSettings:
-    """Everything besides the specs that determines a shard's bytes."""
-
-    resolution: int
-    jpeg_quality: int
-    fps: int = FPS
-    image_format: str = "jpeg"
-    #: Names the renderer too (:mod:`schemas.renderers`): 4.0.0 ``window``, 3.0.0 ``full``.
-    dataset_version: str = DATASET_VERSION
-    #: The frames table carries the hand's obstacle clearance (scenes may hold obstacles).
-    obstacle_clearance: bool = False
-    #: A rollout's evaluation protocol (pipeline.loop.conditions.EvalProtocol.to_dict), None
-    #: for the plain closed loop and for builds.
-    protocol: dict | None = None
-    #: What is stored: Parquet always, MCAP (for viewing) unless left out.
-    formats: tuple[str, ...] = ALL_FORMATS
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "formats", parse_formats(self.formats))
-        if not isinstance(self.resolution, int) or not 16 <= self.resolution <= 1024:
-            raise SpecError(f"resolution must be an integer in [16, 1024], got {shorten(repr(self.resolution))}")
-        if not isinstance(self.jpeg_quality, int) or not 1 <= self.jpeg_quality <= 100:
-            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {shorten(repr(self.jpeg_quality))}")
-        if renderer_of(self.dataset_version) is None:
-            raise SpecError(f"dataset_version {self.dataset_version!r} is not one this code writes")
-
-    @property
-    def renderer(self) -> str:
-        """The renderer that draws this dataset version's frames."""
-        renderer = renderer_of(self.dataset_version)
-        assert renderer is not None  # checked in __post_init__
-        return renderer
-
-    def as_dict(self) -> dict:
-        """The manifest's settings; ``obstacle_clearance`` and ``protocol`` only when set, so
-        builds without obstacles and plain runs keep the settings (and hashes) they always had."""
-        out = asdict(self)
-        if not self.obstacle_clearance:
-            del out["obstacle_clearance"]
-        if self.protocol is None:
-            del out["protocol"]
-        out["formats"] = list(self.formats)
-        return out
 
 
 def build_shard(task: ShardTask, settings: BuildSettings, sink: ShardSink) -> dict:
@@ -165,7 +118,7 @@ def build_job(
         folder=Path("/nonexistent-remote-job") if remote else Path(destination),
         slice_name=slice_name,
         seed=seed,
-        settings=settings.as_dict(),
+        settings=settings.to_dict(),
         extra=extra,
         tasks=tasks,
         task_fn=build_shard,

@@ -32,7 +32,6 @@ from catalog.storage import as_location, is_url
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, derive, private_specs
 from pipeline.jobs.audit import read_audit, stamped, write_audit
-from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
 from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
@@ -40,7 +39,7 @@ from pipeline.jobs.sink import ShardSink
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.fault_text import split_reason
 from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
-from pipeline.loop.wrappers import loop_env
+from pipeline.loop.wrappers import settings_env
 from pipeline.policies.base import Observation, Policy, Task
 from pipeline.policy_registry import (
     Audited,
@@ -58,6 +57,7 @@ from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import printable, shorten
 from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of
+from schemas.settings import BuildSettings
 
 DEFAULT_SHARD_SIZE = 32
 
@@ -137,14 +137,13 @@ def eval_shard(task: ShardTask, settings: EvalSettings, sink: ShardSink) -> dict
 def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[str, Any]:
     from catalog.shard import ShardWriter
 
-    env = loop_env(settings.build.resolution, settings.build.jpeg_quality, settings.protocol,
-                   renderer=settings.build.renderer)
+    env = settings_env(settings.build)
     stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
     policy: Policy | None = None
     audit: list[dict[str, Any]] = []
     start = time.perf_counter()
     try:
-        with ShardWriter(run_dir, task.first, task.end, settings.build.as_dict(), rollout=True) as writer:
+        with ShardWriter(run_dir, task.first, task.end, settings.build.to_dict(), rollout=True) as writer:
             for spec in task.specs():
                 if policy is None:
                     policy = fresh_policy(settings)
@@ -359,7 +358,7 @@ def evaluate(
         folder=Path("/nonexistent-remote-job") if is_url(out) else run_dir,
         slice_name=slice_name,
         seed=definition.seed if private is None else None,
-        settings=build_settings.as_dict(),
+        settings=build_settings.to_dict(),
         extra=settings.extra() | ({} if private is None else {HELD_OUT_KEY: private.record()}),
         tasks=tuple(_shard_task(slice_name, first, end, private) for first, end in ranges),
         task_fn=eval_shard,
