@@ -48,11 +48,11 @@ from catalog.export.unit import export_unit
 from catalog.reader import FolderReader, open_folder
 from catalog.records import FileRecord
 from catalog.storage import as_location, is_remote
-from pipeline.jobs.engine import Execution, LocalFolder, Previous, Range, run_folder_job
+from pipeline.jobs.engine import LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.state import file_intact
-from pipeline.jobs.tasks import ShardTask, check_workers
+from pipeline.jobs.tasks import Execution, ShardTask, Work, check_workers
 from schemas.errors import DyanaError
 from schemas.names import shorten
 
@@ -258,9 +258,10 @@ def export(
     check_foreign(target)
     plan = _plan(readers, names, target, settings)
     product = LeRobotProduct(readers, settings, plan, job_identity(readers, settings))
-    tasks = [ShardTask(readers[u.source].manifest.slice, u.episode, u.episode + u.episodes) for u in plan.units]
+    tasks = tuple(ShardTask(readers[u.source].manifest.slice, u.episode, u.episode + u.episodes) for u in plan.units)
     execution = Execution(0 if workers <= 1 else workers, None, progress)
-    outcome = run_folder_job(LocalFolder(target), product, tasks, export_shard, plan, execution, overwrite=overwrite,
-                             verb="exported", key_prefix="export", total_frames=sum(u.frames for u in plan.units))
+    work = Work(tasks, export_shard, plan, key_prefix="export", verb="exported")
+    outcome = run_folder_job(LocalFolder(target), product, work, execution, overwrite=overwrite,
+                             total_frames=sum(u.frames for u in plan.units))
     return ExportReport(target, outcome.result.episodes, outcome.result.frames, outcome.units_run,
                         outcome.units_resumed, outcome.up_to_date, time.perf_counter() - start)
