@@ -87,7 +87,8 @@ def settings_of(args: argparse.Namespace) -> BuildSettings:
     """The byte settings the flags choose (a run's protocol is :func:`protocol_of`'s)."""
     from pipeline.jobs.spec import byte_settings
 
-    return byte_settings(args.resolution, args.renderer, args.formats)
+    chosen = [flag for flag, name in setting_flags().items() if name != "protocol"]
+    return byte_settings(**{flag[2:].replace("-", "_"): getattr(args, flag[2:].replace("-", "_")) for flag in chosen})
 
 
 def protocol_of(args: argparse.Namespace) -> EvalProtocol:

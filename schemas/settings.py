@@ -7,7 +7,7 @@ environment read it back with :meth:`BuildSettings.from_dict`. Each field carrie
 :class:`Setting` in its metadata: the CLI flags that choose it (none: it is derived, and
 ``derived`` says from what) and its line on the settings reference page, so a new
 byte-affecting setting is one field here, its flag's registration and its docs line
-(``tests/schemas/test_settings.py`` checks all four are there).
+(``tests/catalog/test_byte_settings.py`` checks all four are there).
 
 It lives in ``schemas`` so that ``catalog`` (info), ``generators`` and ``pipeline`` share it.
 """

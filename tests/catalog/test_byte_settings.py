@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from dataclasses import fields
 from pathlib import Path
 
@@ -14,7 +15,6 @@ import pytest
 from catalog.manifest import CodeInfo, Manifest, write_manifest
 from pipeline import cli as pipeline_cli
 from pipeline.cli_catalog import main as catalog_main
-from schemas.cli import make_parser
 from schemas.errors import SpecError
 from schemas.settings import BuildSettings, setting_docs, setting_flags, setting_names
 
@@ -34,10 +34,11 @@ CHANGED = {
 
 
 def command_flags(name: str) -> set[str]:
-    """The option strings of one `pipeline` command."""
-    parser = make_parser("pipeline", "", pipeline_cli.COMMANDS)
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return {flag for action in sub.choices[name]._actions for flag in action.option_strings}
+    """The long options of one `pipeline` command, as its usage line lists them."""
+    command = next(c for c in pipeline_cli.COMMANDS if c.name == name)
+    parser = argparse.ArgumentParser(prog=name)
+    command.add_arguments(parser)
+    return set(re.findall(r"--[a-z][a-z0-9-]*", parser.format_usage()))
 
 
 def test_every_field_is_documented_with_its_flags_or_derivation():
