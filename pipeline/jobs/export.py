@@ -47,10 +47,11 @@ from catalog.export.meta import assemble, tasks_of
 from catalog.export.unit import export_unit
 from catalog.reader import FolderReader, open_folder
 from catalog.records import FileRecord
-from catalog.storage import as_location, is_remote
+from catalog.storage import is_remote
 from pipeline.jobs.engine import LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
 from pipeline.jobs.sink import ShardSink
+from pipeline.jobs.spec import Storage
 from pipeline.jobs.state import file_intact
 from pipeline.jobs.tasks import Execution, ShardTask, Work, check_workers
 from schemas.errors import DyanaError
@@ -241,20 +242,18 @@ def export(
     if is_remote(out):  # else a local folder named "s3:" would be made
         raise ExportError(f"--out {shorten(str(out))}: an export is written to a local folder (object-storage "
                           "outputs are not supported yet): export here, then copy it")
-    as_location(out, "out")
+    storage = Storage(out, overwrite)  # the folder name and overwrite, checked as a build's
     items = [source] if isinstance(source, (str, os.PathLike)) else source if isinstance(source, (list, tuple)) else None
     if items is None or not all(isinstance(item, (str, os.PathLike)) for item in items):
         raise ExportError(f"source must be a folder or a list of folders, got {shorten(repr(source))}")
     if not isinstance(settings, ExportSettings):
         raise ExportError(f"settings must be an ExportSettings, got {shorten(repr(settings))}")
-    if not isinstance(overwrite, bool):
-        raise ExportError(f"overwrite must be True or False, got {shorten(repr(overwrite))}")
     names = [os.fspath(item) for item in items]
     if not names:
         raise ExportError("nothing to export: give at least one source folder")
     start = time.perf_counter()
     readers = tuple(open_folder(name, verify="sha256") for name in names)
-    target = Path(out)
+    target = storage.folder
     check_foreign(target)
     plan = _plan(readers, names, target, settings)
     product = LeRobotProduct(readers, settings, plan, job_identity(readers, settings))

@@ -1,4 +1,6 @@
-"""Sharded jobs whose output folder is an object-store URL (``--out s3://bucket/prefix``).
+"""Sharded jobs whose output folder is an object-store URL (``--out s3://bucket/prefix``):
+:func:`pipeline.jobs.runner.run_job` runs a job here when its storage is a URL, holding
+:func:`remote_job` (the lock, the writable check) and starting from :func:`prepare_remote`.
 
 The workers write the shards straight to the store, from whichever host they run on
 (:class:`pipeline.jobs.sink.ShardSink`: each task writes its shard in a scratch folder of
