@@ -11,9 +11,10 @@ from pathlib import Path
 from catalog.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.storage import as_location, is_remote
 from catalog.versions import installed_versions, version_differences
-from schemas.errors import ShardError
+from schemas.errors import ShardError, SpecError
 from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
 from schemas.runs import is_run
+from schemas.settings import BuildSettings, setting_names
 from schemas.versions import READABLE_DATASET_VERSIONS
 
 #: The folder kinds: a built slice (ground truth) or a policy's evaluated rollouts.
@@ -59,6 +60,18 @@ def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | No
                               "differ; install the versions the folder records (.ci/constraints.txt) to rebuild "
                               "it byte for byte")
     return Rebuild(True, f"{same}, with the library versions it records")
+
+
+def shown_settings(settings: Mapping[str, object]) -> dict[str, object]:
+    """Every byte setting (:class:`schemas.settings.BuildSettings`) with the value the folder's
+    bytes have: the stored ones, and for those a manifest leaves out their defaults
+    (``obstacle_clearance`` false, ``protocol`` none: the plain loop). Settings this code
+    cannot read as its own (an older dataset version's) are shown as stored."""
+    try:
+        typed = BuildSettings.from_dict(settings)
+    except SpecError:
+        return dict(settings)
+    return {name: getattr(typed, name) for name in setting_names()}
 
 
 @dataclass(frozen=True)

@@ -12,9 +12,8 @@ import numpy as np
 
 from schemas.errors import ShardError, SpecError
 from schemas.names import shorten
+from schemas.settings import JPEG_QUALITY
 
-#: Default JPEG quality (0-100) of built datasets.
-JPEG_QUALITY = 90
 IMAGE_FORMAT = "jpeg"
 
 

@@ -6,9 +6,9 @@ import argparse
 import signal
 import sys
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pipeline import job_flags
 from pipeline.policy_registry import config_from_flags, flag_defaults, kind_of, policy_help
 from pipeline.remote.wires import PROTOCOLS
 from schemas import cli
@@ -16,7 +16,6 @@ from schemas.errors import DyanaError
 
 if TYPE_CHECKING:  # the commands import their modules when run, so --help stays fast
     from catalog.records import ShardRecord
-    from pipeline.loop.conditions import EvalProtocol
 
 
 def _resumable(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
@@ -36,20 +35,14 @@ def _resumable(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.N
 
 def _build_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slice", help="slice name, e.g. linear-fast (see `catalog list`)")
-    cli.add_episodes(p, "build only the first N episodes (of each part for dyana-12m)")
-    p.add_argument("--out", type=cli.output_path, default="out", help="output folder; the slice goes to OUT/<slice>/ (default: out)")
-    cli.add_workers(p)
-    cli.add_resolution(p)
-    cli.add_renderer(p)
-    cli.add_shard_size(p, 128)
-    cli.add_formats(p)
-    p.add_argument("--specs", help="build the episodes of a JSONL file of EpisodeSpecs instead of the recipe")
-    cli.add_overwrite(p)
-    cli.add_quiet(p)
+    job_flags.add_selection(p, 128, "build only the first N episodes (of each part for dyana-12m)", specs=True)
+    job_flags.add_storage(p, "output folder; the slice goes to OUT/<slice>/ (default: out)", default="out")
+    job_flags.add_execution(p)
+    job_flags.add_settings(p)
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from pipeline.jobs.build import build_job
+    from pipeline.jobs.build import run_build
 
     if args.slice is None and args.specs is None:
         raise DyanaError("pipeline build needs --slice NAME or --specs FILE.jsonl")
@@ -62,7 +55,7 @@ def cmd_build(args: argparse.Namespace) -> int:
             names = list(definition.parts)
             print(f"{args.slice} is built as its {len(names)} parts: {', '.join(names)}", file=sys.stderr)
     for name in names:
-        result = build_job(name, args.out, specs_path=args.specs, **cli.job_options(args))
+        result = run_build(job_flags.job_spec_of(args, name))
         manifest = result.manifest
         verb = "up to date" if result.up_to_date else "built"
         print(
@@ -85,44 +78,22 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy-device", metavar="DEVICE",
                    help="where a lerobot:PATH policy runs: cpu (default), cuda, cuda:N or mps")
     p.add_argument("--slice", default="test-1k", help="slice whose episodes to run (default: test-1k)")
-    cli.add_episodes(p)
-    p.add_argument("--out", type=cli.output_path, required=True,
-                   help="run folder: RUN/catalog.json and RUN/frames/, RUN/episodes/, RUN/mcap/")
-    cli.add_workers(p)
+    job_flags.add_selection(p, 32, "only the first N episodes",
+                            test_seed="draw the held-out slice (test-1k, test-irregular, test-complex) from this secret "
+                            "instead of its public seed; the run's manifest keeps only a hash of it")
+    job_flags.add_storage(p, "run folder: RUN/catalog.json and RUN/frames/, RUN/episodes/, RUN/mcap/")
+    job_flags.add_execution(p)
     p.add_argument(
         "--deadline", type=cli.positive_float, default=None,
         help="opt-in seconds allowed per policy call, recorded in the manifest (default: none, so load never "
         "decides a result; a 300 s watchdog still fails a call that hangs)",
     )
-    cli.add_resolution(p)
-    cli.add_renderer(p)
-    cli.add_shard_size(p, 32)
-    cli.add_formats(p)
     p.add_argument(
         "--in-process", action="store_true",
         help="run a module:callable policy inside the eval workers (faster start, but its crash or exit "
         "takes the run down; by default it runs in a child process and fails only its episode)",
     )
-    cli.add_overwrite(p)
-    cli.add_quiet(p)
-    cli.add_test_seed(p, "draw the held-out slice (test-1k, test-irregular, test-complex) from this secret instead of "
-                      "its public seed; the run's manifest keeps only a hash of it")
-    protocol = p.add_argument_group("protocols (recorded in the run's manifest, settings.protocol)")
-    protocol.add_argument("--latency-frames", type=int, default=0, metavar="N",
-                          help="an action computed from frame t's observation takes effect at frame t + N; "
-                          "the hand holds meanwhile (default: 0; deterministic)")
-    protocol.add_argument("--realtime", action="store_true",
-                          help="also delay each call's actions by its measured inference time in whole frames "
-                          "(NOT deterministic: flagged in the manifest and every table; cannot be replayed)")
-    protocol.add_argument("--perturb", metavar="NAME[:STRENGTH]",
-                          help="perturb what the policy sees: noise[:2], jpeg[:75], jitter[:0.5] or light[:2] "
-                          "(seeded by the episode, the repeat and the frame)")
-    protocol.add_argument("--disturb", action="store_true",
-                          help="change each episode's motion once after the observe window (seeded by the episode: "
-                          "a speed or heading change); the run records the disturbed specs")
-    protocol.add_argument("--repeats", type=int, default=1, metavar="K",
-                          help="run every episode K times (repeat r seeds its own perturbation): RUN/repeat-NN "
-                          "plus RUN/repeats.json, scored together by scoring eval RUN (default: 1)")
+    job_flags.add_settings(p, protocol=True)
     vlm = p.add_argument_group("VLM policies (--policy vlm:URL)")
     p.set_defaults(**flag_defaults())  # each policy kind's flags: a set one is refused for another kind
     vlm.add_argument("--model", help="the model name the endpoint serves (required for vlm:URL)")
@@ -151,28 +122,19 @@ def _policy_config(args: argparse.Namespace) -> dict | None:
     return config_from_flags(args.policy, vars(args))
 
 
-def _protocol(args: argparse.Namespace) -> EvalProtocol:
-    from pipeline.loop.conditions import EvalProtocol
-    from pipeline.loop.perturb import Perturbation
-
-    perturb = None if args.perturb is None else Perturbation.parse(args.perturb)
-    return EvalProtocol(latency_frames=args.latency_frames, realtime=args.realtime, perturb=perturb,
-                        disturb=args.disturb)
-
-
 def cmd_eval(args: argparse.Namespace) -> int:
-    from pipeline.jobs.evaluate import evaluate
-    from pipeline.jobs.repeats import evaluate_repeats
+    from pipeline.jobs.evaluate import Report, run_eval
+    from pipeline.jobs.repeats import run_repeats
+    from pipeline.jobs.spec import PolicyChoice
 
     config = _policy_config(args)
-    protocol = _protocol(args)
     _importable_cwd(args.policy)
-    options = dict(deadline_s=args.deadline, isolate=not args.in_process, config=config, require_success=True,
-                   test_seed=cli.read_test_seed(args), **cli.job_options(args))
+    policy = PolicyChoice(args.policy, config, not args.in_process, args.deadline, job_flags.protocol_of(args))
+    spec = job_flags.job_spec_of(args, args.slice, policy)
     if args.repeats != 1:
-        evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
+        run_repeats(spec, args.repeats, Report(require_success=True))
     else:
-        evaluate(args.policy, args.slice, args.out, protocol=protocol, **options)
+        run_eval(spec, Report(require_success=True))
     return 0
 
 

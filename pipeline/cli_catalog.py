@@ -222,16 +222,18 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
 
 def _setting(value: object) -> str:
     """A setting's value on one line: lists joined by commas, objects as compact JSON."""
-    if isinstance(value, list):
+    if isinstance(value, (list, tuple)):
         return ",".join(str(v) for v in value)
     if isinstance(value, dict):
         return json.dumps(value, sort_keys=True, separators=(",", ":"))
+    if value is None or isinstance(value, bool):
+        return json.dumps(value)
     return str(value)
 
 
 def cmd_info(args: argparse.Namespace) -> int:
     # lazy, as the other commands: the job modules load numpy, pyarrow and the env
-    from catalog.info import folder_info
+    from catalog.info import folder_info, shown_settings
     from catalog.repeat_sets import repeats_hint
 
     hint = repeats_hint(args.dir)  # as every reader of one run says it (catalog.manifest.load_manifest)
@@ -242,7 +244,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         _print_json(info.to_dict())
         return 0
     kind = f"rollouts of policy {info.policy}" if info.kind == "rollouts" else "built slice (ground truth)"
-    settings = " ".join(f"{k}={_setting(v)}" for k, v in sorted(info.settings.items()) if k != "dataset_version")
+    settings = " ".join(f"{k}={_setting(v)}" for k, v in sorted(shown_settings(info.settings).items()) if k != "dataset_version")
     rows = [
         ("folder", info.path),
         ("kind", kind),

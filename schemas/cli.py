@@ -307,21 +307,6 @@ class ProgressMeter:
         self.lines += 1
 
 
-def job_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The options every sharded job takes, from the shared flags above."""
-    return {
-        "episodes": args.episodes,
-        "workers": args.workers,
-        "scheduler": args.scheduler,
-        "resolution": args.resolution,
-        "shard_size": args.shard_size,
-        "progress": not args.quiet,
-        "overwrite": args.overwrite,
-        "formats": args.formats,
-        "renderer": args.renderer,
-    }
-
-
 def add_json(parser: argparse.ArgumentParser, what: str = "print JSON instead of a table") -> None:
     parser.add_argument("--json", action="store_true", help=what)
 

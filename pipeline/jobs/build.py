@@ -3,78 +3,27 @@
 Each shard task (:func:`build_shard`) runs the episode stage, renders, JPEG-encodes and
 writes Parquet + MCAP under temporary names, then renames, where the job's output is (a
 folder, or uploaded to the object store from the worker: :mod:`pipeline.jobs.sink`). Everything around the shards
-(the folder's one-job rule, resume, progress, Dask, statistics, the manifest) is
-:func:`pipeline.jobs.runner.run_job`'s.
+(the folder's one-job rule, resume, progress, Dask, statistics, the manifest, a local
+folder or an object store) is :func:`pipeline.jobs.runner.run_job`'s.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from catalog.manifest import Manifest
-from catalog.storage import as_location, is_url
-from pipeline.jobs.engine import refuse_export_folder
-from pipeline.jobs.object_store import run_job_at
-from pipeline.jobs.runner import Job, JobResult
+from pipeline.jobs.runner import Job, JobResult, run_job
 from pipeline.jobs.sink import ShardSink
-from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
+from pipeline.jobs.spec import JobSpec, job_spec
+from pipeline.jobs.tasks import ShardTask, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
-from schemas.formats import ALL_FORMATS, parse_formats
-from schemas.names import shorten
-from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of, renderer_of
+from schemas.settings import BuildSettings
 from schemas.spec import EpisodeSpec
-from schemas.versions import DATASET_VERSION, FPS
 
 DEFAULT_SHARD_SIZE = 128
-
-
-@dataclass(frozen=True)
-class BuildSettings:
-    """Everything besides the specs that determines a shard's bytes."""
-
-    resolution: int
-    jpeg_quality: int
-    fps: int = FPS
-    image_format: str = "jpeg"
-    #: Names the renderer too (:mod:`schemas.renderers`): 4.0.0 ``window``, 3.0.0 ``full``.
-    dataset_version: str = DATASET_VERSION
-    #: The frames table carries the hand's obstacle clearance (scenes may hold obstacles).
-    obstacle_clearance: bool = False
-    #: A rollout's evaluation protocol (pipeline.loop.conditions.EvalProtocol.to_dict), None
-    #: for the plain closed loop and for builds.
-    protocol: dict | None = None
-    #: What is stored: Parquet always, MCAP (for viewing) unless left out.
-    formats: tuple[str, ...] = ALL_FORMATS
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "formats", parse_formats(self.formats))
-        if not isinstance(self.resolution, int) or not 16 <= self.resolution <= 1024:
-            raise SpecError(f"resolution must be an integer in [16, 1024], got {shorten(repr(self.resolution))}")
-        if not isinstance(self.jpeg_quality, int) or not 1 <= self.jpeg_quality <= 100:
-            raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {shorten(repr(self.jpeg_quality))}")
-        if renderer_of(self.dataset_version) is None:
-            raise SpecError(f"dataset_version {self.dataset_version!r} is not one this code writes")
-
-    @property
-    def renderer(self) -> str:
-        """The renderer that draws this dataset version's frames."""
-        renderer = renderer_of(self.dataset_version)
-        assert renderer is not None  # checked in __post_init__
-        return renderer
-
-    def as_dict(self) -> dict:
-        """The manifest's settings; ``obstacle_clearance`` and ``protocol`` only when set, so
-        builds without obstacles and plain runs keep the settings (and hashes) they always had."""
-        out = asdict(self)
-        if not self.obstacle_clearance:
-            del out["obstacle_clearance"]
-        if self.protocol is None:
-            del out["protocol"]
-        out["formats"] = list(self.formats)
-        return out
 
 
 def build_shard(task: ShardTask, settings: BuildSettings, sink: ShardSink) -> dict:
@@ -86,48 +35,35 @@ def build_shard(task: ShardTask, settings: BuildSettings, sink: ShardSink) -> di
     return {"record": record.to_dict()}
 
 
-def build(slice_name: str | None, out: Path, **options: Any) -> Manifest:
+def build(slice_name: str | None, out: str | Path, **options: Any) -> Manifest:
     """Build a slice (or a specs file) into ``out/<slice>/`` and return its manifest;
     the options are :func:`build_job`'s."""
     return build_job(slice_name, out, **options).manifest
 
 
-def build_job(
-    slice_name: str | None,
-    out: Path,
-    *,
-    episodes: int | None = None,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    resolution: int = 224,
-    shard_size: int = DEFAULT_SHARD_SIZE,
-    specs_path: str | None = None,
-    progress: bool = True,
-    overwrite: bool = False,
-    formats: str | tuple[str, ...] = ALL_FORMATS,
-    renderer: str = DEFAULT_RENDERER,
-) -> JobResult:
+def build_job(slice_name: str | None, out: str | Path, **options: Any) -> JobResult:
     """Build a slice (or a specs file) into ``out/<slice>/``: its manifest, and whether
     the folder already held this complete build (then nothing is redone).
 
-    ``workers`` defaults to one per core (0: in this process, no Dask). A folder holding
-    another build is refused unless ``overwrite``. ``renderer`` (:mod:`schemas.renderers`)
-    decides the dataset version: ``window`` 4.0.0, ``full`` 3.0.0."""
-    from generators.encode import JPEG_QUALITY
+    The keyword options are the CLI's flags (:func:`pipeline.jobs.spec.job_spec`):
+    ``episodes``, ``shard_size`` (default 128), ``specs_path`` (``--specs``),
+    ``resolution`` (224), ``renderer`` (``window``: dataset 4.0.0; ``full``: 3.0.0),
+    ``formats``, ``workers`` (default one per core; 0: in this process, no Dask),
+    ``scheduler``, ``progress`` (True) and ``overwrite`` (a folder holding another build
+    is refused without it). :func:`run_build` takes the :class:`~pipeline.jobs.spec.JobSpec`."""
+    return run_build(job_spec(slice_name, out, options, shard_size=DEFAULT_SHARD_SIZE))
 
-    version = dataset_version_of(check_renderer(renderer))
-    as_location(out, "out")  # a folder name or URL, checked before anything is read
 
+def run_build(spec: JobSpec) -> JobResult:
+    """Run a build's :class:`~pipeline.jobs.spec.JobSpec` (module docstring)."""
+    selection, storage = spec.selection, spec.storage
+    slice_name = selection.slice_name
     extra: dict[str, str] = {}
-    obstacles = False
-    if specs_path is not None:
-        specs = _load_user_specs(specs_path, slice_name)
+    if selection.specs_path is not None:
+        specs = _load_user_specs(selection.specs_path, slice_name)
         slice_name = specs[0].slice
         seed = specs[0].seed if len({s.seed for s in specs}) == 1 else None
-        if episodes is not None:
-            if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-                raise SpecError(f"--episodes must be >= 1, got {shorten(repr(episodes))}")
-            specs = specs[:episodes]
+        specs = specs[:selection.first_episodes(len(specs))]
         lines = [s.to_json() for s in specs]
         obstacles = any(s.obstacles for s in specs)
         specs_json: list[str] | None = lines
@@ -144,28 +80,20 @@ def build_job(
         seed = definition.seed
         obstacles = definition.may_hold_obstacles
         specs_json = None
-        total = definition.episodes if episodes is None else episodes
-        if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
-            raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {shorten(repr(total))}")
+        total = selection.first_episodes(definition.episodes, slice_name)
 
-    settings = BuildSettings(
-        resolution=resolution, jpeg_quality=JPEG_QUALITY, obstacle_clearance=obstacles, formats=parse_formats(formats),
-        dataset_version=version,
-    )
+    settings = dataclasses.replace(spec.settings, obstacle_clearance=obstacles)
     tasks = tuple(
         ShardTask(slice_name, first, end, None if specs_json is None else tuple(specs_json[first:end]))
-        for first, end in shard_ranges(total, shard_size)
+        for first, end in shard_ranges(total, selection.shard_size)
     )
-    remote = is_url(out)
-    if not remote:
-        for folder in (Path(out), Path(out) / slice_name):
-            refuse_export_folder(folder, "build")
-    destination = f"{str(out).rstrip('/')}/{slice_name}" if remote else Path(out) / slice_name
+    storage.refuse_export("build")
+    destination = storage.inside(slice_name)
+    destination.refuse_export("build")
     job = Job(
-        folder=Path("/nonexistent-remote-job") if remote else Path(destination),
         slice_name=slice_name,
         seed=seed,
-        settings=settings.as_dict(),
+        settings=settings.to_dict(),
         extra=extra,
         tasks=tasks,
         task_fn=build_shard,
@@ -173,10 +101,7 @@ def build_job(
         verb="built",
         key_prefix="shard",
     )
-    return run_job_at(
-        job, destination, workers=default_workers() if workers is None else workers, scheduler=scheduler,
-        progress=progress, overwrite=overwrite,
-    )
+    return run_job(job, spec.execution, destination)
 
 
 def _load_user_specs(path: str, slice_name: str | None) -> list[EpisodeSpec]:
@@ -213,4 +138,4 @@ def _load_user_specs(path: str, slice_name: str | None) -> list[EpisodeSpec]:
     return specs
 
 
-__all__ = ["DEFAULT_SHARD_SIZE", "BuildSettings", "build", "build_job", "build_shard"]
+__all__ = ["DEFAULT_SHARD_SIZE", "BuildSettings", "build", "build_job", "build_shard", "run_build"]

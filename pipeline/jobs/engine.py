@@ -37,7 +37,7 @@ from catalog.manifest import git_commit
 from pipeline.jobs.lock import folder_lock
 from pipeline.jobs.progress import Progress, Unit
 from pipeline.jobs.sink import ShardSink
-from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, check_workers, run_tasks
+from pipeline.jobs.tasks import Execution, Payload, Work, run_tasks
 from schemas.errors import SpecError
 from schemas.names import shorten
 
@@ -136,19 +136,6 @@ class Outcome(Generic[Result]):
     units_resumed: int
 
 
-@dataclass(frozen=True)
-class Execution:
-    """Where and how the units run: ``workers`` local processes (0: this process, no Dask)
-    or an existing Dask ``scheduler``; ``say`` receives progress lines (None: no progress)."""
-
-    workers: int
-    scheduler: str | None = None
-    say: Callable[[str], None] | None = None
-
-    def __post_init__(self) -> None:
-        check_workers(self.workers, self.scheduler)
-
-
 def prepare_folder(folder: Path) -> None:
     """Create the output folder, or one SpecError naming it."""
     try:
@@ -190,20 +177,17 @@ def refuse_export_folder(folder: Path, what: str) -> None:
 def run_folder_job(
     destination: Destination,
     product: Product[UnitT, Result],
-    tasks: Sequence[ShardTask],
-    task_fn: TaskFn[Payload],
-    payload: Payload,
+    work: Work[Payload],
     execution: Execution,
     *,
     overwrite: bool = False,
-    verb: str = "built",
-    key_prefix: str = "shard",
     total_frames: int | None = None,
     on_result: Callable[[dict[str, Any]], None] | None = None,
 ) -> Outcome[Result]:
-    """Run the units of ``tasks`` not already done into the destination's folder and finish it (module docstring)."""
+    """Run the units of ``work`` not already done into the destination's folder and finish it (module docstring)."""
     folder = destination.folder
     prepare_folder(folder)
+    tasks, verb = work.tasks, work.verb
     ranges = [(task.first, task.end) for task in tasks]
     with folder_lock(folder):
         refuse_links(folder)
@@ -236,7 +220,7 @@ def run_folder_job(
                 meter.update(unit)
 
         try:
-            run_tasks(todo, task_fn, payload, destination.sink, execution.workers, execution.scheduler, on_done, key_prefix,
+            run_tasks(todo, work.task_fn, work.payload, destination.sink, execution, on_done, work.key_prefix,
                       on_episode=None if meter is None else meter.episode)
         finally:
             remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind

@@ -18,6 +18,7 @@ never returns meets the generous watchdog and fails its episode as "hung".
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections.abc import Sequence
@@ -28,19 +29,17 @@ from typing import Any, TextIO
 import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
-from catalog.storage import as_location, is_url
+from catalog.storage import as_location
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, derive, private_specs
 from pipeline.jobs.audit import read_audit, stamped, write_audit
-from pipeline.jobs.build import BuildSettings
-from pipeline.jobs.engine import refuse_export_folder
-from pipeline.jobs.object_store import run_job_at
-from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
+from pipeline.jobs.runner import Job, JobResult, ShardTask, run_job, shard_ranges
 from pipeline.jobs.sink import ShardSink
+from pipeline.jobs.spec import JobSpec, Storage, job_spec
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.fault_text import split_reason
-from pipeline.loop.rollout import WATCHDOG_S, check_seconds, run_episode
-from pipeline.loop.wrappers import loop_env
+from pipeline.loop.rollout import WATCHDOG_S, run_episode
+from pipeline.loop.wrappers import settings_env
 from pipeline.policies.base import Observation, Policy, Task
 from pipeline.policy_registry import (
     Audited,
@@ -55,10 +54,9 @@ from pipeline.policy_registry import (
     open_policy,
 )
 from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
-from schemas.formats import ALL_FORMATS, parse_formats
-from schemas.names import printable, shorten
-from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of
+from schemas.names import printable
 from schemas.runs import is_run
+from schemas.settings import BuildSettings
 
 DEFAULT_SHARD_SIZE = 32
 
@@ -138,14 +136,13 @@ def eval_shard(task: ShardTask, settings: EvalSettings, sink: ShardSink) -> dict
 def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[str, Any]:
     from catalog.shard import ShardWriter
 
-    env = loop_env(settings.build.resolution, settings.build.jpeg_quality, settings.protocol,
-                   renderer=settings.build.renderer)
+    env = settings_env(settings.build)
     stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
     policy: Policy | None = None
     audit: list[dict[str, Any]] = []
     start = time.perf_counter()
     try:
-        with ShardWriter(run_dir, task.first, task.end, settings.build.as_dict(), rollout=True) as writer:
+        with ShardWriter(run_dir, task.first, task.end, settings.build.to_dict(), rollout=True) as writer:
             for spec in task.specs():
                 if policy is None:
                     policy = fresh_policy(settings)
@@ -278,89 +275,84 @@ def summarize(run_dir: str | Path) -> EvalSummary:
     )
 
 
-def evaluate(
-    policy_ref: str,
-    slice_name: str,
-    out: str | Path,
-    *,
-    episodes: int | None = None,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    deadline_s: float | None = None,
-    resolution: int = 224,
-    shard_size: int = DEFAULT_SHARD_SIZE,
-    progress: bool = True,
-    summary: bool = True,
-    stream: TextIO | None = None,
-    overwrite: bool = False,
-    isolate: bool = True,
-    config: dict[str, Any] | None = None,
-    protocol: EvalProtocol | None = None,
-    formats: str | tuple[str, ...] = ALL_FORMATS,
-    require_success: bool = False,
-    test_seed: str | None = None,
-    renderer: str = DEFAULT_RENDERER,
-) -> Manifest:
+def evaluate(policy_ref: str, slice_name: str, out: str | Path, **options: Any) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
 
-    ``workers`` defaults to one per core; ``workers=0`` (without a scheduler) runs the
-    shards one after another in this process, without Dask: same bytes, for debugging
-    and tests. A folder holding another run is refused unless ``overwrite``. A user's
-    ``module:callable`` runs in a child process per worker (``isolate``; same bytes), so
-    that its crash or exit fails only its episode. ``protocol`` (latency, perturbation,
-    repeat; :mod:`pipeline.loop.conditions`) is recorded in ``settings.protocol``. ``config``
-    is the policy kind's configuration (:mod:`pipeline.policy_registry`): a ``vlm:URL``
-    policy's ``--model`` and ``--vlm-*`` settings, a ``lerobot:PATH`` policy's device;
-    kinds that take none refuse it. With
-    ``require_success``, a run in which every episode failed raises AllEpisodesFailed after
-    it is written and summarised (the run is read once for both). ``test_seed`` (a secret)
-    draws a held-out slice's episodes from it instead of the public seed
-    (:mod:`generators.heldout`): the manifest keeps its hash only (key ``test_seed``).
-    ``renderer`` (:mod:`schemas.renderers`) draws the frames and decides the run's dataset
-    version, as for a build."""
-    from generators.encode import JPEG_QUALITY
+    The keyword options are the CLI's flags (:func:`pipeline.jobs.spec.job_spec`) and the
+    summary's: ``episodes``, ``shard_size`` (default 32), ``resolution``, ``renderer``
+    (which draws the frames and decides the run's dataset version, as for a build),
+    ``formats``, ``workers`` (default one per core; ``workers=0`` without a scheduler runs
+    the shards one after another in this process, without Dask: same bytes, for debugging
+    and tests), ``scheduler``, ``progress``, ``overwrite`` (a folder holding another run is
+    refused without it), and
+
+    - ``isolate`` (True): a user's ``module:callable`` runs in a child process per worker
+      (same bytes), so that its crash or exit fails only its episode;
+    - ``deadline_s``: the opt-in seconds per policy call, recorded in the manifest;
+    - ``protocol`` (latency, perturbation, repeat; :mod:`pipeline.loop.conditions`), recorded
+      in ``settings.protocol``;
+    - ``config``: the policy kind's configuration (:mod:`pipeline.policy_registry`): a
+      ``vlm:URL`` policy's ``--model`` and ``--vlm-*`` settings, a ``lerobot:PATH`` policy's
+      device; kinds that take none refuse it;
+    - ``test_seed`` (a secret): draws a held-out slice's episodes from it instead of the
+      public seed (:mod:`generators.heldout`): the manifest keeps its hash only (key ``test_seed``);
+    - ``summary`` (True) and ``stream`` (stdout): where the summary is printed;
+    - ``require_success``: a run in which every episode failed raises AllEpisodesFailed
+      after it is written and summarised (the run is read once for both).
+
+    :func:`run_eval` takes the :class:`~pipeline.jobs.spec.JobSpec`."""
+    report = Report(**{k: options.pop(k) for k in ("summary", "stream", "require_success") if k in options})
+    return run_eval(job_spec(slice_name, out, options, shard_size=DEFAULT_SHARD_SIZE, policy_ref=policy_ref), report)
+
+
+@dataclass(frozen=True)
+class Report:
+    """What an eval prints: the ``summary`` (to ``stream``, default stdout), and whether a
+    run whose every episode failed is an error (``require_success``: AllEpisodesFailed)."""
+
+    summary: bool = True
+    stream: TextIO | None = None
+    require_success: bool = False
+
+
+def run_eval(spec: JobSpec, report: Report | None = None) -> Manifest:
+    """Run an eval's :class:`~pipeline.jobs.spec.JobSpec` (its ``policy`` part set): the
+    run's manifest; the summary as ``report`` says (:func:`evaluate`)."""
     from schemas.slices import get_slice
 
-    version = dataset_version_of(check_renderer(renderer))
-    kind = kind_of(policy_ref)
-    run_dir = as_location(out, "out")
-    if deadline_s is not None:
-        try:
-            deadline_s = check_seconds("--deadline", deadline_s)
-        except PolicyError as exc:
-            raise SpecError(str(exc)) from None
+    report = Report() if report is None else report
+    selection, storage, choice = spec.selection, spec.storage, spec.policy
+    if choice is None:
+        raise SpecError("an eval needs a policy (JobSpec.policy)")
+    slice_name = selection.slice_name
+    if slice_name is None:
+        raise SpecError("an eval needs --slice NAME")
+    kind = kind_of(choice.ref)
     definition = get_slice(slice_name)
-    private = None if test_seed is None else derive(test_seed, slice_name)
+    private = None if selection.test_seed is None else derive(selection.test_seed, slice_name)
     if definition.union:
         raise SpecError(f"{slice_name} is the union of {', '.join(definition.parts)}: evaluate on one of them or test-1k")
-    total = definition.episodes if episodes is None else episodes
-    if isinstance(total, bool) or not isinstance(total, int) or not 1 <= total <= definition.episodes:
-        raise SpecError(f"--episodes must be in [1, {definition.episodes}] for {slice_name}, got {shorten(repr(total))}")
-    if protocol is not None and not isinstance(protocol, EvalProtocol):
-        raise SpecError(f"protocol must be a pipeline.loop.conditions.EvalProtocol or None, got {shorten(repr(protocol))}")
-    protocol = protocol or EvalProtocol()
-    build_settings = BuildSettings(resolution=resolution, jpeg_quality=JPEG_QUALITY,
-                                   obstacle_clearance=definition.may_hold_obstacles,
-                                   protocol=None if protocol.plain else protocol.to_dict(),
-                                   formats=parse_formats(formats), dataset_version=version)
-    ranges = shard_ranges(total, shard_size)
-    if not is_url(out):
-        refuse_export_folder(run_dir, "run")
-    config = kind.configure(policy_ref, config)
-    options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config)
-    name, privileged = describe_policy(policy_ref, options)
+    total = selection.first_episodes(definition.episodes, slice_name)
+    protocol = choice.protocol
+    build_settings = dataclasses.replace(spec.settings, obstacle_clearance=definition.may_hold_obstacles,
+                                         protocol=None if protocol.plain else protocol.to_dict())
+    ranges = shard_ranges(total, selection.shard_size)
+    storage.refuse_export("run")
+    config = kind.configure(choice.ref, choice.config)
+    options = OpenOptions(WATCHDOG_S if choice.deadline_s is None else choice.deadline_s, choice.isolate, config)
+    name, privileged = describe_policy(choice.ref, options)
     if kind.check is not None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run
         kind.check(config)
-    settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate), config,
-                            protocol, kind.name)
-    if is_url(out) and kind.audit_dir is not None:
-        raise SpecError(f"--out {str(out)[:60]}: a {kind.name} run keeps its audit trail on local disk; evaluate it locally")
+    settings = EvalSettings(build_settings, slice_name, choice.ref, name, privileged, choice.deadline_s, choice.isolate,
+                            config, protocol, kind.name)
+    if storage.remote and kind.audit_dir is not None:
+        raise SpecError(f"--out {str(storage.out)[:60]}: a {kind.name} run keeps its audit trail on local disk; "
+                        "evaluate it locally")
     job = Job(
-        folder=Path("/nonexistent-remote-job") if is_url(out) else run_dir,
         slice_name=slice_name,
         seed=definition.seed if private is None else None,
-        settings=build_settings.as_dict(),
+        settings=build_settings.to_dict(),
         extra=settings.extra() | ({} if private is None else {HELD_OUT_KEY: private.record()}),
         tasks=tuple(_shard_task(slice_name, first, end, private) for first, end in ranges),
         task_fn=eval_shard,
@@ -379,34 +371,32 @@ def evaluate(
             timing["remote"] = _merge_timing(timing["remote"], stats["remote"])
 
     start = time.monotonic()
-    result = run_job_at(
-        job,
-        out,
-        workers=default_workers() if workers is None else workers,
-        scheduler=scheduler,
-        progress=progress,
-        overwrite=overwrite,
-        on_result=on_result,
-    )
-    manifest, up_to_date = result.manifest, result.up_to_date
-    elapsed = time.monotonic() - start
-    counts = summarize(run_dir) if summary or require_success else None
-    if summary and counts is not None:
-        out_stream = sys.stdout if stream is None else stream
+    result = run_job(job, spec.execution, storage, on_result)
+    _report(storage, settings, result, report, (timing, time.monotonic() - start))
+    return result.manifest
+
+
+def _report(storage: Storage, settings: EvalSettings, result: JobResult, report: Report,
+            timing: tuple[dict[str, Any], float]) -> None:
+    """Print the run's summary, as ``report`` says, and refuse a run whose every episode failed."""
+    run_dir = as_location(storage.out, "out")
+    manifest, up_to_date, kind = result.manifest, result.up_to_date, settings.policy_kind
+    counts = summarize(run_dir) if report.summary or report.require_success else None
+    if report.summary and counts is not None:
+        out_stream = sys.stdout if report.stream is None else report.stream
         if up_to_date:
             print(f"{run_dir}: up to date (the same run is complete; --overwrite to run it again)", file=out_stream)
-        for line in counts.lines(tracebacks=not isolate):
+        for line in counts.lines(tracebacks=not settings.isolate):
             print(line, file=out_stream)
         if kind.audit_dir is not None:
             trail, records = run_dir / kind.audit_dir, read_audit(run_dir, manifest.audit or ())
             summary_line = kind.summarize_audit(records) if kind.summarize_audit else f"{len(records)} records"
             print(f"  {kind.name}: {summary_line}; trail in {trail}", file=out_stream)
-        for line in _timing_lines(timing, elapsed):
+        for line in _timing_lines(*timing):
             print(line, file=out_stream)
         print(f"  -> {manifest_path(run_dir)} (hash {manifest.hash[:16]})", file=out_stream, flush=True)
-    if require_success and counts is not None:
+    if report.require_success and counts is not None:
         check_some_episode_ran(counts)
-    return manifest
 
 
 def _shard_task(slice_name: str, first: int, end: int, private: TestSeed | None) -> ShardTask:

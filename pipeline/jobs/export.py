@@ -47,12 +47,13 @@ from catalog.export.meta import assemble, tasks_of
 from catalog.export.unit import export_unit
 from catalog.reader import FolderReader, open_folder
 from catalog.records import FileRecord
-from catalog.storage import as_location, is_remote
-from pipeline.jobs.engine import Execution, LocalFolder, Previous, Range, run_folder_job
+from catalog.storage import is_remote
+from pipeline.jobs.engine import LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
 from pipeline.jobs.sink import ShardSink
+from pipeline.jobs.spec import Storage
 from pipeline.jobs.state import file_intact
-from pipeline.jobs.tasks import ShardTask, check_workers
+from pipeline.jobs.tasks import Execution, ShardTask, Work, check_workers
 from schemas.errors import DyanaError
 from schemas.names import shorten
 
@@ -273,27 +274,26 @@ def export(
     if is_remote(out):  # else a local folder named "s3:" would be made
         raise ExportError(f"--out {shorten(str(out))}: an export is written to a local folder (object-storage "
                           "outputs are not supported yet): export here, then copy it")
-    as_location(out, "out")
+    storage = Storage(out, overwrite)  # the folder name and overwrite, checked as a build's
     items = [source] if isinstance(source, (str, os.PathLike)) else source if isinstance(source, (list, tuple)) else None
     if items is None or not all(isinstance(item, (str, os.PathLike)) for item in items):
         raise ExportError(f"source must be a folder or a list of folders, got {shorten(repr(source))}")
     if not isinstance(settings, ExportSettings):
         raise ExportError(f"settings must be an ExportSettings, got {shorten(repr(settings))}")
-    if not isinstance(overwrite, bool):
-        raise ExportError(f"overwrite must be True or False, got {shorten(repr(overwrite))}")
     names = [os.fspath(item) for item in items]
     if not names:
         raise ExportError("nothing to export: give at least one source folder")
     refuse_nested(names, Path(out))
     start = time.perf_counter()
     readers = tuple(open_folder(name, verify="sha256") for name in names)
-    target = Path(out)
+    target = storage.folder
     check_foreign(target)
     plan = _plan(readers, names, target, settings)
     product = LeRobotProduct(readers, settings, plan, job_identity(readers, settings))
-    tasks = [ShardTask(readers[u.source].manifest.slice, u.episode, u.episode + u.episodes) for u in plan.units]
+    tasks = tuple(ShardTask(readers[u.source].manifest.slice, u.episode, u.episode + u.episodes) for u in plan.units)
     execution = Execution(0 if workers <= 1 else workers, None, progress)
-    outcome = run_folder_job(LocalFolder(target), product, tasks, export_shard, plan, execution, overwrite=overwrite,
-                             verb="exported", key_prefix="export", total_frames=sum(u.frames for u in plan.units))
+    work = Work(tasks, export_shard, plan, key_prefix="export", verb="exported")
+    outcome = run_folder_job(LocalFolder(target), product, work, execution, overwrite=overwrite,
+                             total_frames=sum(u.frames for u in plan.units))
     return ExportReport(target, outcome.result.episodes, outcome.result.frames, outcome.units_run,
                         outcome.units_resumed, outcome.up_to_date, time.perf_counter() - start)

@@ -1,4 +1,6 @@
-"""Sharded jobs whose output folder is an object-store URL (``--out s3://bucket/prefix``).
+"""Sharded jobs whose output folder is an object-store URL (``--out s3://bucket/prefix``):
+:func:`pipeline.jobs.runner.run_job` runs a job here when its storage is a URL, holding
+:func:`remote_job` (the lock, the writable check) and starting from :func:`prepare_remote`.
 
 The workers write the shards straight to the store, from whichever host they run on
 (:class:`pipeline.jobs.sink.ShardSink`: each task writes its shard in a scratch folder of
@@ -33,23 +35,22 @@ check the objects' sizes (an object store gives no sha256 without downloading ev
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
 import os
 import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any, TypedDict, Unpack
+from typing import Any
 
 from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
 from catalog.records import ShardRecord
-from catalog.storage import as_location, check_writable, is_url, listed_sizes, reaching
+from catalog.storage import as_location, check_writable, listed_sizes, reaching
 from pipeline.jobs.lock import LOCK_FILE, held
-from pipeline.jobs.runner import Job, JobResult, run_job
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.state import STATE_FILE, Identity, describe_difference, manifest_identity
-from pipeline.jobs.tasks import Payload
 from schemas.errors import ShardError, SpecError
 from schemas.names import shorten
 from schemas.versions import CODE_VERSION
@@ -108,44 +109,27 @@ def _records_of(data: dict | None, key: str) -> list[ShardRecord]:
         raise ShardError(f"remote {key}: {exc}") from None
 
 
-class RunOptions(TypedDict, total=False):
-    """:func:`run_job`'s options besides ``workers``, carried through to it."""
-
-    scheduler: str | None
-    progress: bool
-    overwrite: bool
-    on_result: Callable[[dict[str, Any]], None] | None
-
-
-def run_job_at(job: Job[Payload], out: str | os.PathLike[str], *, workers: int, **options: Unpack[RunOptions]) -> JobResult:
-    """:func:`run_job` into ``job.folder``, or :func:`run_remote_job` into ``out`` when it is a URL.
-    ``overwrite`` and ``progress`` must be booleans: ``overwrite="no"`` would replace a folder."""
-    for flag in ("overwrite", "progress"):
-        value = options.get(flag, False)
-        if not isinstance(value, bool):
-            raise SpecError(f"{flag} must be True or False, got {shorten(repr(value))}")
-    if is_url(out):
-        return run_remote_job(job, str(out), workers, options)
-    return run_job(job, workers=workers, **options)
-
-
-def run_remote_job(job: Job[Payload], url: str, workers: int, options: RunOptions) -> JobResult:
-    """Run ``job`` (whose folder is ignored) into ``url``, holding this machine's lock for the URL."""
+@contextlib.contextmanager
+def remote_job(url: str) -> Iterator[tuple[Path, Any]]:
+    """Hold this machine's lock for ``url`` (beside its staging folder) and check the URL
+    writable (bucket, credentials, endpoint: before any work); yield the staging folder
+    and the store's location. The bucket going away during the job is one ShardError."""
     staging = staging_folder(url)
     staging.parent.mkdir(parents=True, exist_ok=True)
     try:
         with held(staging.with_name(staging.name + ".lock"), url), reaching(url):
-            check_writable(as_location(url))  # bucket, credentials, endpoint: before any work
-            return _run_remote_job(job, url, staging, workers, options)
+            remote = as_location(url)
+            check_writable(remote)
+            yield staging, remote
     except FileNotFoundError as exc:  # s3fs: the bucket went away during the job
         raise ShardError(f"{shorten(url)}: {exc}") from None
 
 
-def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, options: RunOptions) -> JobResult:
-    overwrite = options.get("overwrite", False)
-    remote: Any = as_location(url)
-    local_job = dataclasses.replace(job, folder=staging)
-    wanted = local_job.identity()
+def prepare_remote(url: str, staging: Path, remote: Any, wanted: Identity, overwrite: bool) -> Manifest | None:
+    """Read what ``url`` holds: its manifest when it holds this job complete ("up to date":
+    nothing to run), else None once the staging folder holds the remote state of this job's
+    interrupted run (if any) to resume from; another job's folder or state is refused
+    unless ``overwrite``."""
     manifest_data = _remote_json(remote, MANIFEST_NAME)
     sizes = listed_sizes(remote)
     held = None
@@ -164,7 +148,7 @@ def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, op
         if identity == wanted and (held.code.version, held.code.commit) == (CODE_VERSION, git_commit()) and all(
             sizes.get(path) == size for path, size in listed
         ):
-            return JobResult(held, True)
+            return held
     state = _remote_json(remote, STATE_FILE)
     if state is not None and state.get("identity") not in (None, wanted) and not overwrite:
         raise SpecError(f"{url} holds an unfinished run of another job "
@@ -174,11 +158,7 @@ def _run_remote_job(job: Job[Payload], url: str, staging: Path, workers: int, op
     if state is not None and state.get("identity") == wanted:
         _records_of(state, "shards")  # unreadable records: one error naming the remote state
         (staging / STATE_FILE).write_text(json.dumps(state, sort_keys=True, indent=2) + "\n")
-
-    result = run_job(local_job, workers=workers, scheduler=options.get("scheduler"),
-                     progress=options.get("progress", True), overwrite=overwrite, on_result=options.get("on_result"),
-                     destination=ObjectStore(staging, remote, url), store=remote)
-    return dataclasses.replace(result, up_to_date=False)  # the URL did not hold it: it was published now
+    return None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -60,8 +60,8 @@ from schemas.errors import PolicyError, ReplayMismatch, ShardError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.names import printable, shorten
 from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
+from schemas.settings import BuildSettings
 from schemas.spec import EpisodeSpec
-from schemas.versions import FPS
 
 
 @dataclass(frozen=True)
@@ -89,6 +89,18 @@ def check_rebuildable(directory: object, manifest: Manifest) -> str:
             f"byte for byte (check out the commit {manifest.code.commit or 'that wrote it'})"
         )
     return renderer
+
+
+def recorded_settings(root: object, settings: Mapping[str, Any]) -> BuildSettings:
+    """A manifest's settings as :class:`~schemas.settings.BuildSettings`; ShardError naming
+    the folder when this code cannot re-execute them (another dataset version, an unknown
+    key, a bad value)."""
+    if renderer_of(settings.get("dataset_version")) is None:
+        raise ShardError(f"{root}: dataset version {settings.get('dataset_version')!r} cannot be re-executed here")
+    try:
+        return BuildSettings.from_dict(settings)
+    except SpecError as exc:
+        raise ShardError(f"{root}/{MANIFEST_NAME}: {exc}") from None
 
 
 #: Where a :class:`ReplayMismatch` happened: its attributes.
@@ -224,7 +236,7 @@ def rollout_columns(root: Path, manifest: Manifest, audited: AuditedReplay | Non
 
 def replay_shard(
     reader: ShardReader,
-    settings: dict,
+    settings: Mapping[str, Any],
     env: RecordEpisode | None,
     audited: AuditedReplay | None = None,
     report: EpisodeReport | None = None,
@@ -244,11 +256,7 @@ def replay_shard(
     episodes = reader.episodes()
     frames = reader.frames(None, episodes)
     frame_episode = frames.column("episode_index").to_numpy()
-    resolution, quality = settings["resolution"], settings["jpeg_quality"]
-    renderer = renderer_of(settings.get("dataset_version"))
-    if renderer is None:
-        raise ShardError(f"{root}: dataset version {settings.get('dataset_version')!r} cannot be re-executed here")
-    fps = settings.get("fps", FPS)
+    typed = recorded_settings(root, settings)
     replayed: list[tuple[EpisodeSpec, EpisodeFrames, list[bytes], dict]] = []
     if rollout and columns is None:
         raise ShardError(f"{root}: replaying a run needs its policy columns (rollout_columns)")
@@ -281,8 +289,8 @@ def replay_shard(
             from pipeline.stages.record import encoded_frames
 
             ep_frames = episode(spec)
-            images = encoded_frames(spec, ep_frames, resolution, quality, renderer)
-        expected = frames_table(index, ep_frames, images, fps=fps, obstacles=bool(settings.get("obstacle_clearance")))
+            images = encoded_frames(spec, ep_frames, typed.resolution, typed.jpeg_quality, typed.renderer)
+        expected = frames_table(index, ep_frames, images, fps=typed.fps, obstacles=typed.obstacle_clearance)
         found = _first_difference(recorded, expected, expected.column_names)
         if found is None and recorded.num_rows != expected.num_rows:
             n = min(recorded.num_rows, expected.num_rows)
@@ -366,7 +374,7 @@ def replay(
         except ShardError as exc:
             raise ShardError(f"{exc} (the audit trail changed since the run)") from None
     raise_first(path, stray_files(folder.root, manifest))
-    settings = dict(manifest.settings)
+    settings = recorded_settings(folder.root, manifest.settings)
     chosen = list(folder.shards)
     if shards is not None:
         if not isinstance(shards, (list, tuple, range, set, frozenset)) or any(
@@ -375,7 +383,7 @@ def replay(
         wanted = set(shards)
         chosen = [s for s in chosen if s.record.first in wanted]
     env = None
-    protocol = EvalProtocol.from_dict(settings.get("protocol"))
+    protocol = EvalProtocol.from_dict(settings.protocol)
     if rollout:
         if protocol.realtime:
             raise ShardError(
@@ -383,7 +391,7 @@ def replay(
                 "and cannot be replayed byte for byte"
             )
         # the recorded specs are the disturbed ones already: no second disturbance
-        env = loop_env(settings["resolution"], settings["jpeg_quality"], dataclasses.replace(protocol, disturb=False),
+        env = loop_env(settings.resolution, settings.jpeg_quality, dataclasses.replace(protocol, disturb=False),
                        renderer=renderer)
     audited = audited_replay(folder.root, manifest) if rollout else None
     columns = rollout_columns(folder.root, manifest, audited) if rollout else None
@@ -392,7 +400,7 @@ def replay(
         for shard in chosen:
             drawn = None if seed is None else drawn_specs(seed, protocol, shard.record.first, shard.record.end)
             try:
-                frames += replay_shard(shard, settings, env, audited, columns=columns, drawn=drawn)
+                frames += replay_shard(shard, manifest.settings, env, audited, columns=columns, drawn=drawn)
             except ReplayMismatch as exc:
                 raise _mismatch(f"{exc}{mismatch_note(manifest.versions)}",
                                 **{key: getattr(exc, key, None) for key in MISMATCH_WHERE}) from None

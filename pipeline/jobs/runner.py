@@ -1,9 +1,13 @@
 """Sharded jobs that leave a ``catalog.json`` folder: `pipeline build` and `pipeline eval`.
 
-A :class:`Job` names an output folder, what it will hold (slice, seed, settings, extra
-manifest keys such as a specs file's hash, shard ranges) and a worker function that writes one
-shard. :func:`run_job` runs it on the job engine (:func:`pipeline.jobs.engine.run_folder_job`,
-with :class:`ManifestProduct` saying what such a folder holds):
+A :class:`Job` names what its folder will hold (slice, seed, settings, extra manifest keys
+such as a specs file's hash, shard ranges) and a worker function that writes one shard.
+:func:`run_job` is the one call that runs such a job, given its
+:class:`~pipeline.jobs.tasks.Execution` and :class:`~pipeline.jobs.spec.Storage` (the
+parts of a :class:`~pipeline.jobs.spec.JobSpec`): into a local folder, or into an object
+store (:mod:`pipeline.jobs.object_store`), on the job engine
+(:func:`pipeline.jobs.engine.run_folder_job`, with :class:`ManifestProduct` saying what
+such a folder holds):
 
 - the folder holds one job (:mod:`pipeline.jobs.state`): a ``catalog.json`` (or a killed
   run's ``.build-state.json``) describing anything else is refused with a message naming
@@ -37,26 +41,28 @@ from catalog.stats import compute_stats, write_stats
 from catalog.storage import listed_sizes, where
 from catalog.versions import installed_versions
 from pipeline.jobs.audit import audit_records, remove_unlisted_audit
-from pipeline.jobs.engine import Destination, Execution, LocalFolder, Previous, run_folder_job
-from pipeline.jobs.progress import to_stderr
+from pipeline.jobs.engine import Destination, LocalFolder, Previous, run_folder_job
+from pipeline.jobs.object_store import ObjectStore, prepare_remote, remote_job
+from pipeline.jobs.spec import Storage
 from pipeline.jobs.state import STATE_FILE, Identity, Range, identity_of, previous_work, save_state
-from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, default_workers, shard_ranges
+from pipeline.jobs.tasks import Execution, Payload, ShardTask, TaskFn, Work, default_workers, shard_ranges
 from schemas.errors import ShardError
 from schemas.versions import CODE_VERSION
 
-__all__ = ["Job", "JobResult", "ShardTask", "default_workers", "remove_unlisted_shards", "run_job", "shard_ranges"]
+__all__ = ["Execution", "Job", "JobResult", "ShardTask", "Storage", "default_workers", "remove_unlisted_shards", "run_job",
+           "shard_ranges"]
 
 
 @dataclass(frozen=True)
 class Job(Generic[Payload]):
-    """A sharded job. ``task_fn(task, payload, folder)`` runs in a worker and returns a
+    """A sharded job (where it is written is the caller's :class:`~pipeline.jobs.spec.Storage`).
+    ``task_fn(task, payload, sink)`` runs in a worker and returns a
     dict with the shard's ``record`` (a ShardRecord dict) and anything else the caller's
     ``on_result`` wants (timing). ``extra`` are the manifest's top-level keys beyond the
     contract's; with ``settings``, ``slice``, ``seed`` and the shard ranges they say what
     the folder holds. ``audit_dir``: the folder of the tasks' audit trail files (one per
     shard, :func:`pipeline.jobs.audit.audit_path`), listed in the manifest's ``audit``."""
 
-    folder: Path
     slice_name: str
     seed: int | None
     settings: Mapping[str, Any]
@@ -76,6 +82,10 @@ class Job(Generic[Payload]):
     @property
     def episodes(self) -> int:
         return self.ranges[-1][1] if self.ranges else 0
+
+    def work(self) -> Work[Payload]:
+        """The job's units, as the engine runs them."""
+        return Work(self.tasks, self.task_fn, self.payload, self.key_prefix, self.verb)
 
     def identity(self) -> Identity:
         """What the folder must already hold for this job to reuse it."""
@@ -171,23 +181,29 @@ def check_stored(store: Path, units: Sequence[ShardRecord]) -> None:
 
 def run_job(
     job: Job[Payload],
-    *,
-    workers: int,
-    scheduler: str | None = None,
-    progress: bool = True,
-    overwrite: bool = False,
+    execution: Execution,
+    storage: Storage,
     on_result: Callable[[dict[str, Any]], None] | None = None,
-    destination: Destination | None = None,
-    store: Path | None = None,
 ) -> JobResult:
-    """Run ``job`` into its folder (see the module docstring), or into ``destination`` (whose
-    folder replaces the job's; ``store``: where its tasks' files are, when not in that
-    folder: :class:`ManifestProduct`); progress lines on stderr."""
-    execution = Execution(workers, scheduler, to_stderr if progress else None)
-    if destination is None:
-        destination = LocalFolder(job.folder)
-    elif destination.folder != job.folder:
-        job = dataclasses.replace(job, folder=destination.folder)
-    outcome = run_folder_job(destination, ManifestProduct(job, store), job.tasks, job.task_fn, job.payload, execution,
-                             overwrite=overwrite, verb=job.verb, key_prefix=job.key_prefix, on_result=on_result)
+    """Run ``job`` into ``storage``: its local folder (see the module docstring), or its
+    object-store URL (:mod:`pipeline.jobs.object_store`: the workers upload the shards, the
+    driver keeps the job's own files in a staging folder and publishes them); ``on_result``
+    hears each finished task's result in the driver."""
+    if not storage.remote:
+        return _run(job, LocalFolder(storage.folder), None, execution, storage.overwrite, on_result)
+    url = str(storage.out)
+    with remote_job(url) as (staging, remote):
+        held = prepare_remote(url, staging, remote, job.identity(), storage.overwrite)
+        if held is not None:
+            return JobResult(held, True)
+        result = _run(job, ObjectStore(staging, remote, url), remote, execution, storage.overwrite, on_result)
+    return dataclasses.replace(result, up_to_date=False)  # the URL did not hold it: it was published now
+
+
+def _run(job: Job[Payload], destination: Destination, store: Path | None, execution: Execution, overwrite: bool,
+         on_result: Callable[[dict[str, Any]], None] | None) -> JobResult:
+    """The engine's run of ``job`` into ``destination`` (``store``: where its tasks' files are,
+    when not in the destination's folder: :class:`ManifestProduct`)."""
+    outcome = run_folder_job(destination, ManifestProduct(job, store), job.work(), execution, overwrite=overwrite,
+                             on_result=on_result)
     return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed)

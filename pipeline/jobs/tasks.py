@@ -30,9 +30,9 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import CancelledError
 from dataclasses import dataclass, field
 from multiprocessing import resource_tracker
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
-from pipeline.jobs.progress import EpisodeReport, ReportingSpecs
+from pipeline.jobs.progress import EpisodeReport, ReportingSpecs, to_stderr
 from pipeline.jobs.sink import ShardSink
 from schemas.errors import DyanaError, SpecError
 from schemas.names import shorten
@@ -228,13 +228,45 @@ def connect(client_class: Callable[..., Any], scheduler: str) -> Any:
     raise error
 
 
+@dataclass(frozen=True)
+class Work(Generic[Payload]):
+    """A job's units: its ``tasks``, the worker function that runs one
+    (``task_fn(task, payload, sink)``), the ``payload`` sent with each, the prefix of their
+    Dask keys and the verb progress lines use (``built``, ``evaluated``, ``exported``)."""
+
+    tasks: tuple[ShardTask, ...]
+    task_fn: TaskFn[Payload]
+    payload: Payload
+    key_prefix: str = "shard"
+    verb: str = "built"
+
+
+@dataclass(frozen=True)
+class Execution:
+    """Where and how a job's units run: ``workers`` local processes (0: this process, no
+    Dask) or an existing Dask ``scheduler``; ``say`` receives progress lines (None: none)."""
+
+    workers: int
+    scheduler: str | None = None
+    say: Callable[[str], None] | None = None
+
+    def __post_init__(self) -> None:
+        check_workers(self.workers, self.scheduler)
+
+    @classmethod
+    def of(cls, workers: int | None = None, scheduler: str | None = None, progress: bool = True) -> Execution:
+        """The job options' execution: ``workers`` None is one per core; ``progress`` lines go to stderr."""
+        if not isinstance(progress, bool):
+            raise SpecError(f"progress must be True or False, got {shorten(repr(progress))}")
+        return cls(default_workers() if workers is None else workers, scheduler, to_stderr if progress else None)
+
+
 def run_tasks(
     tasks: Sequence[ShardTask],
     task_fn: TaskFn[Payload],
     payload: Payload,
     sink: ShardSink,
-    workers: int,
-    scheduler: str | None,
+    execution: Execution,
     on_done: Callable[[dict[str, Any]], None],
     key_prefix: str = "shard",
     on_episode: EpisodeReport | None = None,
@@ -248,6 +280,7 @@ def run_tasks(
     the tasks' episode reports."""
     if not tasks:
         return
+    workers, scheduler = execution.workers, execution.scheduler
     if not scheduler and (workers == 0 or len(tasks) == 1):
         for task in tasks:
             on_done(task_fn(task.reporting_to(on_episode), payload, sink))

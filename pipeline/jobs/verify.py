@@ -15,7 +15,7 @@ at most one per 2 s plus the last (:class:`schemas.cli.ProgressMeter`).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +26,7 @@ from catalog.reader import open_folder
 from catalog.records import ShardRecord
 from catalog.storage import as_location
 from catalog.versions import mismatch_note
-from pipeline.jobs.build import BuildSettings
-from pipeline.jobs.replay import check_rebuildable, private_seed, replay, replay_shard
+from pipeline.jobs.replay import check_rebuildable, private_seed, recorded_settings, replay, replay_shard
 from schemas.cli import ProgressMeter
 from schemas.errors import ReplayMismatch, ShardError, SpecError
 from schemas.names import shorten
@@ -54,10 +53,7 @@ def check_build_settings(directory: Path, manifest: Manifest) -> None:
     """ShardError unless this code can rebuild ``manifest``'s ground truth: its dataset
     version, and settings that are all :class:`BuildSettings`' (and valid)."""
     check_rebuildable(directory, manifest)
-    unknown = sorted(set(manifest.settings) - {f.name for f in fields(BuildSettings)})
-    if unknown:
-        raise ShardError(f"{directory / 'catalog.json'}: unknown settings {unknown}: written by another version of Dyana?")
-    BuildSettings(**manifest.settings)
+    recorded_settings(directory, manifest.settings)
 
 
 def verify(
@@ -98,7 +94,7 @@ def verify(
     compared = 0
     for number, shard in enumerate(shards, 1):
         try:
-            replay_shard(readers[shard.first], dict(manifest.settings), None, report=report)
+            replay_shard(readers[shard.first], manifest.settings, None, report=report)
         except ReplayMismatch as exc:
             raise ShardError(f"{directory / str(getattr(exc, 'file', ''))}: rebuilding gives different bytes ({exc})"
                              f"{mismatch_note(manifest.versions)}") from None

@@ -20,6 +20,7 @@ import contextlib
 import os
 import shutil
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -103,14 +104,8 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
     os.environ.setdefault("RUST_LOG", "off")
     import rerun as rr  # after the checks: a bad argument costs no rerun import
     manifest, rows, meta = _episode_rows(directory, episode)
-    images = rows.column("image").to_pylist()
-    phases = rows.column("phase").to_pylist()
-    timestamps = rows.column("timestamp").to_numpy()
-    frame_index = rows.column("frame_index").to_numpy()
-    state = {name: column_to_numpy(rows.column(name)) for name in
-             ("object_pose", "palm_pose", "joint_poses", "keypoints", "action", "joint_angles")}
-    fingertip = rows.column("fingertip_distance").to_numpy()
-    palm_xz = np.linalg.norm(state["palm_pose"][:, [0, 2]] - state["object_pose"][:, [0, 2]], axis=1)
+    columns = EpisodeColumns.of(rows)
+    images = columns.images
 
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.is_dir():
@@ -126,8 +121,7 @@ def write_recording(directory: str | Path, episode: int, out: str | Path) -> Pat
                 rec.save(str(temp))
             except RuntimeError as exc:  # rerun cannot create the file (the folder changed since the check)
                 raise DyanaError(f"{out}: cannot write the recording ({shorten(str(exc), 200)})") from None
-            _log_episode(rec, rows, meta, images, phases, timestamps, frame_index, state, fingertip, palm_xz,
-                         dict(manifest.settings))
+            _log_episode(rec, rows, meta, columns, dict(manifest.settings))
         except BaseException:
             with contextlib.suppress(RuntimeError):
                 rec.disconnect()
@@ -162,10 +156,39 @@ def _log_camera(rec: RecordingStream, resolution: int) -> None:
                                       camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0), static=True)
 
 
-def _log_episode(rec: RecordingStream, rows: pa.Table, meta: dict[str, Any], images: list[bytes], phases: list[str],
-                 timestamps: np.ndarray, frame_index: np.ndarray, state: dict[str, np.ndarray], fingertip: np.ndarray,
-                 palm_xz: np.ndarray, settings: dict[str, Any]) -> None:
+@dataclass(frozen=True)
+class EpisodeColumns:
+    """The columns of one episode's frames that the recording shows."""
+
+    images: list[bytes]
+    phases: list[str]
+    timestamps: np.ndarray
+    frame_index: np.ndarray
+    state: dict[str, np.ndarray]
+    fingertip: np.ndarray
+    palm_xz: np.ndarray
+
+    @classmethod
+    def of(cls, rows: pa.Table) -> EpisodeColumns:
+        state = {name: column_to_numpy(rows.column(name)) for name in
+                 ("object_pose", "palm_pose", "joint_poses", "keypoints", "action", "joint_angles")}
+        return cls(
+            images=rows.column("image").to_pylist(),
+            phases=rows.column("phase").to_pylist(),
+            timestamps=rows.column("timestamp").to_numpy(),
+            frame_index=rows.column("frame_index").to_numpy(),
+            state=state,
+            fingertip=rows.column("fingertip_distance").to_numpy(),
+            palm_xz=np.linalg.norm(state["palm_pose"][:, [0, 2]] - state["object_pose"][:, [0, 2]], axis=1),
+        )
+
+
+def _log_episode(rec: RecordingStream, rows: pa.Table, meta: dict[str, Any], columns: EpisodeColumns,
+                 settings: dict[str, Any]) -> None:
     import rerun as rr
+
+    images, phases, timestamps, frame_index = columns.images, columns.phases, columns.timestamps, columns.frame_index
+    state, fingertip, palm_xz = columns.state, columns.fingertip, columns.palm_xz
 
     rec.log("world", rr.ViewCoordinates.RFU, static=True)
     resolution = settings.get("resolution")

@@ -34,6 +34,7 @@ from pipeline.stages.episode import assemble_frames
 from schemas.errors import DyanaError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.scene import DEFAULT_RESOLUTION
+from schemas.settings import BuildSettings
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -234,3 +235,10 @@ def loop_env(
     if protocol.disturb:
         env = DisturbMotion(env)
     return RecordEpisode(env)
+
+
+def settings_env(settings: BuildSettings, episodes: EpisodeSource | None = None) -> RecordEpisode:
+    """:func:`loop_env` with a run's byte settings (:class:`~schemas.settings.BuildSettings`:
+    its resolution, JPEG quality, renderer and protocol)."""
+    return loop_env(settings.resolution, settings.jpeg_quality, EvalProtocol.from_dict(settings.protocol),
+                    renderer=settings.renderer, episodes=episodes)

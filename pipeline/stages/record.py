@@ -56,7 +56,7 @@ def write_ground_truth_shard(
     specs: Sequence[EpisodeSpec], first: int, end: int, settings, slice_dir: Path
 ) -> ShardRecord:
     """Episodes ``[first, end)`` of a slice, ground truth, as one atomic shard."""
-    with ShardWriter(slice_dir, first, end, settings.as_dict()) as writer:
+    with ShardWriter(slice_dir, first, end, settings.to_dict()) as writer:
         for _index, spec in zip(range(first, end), specs):
             frames = episode(spec)
             images = encoded_frames(spec, frames, settings.resolution, settings.jpeg_quality, settings.renderer)

@@ -60,7 +60,8 @@ def test_a_built_slice_as_text(slice_dir, capsys):
     assert rows["dataset"] == f"{DATASET_VERSION} (this code writes {DATASET_VERSION})"
     assert rows["code"] == f"0.1.0, commit {CODE.commit}"
     assert rows["slice"] == "linear-fast, seed 7"
-    assert rows["settings"] == "fps=20 image_format=jpeg jpeg_quality=90 resolution=32"
+    assert rows["settings"] == ("formats=parquet,mcap fps=20 image_format=jpeg jpeg_quality=90 obstacle_clearance=false "
+                                "protocol=null resolution=32")
     assert rows["episodes"] == "5 in 3 shards"
     assert rows["frames"] == f"{manifest.frames:,}"
     assert rows["size"].endswith(f"in {disk_bytes(slice_dir)[0]} files")

@@ -70,14 +70,14 @@ def _slow_shard(task, payload: str, folder: str) -> dict:
 
 
 def _start(folder: str, barrier, results) -> None:
-    from pipeline.jobs.runner import Job, run_job
+    from pipeline.jobs.runner import Execution, Job, Storage, run_job
     from pipeline.jobs.tasks import ShardTask
 
-    job = Job(Path(folder), "linear-fast", 1, {"resolution": 32}, {}, (ShardTask("linear-fast", 0, 2),), _slow_shard,
+    job = Job("linear-fast", 1, {"resolution": 32}, {}, (ShardTask("linear-fast", 0, 2),), _slow_shard,
               "a", with_stats=False)
     barrier.wait()
     try:
-        run_job(job, workers=0, progress=False)
+        run_job(job, Execution(0), Storage(folder))
         results.put("ran")
     except FolderBusy as exc:
         results.put(f"busy: {exc}")

@@ -16,7 +16,7 @@ from catalog.manifest import load_manifest
 from catalog.records import shard_paths
 from pipeline.jobs import tasks as task_module
 from pipeline.jobs.lock import FolderBusy, folder_lock
-from pipeline.jobs.runner import Job, run_job
+from pipeline.jobs.runner import Execution, Job, JobResult, Storage, run_job
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.state import STATE_FILE
 from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
@@ -38,9 +38,14 @@ def fake_shard(task: ShardTask, payload: str, sink: ShardSink) -> dict:
     return {"record": {"episodes": [task.first, task.end], "frames": task.end - task.first, "files": files}}
 
 
-def job(folder: Path, episodes: int = 4, shard_size: int = 2, payload: str = "a", extra: dict | None = None) -> Job:
+def job(episodes: int = 4, shard_size: int = 2, payload: str = "a", extra: dict | None = None) -> Job:
     tasks = tuple(ShardTask("linear-fast", a, b) for a, b in shard_ranges(episodes, shard_size))
-    return Job(folder, "linear-fast", 1, {"resolution": 32}, extra or {}, tasks, fake_shard, payload, with_stats=False)
+    return Job("linear-fast", 1, {"resolution": 32}, extra or {}, tasks, fake_shard, payload, with_stats=False)
+
+
+def run(folder: Path, job: Job, workers: int = 0, progress: bool = False, overwrite: bool = False) -> JobResult:
+    """:func:`run_job` into the local ``folder``."""
+    return run_job(job, Execution.of(workers, progress=progress), Storage(folder, overwrite))
 
 
 @pytest.fixture(autouse=True)
@@ -49,10 +54,10 @@ def _calls():
 
 
 def test_a_complete_identical_job_is_up_to_date(tmp_path):
-    first = run_job(job(tmp_path), workers=0, progress=False)
+    first = run(tmp_path, job(), workers=0, progress=False)
     assert not first.up_to_date and (first.shards_run, first.shards_resumed) == (2, 0) and CALLS == [0, 2]
     CALLS.clear()
-    again = run_job(job(tmp_path), workers=0, progress=False)
+    again = run(tmp_path, job(), workers=0, progress=False)
     assert again.up_to_date and CALLS == [] and again.manifest == first.manifest
     # no state left; the lock file stays (never unlinked) and is nothing a manifest lists
     assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "catalog.json", "episodes", "frames", "mcap"]
@@ -61,19 +66,19 @@ def test_a_complete_identical_job_is_up_to_date(tmp_path):
 def test_a_rerun_removes_a_temp_named_with_its_own_pid(tmp_path):
     """A job killed mid-write leaves ``.<file>.tmp-PID``; a rerun in a fresh container may get
     that very pid (planted here as this process's own): it is a dead writer's, not ours."""
-    run_job(job(tmp_path), workers=0, progress=False)
+    run(tmp_path, job(), workers=0, progress=False)
     stray = [tmp_path / "frames" / f".000000-000002.parquet.tmp-{os.getpid()}", tmp_path / f".catalog.json.tmp-{os.getpid()}"]
     for path in stray:
         path.write_bytes(b"half")
-    again = run_job(job(tmp_path), workers=0, progress=False)
+    again = run(tmp_path, job(), workers=0, progress=False)
     assert again.up_to_date and not any(path.exists() for path in stray)
 
 
 def test_a_damaged_shard_alone_is_redone(tmp_path):
-    manifest = run_job(job(tmp_path), workers=0, progress=False).manifest
+    manifest = run(tmp_path, job(), workers=0, progress=False).manifest
     (tmp_path / manifest.shards[1].files["mcap"].path).write_bytes(b"tampered")
     CALLS.clear()
-    again = run_job(job(tmp_path), workers=0, progress=False)
+    again = run(tmp_path, job(), workers=0, progress=False)
     assert not again.up_to_date and CALLS == [2] and again.manifest.hash == manifest.hash
     assert (again.shards_run, again.shards_resumed) == (1, 1)
 
@@ -87,13 +92,13 @@ def test_a_damaged_shard_alone_is_redone(tmp_path):
     ],
 )
 def test_another_job_is_refused_naming_the_difference_and_nothing_is_lost(tmp_path, other, named):
-    run_job(job(tmp_path), workers=0, progress=False)
+    run(tmp_path, job(), workers=0, progress=False)
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     with pytest.raises(SpecError, match="another job") as caught:
-        run_job(job(tmp_path, **other), workers=0, progress=False)
+        run(tmp_path, job(**other), workers=0, progress=False)
     assert named in str(caught.value) and "--overwrite" in str(caught.value)
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
-    replaced = run_job(job(tmp_path, **other), workers=0, progress=False, overwrite=True).manifest
+    replaced = run(tmp_path, job(**other), workers=0, progress=False, overwrite=True).manifest
     listed = {f.path for s in replaced.shards for f in s.files.values()}
     assert set(shard_names(tmp_path)) == listed
 
@@ -106,7 +111,7 @@ def interrupt_at_the_second_shard(folder: Path) -> None:
         return fake_shard(task, payload, sink)
 
     with pytest.raises(KeyboardInterrupt):
-        run_job(Job(folder, "linear-fast", 1, {"resolution": 32}, {}, job(folder).tasks, dies, "a", with_stats=False),
+        run(folder, Job("linear-fast", 1, {"resolution": 32}, {}, job().tasks, dies, "a", with_stats=False),
                 workers=0, progress=False)
 
 
@@ -114,9 +119,9 @@ def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):
     interrupt_at_the_second_shard(tmp_path)
     assert (tmp_path / STATE_FILE).exists() and not (tmp_path / "catalog.json").exists()
     with pytest.raises(SpecError, match="unfinished run of another job"):
-        run_job(job(tmp_path, episodes=2), workers=0, progress=False)
+        run(tmp_path, job(episodes=2), workers=0, progress=False)
     CALLS.clear()
-    run_job(job(tmp_path), workers=0, progress=False)
+    run(tmp_path, job(), workers=0, progress=False)
     assert CALLS == [2]  # the same job resumes
 
 
@@ -131,26 +136,26 @@ def test_a_run_resumed_under_other_library_versions_rebuilds_every_shard(tmp_pat
     monkeypatch.setattr(state, "installed_versions", lambda: other)
     monkeypatch.setattr(runner, "installed_versions", lambda: other)
     CALLS.clear()
-    finished = run_job(job(tmp_path), workers=0, progress=False)
+    finished = run(tmp_path, job(), workers=0, progress=False)
     assert CALLS == [0, 2] and finished.shards_resumed == 0 and finished.manifest.versions["pyarrow"] == "0.0.1"
     CALLS.clear()
-    assert run_job(job(tmp_path), workers=0, progress=False).up_to_date and CALLS == []
+    assert run(tmp_path, job(), workers=0, progress=False).up_to_date and CALLS == []
     monkeypatch.undo()
-    again = run_job(job(tmp_path), workers=0, progress=False)
+    again = run(tmp_path, job(), workers=0, progress=False)
     assert not again.up_to_date and CALLS == [0, 2] and again.manifest.versions == installed_versions()
 
 
 def test_a_second_process_on_the_folder_is_refused(tmp_path):
     with folder_lock(tmp_path):
         with pytest.raises(FolderBusy, match="another process"):
-            run_job(job(tmp_path), workers=0, progress=False)
+            run(tmp_path, job(), workers=0, progress=False)
     assert CALLS == []
 
 
 def test_workers_default_to_one_per_core_and_are_bounded(tmp_path):
     assert default_workers() == len(os.sched_getaffinity(0))
     with pytest.raises(SpecError, match=r"--workers must be an integer in \[0, 64\] \(0: in this process"):
-        run_job(job(tmp_path), workers=1000, progress=False)
+        run(tmp_path, job(), workers=1000, progress=False)
 
 
 def _where(task, payload, sink):
@@ -164,7 +169,7 @@ def test_a_job_of_one_shard_runs_in_this_process_and_more_shards_in_workers(tmp_
     for ranges, here in (([(0, 4)], True), ([(0, 2), (2, 4)], False)):
         seen: list[dict] = []
         task_module.run_tasks([ShardTask("linear-fast", a, b) for a, b in ranges], _where, None,
-                              ShardSink(str(tmp_path)), workers, None, seen.append)
+                              ShardSink(str(tmp_path)), Execution(workers), seen.append)
         assert sorted(r["first"] for r in seen) == [a for a, _ in ranges]
         assert all((r["pid"] == os.getpid()) == here for r in seen), (ranges, seen)
 
@@ -199,8 +204,8 @@ def spec_shard(task: ShardTask, payload: str, sink: ShardSink) -> dict:
 
 def test_progress_is_per_episode_in_process(tmp_path, capsys):
     tasks = tuple(ShardTask("linear-fast", a, b) for a, b in shard_ranges(6, 3))
-    spec_job = Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, tasks, spec_shard, "a", with_stats=False)
-    run_job(spec_job, workers=0, progress=True)
+    spec_job = Job("linear-fast", 1, {"resolution": 32}, {}, tasks, spec_shard, "a", with_stats=False)
+    run(tmp_path, spec_job, workers=0, progress=True)
     lines = capsys.readouterr().err.splitlines()
     assert lines[0].startswith("[0/2 shards] 1/6 episodes, ") and "eta ?" in lines[0]
     assert lines[-1].startswith("[2/2 shards] 6/6 episodes, ") and lines[-1].endswith("eta 0s")
@@ -277,9 +282,9 @@ def test_a_resumed_run_counts_the_kept_shards_as_done(tmp_path, capsys):
 
     tasks = tuple(ShardTask("linear-fast", a, b) for a, b in shard_ranges(6, 3))
     with pytest.raises(KeyboardInterrupt):
-        run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, tasks, dies, "a", with_stats=False),
+        run(tmp_path, Job("linear-fast", 1, {"resolution": 32}, {}, tasks, dies, "a", with_stats=False),
                 workers=0, progress=False)
-    run_job(Job(tmp_path, "linear-fast", 1, {"resolution": 32}, {}, tasks, spec_shard, "a", with_stats=False),
+    run(tmp_path, Job("linear-fast", 1, {"resolution": 32}, {}, tasks, spec_shard, "a", with_stats=False),
             workers=0, progress=True)
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == "resuming: 1 of 2 shards already built"
