@@ -15,10 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from catalog.manifest import Manifest
+from catalog.stats import written_partial
 from catalog.storage import as_location, is_url
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
-from pipeline.jobs.runner import Job, JobResult
+from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.tasks import ShardTask, default_workers, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
@@ -83,7 +84,8 @@ def build_shard(task: ShardTask, settings: BuildSettings, sink: ShardSink) -> di
 
     with sink.writing() as folder:
         record = write_ground_truth_shard(task.specs(), task.first, task.end, settings, folder)
-    return {"record": record.to_dict()}
+        partial = written_partial(folder, record)  # while the files are on this host
+    return {"record": record.to_dict(), PARTIAL_STATS: partial}
 
 
 def build(slice_name: str | None, out: Path, **options: Any) -> Manifest:

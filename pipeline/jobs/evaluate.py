@@ -28,6 +28,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
+from catalog.stats import written_partial
 from catalog.storage import as_location, is_url
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, derive, private_specs
@@ -35,7 +36,7 @@ from pipeline.jobs.audit import read_audit, stamped, write_audit
 from pipeline.jobs.build import BuildSettings
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.object_store import run_job_at
-from pipeline.jobs.runner import Job, ShardTask, default_workers, shard_ranges
+from pipeline.jobs.runner import PARTIAL_STATS, Job, ShardTask, default_workers, shard_ranges
 from pipeline.jobs.sink import ShardSink
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.fault_text import split_reason
@@ -175,7 +176,8 @@ def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[
     if audit_dir is not None:
         write_audit(run_dir / audit_dir, task.first, task.end, audit)
     stats["seconds"] = time.perf_counter() - start
-    return {"record": writer.result.to_dict(), "stats": stats}
+    partial = written_partial(run_dir, writer.result)  # while the files are on this host
+    return {"record": writer.result.to_dict(), "stats": stats, PARTIAL_STATS: partial}
 
 
 def _retire(policy: Policy | None, stats: dict[str, Any]) -> None:

@@ -10,13 +10,18 @@ with :class:`ManifestProduct` saying what such a folder holds):
   what differs, unless ``overwrite``; a second process on the folder is refused by the
   folder lock (:mod:`pipeline.jobs.lock`);
 - stray temporaries of dead processes are removed; finished shards of an interrupted
-  run of the same job (same code commit) whose files still match their sha256 are kept,
-  so a killed run resumes, and a complete identical folder is reported up to date;
+  run of the same job (same package and library versions: the rule of
+  :func:`pipeline.jobs.state.code_decision`) whose files still match their sha256 are kept,
+  so a killed run resumes, and a complete identical folder is reported up to date; when
+  another commit wrote them, one sample shard is rebuilt and compared first
+  (:mod:`pipeline.jobs.resume`);
 - the shards run as Dask tasks or in this process (:mod:`pipeline.jobs.tasks`);
 - progress lines go to stderr per finished episode, at most one per 2 s plus the last
   (:class:`pipeline.jobs.progress.Progress`);
-- ``stats.json`` (normalisation statistics of states and actions) is computed from the
-  finished shards, then ``catalog.json`` is written last (one way,
+- ``stats.json`` (normalisation statistics of states and actions) is merged from the
+  partial statistics each task returned (``result["partial_stats"]``, computed in the worker
+  from the frames file it wrote, kept in the resume state; a shard without them is read
+  once), then ``catalog.json`` is written last (one way,
   :meth:`catalog.manifest.Manifest.create`), then files of a replaced job are removed.
 
 The manifest's hash covers the slice, seed, settings, statistics and the ordered file
@@ -32,26 +37,33 @@ from pathlib import Path
 from typing import Any, Generic
 
 from catalog.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
+from catalog.reader import ShardReader
 from catalog.records import ShardRecord, shard_like_files
-from catalog.stats import compute_stats, write_stats
-from catalog.storage import listed_sizes, where
+from catalog.stats import PartialStats, Stats, merge_partials, shard_partial, write_stats
+from catalog.storage import as_location, listed_sizes, where
 from catalog.versions import installed_versions
 from pipeline.jobs.audit import audit_records, remove_unlisted_audit
 from pipeline.jobs.engine import Destination, Execution, LocalFolder, Previous, run_folder_job
 from pipeline.jobs.progress import to_stderr
+from pipeline.jobs.resume import check_sample
 from pipeline.jobs.state import STATE_FILE, Identity, Range, identity_of, previous_work, save_state
 from pipeline.jobs.tasks import Payload, ShardTask, TaskFn, default_workers, shard_ranges
 from schemas.errors import ShardError
 from schemas.versions import CODE_VERSION
 
-__all__ = ["Job", "JobResult", "ShardTask", "default_workers", "remove_unlisted_shards", "run_job", "shard_ranges"]
+__all__ = ["PARTIAL_STATS", "Job", "JobResult", "ShardTask", "default_workers", "remove_unlisted_shards", "run_job",
+           "shard_ranges"]
+
+#: The key of a task result holding its shard's partial statistics
+#: (:meth:`catalog.stats.PartialStats.to_dict`, from :func:`catalog.stats.written_partial`).
+PARTIAL_STATS = "partial_stats"
 
 
 @dataclass(frozen=True)
 class Job(Generic[Payload]):
     """A sharded job. ``task_fn(task, payload, folder)`` runs in a worker and returns a
-    dict with the shard's ``record`` (a ShardRecord dict) and anything else the caller's
-    ``on_result`` wants (timing). ``extra`` are the manifest's top-level keys beyond the
+    dict with the shard's ``record`` (a ShardRecord dict), its :data:`PARTIAL_STATS` when the
+    job has statistics, and anything else the caller's ``on_result`` wants (timing). ``extra`` are the manifest's top-level keys beyond the
     contract's; with ``settings``, ``slice``, ``seed`` and the shard ranges they say what
     the folder holds. ``audit_dir``: the folder of the tasks' audit trail files (one per
     shard, :func:`pipeline.jobs.audit.audit_path`), listed in the manifest's ``audit``."""
@@ -113,24 +125,47 @@ class ManifestProduct:
     """A ``catalog.json`` folder (a built slice or a run) as the engine's product. ``store``:
     where the tasks' files are when not in the folder (an object store's URL, as a UPath):
     a finished shard is kept there while its objects have their recorded sizes, and the
-    statistics and audit records are read from there."""
+    audit records (and statistics of shards without partial ones) are read from there.
+    ``say``: where the sample check's note goes. ``partials``: the shards' partial
+    statistics by range, filled as the job runs (the one mutable part)."""
 
     job: Job[Any]
     store: Path | None = None
+    say: Callable[[str], None] | None = None
+    partials: dict[Range, dict] = field(default_factory=dict)
 
     def previous(self, folder: Path, commit: str | None, overwrite: bool) -> Previous[ShardRecord, Manifest]:
         intact = None
         if self.store is not None:
             sizes = listed_sizes(self.store)
             intact = lambda record: all(sizes.get(f.path) == f.size for f in record.files.values())  # noqa: E731
-        work = previous_work(folder, self.job.identity(), self.job.with_stats, commit, overwrite, intact)
+        job = self.job
+        work = previous_work(folder, job.identity(), job.with_stats, commit, overwrite, intact)
+        if work.sample:
+            check_sample([work.done[key] for key in sorted(work.done)], job.tasks, job.task_fn, job.payload,
+                         (work.recorded_commit, commit), where(folder if self.store is None else self.store), self.say)
+        self.partials.update(work.partials)
         return Previous(work.done, load_manifest(folder) if work.complete else None)
 
     def unit(self, result: dict[str, Any]) -> ShardRecord:
-        return ShardRecord.from_dict(result["record"])
+        record = ShardRecord.from_dict(result["record"])
+        if isinstance(result.get(PARTIAL_STATS), dict):
+            self.partials[(record.first, record.end)] = result[PARTIAL_STATS]
+        return record
 
     def save(self, folder: Path, commit: str | None, done: Mapping[Range, ShardRecord]) -> None:
-        save_state(folder, self.job.identity(), commit, done)
+        save_state(folder, self.job.identity(), commit, done, self.partials)
+
+    def statistics(self, files: Path, units: Sequence[ShardRecord]) -> Stats:
+        """The units' statistics, merged from their partial ones; a unit without them (a
+        state written before they were kept) or with unreadable ones is read."""
+        parts = []
+        for unit in units:
+            try:
+                parts.append(PartialStats.from_dict(self.partials[(unit.first, unit.end)]))
+            except (KeyError, ValueError):
+                parts.append(shard_partial(ShardReader(as_location(files), unit, rollout=False, verify="size")))
+        return merge_partials(parts)
 
     def unit_files(self, unit: ShardRecord) -> list[str]:
         return [f.path for f in unit.files.values()] + [STATE_FILE]
@@ -146,7 +181,7 @@ class ManifestProduct:
         files = folder if self.store is None else self.store
         if self.store is not None:
             check_stored(self.store, units)
-        stats = write_stats(folder, compute_stats(files, units)) if job.with_stats else None
+        stats = write_stats(folder, self.statistics(files, units)) if job.with_stats else None
         audit = None if job.audit_dir is None else audit_records(files, job.audit_dir, [u.episodes for u in units])
         manifest = Manifest.create(job.slice_name, job.seed, job.settings, list(units),
                                    code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats, audit=audit,
@@ -188,6 +223,6 @@ def run_job(
         destination = LocalFolder(job.folder)
     elif destination.folder != job.folder:
         job = dataclasses.replace(job, folder=destination.folder)
-    outcome = run_folder_job(destination, ManifestProduct(job, store), job.tasks, job.task_fn, job.payload, execution,
+    outcome = run_folder_job(destination, ManifestProduct(job, store, execution.say), job.tasks, job.task_fn, job.payload, execution,
                              overwrite=overwrite, verb=job.verb, key_prefix=job.key_prefix, on_result=on_result)
     return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed)
