@@ -149,7 +149,7 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
     state_path = folder / STATE_FILE
     held: Identity | None = None
     records: list[ShardRecord] = []
-    code: tuple[object, ...] = (None, None, None)
+    code: tuple[object, object, object] = (None, None, None)
     complete = False
     partials: dict[Range, dict] = {}
     if manifest_path(folder).exists():

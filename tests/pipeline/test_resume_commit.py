@@ -13,12 +13,12 @@ import pytest
 
 from catalog.manifest import CodeInfo, load_manifest, write_manifest
 from catalog.stats import STATS_NAME, compute_stats
-from tests.s3_server import s3_server
 from pipeline.jobs import build as build_module
 from pipeline.jobs import engine, object_store, runner
 from pipeline.jobs.build import build_job
 from pipeline.jobs.state import STATE_FILE
 from schemas.errors import ShardError
+from tests.s3_server import s3_server
 
 SLICE = "linear-fast"
 OTHER = "f" * 40  # a commit that is not this checkout's (a docs-only commit, say)
