@@ -20,8 +20,8 @@ with :class:`ManifestProduct` saying what such a folder holds):
   (:class:`pipeline.jobs.progress.Progress`);
 - ``stats.json`` (normalisation statistics of states and actions) is merged from the
   partial statistics each task returned (``result["partial_stats"]``, computed in the worker
-  from the frames file it wrote, kept in the resume state; a shard without them is read
-  once), then ``catalog.json`` is written last (one way,
+  from the frames file it wrote, kept in the resume state with the job's other
+  :attr:`Job.keep` keys; a shard without them is read once), then ``catalog.json`` is written last (one way,
   :meth:`catalog.manifest.Manifest.create`), then files of a replaced job are removed.
 
 The manifest's hash covers the slice, seed, settings, statistics and the ordered file
@@ -63,7 +63,9 @@ PARTIAL_STATS = "partial_stats"
 class Job(Generic[Payload]):
     """A sharded job. ``task_fn(task, payload, folder)`` runs in a worker and returns a
     dict with the shard's ``record`` (a ShardRecord dict), its :data:`PARTIAL_STATS` when the
-    job has statistics, and anything else the caller's ``on_result`` wants (timing). ``extra`` are the manifest's top-level keys beyond the
+    job has statistics, and anything else the caller's ``on_result`` wants (timing).
+    ``keep``: the result keys kept in the resume state and returned in
+    :attr:`JobResult.kept` (an eval's counts), so a resumed shard needs no reading. ``extra`` are the manifest's top-level keys beyond the
     contract's; with ``settings``, ``slice``, ``seed`` and the shard ranges they say what
     the folder holds. ``audit_dir``: the folder of the tasks' audit trail files (one per
     shard, :func:`pipeline.jobs.audit.audit_path`), listed in the manifest's ``audit``."""
@@ -80,6 +82,7 @@ class Job(Generic[Payload]):
     key_prefix: str = "shard"
     with_stats: bool = True
     audit_dir: str | None = None
+    keep: tuple[str, ...] = (PARTIAL_STATS,)
     ranges: tuple[Range, ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -98,12 +101,14 @@ class Job(Generic[Payload]):
 class JobResult:
     """What :func:`run_job` did: the folder's manifest; ``up_to_date`` when the folder
     already held this complete job (nothing was run); shards run now and kept from an
-    interrupted run."""
+    interrupted run; ``kept``: each shard's :attr:`Job.keep` values, in shard order (empty
+    when up to date; a shard kept from an older state may lack them)."""
 
     manifest: Manifest
     up_to_date: bool
     shards_run: int = 0
     shards_resumed: int = 0
+    kept: tuple[Mapping[str, Any], ...] = ()
 
 
 def remove_unlisted_shards(folder: Path, manifest: Manifest) -> list[Path]:
@@ -126,13 +131,13 @@ class ManifestProduct:
     where the tasks' files are when not in the folder (an object store's URL, as a UPath):
     a finished shard is kept there while its objects have their recorded sizes, and the
     audit records (and statistics of shards without partial ones) are read from there.
-    ``say``: where the sample check's note goes. ``partials``: the shards' partial
-    statistics by range, filled as the job runs (the one mutable part)."""
+    ``say``: where the sample check's note goes. ``kept``: the :attr:`Job.keep` values of
+    the shards' task results by range, filled as the job runs (the one mutable part)."""
 
     job: Job[Any]
     store: Path | None = None
     say: Callable[[str], None] | None = None
-    partials: dict[Range, dict] = field(default_factory=dict)
+    kept: dict[Range, dict] = field(default_factory=dict)
 
     def previous(self, folder: Path, commit: str | None, overwrite: bool) -> Previous[ShardRecord, Manifest]:
         intact = None
@@ -144,17 +149,16 @@ class ManifestProduct:
         if work.sample:
             check_sample([work.done[key] for key in sorted(work.done)], job.tasks, job.task_fn, job.payload,
                          (work.recorded_commit, commit), where(folder if self.store is None else self.store), self.say)
-        self.partials.update(work.partials)
+        self.kept.update(work.kept)
         return Previous(work.done, load_manifest(folder) if work.complete else None)
 
     def unit(self, result: dict[str, Any]) -> ShardRecord:
         record = ShardRecord.from_dict(result["record"])
-        if isinstance(result.get(PARTIAL_STATS), dict):
-            self.partials[(record.first, record.end)] = result[PARTIAL_STATS]
+        self.kept[(record.first, record.end)] = {key: result[key] for key in self.job.keep if key in result}
         return record
 
     def save(self, folder: Path, commit: str | None, done: Mapping[Range, ShardRecord]) -> None:
-        save_state(folder, self.job.identity(), commit, done, self.partials)
+        save_state(folder, self.job.identity(), commit, done, self.kept)
 
     def statistics(self, files: Path, units: Sequence[ShardRecord]) -> Stats:
         """The units' statistics, merged from their partial ones; a unit without them (a
@@ -162,7 +166,7 @@ class ManifestProduct:
         parts = []
         for unit in units:
             try:
-                parts.append(PartialStats.from_dict(self.partials[(unit.first, unit.end)]))
+                parts.append(PartialStats.from_dict(self.kept[(unit.first, unit.end)][PARTIAL_STATS]))
             except (KeyError, ValueError):
                 parts.append(shard_partial(ShardReader(as_location(files), unit, rollout=False, verify="size")))
         return merge_partials(parts)
@@ -223,6 +227,8 @@ def run_job(
         destination = LocalFolder(job.folder)
     elif destination.folder != job.folder:
         job = dataclasses.replace(job, folder=destination.folder)
-    outcome = run_folder_job(destination, ManifestProduct(job, store, execution.say), job.tasks, job.task_fn, job.payload, execution,
+    product = ManifestProduct(job, store, execution.say)
+    outcome = run_folder_job(destination, product, job.tasks, job.task_fn, job.payload, execution,
                              overwrite=overwrite, verb=job.verb, key_prefix=job.key_prefix, on_result=on_result)
-    return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed)
+    kept = () if outcome.up_to_date else tuple(product.kept.get(r, {}) for r in job.ranges)
+    return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed, kept)

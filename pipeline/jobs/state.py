@@ -2,17 +2,19 @@
 
 A folder holds one job, described by its identity (slice, seed, episodes, shard ranges,
 settings and the extra manifest keys): a finished job's ``catalog.json``, or the
-``.build-state.json`` an interrupted run leaves (identity, code, finished shards and their
-partial statistics). Whether the recorded code may have written this code's bytes is one
-rule, :func:`code_decision`, used for a local folder (:func:`previous_work`) and an object
-store (:mod:`pipeline.jobs.object_store`) alike: the package version (written into every
-MCAP file) and the byte-determining library versions (:mod:`catalog.versions`) must match,
-or every shard is rebuilt (no folder mixes shards of two installations); the git commit
-does not decide it (a docs-only commit changes no byte), but a commit other than the
-recorded one (or an unknown one) has one sample shard rebuilt and compared first
-(:mod:`pipeline.jobs.resume`). A shard is kept only when every one of its files still has
-its size and sha256; a folder is "up to date" only when every shard, the statistics file and
-the audit trail files pass that check.
+``.build-state.json`` an interrupted run leaves (identity, code, finished shards and what
+the job keeps of their tasks' results: partial statistics, an eval's counts).
+
+Whether the recorded code may have written this code's bytes is one rule,
+:func:`code_decision`, for a local folder (:func:`previous_work`) and an object store
+(:mod:`pipeline.jobs.object_store`) alike: the package version (written into every MCAP
+file) and the byte-determining library versions (:mod:`catalog.versions`) must match, or
+every shard is rebuilt (no folder mixes shards of two installations). The git commit does
+not decide it (a docs-only commit changes no byte), but after another commit (or an
+unknown one) one sample shard is rebuilt and compared first (:mod:`pipeline.jobs.resume`).
+A shard is kept only when every one of its files still has its size and sha256; a folder
+is "up to date" only when every shard, the statistics file and the audit trail files pass
+that check.
 """
 
 from __future__ import annotations
@@ -127,14 +129,14 @@ def code_decision(version: object, recorded_commit: object, versions: object, co
 class PreviousWork:
     """Finished shards a job may keep (by range), whether the folder is complete, the
     commit that wrote them and whether one of them must be rebuilt and compared before
-    they are trusted (``sample``: :data:`SAMPLE`), and the partial statistics the resume
-    state kept of some of them (:class:`catalog.stats.PartialStats` dicts, by range)."""
+    they are trusted (``sample``: :data:`SAMPLE`), and what the resume state kept of their
+    tasks' results (by range: partial statistics, an eval's counts)."""
 
     done: Mapping[Range, ShardRecord] = field(default_factory=dict)
     complete: bool = False
     recorded_commit: str | None = None
     sample: bool = False
-    partials: Mapping[Range, dict] = field(default_factory=dict)
+    kept: Mapping[Range, dict] = field(default_factory=dict)
 
 
 def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str | None, overwrite: bool,
@@ -151,7 +153,7 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
     records: list[ShardRecord] = []
     code: tuple[object, object, object] = (None, None, None)
     complete = False
-    partials: dict[Range, dict] = {}
+    results: dict[Range, dict] = {}
     if manifest_path(folder).exists():
         try:
             manifest = load_manifest(folder)
@@ -170,8 +172,8 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
             held = state["identity"]
             records = [ShardRecord.from_dict(raw) for raw in state["shards"]]
             code = (state["code"]["version"], state["code"]["commit"], state["code"].get("versions"))
-            partials = {(r.first, r.end): p for r, p in zip(records, state.get("partial_stats", []), strict=False)
-                        if isinstance(p, dict)}
+            results = {(r.first, r.end): k for r, k in zip(records, state.get("kept", []), strict=False)
+                       if isinstance(k, dict)}
         except (OSError, ValueError, KeyError, TypeError, ShardError) as exc:
             if not overwrite:
                 raise ShardError(
@@ -198,18 +200,18 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
     done = {(r.first, r.end): r for r in records if kept(r)}
     recorded = code[1] if isinstance(code[1], str) else None
     return PreviousWork(done, complete and len(done) == len(records), recorded, decision == SAMPLE,
-                        {key: partials[key] for key in done if key in partials})
+                        {key: results[key] for key in done if key in results})
 
 
 def save_state(folder: Path, identity: Identity, commit: str | None, done: Mapping[Range, ShardRecord],
-               partials: Mapping[Range, dict] | None = None) -> None:
+               kept: Mapping[Range, dict] | None = None) -> None:
     """Record the finished shards of a running job (what an interrupted run resumes from),
-    with each one's partial statistics (null where not known), in shard order."""
+    with what the job keeps of each one's task result (``{}`` where none), in shard order."""
     keys = sorted(done)
     state = {
         "identity": identity,
         "code": {"version": CODE_VERSION, "commit": commit, "versions": installed_versions()},
         "shards": [done[key].to_dict() for key in keys],
-        "partial_stats": [(partials or {}).get(key) for key in keys],
+        "kept": [(kept or {}).get(key, {}) for key in keys],
     }
     atomic_write_text(folder / STATE_FILE, json.dumps(state, sort_keys=True, indent=2) + "\n")

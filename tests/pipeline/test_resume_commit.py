@@ -85,7 +85,7 @@ def _stats_are_the_folders(folder: Path) -> None:
 
 def test_an_interrupted_build_keeps_its_shards_across_a_commit(reference, tmp_path, monkeypatch, capsys):
     folder = _interrupted(tmp_path, monkeypatch)
-    assert json.loads((folder / STATE_FILE).read_text())["partial_stats"][0]["frames"] > 0
+    assert json.loads((folder / STATE_FILE).read_text())["kept"][0]["partial_stats"]["frames"] > 0
     calls = _counting(monkeypatch)
     _no_read_back(monkeypatch)  # the kept shard's partial statistics come from the state
     resumed = _build(tmp_path, progress=True)
@@ -102,7 +102,7 @@ def test_a_state_without_partial_statistics_reads_its_kept_shards(reference, tmp
     """A state written before partial statistics were kept: the kept shard is read once."""
     folder = _interrupted(tmp_path, monkeypatch)
     state = json.loads((folder / STATE_FILE).read_text())
-    del state["partial_stats"]
+    del state["kept"]
     (folder / STATE_FILE).write_text(json.dumps(state))
     resumed = _build(tmp_path)
     assert resumed.shards_resumed == 1 and resumed.manifest.hash == reference.hash
@@ -155,3 +155,52 @@ def test_an_object_store_build_of_another_commit_is_up_to_date(tmp_path, monkeyp
         calls = _counting(monkeypatch)
         again = _build(url)
         assert again.up_to_date and calls == [4] and again.manifest == first.manifest
+
+
+def _no_run_read_back(monkeypatch) -> None:
+    from pipeline.jobs import evaluate as evaluate_module
+
+    def refused(run_dir):
+        raise AssertionError("pipeline eval read the run back for its summary")
+
+    monkeypatch.setattr(evaluate_module, "summarize", refused)
+
+
+def _summary(run: Path, **options) -> list[str]:
+    """evaluate()'s printed summary of ``run``, without its timing and path lines."""
+    import io
+
+    from pipeline.jobs.evaluate import evaluate
+
+    stream = io.StringIO()
+    evaluate(stream=stream, out=run, slice_name="test-1k", resolution=16, workers=0, progress=False, **options)
+    return [line for line in stream.getvalue().splitlines() if not line.startswith(("  time:", "  -> "))]
+
+
+def test_eval_counts_come_from_the_shards_and_the_state(tmp_path, monkeypatch):
+    """`pipeline eval`'s counts are summed from what its tasks returned (and the resume state
+    kept for a resumed shard), equal to scoring's reading of the whole run."""
+    from pipeline.jobs import evaluate as evaluate_module
+    from pipeline.jobs.evaluate import summarize
+
+    mixed = {"policy_ref": "tests.pipeline.faulty_policies:Mixed", "episodes": 5, "shard_size": 2, "isolate": False}
+    real = evaluate_module.eval_shard
+
+    def dies(task, *args):
+        if task.first == 2:
+            raise KeyboardInterrupt
+        return real(task, *args)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(evaluate_module, "eval_shard", dies)
+        with pytest.raises(KeyboardInterrupt):
+            _summary(tmp_path / "mixed", **mixed)
+    with monkeypatch.context() as patch:
+        _no_run_read_back(patch)
+        resumed = _summary(tmp_path / "mixed", **mixed)
+    assert resumed == summarize(tmp_path / "mixed").lines(tracebacks=True)
+    assert "4 error(s)" in resumed[0] and "error in episode 1:" in resumed[2]
+    with monkeypatch.context() as patch:
+        _no_run_read_back(patch)
+        oracle = _summary(tmp_path / "oracle", policy_ref="oracle", episodes=3, shard_size=2)
+    assert oracle == summarize(tmp_path / "oracle").lines() and "localized 3/3" in oracle[1]
