@@ -210,9 +210,14 @@ def shard_partial(shard: ShardReader) -> PartialStats:
     return PartialStats(table.num_rows, columns)
 
 
-def written_partial(folder: str | os.PathLike[str], record: ShardRecord) -> dict[str, Any]:
-    """A task's partial statistics of the shard it just wrote into ``folder`` (as a dict)."""
-    return shard_partial(ShardReader(as_location(folder), record, rollout=False, verify="size")).to_dict()
+def written_partial(folder: str | os.PathLike[str], record: ShardRecord) -> dict[str, Any] | None:
+    """A task's partial statistics of the shard it just wrote into ``folder`` (as a dict);
+    None when they cannot be computed (a non-finite value): the driver then reads the shard
+    where the job's output is and names the file in its refusal, as it always did."""
+    try:
+        return shard_partial(ShardReader(as_location(folder), record, rollout=False, verify="size")).to_dict()
+    except ShardError:
+        return None
 
 
 def merge_partials(parts: Sequence[PartialStats]) -> Stats:

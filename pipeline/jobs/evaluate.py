@@ -57,7 +57,7 @@ from pipeline.policy_registry import (
     kind_of,
     open_policy,
 )
-from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
+from schemas.errors import AllEpisodesFailed, DyanaError, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import printable, shorten
 from schemas.renderers import DEFAULT_RENDERER, check_renderer, dataset_version_of
@@ -179,8 +179,12 @@ def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[
         write_audit(run_dir / audit_dir, task.first, task.end, audit)
     stats["seconds"] = time.perf_counter() - start
     # while the files are on this host: what the driver's statistics and summary need
-    partial, counts = written_partial(run_dir, writer.result), shard_counts(run_dir, writer.result, settings)
-    return {"record": writer.result.to_dict(), "stats": stats, PARTIAL_STATS: partial, COUNTS: counts}
+    out = {"record": writer.result.to_dict(), "stats": stats, PARTIAL_STATS: written_partial(run_dir, writer.result)}
+    try:
+        out[COUNTS] = shard_counts(run_dir, writer.result, settings)
+    except (DyanaError, ValueError):  # unscorable: the driver's read-back of the run says why, as before
+        pass
+    return out
 
 
 #: The task result's key of a shard's summary counts (:func:`shard_counts`).

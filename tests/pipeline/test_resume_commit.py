@@ -204,3 +204,18 @@ def test_eval_counts_come_from_the_shards_and_the_state(tmp_path, monkeypatch):
         _no_run_read_back(patch)
         oracle = _summary(tmp_path / "oracle", policy_ref="oracle", episodes=3, shard_size=2)
     assert oracle == summarize(tmp_path / "oracle").lines() and "localized 3/3" in oracle[1]
+
+
+def test_a_shard_whose_statistics_a_worker_cannot_compute_is_read_by_the_driver(reference, tmp_path, monkeypatch):
+    """A worker that cannot compute its shard's statistics (a non-finite value) returns none;
+    the driver reads that shard where the output is (and would name the file), as before."""
+    import catalog.stats
+
+    def fails(shard):
+        raise ShardError("a non-finite value")
+
+    monkeypatch.setattr(catalog.stats, "shard_partial", fails)  # the worker's; the runner keeps its own
+    result = _build(tmp_path)
+    monkeypatch.undo()
+    assert result.manifest.hash == reference.hash  # it covers stats.json's sha256
+    _stats_are_the_folders(tmp_path / SLICE)
