@@ -13,9 +13,10 @@ default ``~/.cache/dyana/staging``) and publishes them as it goes:
   and a shard cut short (its worker killed, its host gone) is listed nowhere, is run again
   on another worker and overwrites what it left with the same bytes;
 - at the end every listed object is checked present at its size, ``stats.json`` (merged
-  from the partial statistics the tasks returned: no shard is read back) is uploaded, then ``catalog.json``
-  last; then objects of a replaced job and the remote state are deleted and the local
-  folder is emptied (its lock file stays, as every lock file does: :mod:`pipeline.jobs.lock`).
+  from the partial statistics the tasks returned: no shard is read back) is uploaded,
+  then ``catalog.json`` last; then objects of a replaced job and the remote state are
+  deleted and the local folder is emptied (its lock file stays, as every lock file does:
+  :mod:`pipeline.jobs.lock`).
 
 Before starting, the URL is checked writable (a tiny probe object written and removed:
 the bucket exists, the credentials and endpoint work), and the client's failures are one
@@ -23,8 +24,8 @@ the bucket exists, the credentials and endpoint work), and the client's failures
 remote ``catalog.json`` describing this job, written by code that may have written these
 bytes (the one rule of :func:`pipeline.jobs.state.code_decision`, as for a local folder:
 after another commit one sample shard is rebuilt locally and compared first), with every
-listed object present at its size means "up to date" (nothing is downloaded); one describing another job
-is refused unless ``overwrite``, as locally; otherwise the shards the remote state lists
+listed object present at its size means "up to date" (nothing is downloaded); one
+describing another job is refused unless ``overwrite``, as locally; otherwise the shards the remote state lists
 whose objects are all present at their sizes are kept (nothing is downloaded), so a job
 killed on one machine resumes on any other from the store alone.
 Two processes of one machine writing one URL are refused (FolderBusy) by a lock beside

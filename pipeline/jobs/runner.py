@@ -19,10 +19,11 @@ with :class:`ManifestProduct` saying what such a folder holds):
 - progress lines go to stderr per finished episode, at most one per 2 s plus the last
   (:class:`pipeline.jobs.progress.Progress`);
 - ``stats.json`` (normalisation statistics of states and actions) is merged from the
-  partial statistics each task returned (``result["partial_stats"]``, computed in the worker
-  from the frames file it wrote, kept in the resume state with the job's other
-  :attr:`Job.keep` keys; a shard without them is read once), then ``catalog.json`` is written last (one way,
-  :meth:`catalog.manifest.Manifest.create`), then files of a replaced job are removed.
+  partial statistics each task returned (``result["partial_stats"]``, computed in the
+  worker from the frames file it wrote, kept in the resume state with the job's other
+  :attr:`Job.keep` keys; a shard without them is read once), then ``catalog.json`` is
+  written last (one way, :meth:`catalog.manifest.Manifest.create`), then files of a
+  replaced job are removed.
 
 The manifest's hash covers the slice, seed, settings, statistics and the ordered file
 hashes, so the worker count, the scheduler and interruptions cannot change it.
@@ -65,10 +66,11 @@ class Job(Generic[Payload]):
     dict with the shard's ``record`` (a ShardRecord dict), its :data:`PARTIAL_STATS` when the
     job has statistics, and anything else the caller's ``on_result`` wants (timing).
     ``keep``: the result keys kept in the resume state and returned in
-    :attr:`JobResult.kept` (an eval's counts), so a resumed shard needs no reading. ``extra`` are the manifest's top-level keys beyond the
-    contract's; with ``settings``, ``slice``, ``seed`` and the shard ranges they say what
-    the folder holds. ``audit_dir``: the folder of the tasks' audit trail files (one per
-    shard, :func:`pipeline.jobs.audit.audit_path`), listed in the manifest's ``audit``."""
+    :attr:`JobResult.kept` (an eval's counts), so a resumed shard needs no reading.
+    ``extra`` are the manifest's top-level keys beyond the contract's; with ``settings``,
+    ``slice``, ``seed`` and the shard ranges they say what the folder holds.
+    ``audit_dir``: the folder of the tasks' audit trail files (one per shard,
+    :func:`pipeline.jobs.audit.audit_path`), listed in the manifest's ``audit``."""
 
     folder: Path
     slice_name: str
