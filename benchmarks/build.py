@@ -102,7 +102,9 @@ HOOKS = (
     Hook("MCAP", "catalog.mcap_writer:McapShardWriter", "close"),
     Hook("hashing", "catalog.shard", "sha256_file"),
     Hook("hashing", "catalog.stats", "sha256_file"),
-    Hook("statistics", "pipeline.jobs.runner", "compute_stats"),
+    Hook("statistics", "pipeline.jobs.build", "written_partial"),  # in the shard task since issue 37
+    Hook("statistics", "pipeline.jobs.runner", "merge_partials"),
+    Hook("statistics", "pipeline.jobs.runner", "shard_partial"),  # a shard without partial statistics
     Hook("statistics", "pipeline.jobs.runner", "write_stats"),
     Hook("manifest", "pipeline.jobs.runner", "write_manifest"),
     Hook("manifest", "catalog.manifest:Manifest", "create"),

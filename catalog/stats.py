@@ -5,9 +5,14 @@ For every float column of the frames table (the states of
 ``schemas.tables.STATE_COLUMNS``, ``fingertip_distance`` and ``action``): ``count``,
 ``mean``, ``std`` (population, ddof 0), ``min`` and ``max``, element by element,
 over every frame of the folder. They are computed from those columns only (the
-``image`` column is never read, no image is decoded), in float64, shard by shard in
-manifest order, merged with the pairwise (Chan et al.) update, so the same folder
-always gives the same numbers.
+``image`` column is never read, no image is decoded), in float64, shard by shard: each
+shard's :class:`PartialStats` (count, mean, sum of squared deviations, min, max: exactly
+mergeable, no quantiles), merged in manifest order with the pairwise (Chan et al.) update,
+so the same folder always gives the same numbers. A job's worker computes its shard's
+partial statistics from the frames file it just wrote and returns them with the shard's
+record (the resume state keeps them), so the driver merges them without reading a shard
+again (:func:`merge_partials`); the numbers, and ``stats.json``'s bytes, are the same as
+:func:`compute_stats` reading the finished folder.
 
 Every job writes ``stats.json`` (canonical JSON: sorted keys, 2-space indent,
 trailing newline) before ``catalog.json``, which lists it with its sha256 and size and
@@ -128,15 +133,6 @@ class _Accumulator:
         self.min = np.full(shape, np.inf)
         self.max = np.full(shape, -np.inf)
 
-    def add(self, values: np.ndarray) -> None:
-        n = values.shape[0]
-        if n == 0:
-            return
-        data = values.astype(np.float64)
-        mean = data.mean(axis=0)
-        m2 = ((data - mean) ** 2).sum(axis=0)
-        self.merge(n, mean, m2, data.min(axis=0), data.max(axis=0))
-
     def merge(self, n: int, mean: np.ndarray, m2: np.ndarray, low: np.ndarray, high: np.ndarray) -> None:
         total = self.count + n
         delta = mean - self.mean
@@ -154,6 +150,85 @@ class _Accumulator:
         return ColumnStats(self.count, self.mean.copy(), std, self.min.copy(), self.max.copy())
 
 
+@dataclass(frozen=True)
+class PartialStats:
+    """One shard's statistics in mergeable form: its frame count and, per column (none when
+    it has no frames), float64 ``(mean, m2, min, max)`` of its frames; merging them in
+    shard order (:func:`merge_partials`) gives exactly what one pass over the folder does."""
+
+    frames: int
+    columns: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON values (Python floats: JSON keeps every float64 bit)."""
+        return {"frames": self.frames,
+                "columns": {name: {key: value.tolist() for key, value in zip(_PARTS, parts, strict=True)}
+                            for name, parts in self.columns.items()}}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> PartialStats:
+        """Parse and validate; ValueError naming the bad key."""
+        frames = data.get("frames") if isinstance(data, dict) else None
+        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 0:
+            raise ValueError(f"frames must be an integer >= 0, got {frames!r}")
+        columns = data.get("columns")
+        if not isinstance(columns, dict) or set(columns) != (set(STATS_COLUMNS) if frames else set()):
+            raise ValueError("columns must be every statistics column (none for a shard without frames)")
+        parsed = {}
+        for name, entry in columns.items():
+            if not isinstance(entry, dict):
+                raise ValueError(f"columns.{name} must be an object")
+            values = []
+            for key in _PARTS:
+                try:
+                    array = np.asarray(entry.get(key), dtype=np.float64)
+                except (TypeError, ValueError):
+                    raise ValueError(f"columns.{name}.{key} is not numeric") from None
+                if array.shape != SHAPES[name] or not np.all(np.isfinite(array)):
+                    raise ValueError(f"columns.{name}.{key} must be finite of shape {SHAPES[name]}")
+                values.append(array)
+            parsed[name] = (values[0], values[1], values[2], values[3])
+        return cls(frames, parsed)
+
+
+_PARTS = ("mean", "m2", "min", "max")
+
+
+def shard_partial(shard: ShardReader) -> PartialStats:
+    """The partial statistics of one shard's frames (ShardError naming the file when a column
+    holds a non-finite value)."""
+    path = shard.path("frames")
+    table = shard.frames(list(STATS_COLUMNS))
+    columns = {}
+    for name in STATS_COLUMNS if table.num_rows else ():
+        values = column_to_numpy(table.column(name))
+        if not np.isfinite(values).all():
+            raise ShardError(f"{path}: column {name!r} holds non-finite values (NaN or infinity)")
+        data = values.astype(np.float64)
+        mean = data.mean(axis=0)
+        columns[name] = (mean, ((data - mean) ** 2).sum(axis=0), data.min(axis=0), data.max(axis=0))
+    return PartialStats(table.num_rows, columns)
+
+
+def written_partial(folder: str | os.PathLike[str], record: ShardRecord) -> dict[str, Any] | None:
+    """A task's partial statistics of the shard it just wrote into ``folder`` (as a dict);
+    None when they cannot be computed (a non-finite value): the driver then reads the shard
+    where the job's output is and names the file in its refusal, as it always did."""
+    try:
+        return shard_partial(ShardReader(as_location(folder), record, rollout=False, verify="size")).to_dict()
+    except ShardError:
+        return None
+
+
+def merge_partials(parts: Sequence[PartialStats]) -> Stats:
+    """The statistics of the shards whose partial statistics ``parts`` are, in shard order."""
+    accumulators = {name: _Accumulator(SHAPES[name]) for name in STATS_COLUMNS}
+    for part in parts:
+        for name in STATS_COLUMNS if part.frames else ():
+            accumulators[name].merge(part.frames, *part.columns[name])
+    return Stats(sum(p.frames for p in parts), {name: accumulators[name].result() for name in STATS_COLUMNS})
+
+
 def compute_stats(
     directory: str | os.PathLike[str], shards: Sequence[ShardRecord] | None = None, *, verify: bool = False
 ) -> Stats:
@@ -163,19 +238,8 @@ def compute_stats(
     decoding, the image bytes); page checksums are verified either way."""
     root = as_location(directory)
     records = open_folder(root).manifest.shards if shards is None else tuple(shards)
-    accumulators = {name: _Accumulator(SHAPES[name]) for name in STATS_COLUMNS}
-    frames = 0
-    for record in records:
-        shard = ShardReader(root, record, rollout=False, verify="sha256" if verify else "size")
-        path = shard.path("frames")
-        table = shard.frames(list(STATS_COLUMNS))
-        frames += table.num_rows
-        for name in STATS_COLUMNS:
-            values = column_to_numpy(table.column(name))
-            if not np.isfinite(values).all():
-                raise ShardError(f"{path}: column {name!r} holds non-finite values (NaN or infinity)")
-            accumulators[name].add(values)
-    return Stats(frames, {name: accumulators[name].result() for name in STATS_COLUMNS})
+    check = "sha256" if verify else "size"
+    return merge_partials([shard_partial(ShardReader(root, record, rollout=False, verify=check)) for record in records])
 
 
 def stats_path(directory: str | os.PathLike[str]) -> Path:
@@ -225,9 +289,13 @@ __all__ = [
     "STATS_COLUMNS",
     "STATS_NAME",
     "ColumnStats",
+    "PartialStats",
     "Stats",
     "combine",
     "compute_stats",
     "load_stats",
+    "merge_partials",
+    "shard_partial",
     "write_stats",
+    "written_partial",
 ]

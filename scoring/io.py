@@ -10,16 +10,17 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
 from catalog.parquet_io import column_to_numpy
-from catalog.reader import open_folder
+from catalog.reader import ShardReader, open_folder
 from schemas.errors import ShardError, SpecError
 from schemas.events import PROJECTILE_MARK, acting, acting_budget, hover_offset, spec_hover_offset
 from schemas.frames import EpisodeFrames
@@ -107,22 +108,29 @@ def load_run(folder: str | os.PathLike[str]) -> RunData:
     if not reader.shards or reader.manifest.episodes == 0:
         raise ShardError(f"{folder}: the run is empty (no episodes)")
     check_complete(folder, [shard.record.episodes for shard in reader], reader.manifest.episodes)
-    protocol = reader.manifest.settings.get("protocol")
+    return read_shards(reader.root, list(reader), reader.manifest.slice, reader.manifest.settings, reader.rollout)
+
+
+def read_shards(root: Path, shards: Sequence[ShardReader], slice_name: str, settings: Mapping[str, Any],
+                rollout: bool) -> RunData:
+    """What :func:`load_run` reads, of ``shards`` (in order) of the folder ``root`` whose
+    manifest names ``slice_name`` and ``settings``: a task scores the shard it just wrote."""
+    protocol = settings.get("protocol")
     disturb = bool(protocol and protocol.get("disturb"))
-    columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if reader.rollout else ()) + (("spec",) if disturb else ())
-    frame_columns = FRAME_COLUMNS + ((OBSTACLE_CLEARANCE,) if reader.manifest.settings.get(OBSTACLE_CLEARANCE) else ())
+    columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if rollout else ()) + (("spec",) if disturb else ())
+    frame_columns = FRAME_COLUMNS + ((OBSTACLE_CLEARANCE,) if settings.get(OBSTACLE_CLEARANCE) else ())
     episode_tables, frame_tables = [], []
-    for shard in reader:
+    for shard in shards:
         episodes = shard.episodes(columns)
         episode_tables.append(episodes)
         frame_tables.append(shard.frames(frame_columns, episodes))
     episodes = pa.concat_tables(episode_tables)
-    data = _assemble(reader.root, reader.manifest.slice, episodes, pa.concat_tables(frame_tables), reader.rollout)
+    data = _assemble(root, slice_name, episodes, pa.concat_tables(frame_tables), rollout)
     if protocol is None:
         return data
     disturbed = None
     if disturb:
-        fps = int(reader.manifest.settings.get("fps", FPS))
+        fps = int(settings.get("fps", FPS))
         disturbed = np.array([disturbance_time(text, fps) for text in episodes.column("spec").to_pylist()],
                              dtype=np.float64)
     return dataclasses.replace(data, protocol=dict(protocol), disturbance_time_s=disturbed)

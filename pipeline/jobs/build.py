@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from catalog.manifest import Manifest
-from pipeline.jobs.runner import Job, JobResult, run_job
+from catalog.stats import written_partial
+from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult, run_job
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import JobSpec, job_spec
 from pipeline.jobs.tasks import ShardTask, shard_ranges
@@ -32,7 +33,8 @@ def build_shard(task: ShardTask, settings: BuildSettings, sink: ShardSink) -> di
 
     with sink.writing() as folder:
         record = write_ground_truth_shard(task.specs(), task.first, task.end, settings, folder)
-    return {"record": record.to_dict()}
+        partial = written_partial(folder, record)  # while the files are on this host
+    return {"record": record.to_dict(), PARTIAL_STATS: partial}
 
 
 def build(slice_name: str | None, out: str | Path, **options: Any) -> Manifest:

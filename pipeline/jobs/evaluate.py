@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -29,11 +29,14 @@ from typing import Any, TextIO
 import numpy as np
 
 from catalog.manifest import Manifest, load_manifest, manifest_path
+from catalog.reader import ShardReader
+from catalog.records import ShardRecord
+from catalog.stats import written_partial
 from catalog.storage import as_location
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, derive, private_specs
 from pipeline.jobs.audit import read_audit, stamped, write_audit
-from pipeline.jobs.runner import Job, JobResult, ShardTask, run_job, shard_ranges
+from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult, ShardTask, run_job, shard_ranges
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import JobSpec, Storage, job_spec
 from pipeline.loop.conditions import EvalProtocol
@@ -53,7 +56,7 @@ from pipeline.policy_registry import (
     kind_of,
     open_policy,
 )
-from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
+from schemas.errors import AllEpisodesFailed, DyanaError, PolicyError, SpecError
 from schemas.names import printable
 from schemas.runs import is_run
 from schemas.settings import BuildSettings
@@ -173,7 +176,32 @@ def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[
     if audit_dir is not None:
         write_audit(run_dir / audit_dir, task.first, task.end, audit)
     stats["seconds"] = time.perf_counter() - start
-    return {"record": writer.result.to_dict(), "stats": stats}
+    # while the files are on this host: what the driver's statistics and summary need
+    out = {"record": writer.result.to_dict(), "stats": stats, PARTIAL_STATS: written_partial(run_dir, writer.result)}
+    try:
+        out[COUNTS] = shard_counts(run_dir, writer.result, settings)
+    except (DyanaError, ValueError):  # unscorable: the driver's read-back of the run says why, as before
+        pass
+    return out
+
+
+#: The task result's key of a shard's summary counts (:func:`shard_counts`).
+COUNTS = "counts"
+
+
+def shard_counts(run_dir: Path, record: ShardRecord, settings: EvalSettings) -> dict[str, Any]:
+    """The summary's counts of one written shard (errors, localized, grasped: sums over its
+    episodes, so shards add up) and its failed episodes' reasons, read and scored as
+    :func:`summarize` reads and scores a whole run."""
+    from scoring.io import read_shards
+    from scoring.report import score_run
+
+    shard = ShardReader(run_dir, record, rollout=True, verify="size")
+    data = read_shards(run_dir, [shard], settings.slice_name, settings.build.to_dict(), rollout=True)
+    overall = score_run(data).overall
+    reasons = [[int(i), str(m)] for i, m, failed in zip(data.episode_index, data.error_message, data.error) if failed]
+    return {"errors": overall.errors, "localized": overall.localized, "grasped": overall.grasped,
+            "error_reasons": reasons}
 
 
 def _retire(policy: Policy | None, stats: dict[str, Any]) -> None:
@@ -244,6 +272,22 @@ def check_some_episode_ran(summary: EvalSummary) -> None:
             f"every episode failed ({summary.episodes} of {summary.episodes}); the first, episode {index}: "
             f"{printable(split_reason(reason)[0], REASON_CHARS)}"
         )
+
+
+def summary_of(manifest: Manifest, kept: Sequence[Mapping[str, Any]]) -> EvalSummary | None:
+    """The summary from the shards' :func:`shard_counts` (what the tasks returned, or the
+    resume state kept), None when a shard's are missing (an up-to-date run, an older state)."""
+    if not kept or any(COUNTS not in k for k in kept):
+        return None
+    counts = [k[COUNTS] for k in kept]
+    return EvalSummary(
+        policy=str(manifest.extra["policy"]),
+        slice=manifest.slice + (" (drawn from a private test seed)" if HELD_OUT_KEY in manifest.extra else ""),
+        episodes=manifest.episodes, frames=manifest.frames,
+        errors=sum(c["errors"] for c in counts), localized=sum(c["localized"] for c in counts),
+        grasped=sum(c["grasped"] for c in counts),
+        error_reasons=[(int(i), str(m)) for c in counts for i, m in c["error_reasons"]],
+    )
 
 
 def summarize(run_dir: str | Path) -> EvalSummary:
@@ -360,6 +404,7 @@ def run_eval(spec: JobSpec, report: Report | None = None) -> Manifest:
         verb="evaluated",
         key_prefix="eval",
         audit_dir=kind.audit_dir,
+        keep=(PARTIAL_STATS, COUNTS),
     )
     timing: dict[str, Any] = {"episodes": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
 
@@ -381,7 +426,9 @@ def _report(storage: Storage, settings: EvalSettings, result: JobResult, report:
     """Print the run's summary, as ``report`` says, and refuse a run whose every episode failed."""
     run_dir = as_location(storage.out, "out")
     manifest, up_to_date, kind = result.manifest, result.up_to_date, settings.policy_kind
-    counts = summarize(run_dir) if report.summary or report.require_success else None
+    counts = None
+    if report.summary or report.require_success:  # from the shards' results; read back only when none came
+        counts = summary_of(manifest, result.kept) or summarize(run_dir)
     if report.summary and counts is not None:
         out_stream = sys.stdout if report.stream is None else report.stream
         if up_to_date:

@@ -14,17 +14,20 @@ default ``~/.cache/dyana/staging``) and publishes them as it goes:
   every object of the shard was uploaded whole: an object appears whole or not at all,
   and a shard cut short (its worker killed, its host gone) is listed nowhere, is run again
   on another worker and overwrites what it left with the same bytes;
-- at the end every listed object is checked present at its size, ``stats.json`` (computed
-  from the shards' float columns, read from the store) is uploaded, then ``catalog.json``
-  last; then objects of a replaced job and the remote state are deleted and the local
-  folder is emptied (its lock file stays, as every lock file does: :mod:`pipeline.jobs.lock`).
+- at the end every listed object is checked present at its size, ``stats.json`` (merged
+  from the partial statistics the tasks returned: no shard is read back) is uploaded,
+  then ``catalog.json`` last; then objects of a replaced job and the remote state are
+  deleted and the local folder is emptied (its lock file stays, as every lock file does:
+  :mod:`pipeline.jobs.lock`).
 
 Before starting, the URL is checked writable (a tiny probe object written and removed:
 the bucket exists, the credentials and endpoint work), and the client's failures are one
 :class:`~schemas.errors.StorageError` naming the URL (:mod:`catalog.storage`). Then a
-remote ``catalog.json`` describing this job with every listed object
-present at its size means "up to date" (nothing is downloaded); one describing another job
-is refused unless ``overwrite``, as locally; otherwise the shards the remote state lists
+remote ``catalog.json`` describing this job, written by code that may have written these
+bytes (the one rule of :func:`pipeline.jobs.state.code_decision`, as for a local folder:
+after another commit one sample shard is rebuilt locally and compared first), with every
+listed object present at its size means "up to date" (nothing is downloaded); one
+describing another job is refused unless ``overwrite``, as locally; otherwise the shards the remote state lists
 whose objects are all present at their sizes are kept (nothing is downloaded), so a job
 killed on one machine resumes on any other from the store alone.
 Two processes of one machine writing one URL are refused (FolderBusy) by a lock beside
@@ -41,7 +44,7 @@ import hashlib
 import json
 import os
 import shutil
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -50,10 +53,17 @@ from catalog.records import ShardRecord
 from catalog.storage import as_location, check_writable, listed_sizes, reaching
 from pipeline.jobs.lock import LOCK_FILE, held
 from pipeline.jobs.sink import ShardSink
-from pipeline.jobs.state import STATE_FILE, Identity, describe_difference, manifest_identity
+from pipeline.jobs.state import (
+    REBUILD,
+    SAMPLE,
+    STATE_FILE,
+    Identity,
+    code_decision,
+    describe_difference,
+    manifest_identity,
+)
 from schemas.errors import ShardError, SpecError
 from schemas.names import shorten
-from schemas.versions import CODE_VERSION
 
 
 def staging_folder(url: str) -> Path:
@@ -125,11 +135,13 @@ def remote_job(url: str) -> Iterator[tuple[Path, Any]]:
         raise ShardError(f"{shorten(url)}: {exc}") from None
 
 
-def prepare_remote(url: str, staging: Path, remote: Any, wanted: Identity, overwrite: bool) -> Manifest | None:
+def prepare_remote(url: str, staging: Path, remote: Any, wanted: Identity, overwrite: bool,
+                   sample: Callable[[Manifest, str | None], None]) -> Manifest | None:
     """Read what ``url`` holds: its manifest when it holds this job complete ("up to date":
-    nothing to run), else None once the staging folder holds the remote state of this job's
-    interrupted run (if any) to resume from; another job's folder or state is refused
-    unless ``overwrite``."""
+    nothing to run; written by another commit, ``sample(manifest, this_commit)`` rebuilds one
+    of its shards first and refuses a difference), else None once the staging folder holds
+    the remote state of this job's interrupted run (if any) to resume from; another job's
+    folder or state is refused unless ``overwrite``."""
     manifest_data = _remote_json(remote, MANIFEST_NAME)
     sizes = listed_sizes(remote)
     held = None
@@ -145,9 +157,13 @@ def prepare_remote(url: str, staging: Path, remote: Any, wanted: Identity, overw
             raise SpecError(f"{url} holds another job ({describe_difference(identity, wanted)}): "
                             "choose another --out, or pass --overwrite to replace it")
         listed = [(path, size) for path, _, size in held.files()]
-        if identity == wanted and (held.code.version, held.code.commit) == (CODE_VERSION, git_commit()) and all(
+        commit = git_commit()
+        decision = code_decision(held.code.version, held.code.commit, held.versions, commit)
+        if identity == wanted and decision != REBUILD and not (decision == SAMPLE and overwrite) and all(
             sizes.get(path) == size for path, size in listed
         ):
+            if decision == SAMPLE:
+                sample(held, commit)
             return held
     state = _remote_json(remote, STATE_FILE)
     if state is not None and state.get("identity") not in (None, wanted) and not overwrite:

@@ -14,14 +14,20 @@ such a folder holds):
   what differs, unless ``overwrite``; a second process on the folder is refused by the
   folder lock (:mod:`pipeline.jobs.lock`);
 - stray temporaries of dead processes are removed; finished shards of an interrupted
-  run of the same job (same code commit) whose files still match their sha256 are kept,
-  so a killed run resumes, and a complete identical folder is reported up to date;
+  run of the same job (same package and library versions: the rule of
+  :func:`pipeline.jobs.state.code_decision`) whose files still match their sha256 are kept,
+  so a killed run resumes, and a complete identical folder is reported up to date; when
+  another commit wrote them, one sample shard is rebuilt and compared first
+  (:mod:`pipeline.jobs.resume`);
 - the shards run as Dask tasks or in this process (:mod:`pipeline.jobs.tasks`);
 - progress lines go to stderr per finished episode, at most one per 2 s plus the last
   (:class:`pipeline.jobs.progress.Progress`);
-- ``stats.json`` (normalisation statistics of states and actions) is computed from the
-  finished shards, then ``catalog.json`` is written last (one way,
-  :meth:`catalog.manifest.Manifest.create`), then files of a replaced job are removed.
+- ``stats.json`` (normalisation statistics of states and actions) is merged from the
+  partial statistics each task returned (``result["partial_stats"]``, computed in the
+  worker from the frames file it wrote, kept in the resume state with the job's other
+  :attr:`Job.keep` keys; a shard without them is read once), then ``catalog.json`` is
+  written last (one way, :meth:`catalog.manifest.Manifest.create`), then files of a
+  replaced job are removed.
 
 The manifest's hash covers the slice, seed, settings, statistics and the ordered file
 hashes, so the worker count, the scheduler and interruptions cannot change it.
@@ -36,29 +42,37 @@ from pathlib import Path
 from typing import Any, Generic
 
 from catalog.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
+from catalog.reader import ShardReader
 from catalog.records import ShardRecord, shard_like_files
-from catalog.stats import compute_stats, write_stats
-from catalog.storage import listed_sizes, where
+from catalog.stats import PartialStats, Stats, merge_partials, shard_partial, write_stats
+from catalog.storage import as_location, listed_sizes, where
 from catalog.versions import installed_versions
 from pipeline.jobs.audit import audit_records, remove_unlisted_audit
 from pipeline.jobs.engine import Destination, LocalFolder, Previous, run_folder_job
 from pipeline.jobs.object_store import ObjectStore, prepare_remote, remote_job
+from pipeline.jobs.resume import check_sample
 from pipeline.jobs.spec import Storage
 from pipeline.jobs.state import STATE_FILE, Identity, Range, identity_of, previous_work, save_state
 from pipeline.jobs.tasks import Execution, Payload, ShardTask, TaskFn, Work, default_workers, shard_ranges
 from schemas.errors import ShardError
 from schemas.versions import CODE_VERSION
 
-__all__ = ["Execution", "Job", "JobResult", "ShardTask", "Storage", "default_workers", "remove_unlisted_shards", "run_job",
-           "shard_ranges"]
+__all__ = ["PARTIAL_STATS", "Execution", "Job", "JobResult", "ShardTask", "Storage", "default_workers",
+           "remove_unlisted_shards", "run_job", "shard_ranges"]
+
+#: The key of a task result holding its shard's partial statistics
+#: (:meth:`catalog.stats.PartialStats.to_dict`, from :func:`catalog.stats.written_partial`).
+PARTIAL_STATS = "partial_stats"
 
 
 @dataclass(frozen=True)
 class Job(Generic[Payload]):
     """A sharded job (where it is written is the caller's :class:`~pipeline.jobs.spec.Storage`).
-    ``task_fn(task, payload, sink)`` runs in a worker and returns a
-    dict with the shard's ``record`` (a ShardRecord dict) and anything else the caller's
-    ``on_result`` wants (timing). ``extra`` are the manifest's top-level keys beyond the
+    ``task_fn(task, payload, sink)`` runs in a worker and returns a dict with the shard's
+    ``record`` (a ShardRecord dict), its :data:`PARTIAL_STATS` when the job has statistics,
+    and anything else the caller's ``on_result`` wants (timing). ``keep``: the result keys
+    kept in the resume state and returned in :attr:`JobResult.kept` (an eval's counts), so
+    a resumed shard needs no reading. ``extra`` are the manifest's top-level keys beyond the
     contract's; with ``settings``, ``slice``, ``seed`` and the shard ranges they say what
     the folder holds. ``audit_dir``: the folder of the tasks' audit trail files (one per
     shard, :func:`pipeline.jobs.audit.audit_path`), listed in the manifest's ``audit``."""
@@ -74,6 +88,7 @@ class Job(Generic[Payload]):
     key_prefix: str = "shard"
     with_stats: bool = True
     audit_dir: str | None = None
+    keep: tuple[str, ...] = (PARTIAL_STATS,)
     ranges: tuple[Range, ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -96,12 +111,14 @@ class Job(Generic[Payload]):
 class JobResult:
     """What :func:`run_job` did: the folder's manifest; ``up_to_date`` when the folder
     already held this complete job (nothing was run); shards run now and kept from an
-    interrupted run."""
+    interrupted run; ``kept``: each shard's :attr:`Job.keep` values, in shard order (empty
+    when up to date; a shard kept from an older state may lack them)."""
 
     manifest: Manifest
     up_to_date: bool
     shards_run: int = 0
     shards_resumed: int = 0
+    kept: tuple[Mapping[str, Any], ...] = ()
 
 
 def remove_unlisted_shards(folder: Path, manifest: Manifest) -> list[Path]:
@@ -123,24 +140,46 @@ class ManifestProduct:
     """A ``catalog.json`` folder (a built slice or a run) as the engine's product. ``store``:
     where the tasks' files are when not in the folder (an object store's URL, as a UPath):
     a finished shard is kept there while its objects have their recorded sizes, and the
-    statistics and audit records are read from there."""
+    audit records (and statistics of shards without partial ones) are read from there.
+    ``say``: where the sample check's note goes. ``kept``: the :attr:`Job.keep` values of
+    the shards' task results by range, filled as the job runs (the one mutable part)."""
 
     job: Job[Any]
     store: Path | None = None
+    say: Callable[[str], None] | None = None
+    kept: dict[Range, dict] = field(default_factory=dict)
 
     def previous(self, folder: Path, commit: str | None, overwrite: bool) -> Previous[ShardRecord, Manifest]:
         intact = None
         if self.store is not None:
             sizes = listed_sizes(self.store)
             intact = lambda record: all(sizes.get(f.path) == f.size for f in record.files.values())  # noqa: E731
-        work = previous_work(folder, self.job.identity(), self.job.with_stats, commit, overwrite, intact)
+        job = self.job
+        work = previous_work(folder, job.identity(), job.with_stats, commit, overwrite, intact)
+        if work.sample:
+            check_sample([work.done[key] for key in sorted(work.done)], job.tasks, job.task_fn, job.payload,
+                         (work.recorded_commit, commit), where(folder if self.store is None else self.store), self.say)
+        self.kept.update(work.kept)
         return Previous(work.done, load_manifest(folder) if work.complete else None)
 
     def unit(self, result: dict[str, Any]) -> ShardRecord:
-        return ShardRecord.from_dict(result["record"])
+        record = ShardRecord.from_dict(result["record"])
+        self.kept[(record.first, record.end)] = {key: result[key] for key in self.job.keep if key in result}
+        return record
 
     def save(self, folder: Path, commit: str | None, done: Mapping[Range, ShardRecord]) -> None:
-        save_state(folder, self.job.identity(), commit, done)
+        save_state(folder, self.job.identity(), commit, done, self.kept)
+
+    def statistics(self, files: Path, units: Sequence[ShardRecord]) -> Stats:
+        """The units' statistics, merged from their partial ones; a unit without them (a
+        state written before they were kept) or with unreadable ones is read."""
+        parts = []
+        for unit in units:
+            try:
+                parts.append(PartialStats.from_dict(self.kept[(unit.first, unit.end)][PARTIAL_STATS]))
+            except (KeyError, ValueError):
+                parts.append(shard_partial(ShardReader(as_location(files), unit, rollout=False, verify="size")))
+        return merge_partials(parts)
 
     def unit_files(self, unit: ShardRecord) -> list[str]:
         return [f.path for f in unit.files.values()] + [STATE_FILE]
@@ -156,7 +195,7 @@ class ManifestProduct:
         files = folder if self.store is None else self.store
         if self.store is not None:
             check_stored(self.store, units)
-        stats = write_stats(folder, compute_stats(files, units)) if job.with_stats else None
+        stats = write_stats(folder, self.statistics(files, units)) if job.with_stats else None
         audit = None if job.audit_dir is None else audit_records(files, job.audit_dir, [u.episodes for u in units])
         manifest = Manifest.create(job.slice_name, job.seed, job.settings, list(units),
                                    code=CodeInfo(CODE_VERSION, commit), extra=job.extra, stats=stats, audit=audit,
@@ -193,7 +232,11 @@ def run_job(
         return _run(job, LocalFolder(storage.folder), None, execution, storage.overwrite, on_result)
     url = str(storage.out)
     with remote_job(url) as (staging, remote):
-        held = prepare_remote(url, staging, remote, job.identity(), storage.overwrite)
+        def sample(manifest: Manifest, commit: str | None) -> None:
+            check_sample(manifest.shards, job.tasks, job.task_fn, job.payload, (manifest.code.commit, commit), url,
+                         execution.say)
+
+        held = prepare_remote(url, staging, remote, job.identity(), storage.overwrite, sample)
         if held is not None:
             return JobResult(held, True)
         result = _run(job, ObjectStore(staging, remote, url), remote, execution, storage.overwrite, on_result)
@@ -204,6 +247,7 @@ def _run(job: Job[Payload], destination: Destination, store: Path | None, execut
          on_result: Callable[[dict[str, Any]], None] | None) -> JobResult:
     """The engine's run of ``job`` into ``destination`` (``store``: where its tasks' files are,
     when not in the destination's folder: :class:`ManifestProduct`)."""
-    outcome = run_folder_job(destination, ManifestProduct(job, store), job.work(), execution, overwrite=overwrite,
-                             on_result=on_result)
-    return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed)
+    product = ManifestProduct(job, store, execution.say)
+    outcome = run_folder_job(destination, product, job.work(), execution, overwrite=overwrite, on_result=on_result)
+    kept = () if outcome.up_to_date else tuple(product.kept.get(r, {}) for r in job.ranges)
+    return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed, kept)

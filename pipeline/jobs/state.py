@@ -2,12 +2,19 @@
 
 A folder holds one job, described by its identity (slice, seed, episodes, shard ranges,
 settings and the extra manifest keys): a finished job's ``catalog.json``, or the
-``.build-state.json`` an interrupted run leaves (identity, code, finished shards). A
-shard is kept only when the same code (version and commit) and the same byte-determining
-library versions (:mod:`catalog.versions`) wrote it, and every one of its files still has
-its size and sha256 (a run resumed under other library versions rebuilds every shard,
-so no folder mixes shards of two installations); a folder is "up to date" only when every shard,
-the statistics file and the audit trail files pass that check.
+``.build-state.json`` an interrupted run leaves (identity, code, finished shards and what
+the job keeps of their tasks' results: partial statistics, an eval's counts).
+
+Whether the recorded code may have written this code's bytes is one rule,
+:func:`code_decision`, for a local folder (:func:`previous_work`) and an object store
+(:mod:`pipeline.jobs.object_store`) alike: the package version (written into every MCAP
+file) and the byte-determining library versions (:mod:`catalog.versions`) must match, or
+every shard is rebuilt (no folder mixes shards of two installations). The git commit does
+not decide it (a docs-only commit changes no byte), but after another commit (or an
+unknown one) one sample shard is rebuilt and compared first (:mod:`pipeline.jobs.resume`).
+A shard is kept only when every one of its files still has its size and sha256; a folder
+is "up to date" only when every shard, the statistics file and the audit trail files pass
+that check.
 """
 
 from __future__ import annotations
@@ -100,12 +107,36 @@ def shard_intact(folder: Path, record: ShardRecord) -> bool:
     return all(file_intact(folder, f) for f in record.files.values())
 
 
+#: :func:`code_decision`'s answers: start over, keep what passes the file checks, or keep it
+#: once one sample shard rebuilt by this code has the recorded bytes.
+REBUILD, TRUST, SAMPLE = "rebuild", "trust", "sample"
+
+
+def code_decision(version: object, recorded_commit: object, versions: object, commit: str | None) -> str:
+    """Whether shards written by code ``version`` at ``recorded_commit`` under library
+    ``versions`` may be kept by this code at ``commit`` (module docstring): :data:`REBUILD`
+    when the package or a byte-determining library version differs (the dataset version is
+    part of the identity, compared before), :data:`SAMPLE` when the commit differs or either
+    is unknown (None: an install without a checkout), else :data:`TRUST`."""
+    if version != CODE_VERSION or versions != installed_versions():
+        return REBUILD
+    if commit is None or recorded_commit != commit:
+        return SAMPLE
+    return TRUST
+
+
 @dataclass(frozen=True)
 class PreviousWork:
-    """Finished shards a job may keep (by range), and whether the folder is complete."""
+    """Finished shards a job may keep (by range), whether the folder is complete, the
+    commit that wrote them and whether one of them must be rebuilt and compared before
+    they are trusted (``sample``: :data:`SAMPLE`), and what the resume state kept of their
+    tasks' results (by range: partial statistics, an eval's counts)."""
 
     done: Mapping[Range, ShardRecord] = field(default_factory=dict)
     complete: bool = False
+    recorded_commit: str | None = None
+    sample: bool = False
+    kept: Mapping[Range, dict] = field(default_factory=dict)
 
 
 def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str | None, overwrite: bool,
@@ -115,12 +146,14 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
     in ``folder``; an object store's job checks its objects instead).
 
     Refuses (SpecError) a folder holding another job unless ``overwrite``, which then
-    forgets it (its files are removed once the new job is finished)."""
+    forgets it (its files are removed once the new job is finished); ``overwrite`` also
+    rebuilds, rather than samples, shards of another commit."""
     state_path = folder / STATE_FILE
     held: Identity | None = None
     records: list[ShardRecord] = []
-    code: tuple[object, ...] = (None, None, None)
+    code: tuple[object, object, object] = (None, None, None)
     complete = False
+    results: dict[Range, dict] = {}
     if manifest_path(folder).exists():
         try:
             manifest = load_manifest(folder)
@@ -139,6 +172,8 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
             held = state["identity"]
             records = [ShardRecord.from_dict(raw) for raw in state["shards"]]
             code = (state["code"]["version"], state["code"]["commit"], state["code"].get("versions"))
+            results = {(r.first, r.end): k for r, k in zip(records, state.get("kept", []), strict=False)
+                       if isinstance(k, dict)}
         except (OSError, ValueError, KeyError, TypeError, ShardError) as exc:
             if not overwrite:
                 raise ShardError(
@@ -158,18 +193,25 @@ def previous_work(folder: Path, wanted: Identity, with_stats: bool, commit: str 
             f"{folder} {what} another job ({describe_difference(held, wanted)}): "
             "choose another --out, or pass --overwrite to replace it"
         )
-    if code != (CODE_VERSION, commit, installed_versions()):
+    decision = code_decision(*code, commit)
+    if decision == REBUILD or (decision == SAMPLE and overwrite):
         return PreviousWork()
     kept = (lambda record: shard_intact(folder, record)) if intact is None else intact
     done = {(r.first, r.end): r for r in records if kept(r)}
-    return PreviousWork(done, complete and len(done) == len(records))
+    recorded = code[1] if isinstance(code[1], str) else None
+    return PreviousWork(done, complete and len(done) == len(records), recorded, decision == SAMPLE,
+                        {key: results[key] for key in done if key in results})
 
 
-def save_state(folder: Path, identity: Identity, commit: str | None, done: Mapping[Range, ShardRecord]) -> None:
-    """Record the finished shards of a running job (what an interrupted run resumes from)."""
+def save_state(folder: Path, identity: Identity, commit: str | None, done: Mapping[Range, ShardRecord],
+               kept: Mapping[Range, dict] | None = None) -> None:
+    """Record the finished shards of a running job (what an interrupted run resumes from),
+    with what the job keeps of each one's task result (``{}`` where none), in shard order."""
+    keys = sorted(done)
     state = {
         "identity": identity,
         "code": {"version": CODE_VERSION, "commit": commit, "versions": installed_versions()},
-        "shards": [done[key].to_dict() for key in sorted(done)],
+        "shards": [done[key].to_dict() for key in keys],
+        "kept": [(kept or {}).get(key, {}) for key in keys],
     }
     atomic_write_text(folder / STATE_FILE, json.dumps(state, sort_keys=True, indent=2) + "\n")

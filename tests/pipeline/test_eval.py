@@ -194,9 +194,10 @@ def test_a_rerun_with_another_layout_is_refused_and_overwrite_leaves_no_stale_sh
     verify_files(tmp_path / "run")
 
 
-def test_a_complete_run_by_other_code_is_not_reused(tmp_path, monkeypatch):
-    """Rollouts depend on the code: a complete run written at another commit is re-run,
-    not relabelled with the new commit."""
+def test_a_complete_run_by_another_commit_is_reused_after_one_sample_shard(tmp_path, monkeypatch):
+    """Rollouts depend on the code, but a commit need not change them: a complete run written
+    at another commit has one shard rolled out again and compared (pipeline.jobs.resume),
+    then it is up to date, untouched (its catalog.json still names the commit that wrote it)."""
     settings = dict(episodes=1, resolution=RESOLUTION, shard_size=1, workers=0, progress=False, summary=False)
     evaluate("still", "test-1k", tmp_path / "run", **settings)
     real, calls = evaluate_module.eval_shard, []
@@ -208,10 +209,11 @@ def test_a_complete_run_by_other_code_is_not_reused(tmp_path, monkeypatch):
     monkeypatch.setattr(evaluate_module, "eval_shard", counted)
     evaluate("still", "test-1k", tmp_path / "run", **settings)
     assert calls == []
+    written = load_manifest(tmp_path / "run")
     monkeypatch.setattr(engine_module, "git_commit", lambda: "0123456789abcdef0123456789abcdef01234567")
     manifest = evaluate("still", "test-1k", tmp_path / "run", **settings)
-    assert calls == [0]
-    assert manifest.code.commit == "0123456789abcdef0123456789abcdef01234567"
+    assert calls == [0]  # the sample
+    assert manifest == written and manifest.code.commit != "0123456789abcdef0123456789abcdef01234567"
 
 
 def test_a_privileged_policy_is_recorded_and_labelled(runs, capsys):
