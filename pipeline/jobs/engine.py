@@ -34,7 +34,7 @@ from typing import Any, Generic, Protocol, TypeVar
 from catalog.atomic import remove_stray_temps
 from catalog.export.layout import DYANA_META
 from catalog.manifest import git_commit
-from pipeline.jobs.lock import folder_lock
+from pipeline.jobs.lock import LOCK_FILE, folder_lock
 from pipeline.jobs.progress import Progress, Unit
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.tasks import Execution, Payload, Work, run_tasks
@@ -186,44 +186,70 @@ def run_folder_job(
 ) -> Outcome[Result]:
     """Run the units of ``work`` not already done into the destination's folder and finish it (module docstring)."""
     folder = destination.folder
+    created = not folder.exists()
     prepare_folder(folder)
+    with folder_lock(folder):
+        try:
+            return _run_locked(destination, product, work, execution, overwrite, total_frames, on_result)
+        except BaseException:
+            if created:
+                remove_if_bare(folder)
+            raise
+
+
+def remove_if_bare(folder: Path) -> None:
+    """Remove ``folder`` (made by this job, which failed) if it holds only its lock file: a
+    refused or failed start (an unreachable scheduler) leaves no folder behind. Called while
+    the lock is held, so no other process has begun in it."""
+    try:
+        if [child.name for child in folder.iterdir()] == [LOCK_FILE]:
+            (folder / LOCK_FILE).unlink()
+            folder.rmdir()
+    except OSError:
+        pass  # something else appeared: leave it
+
+
+def _run_locked(destination: Destination, product: Product[UnitT, Result], work: Work[Payload], execution: Execution,
+                overwrite: bool, total_frames: int | None,
+                on_result: Callable[[dict[str, Any]], None] | None) -> Outcome[Result]:
+    """:func:`run_folder_job` once the folder's lock is held."""
+    folder = destination.folder
     tasks, verb = work.tasks, work.verb
     ranges = [(task.first, task.end) for task in tasks]
-    with folder_lock(folder):
-        refuse_links(folder)
-        # under the lock, before this process writes anything: a temp named with our pid is a
-        # dead writer's whose pid was reused (a fresh container rerun gets the same pid)
-        remove_stray_temps(folder, keep_own=False)
-        commit = git_commit()
-        previous = product.previous(folder, commit, overwrite)
-        if previous.finished is not None:
-            destination.job_done(product.result_files(previous.finished))
-            return Outcome(previous.finished, True, 0, len(previous.done))
-        done = {key: unit for key, unit in previous.done.items() if key in set(ranges)}
-        resumed = len(done)
-        todo = [task for task in tasks if (task.first, task.end) not in done]
-        say = execution.say
-        episodes = sum(end - first for first, end in ranges)
-        meter = None if say is None else Progress(len(ranges), episodes, total_frames=total_frames, say=say)
-        if meter is not None and say is not None and done:
-            say(f"resuming: {len(done)} of {len(ranges)} shards already {verb}")
-            meter.resumed([done[key] for key in sorted(done)])
+    refuse_links(folder)
+    # under the lock, before this process writes anything: a temp named with our pid is a
+    # dead writer's whose pid was reused (a fresh container rerun gets the same pid)
+    remove_stray_temps(folder, keep_own=False)
+    commit = git_commit()
+    previous = product.previous(folder, commit, overwrite)
+    if previous.finished is not None:
+        destination.job_done(product.result_files(previous.finished))
+        return Outcome(previous.finished, True, 0, len(previous.done))
+    done = {key: unit for key, unit in previous.done.items() if key in set(ranges)}
+    resumed = len(done)
+    todo = [task for task in tasks if (task.first, task.end) not in done]
+    say = execution.say
+    episodes = sum(end - first for first, end in ranges)
+    meter = None if say is None else Progress(len(ranges), episodes, total_frames=total_frames, say=say)
+    if meter is not None and say is not None and done:
+        say(f"resuming: {len(done)} of {len(ranges)} shards already {verb}")
+        meter.resumed([done[key] for key in sorted(done)])
 
-        def on_done(result: dict[str, Any]) -> None:
-            unit = product.unit(result)
-            done[(unit.first, unit.end)] = unit
-            product.save(folder, commit, done)
-            destination.unit_done(product.unit_files(unit))
-            if on_result is not None:
-                on_result(result)
-            if meter is not None:
-                meter.update(unit)
+    def on_done(result: dict[str, Any]) -> None:
+        unit = product.unit(result)
+        done[(unit.first, unit.end)] = unit
+        product.save(folder, commit, done)
+        destination.unit_done(product.unit_files(unit))
+        if on_result is not None:
+            on_result(result)
+        if meter is not None:
+            meter.update(unit)
 
-        try:
-            run_tasks(todo, work.task_fn, work.payload, destination.sink, execution, on_done, work.key_prefix,
-                      on_episode=None if meter is None else meter.episode)
-        finally:
-            remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
-        result = product.finish(folder, commit, [done[key] for key in ranges])
-        destination.job_done(product.result_files(result))
+    try:
+        run_tasks(todo, work.task_fn, work.payload, destination.sink, execution, on_done, work.key_prefix,
+                  on_episode=None if meter is None else meter.episode)
+    finally:
+        remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
+    result = product.finish(folder, commit, [done[key] for key in ranges])
+    destination.job_done(product.result_files(result))
     return Outcome(result, False, len(todo), resumed)

@@ -17,8 +17,8 @@ default ``~/.cache/dyana/staging``) and publishes them as it goes:
 - at the end every listed object is checked present at its size, ``stats.json`` (merged
   from the partial statistics the tasks returned: no shard is read back) is uploaded,
   then ``catalog.json`` last; then objects of a replaced job and the remote state are
-  deleted and the local folder is emptied (its lock file stays, as every lock file does:
-  :mod:`pipeline.jobs.lock`).
+  deleted, and the staging folder and both lock files are removed (while the URL's lock is
+  still held, so no other process of this machine has begun on it).
 
 Before starting, the URL is checked writable (a tiny probe object written and removed:
 the bucket exists, the credentials and endpoint work), and the client's failures are one
@@ -126,11 +126,17 @@ def remote_job(url: str) -> Iterator[tuple[Path, Any]]:
     and the store's location. The bucket going away during the job is one ShardError."""
     staging = staging_folder(url)
     staging.parent.mkdir(parents=True, exist_ok=True)
+    outer = staging.with_name(staging.name + ".lock")
     try:
-        with held(staging.with_name(staging.name + ".lock"), url), reaching(url):
+        with held(outer, url), reaching(url):
             remote = as_location(url)
             check_writable(remote)
             yield staging, remote
+            # finished (or up to date): nothing of this job stays on this machine. Both lock
+            # files go while the outer one is held, so no other process of this machine has
+            # begun on the URL (it would have been refused as busy).
+            shutil.rmtree(staging, ignore_errors=True)
+            outer.unlink(missing_ok=True)
     except FileNotFoundError as exc:  # s3fs: the bucket went away during the job
         raise ShardError(f"{shorten(url)}: {exc}") from None
 

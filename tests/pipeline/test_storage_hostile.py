@@ -71,3 +71,22 @@ def test_an_endpoint_that_accepts_and_never_answers_times_out(no_aws, monkeypatc
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "s3://dyana-test/silent" in err, err
     assert elapsed < 30, elapsed
+
+
+@pytest.mark.parametrize("scheduler", [
+    # slow (Dask's 30 s connect timeout); the same clean-up is covered by the bogus:// case below
+    pytest.param("tcp://127.0.0.1:{port}", marks=pytest.mark.slow),
+    "bogus://127.0.0.1:{port}",
+])
+def test_an_unreachable_scheduler_leaves_no_folder_behind(tmp_path, capsys, scheduler):
+    """Before: the refused run left OUT/<slice>/.lock."""
+    from pipeline.cli import main
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]  # nothing listens there once the block ends
+    code = main(["build", "--slice", "linear-fast", "--episodes", "1", "--out", str(tmp_path / "out"),
+                 "--scheduler", scheduler.format(port=port), "--quiet"])
+    err = capsys.readouterr().err
+    assert code != 0 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert not (tmp_path / "out" / "linear-fast").exists()
