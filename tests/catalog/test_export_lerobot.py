@@ -24,7 +24,7 @@ from pipeline.jobs.export import export
 
 LEROBOT_PYTHON = os.environ.get("DYANA_LEROBOT_PYTHON")
 pytestmark = [
-    pytest.mark.slow,
+    pytest.mark.slow(cover="tests/pipeline/test_export.py::test_v30_export_round_trips_every_state_action_and_frame"),
     pytest.mark.skipif(not LEROBOT_PYTHON, reason="set DYANA_LEROBOT_PYTHON to a Python with lerobot installed"),
 ]
 

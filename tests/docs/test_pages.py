@@ -21,7 +21,7 @@ def _cases() -> list:
             continue
         cases.append(pytest.param(path, False, id=path))
         if page.has_slow:
-            cases.append(pytest.param(path, True, id=f"{path}[with slow blocks]", marks=pytest.mark.slow))
+            cases.append(pytest.param(path, True, id=f"{path}[with slow blocks]", marks=pytest.mark.slow(cover="tests/docs/test_pages.py::test_page_runs")))
     return cases
 
 

@@ -77,7 +77,7 @@ def test_the_projection_is_the_stated_model():
         scaling.projection(measured, 1, 1, 0)
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/docs/test_scaling_page.py::test_the_section_shows_the_file_figures_and_loads")
 def test_the_script_runs_on_a_tiny_configuration(tmp_path):
     """Real builds (in process, 1 and 2 workers, a running cluster, moto S3) of 4 episodes at
     64 px: the file has every figure the page reads, and the page renders it."""

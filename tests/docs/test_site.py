@@ -10,6 +10,7 @@ import pytest
 
 from schemas.versions import CODE_VERSION
 from tests.docs.pages import FENCE, MARKER, MARKER_KINDS, ROOT, RUN_LANGUAGES, Marker, load, page_paths
+from tests.docs.runner import runnable
 
 sys.path.insert(0, str(ROOT / "docs" / "hooks"))
 import results_pages  # noqa: E402  (docs/hooks is no package: the hook modules are found by path)
@@ -84,15 +85,19 @@ def test_markers_are_well_formed() -> None:
 
 
 def _skips() -> list:
-    skips = [pytest.param(f"{p}:{n}: {m.argument}", id=f"{p}:{n}") for p, n, m, _ in _markers() if m.kind == "skip"]
-    return skips or [pytest.param(None, id="none")]
+    return [pytest.param(p, n, m.argument, id=f"{p}:{n}") for p, n, m, _ in _markers() if m.kind == "skip"]
 
 
-@pytest.mark.parametrize("reason", _skips())
-def test_skip_marker(reason: str | None) -> None:
-    """One skipped test per `docs-test: skip` block, so every run's summary lists them with their reasons."""
-    if reason is not None:
-        pytest.skip(f"docs block not run: {reason}")
+@pytest.mark.parametrize("path,line,reason", _skips())
+def test_skip_marker(path: str, line: int, reason: str) -> None:
+    """A `docs-test: skip` block is one the runner leaves out, even with the slow blocks,
+    for the marker's reason; then this test is skipped, so every run's summary lists the
+    blocks not run with their reasons."""
+    block = next((b for b in load(path).blocks if b.line == line + 1), None)
+    assert block is not None, f"{path}:{line}: no ```bash or ```python block right after the skip marker"
+    why = runnable(block, with_slow=True)
+    assert why == f"skip: {reason}", f"{block.where}: marked skip, but the runner says {why!r} (None: it runs the block)"
+    pytest.skip(f"docs block not run: {path}:{line}: {reason}")
 
 
 def test_every_page_has_runnable_or_no_blocks() -> None:

@@ -84,7 +84,7 @@ def random_states(rng: np.random.Generator, n: int):
         yield name, size, ("right", "left")[i % 2], pose, palm, joints
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/generators/test_render.py::test_composited_equals_full_render_at_224")
 def test_composited_equals_full_render_pixel_for_pixel(small):
     """200 random scenes (20 s); the default run keeps 40 at 224 px and 60 among obstacles below."""
     rng = np.random.default_rng(7)

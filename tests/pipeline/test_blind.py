@@ -97,7 +97,7 @@ def test_the_fitted_path_comes_from_training_slices_only():
     assert set(stored["paths"]) == {"fast", "medium", "slow"}
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_blind.py::test_the_fitted_path_comes_from_training_slices_only")
 def test_the_stored_fitted_path_is_what_the_script_makes():
     stored = json.loads(blind.PATH_FILE.read_text())
     assert json.loads(json.dumps(blind_fit.fit(stored["episodes_per_slice"]))) == stored
@@ -133,7 +133,7 @@ def test_blind_play_cannot_win_the_headline_success_quick():
     assert all(100 * wilson_interval(k, n)[0] <= BLIND_BOUND for k, n in counts.values()), counts
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_blind.py::test_blind_play_cannot_win_the_headline_success_quick")
 def test_blind_play_cannot_win_the_headline_success_on_200_episodes():
     counts = headline_counts(BLIND + ("oracle",), 200, 224)
     assert counts.pop("oracle") == (200, 200)

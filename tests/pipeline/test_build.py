@@ -39,8 +39,9 @@ def _build(out: Path, **kwargs):
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
-    out = tmp_path_factory.mktemp("one-worker")
-    manifest = _build(out, workers=1)
+    """Built in this process (no Dask): the two-worker build below must give its bytes."""
+    out = tmp_path_factory.mktemp("in-process")
+    manifest = _build(out, workers=0)
     return manifest, out / SLICE
 
 
@@ -69,7 +70,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_build.py::test_two_workers_give_the_same_bytes")
 def test_external_scheduler_gives_the_same_hash(reference, tmp_path):
     """A scheduler and a worker started by hand (30 s). .ci/run's multi-host tests build on
     an external scheduler with workers on other hosts and compare the local hash."""
@@ -100,7 +101,7 @@ def test_external_scheduler_gives_the_same_hash(reference, tmp_path):
     assert other.hash == manifest.hash
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_object_store.py::test_a_killed_remote_build_resumes_on_another_machine")
 def test_killed_build_resumes_to_the_same_bytes(reference, tmp_path):
     """SIGKILL of a local build mid-run, then the same command (20 s). The default run
     resumes a killed build through the same engine in tests/pipeline/test_object_store.py
@@ -144,7 +145,7 @@ def test_specs_file_builds_the_same_episodes(reference, tmp_path):
     path = tmp_path / "specs.jsonl"
     path.write_text(specs)
     other = build(None, tmp_path / "out", specs_path=str(path), resolution=RESOLUTION, shard_size=SHARD,
-                  workers=1, progress=False)
+                  workers=0, progress=False)
     assert other.hash == manifest.hash
 
 
@@ -189,13 +190,13 @@ def test_an_edited_specs_file_is_refused_then_replaced_only_with_overwrite(tmp_p
     path = tmp_path / "specs.jsonl"
     path.write_text("".join(s.to_json() + "\n" for s in specs))
     out = tmp_path / "out"
-    first = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False)
+    first = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=0, progress=False)
     edited = [specs[0], dataclasses.replace(specs[1], text="Grasp it, please.")]
     path.write_text("".join(s.to_json() + "\n" for s in edited))
     with pytest.raises(SpecError, match="another job.*specs_sha256"):
-        build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False)
+        build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=0, progress=False)
     assert load_manifest(out / SLICE).hash == first.hash
-    second = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=1, progress=False,
+    second = build(None, out, specs_path=str(path), resolution=RESOLUTION, shard_size=1, workers=0, progress=False,
                    overwrite=True)
     texts = [t for shard in second.shards
              for t in pq.read_table(out / SLICE / shard.files["episodes"].path).column("text").to_pylist()]
@@ -210,8 +211,8 @@ def test_rebuilding_with_another_shard_size_leaves_no_stale_shards(reference, tm
     _, slice_dir = reference
     shutil.copytree(slice_dir, tmp_path / SLICE)
     with pytest.raises(SpecError, match="another job"):
-        build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=1, progress=False)
-    manifest = build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=1, progress=False,
+        build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=0, progress=False)
+    manifest = build(SLICE, tmp_path, episodes=EPISODES, resolution=RESOLUTION, shard_size=3, workers=0, progress=False,
                      overwrite=True)
     listed = sorted(f.path for s in manifest.shards for f in s.files.values())
     assert sorted(_files(tmp_path / SLICE)) == listed
@@ -231,8 +232,12 @@ def test_a_malformed_scheduler_address_is_one_line_and_exit_2_before_the_folder_
 
 
 def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path):
+    """The command in a process of its own, waiting 2 s for the scheduler instead of 30
+    (a refused connection is retried until the timeout: 30 s of an idle test process)."""
+    command = ("import sys; import pipeline.jobs.tasks as t; t.CONNECT_TIMEOUT_S = 2.0; "
+               "from pipeline.cli import main; sys.exit(main())")
     result = subprocess.run(
-        [str(BIN / "pipeline"), "build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path),
+        [sys.executable, "-c", command, "build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path),
          "--scheduler", "tcp://127.0.0.1:1"],
         capture_output=True, text=True, timeout=120,
     )

@@ -115,7 +115,7 @@ def test_list_counts_every_slice(capsys):
     assert 5_000 < per_frame < 50_000  # a 224 px JPEG twice (Parquet and MCAP) plus the states
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_cli_catalog.py::test_list_counts_every_slice")
 def test_list_table():
     result = run("list")
     assert result.returncode == 0, result.stderr
@@ -127,7 +127,7 @@ def test_list_table():
     assert lines[-1].split()[:4] == ["test-complex", "mixed", "mixed", "300"]
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_cli_catalog.py::test_stats_json")
 def test_stats_dyana_12m_reproduces_figure_4_from_the_shell():
     result = run("stats", "dyana-12m", "--json")
     assert result.returncode == 0, result.stderr

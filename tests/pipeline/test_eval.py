@@ -33,10 +33,10 @@ RESOLUTION = 48
 EPISODES = 6
 
 
-def _eval_cli(policy: str, out: Path, *extra: str) -> subprocess.CompletedProcess:
+def _eval_cli(policy: str, out: Path, *extra: str, shard_size: int = 3) -> subprocess.CompletedProcess:
     return subprocess.run(
         [str(BIN / "pipeline"), "eval", "--policy", policy, "--slice", "test-1k", "--episodes", str(EPISODES),
-         "--resolution", str(RESOLUTION), "--shard-size", "3", "--workers", "2", "--out", str(out), *extra],
+         "--resolution", str(RESOLUTION), "--shard-size", str(shard_size), "--workers", "2", "--out", str(out), *extra],
         capture_output=True, text=True, timeout=300,
     )
 
@@ -49,8 +49,10 @@ def _score(run: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
+    """The oracle on two Dask workers (two shards); still as one shard, which runs in the
+    command's own process (the same check without a second cluster)."""
     root = tmp_path_factory.mktemp("eval")
-    results = {name: _eval_cli(name, root / name) for name in ("oracle", "still")}
+    results = {"oracle": _eval_cli("oracle", root / "oracle"), "still": _eval_cli("still", root / "still", shard_size=EPISODES)}
     return root, results
 
 

@@ -38,7 +38,7 @@ def built(tmp_path_factory) -> Path:
     from pipeline.jobs.build import build
 
     out = tmp_path_factory.mktemp("export-src")
-    build("linear-fast", out, episodes=EPISODES, shard_size=SHARD_SIZE, resolution=RESOLUTION, workers=1,
+    build("linear-fast", out, episodes=EPISODES, shard_size=SHARD_SIZE, resolution=RESOLUTION, workers=0,
           progress=False)
     return out / "linear-fast"
 
@@ -253,7 +253,7 @@ def test_an_evaluated_run_exports_with_its_policy_and_statuses(tmp_path):
     from pipeline.jobs.evaluate import evaluate
 
     run = tmp_path / "run"
-    evaluate("chase", "test-1k", run, episodes=3, workers=1, resolution=RESOLUTION, shard_size=2, progress=False,
+    evaluate("chase", "test-1k", run, episodes=3, workers=0, resolution=RESOLUTION, shard_size=2, progress=False,
              summary=False, stream=io.StringIO())
     out = tmp_path / "export"
     export(run, out, ExportSettings("lerobot"))

@@ -28,8 +28,8 @@ def sources(tmp_path_factory) -> list[Path]:
     from pipeline.jobs.build import build
 
     out = tmp_path_factory.mktemp("sources")
-    build("linear-fast", out, episodes=3, shard_size=2, resolution=RESOLUTION, workers=1, progress=False)
-    build("circular-fast", out, episodes=2, shard_size=2, resolution=RESOLUTION, workers=1, progress=False)
+    build("linear-fast", out, episodes=3, shard_size=2, resolution=RESOLUTION, workers=0, progress=False)
+    build("circular-fast", out, episodes=2, shard_size=2, resolution=RESOLUTION, workers=0, progress=False)
     return [out / "linear-fast", out / "circular-fast"]
 
 

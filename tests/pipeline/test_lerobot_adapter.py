@@ -65,7 +65,7 @@ def test_a_lerobot_policy_runs_through_pipeline_eval_in_its_own_process(tmp_path
     np.testing.assert_array_equal(acting[0]["action"], TARGET.numpy())
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_lerobot_adapter.py::test_a_lerobot_policy_runs_through_pipeline_eval_in_its_own_process")
 def test_a_wrong_action_shape_fails_its_episode_not_the_run(tmp_path):
     run = tmp_path / "run"
     evaluate("tests.pipeline.lerobot_like:make_wrong", "test-1k", run, episodes=2, workers=1, resolution=RESOLUTION,
@@ -74,7 +74,7 @@ def test_a_wrong_action_shape_fails_its_episode_not_the_run(tmp_path):
         assert [e.status for e in ds.episodes] == ["error", "error"]
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_lerobot_adapter.py::test_the_batch_is_keyed_and_scaled_as_the_keyed_loader_gives_training_data")
 def test_the_baseline_trains_saves_loads_and_runs_in_the_loop(tmp_path, monkeypatch):
     from pipeline.jobs.build import build
     from pipeline.policies.chunk_cnn import ChunkCNNConfig, ChunkCNNPolicy

@@ -99,7 +99,7 @@ def test_a_lookup_policy_wins_the_public_split_and_falls_to_chance_on_a_private_
     assert private <= 5.0
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_no_lookup.py::test_a_lookup_policy_wins_the_public_split_and_falls_to_chance_on_a_private_one")
 def test_a_lookup_policy_falls_to_chance_on_a_private_split_at_scale(tmp_path):
     public, private = _lookup_scores(tmp_path, 36, 96)  # four episodes of each of the nine cells
     assert public >= 95.0

@@ -90,7 +90,7 @@ def test_the_dataloader_reads_items_with_ranged_requests(remote, local, monkeypa
     assert 0 < sum(fetched) < frames_bytes  # pages of the items, not whole files
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_object_store.py::test_a_remote_build_holds_the_local_builds_bytes_and_nothing_else")
 def test_verify_and_scoring_work_on_the_url(remote, local, server, tmp_path):
     result = _cli("catalog", "verify", remote, "--quiet", env=server, staging=tmp_path)
     assert result.returncode == 0 and "3 rebuilt byte for byte" in result.stdout, result.stderr
@@ -100,7 +100,7 @@ def test_verify_and_scoring_work_on_the_url(remote, local, server, tmp_path):
     assert json.loads(there.stdout)["metrics"] == json.loads(here.stdout)["metrics"]
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_object_store.py::test_a_second_job_on_one_url_from_this_machine_is_busy")
 def test_a_rerun_is_up_to_date_and_another_job_is_refused(remote, server, tmp_path):
     again = _cli("pipeline", "build", *ARGS, "--out", f"s3://{BUCKET}/data", env=server, staging=tmp_path)
     assert again.returncode == 0 and again.stdout.startswith("up to date"), again.stderr
@@ -140,7 +140,7 @@ def test_a_killed_remote_build_resumes_on_another_machine(server, local, tmp_pat
     assert digest and json.loads(objects["catalog.json"])["hash"] == load_manifest(local).hash
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_object_store.py::test_the_dataloader_reads_items_with_ranged_requests")
 def test_view_replay_and_export_read_the_url(remote, server, tmp_path):
     view = _cli("pipeline", "view", remote, "--episode", "1", "--out", str(tmp_path / "e1.rrd"), env=server,
                 staging=tmp_path)
@@ -152,7 +152,7 @@ def test_view_replay_and_export_read_the_url(remote, server, tmp_path):
     assert export.returncode == 0 and "6 episodes" in export.stdout, export.stderr
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_object_store.py::test_a_killed_remote_build_resumes_on_another_machine")
 def test_staging_left_by_another_job_is_cleared_not_refused(server, tmp_path):
     from pipeline.jobs.object_store import staging_folder
 

@@ -221,7 +221,7 @@ def test_a_policy_that_signals_its_parent_fails_only_its_episode(policies, sig):
     assert policies.wait_gone() == []
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_processes.py::test_a_policy_that_signals_its_parent_fails_only_its_episode")
 def test_a_policy_that_signals_a_dask_worker_reaches_only_its_launcher(policies):
     """With ``--workers``, the parent a policy sees is not the Dask worker: the run keeps its
     workers, records the episode's fault and exits 0."""
@@ -306,7 +306,7 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_object_store.py::test_a_killed_remote_build_resumes_on_another_machine")
 def test_killing_the_scheduler_mid_build_is_one_line_and_the_rerun_resumes_to_the_same_bytes(tmp_path):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
@@ -341,7 +341,7 @@ def test_killing_the_scheduler_mid_build_is_one_line_and_the_rerun_resumes_to_th
                 proc.wait(30)
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_processes.py::test_ctrl_c_during_build_is_one_line")
 def test_ctrl_c_during_a_build_into_object_storage_is_one_line(tmp_path):
     from tests.s3_server import s3_server
 

@@ -172,7 +172,7 @@ def run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, timeout=300)
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_protocols.py::test_protocol_runs_are_recorded_deterministic_and_replayable")
 def test_repeats_from_the_command_line(tmp_path):
     out = tmp_path / "rob"
     args = ("pipeline", "eval", "--policy", "chase", "--episodes", "2", "--resolution", str(RES), "--workers", "1",

@@ -132,7 +132,7 @@ def test_the_env_draws_with_the_renderer_it_is_told():
     assert images["full"].shape == images["window"].shape
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_renderer_choice.py::test_a_window_build_is_the_same_in_process_and_with_two_workers")
 @pytest.mark.parametrize("kind", sorted(README_HASHES))
 def test_readme_command_1_hashes_per_renderer(kind, tmp_path):
     manifest = build(SLICE, tmp_path, episodes=32, shard_size=16, progress=False, renderer=kind)

@@ -34,7 +34,7 @@ def test_repeats_where_some_episode_ran_return_their_manifests(tmp_path):
     assert len(manifests) == 2
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_repeats.py::test_every_episode_of_every_repeat_failed_raises_after_writing")
 def test_the_command_line_exits_3_when_every_repeat_failed(tmp_path):
     out = tmp_path / "rob"
     result = subprocess.run(

@@ -27,7 +27,7 @@ RESOLUTION = 48
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     out = tmp_path_factory.mktemp("built")
-    build("harmonic-fast", out, episodes=3, resolution=RESOLUTION, shard_size=2, workers=1, progress=False)
+    build("harmonic-fast", out, episodes=3, resolution=RESOLUTION, shard_size=2, workers=0, progress=False)
     return out / "harmonic-fast"
 
 

@@ -23,7 +23,7 @@ SLICE = "circular-fast"
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     out = tmp_path_factory.mktemp("built")
-    build(SLICE, out, episodes=3, resolution=48, shard_size=2, workers=1, progress=False)
+    build(SLICE, out, episodes=3, resolution=48, shard_size=2, workers=0, progress=False)
     return out / SLICE
 
 

@@ -114,7 +114,7 @@ def test_hold_keeps_going_through_faults_and_counts_them(serve, tmp_path):
     assert replay(run).episodes == 2
 
 
-@pytest.mark.slow
+@pytest.mark.slow(cover="tests/pipeline/test_protocols.py::test_latency_delays_every_action_by_n_frames_and_the_hand_holds_meanwhile")
 def test_latency_is_simulated_deterministically(serve, tmp_path):
     url = serve("prose")
     for name in ("a", "b"):
