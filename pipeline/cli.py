@@ -168,7 +168,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     protocol = _protocol(args)
     _importable_cwd(args.policy)
     options = dict(deadline_s=args.deadline, isolate=not args.in_process, config=config, require_success=True,
-                   test_seed=cli.read_test_seed(args), **cli.job_options(args))
+                   test_seed=cli.read_test_seed(args), test_seed_file=args.test_seed_file, **cli.job_options(args))
     if args.repeats != 1:
         evaluate_repeats(args.policy, args.slice, Path(args.out), args.repeats, protocol, **options)
     else:

@@ -54,6 +54,7 @@ from pipeline.policy_registry import (
     kind_of,
     open_policy,
 )
+from pipeline.remote.sandbox import Seal, sealing
 from schemas.errors import AllEpisodesFailed, PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import printable, shorten
@@ -83,6 +84,8 @@ class EvalSettings:
     protocol: EvalProtocol = EvalProtocol()
     #: The policy's kind (:mod:`pipeline.policy_registry`).
     kind: str = "builtin"
+    #: A held-out run's seal for a user's policy (:mod:`pipeline.remote.sandbox`); not recorded.
+    seal: Seal | None = None
 
     @property
     def call_timeout_s(self) -> float:
@@ -93,7 +96,7 @@ class EvalSettings:
         return kind_named(self.kind)
 
     def open_options(self) -> OpenOptions:
-        return OpenOptions(self.call_timeout_s, self.isolate, self.config)
+        return OpenOptions(self.call_timeout_s, self.isolate, self.config, self.seal)
 
     def extra(self) -> dict[str, Any]:
         """The manifest's rollout keys (the policy's name, not its ref: a restarted server
@@ -300,6 +303,7 @@ def evaluate(
     require_success: bool = False,
     test_seed: str | None = None,
     renderer: str = DEFAULT_RENDERER,
+    test_seed_file: str | None = None,
 ) -> Manifest:
     """Evaluate ``policy_ref`` on the first ``episodes`` of ``slice_name`` into ``out``
     (RUN/catalog.json + shards); prints a summary to ``stream`` (stdout) and returns the manifest.
@@ -316,7 +320,9 @@ def evaluate(
     ``require_success``, a run in which every episode failed raises AllEpisodesFailed after
     it is written and summarised (the run is read once for both). ``test_seed`` (a secret)
     draws a held-out slice's episodes from it instead of the public seed
-    (:mod:`generators.heldout`): the manifest keeps its hash only (key ``test_seed``).
+    (:mod:`generators.heldout`): the manifest keeps its hash only (key ``test_seed``), and a
+    ``module:callable`` policy runs sealed (:mod:`pipeline.remote.sandbox`), never seeing
+    ``test_seed_file`` (the file the secret was read from) or the run folder.
     ``renderer`` (:mod:`schemas.renderers`) draws the frames and decides the run's dataset
     version, as for a build."""
     from generators.encode import JPEG_QUALITY
@@ -348,12 +354,13 @@ def evaluate(
     if not is_url(out):
         refuse_export_folder(run_dir, "run")
     config = kind.configure(policy_ref, config)
-    options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config)
+    seal = sealing(kind.name, private, isolate, test_seed_file, None if is_url(out) else str(run_dir))
+    options = OpenOptions(WATCHDOG_S if deadline_s is None else deadline_s, bool(isolate), config, seal)
     name, privileged = describe_policy(policy_ref, options)
     if kind.check is not None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run
         kind.check(config)
     settings = EvalSettings(build_settings, slice_name, policy_ref, name, privileged, deadline_s, bool(isolate), config,
-                            protocol, kind.name)
+                            protocol, kind.name, seal)
     if is_url(out) and kind.audit_dir is not None:
         raise SpecError(f"--out {str(out)[:60]}: a {kind.name} run keeps its audit trail on local disk; evaluate it locally")
     job = Job(

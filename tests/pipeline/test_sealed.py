@@ -1,0 +1,144 @@
+"""Sealed held-out runs: a ``module:callable`` policy evaluated on a private split runs in
+namespaces of its own (:mod:`pipeline.remote.sandbox`), so a policy that hunts for the
+secret finds nothing and scores at chance; where nothing seals it (a policy served on the
+same machine), the same hunter finds the secret and wins."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from pipeline.jobs.evaluate import evaluate
+from pipeline.remote import sandbox
+from schemas.errors import SpecError
+from scoring.io import load_run
+from scoring.report import score_run
+from tests.pipeline.test_no_lookup import RESOLUTION, SECRET
+from tests.pipeline.test_remote import start_server
+
+BIN = Path(sys.executable).parent
+HUNTER = "tests.pipeline.hunter_policy:HunterPolicy"
+EPISODES = 2
+
+
+def _score(run: Path) -> float:
+    return score_run(load_run(run)).overall.metrics["S_grasp_contact"]
+
+
+def _secret_file(tmp_path: Path) -> Path:
+    path = tmp_path / "keep" / "test-seed.txt"
+    path.parent.mkdir()
+    path.write_text(SECRET + "\n")
+    (tmp_path / "test-seed.bak").write_text(SECRET + "\n")  # a careless copy beside it, under /tmp
+    return path
+
+
+def _holders(stop: threading.Event, seen: list[str]) -> None:
+    """Every process whose command line or environment holds the secret, while the run lasts."""
+    needle = SECRET.encode()
+    while not stop.is_set():
+        for proc in Path("/proc").glob("[0-9]*"):
+            for name in ("cmdline", "environ"):
+                try:
+                    if needle in (proc / name).read_bytes():
+                        seen.append(f"{proc}/{name}")
+                except OSError:
+                    pass
+        stop.wait(0.05)
+
+
+needs_unshare = pytest.mark.skipif(sandbox.unshare_path() is None, reason="util-linux unshare is not installed")
+
+
+@needs_unshare
+def test_a_hunter_finds_nothing_on_a_sealed_run_and_scores_like_a_still_hand(tmp_path):
+    secret_file = _secret_file(tmp_path)
+    common = dict(episodes=EPISODES, workers=0, resolution=RESOLUTION, progress=False, summary=False)
+    stop, seen = threading.Event(), []
+    watch = threading.Thread(target=_holders, args=(stop, seen), daemon=True)
+    watch.start()
+    try:
+        manifest = evaluate(HUNTER, "test-1k", tmp_path / "sealed", test_seed=SECRET, test_seed_file=str(secret_file),
+                            **common)
+    finally:
+        stop.set()
+        watch.join()
+    assert manifest.extra["policy"] == "hunter-blind"  # made in the driver's check and in the worker: both blind
+    assert seen == []
+    evaluate("still", "test-1k", tmp_path / "still", test_seed=SECRET, **common)
+    assert _score(tmp_path / "sealed") == _score(tmp_path / "still") <= 5.0
+
+
+def test_the_hunter_wins_where_nothing_seals_it(tmp_path):
+    """The threat model's other side: a policy served on the eval's machine, outside any
+    sandbox, reads the eval's command line and the secret file, and plays the ground truth."""
+    secret_file = _secret_file(tmp_path)
+    server, url = start_server(HUNTER)
+    try:
+        done = subprocess.run(
+            [str(BIN / "pipeline"), "eval", "--policy", url, "--slice", "test-1k", "--episodes", str(EPISODES),
+             "--resolution", str(RESOLUTION), "--out", str(tmp_path / "open"), "--test-seed-file", str(secret_file),
+             "--quiet"], capture_output=True, text=True, timeout=300,
+        )
+    finally:
+        server.kill()
+        server.wait()
+    assert done.returncode == 0, done.stderr
+    assert "hunter-found" in done.stdout
+    assert _score(tmp_path / "open") == 100.0
+
+
+def test_a_sealed_run_is_refused_in_one_line_where_unshare_is_missing(tmp_path, monkeypatch):
+    monkeypatch.setenv("PATH", str(tmp_path))  # no unshare on it
+    with pytest.raises(SpecError, match="util-linux unshare is not on PATH") as caught:
+        evaluate(HUNTER, "test-1k", tmp_path / "run", episodes=1, workers=0, test_seed=SECRET, progress=False)
+    assert "\n" not in str(caught.value) and SECRET not in str(caught.value)
+    assert not (tmp_path / "run").exists()
+    env = {**os.environ, "PATH": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-m", "pipeline.cli", "eval", "--policy", HUNTER, "--slice", "test-1k",
+                           "--episodes", "1", "--out", str(tmp_path / "run"), "--test-seed", SECRET],
+                          capture_output=True, text=True, env=env)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "sealed" in done.stderr and SECRET not in done.stderr
+
+
+def test_a_private_seed_refuses_an_in_process_user_policy(tmp_path):
+    with pytest.raises(SpecError, match="in-process"):
+        evaluate(HUNTER, "test-1k", tmp_path / "run", episodes=1, workers=0, test_seed=SECRET, isolate=False,
+                 progress=False)
+
+
+def test_public_runs_and_built_in_policies_are_not_sealed():
+    assert sandbox.sealing("module", None, True, None, "/x") is None
+    assert sandbox.sealing("builtin", object(), True, "/s", "/x") is None
+    assert sandbox.sealing("remote", object(), True, "/s", "/x") is None
+
+
+@needs_unshare
+def test_the_sandbox_shows_no_other_process_no_secret_and_cannot_be_undone(tmp_path):
+    secret_file = _secret_file(tmp_path)
+    seal = sandbox.seal_for(str(secret_file), str(tmp_path / "run"))
+    probe = (
+        "import os, subprocess, sys\n"
+        "print(sorted(p for p in os.listdir('/proc') if p.isdigit()))\n"
+        f"print(os.path.exists({str(secret_file)!r}) and open({str(secret_file)!r}).read())\n"
+        f"print(os.path.exists({str(tmp_path)!r}))\n"
+        "print(sorted(os.environ))\n"
+        "print(subprocess.run(['umount', '/tmp'], capture_output=True).returncode != 0)\n"
+        "print(os.getuid())\n"
+    )
+    command = sandbox.command(seal, "unused", 0)
+    command = command[: command.index("--") + 1] + [sys.executable, "-c", probe]
+    done = subprocess.run(command, env=sandbox.environment(), capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    pids, secret, tmp_seen, env, locked, uid = done.stdout.splitlines()
+    assert pids in ("['1']", "['1', '2']")  # itself (and umount's child, gone by then)
+    assert secret in ("False", "")  # gone with /tmp, or /dev/null where a folder is bound back
+    assert tmp_seen == "False"
+    assert env == "['HOME', 'LANG', 'PATH', 'PYTHONPATH']"
+    assert locked == "True" and uid != "0"
