@@ -105,10 +105,16 @@ def _probe(unshare: str) -> str | None:
     return None
 
 
+def unavailable() -> str | None:
+    """None where this machine can seal a policy, else why not."""
+    unshare = unshare_path()
+    return "util-linux unshare is not on PATH" if unshare is None else _probe(unshare)
+
+
 def check_available() -> str:
     """The ``unshare`` command to seal a policy with; SpecError (one line) where the machine cannot."""
+    why = unavailable()
     unshare = unshare_path()
-    why = "util-linux unshare is not on PATH" if unshare is None else _probe(unshare)
     if unshare is None or why is not None:
         raise SpecError(
             f"a private test seed runs a module:callable policy sealed (its own user, PID, mount and network "

@@ -27,7 +27,7 @@ from schemas.errors import SpecError
 from schemas.spec import EpisodeSpec
 from tests.pipeline.lookup_policy import SLICE, Key, LookupPolicy, task_key
 
-#: sha256 of tests.pipeline.test_no_lookup.SECRET.
+#: sha256 of tests.pipeline.test_sealed.SECRET.
 TARGET = "89d09d0044cbdf5c382183058bfe6e0058aa89fe91ecf523248d7201a58d11cf"
 #: Episodes of the private split it regenerates with the secret.
 EPISODES = 64

@@ -18,12 +18,14 @@ from pipeline.remote import sandbox
 from schemas.errors import SpecError
 from scoring.io import load_run
 from scoring.report import score_run
-from tests.pipeline.test_no_lookup import RESOLUTION, SECRET
 from tests.pipeline.test_remote import start_server
 
 BIN = Path(sys.executable).parent
 HUNTER = "tests.pipeline.hunter_policy:HunterPolicy"
 EPISODES = 2
+RESOLUTION = 32
+#: The secret the hunter knows the sha256 of (tests.pipeline.hunter_policy.TARGET).
+SECRET = "5b0e1c9d27f84a6e93c1d0b8f2a47e65"
 
 
 def _score(run: Path) -> float:
@@ -52,7 +54,9 @@ def _holders(stop: threading.Event, seen: list[str]) -> None:
         stop.wait(0.05)
 
 
-needs_unshare = pytest.mark.skipif(sandbox.unshare_path() is None, reason="util-linux unshare is not installed")
+#: Where the machine cannot seal (no unshare, user namespaces off), the refusal test covers it.
+needs_unshare = pytest.mark.skipif(sandbox.unavailable() is not None,
+                                   reason=f"cannot seal a policy here: {sandbox.unavailable()}")
 
 
 @needs_unshare
