@@ -9,8 +9,9 @@ by util-linux ``unshare`` in new user, PID, mount, network, IPC and UTS namespac
   worker's command line, environment, open files or memory;
 - mount: the home folders (``/root``, ``/home``, ``$HOME``), ``/tmp``, ``/var/tmp``,
   ``/dev/shm``, ``/run``, the run folder and the folder of ``--test-seed-file`` are
-  covered by empty tmpfs; the Python install and the folders it imports from
-  (``sys.path``) are bound back,
+  covered by empty tmpfs (the only places it may write: every other mount is made
+  read-only, so it can change no file a worker or the driver later reads or imports);
+  the Python install and the folders it imports from (``sys.path``) are bound back,
   and the secret file itself is covered by ``/dev/null`` last. Then a second user
   namespace without root locks every mount (none can be undone) and drops every
   capability (``no_new_privs`` too);
@@ -28,6 +29,7 @@ from __future__ import annotations
 import ctypes
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -44,7 +46,7 @@ UNSHARE_FLAGS = ("--user", "--map-root-user", "--pid", "--mount", "--net", "--ip
                  "--kill-child", "--mount-proc")
 CLONE_NEWNS = 0x00020000
 CLONE_NEWUSER = 0x10000000
-MS_RDONLY, MS_NOSUID, MS_NODEV, MS_BIND, MS_REC = 1, 2, 4, 4096, 16384
+MS_RDONLY, MS_NOSUID, MS_NODEV, MS_REMOUNT, MS_BIND, MS_REC = 1, 2, 4, 32, 4096, 16384
 PR_SET_NO_NEW_PRIVS = 38
 #: Seconds the probe of :func:`check_available` may take.
 PROBE_TIMEOUT_S = 20.0
@@ -163,6 +165,23 @@ def _under(path: str, folder: str) -> bool:
     return path == folder or path.startswith(folder.rstrip("/") + "/")
 
 
+def _mount_points() -> list[str]:
+    """Every mount point of this mount namespace (``/proc/self/mountinfo``'s fifth field, unescaped)."""
+    with open("/proc/self/mountinfo", encoding="utf-8") as handle:
+        points = [line.split()[4] for line in handle if line.strip()]
+    return [re.sub(r"\\([0-7]{3})", lambda m: chr(int(m.group(1), 8)), p) for p in points]
+
+
+def _read_only(libc: ctypes.CDLL, scratch: set[str]) -> None:
+    """Every mount read-only but the tmpfs ``scratch`` folders and ``/proc``: the policy can
+    change no file a later process (a worker, the driver) would read or import."""
+    for point in dict.fromkeys(_mount_points()):
+        if point in scratch or _under(point, "/proc") or not os.path.exists(point):
+            continue
+        kept = os.statvfs(point).f_flag & (os.ST_NOSUID | os.ST_NODEV | os.ST_NOEXEC | os.ST_NOATIME | os.ST_NODIRATIME)
+        _mount(libc, "none", point, None, MS_REMOUNT | MS_BIND | MS_RDONLY | kept, None)
+
+
 def seal_here(spec: dict) -> None:
     """In the sandbox's first process (root of its user namespace): cover, bind back, lock (module docstring)."""
     libc = _libc()
@@ -171,6 +190,7 @@ def seal_here(spec: dict) -> None:
     keep = sorted({k for k in spec["keep"] if os.path.exists(k) and any(_under(k, f) for f in folders)}, key=len)
     held = {k: os.open(k, os.O_PATH) for k in keep}  # reachable after the cover, through /proc/self/fd
     outer = [f for f in folders if os.path.isdir(f) and not any(_under(f, o) and f != o for o in folders)]
+    scratch = set(outer)
     for folder in outer:
         _mount(libc, "tmpfs", folder, "tmpfs", MS_NOSUID | MS_NODEV, "mode=1777,size=256m")
     for path, fd in held.items():
@@ -184,9 +204,11 @@ def seal_here(spec: dict) -> None:
     for folder in folders:  # one inside a folder bound back (the secret's beside the policy's module)
         if folder not in outer and os.path.isdir(folder):
             _mount(libc, "tmpfs", folder, "tmpfs", MS_NOSUID | MS_NODEV, "mode=1777,size=256m")
+            scratch.add(folder)
     for path in spec["files"]:
         if os.path.exists(path):
             _mount(libc, "/dev/null", path, None, MS_BIND, None)
+    _read_only(libc, scratch)
     if libc.prctl(PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0 or libc.unshare(CLONE_NEWUSER | CLONE_NEWNS) != 0:
         err = ctypes.get_errno()
         raise OSError(err, f"cannot drop the sandbox's privileges: {os.strerror(err)}")

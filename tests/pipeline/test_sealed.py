@@ -124,7 +124,7 @@ def test_public_runs_and_built_in_policies_are_not_sealed():
 
 
 @needs_unshare
-def test_the_sandbox_shows_no_other_process_no_secret_and_cannot_be_undone(tmp_path):
+def test_the_sandbox_shows_no_other_process_no_secret_writes_only_scratch_and_cannot_be_undone(tmp_path):
     secret_file = _secret_file(tmp_path)
     seal = sandbox.seal_for(str(secret_file), str(tmp_path / "run"))
     probe = (
@@ -135,14 +135,23 @@ def test_the_sandbox_shows_no_other_process_no_secret_and_cannot_be_undone(tmp_p
         "print(sorted(os.environ))\n"
         "print(subprocess.run(['umount', '/tmp'], capture_output=True).returncode != 0)\n"
         "print(os.getuid())\n"
+        "def write(path):\n"
+        "    try:\n"
+        "        open(path, 'a').close()\n"
+        "        return 'wrote'\n"
+        "    except OSError as exc:\n"
+        "        return exc.strerror\n"
+        f"print(write({str(Path(__file__).parent / 'planted.py')!r}), write('/tmp/scratch'))\n"
     )
     command = sandbox.command(seal, "unused", 0)
     command = command[: command.index("--") + 1] + [sys.executable, "-c", probe]
     done = subprocess.run(command, env=sandbox.environment(), capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    pids, secret, tmp_seen, env, locked, uid = done.stdout.splitlines()
+    pids, secret, tmp_seen, env, locked, uid, writes = done.stdout.splitlines()
     assert pids in ("['1']", "['1', '2']")  # itself (and umount's child, gone by then)
     assert secret in ("False", "")  # gone with /tmp, or /dev/null where a folder is bound back
     assert tmp_seen == "False"
     assert env == "['HOME', 'LANG', 'PATH', 'PYTHONPATH']"
     assert locked == "True" and uid != "0"
+    assert writes == "Read-only file system wrote"  # no planting code a worker or the driver imports later
+    assert not (Path(__file__).parent / "planted.py").exists()
