@@ -28,8 +28,9 @@ RESOLUTION = 32
 SECRET = "5b0e1c9d27f84a6e93c1d0b8f2a47e65"
 
 
-def _score(run: Path) -> float:
-    return score_run(load_run(run)).overall.metrics["S_grasp_contact"]
+def _scores(run: Path) -> dict[str, float]:
+    metrics = score_run(load_run(run)).overall.metrics
+    return {name: metrics[name] for name in ("S_loc", "E_loc", "S_gra", "S_grasp_contact")}
 
 
 def _secret_file(tmp_path: Path) -> Path:
@@ -75,7 +76,8 @@ def test_a_hunter_finds_nothing_on_a_sealed_run_and_scores_like_a_still_hand(tmp
     assert manifest.extra["policy"] == "hunter-blind"  # made in the driver's check and in the worker: both blind
     assert seen == []
     evaluate("still", "test-1k", tmp_path / "still", test_seed=SECRET, **common)
-    assert _score(tmp_path / "sealed") == _score(tmp_path / "still") <= 5.0
+    sealed, still = _scores(tmp_path / "sealed"), _scores(tmp_path / "still")
+    assert sealed == still and sealed["S_loc"] <= 5.0  # chance: a hand held still
 
 
 def test_the_hunter_wins_where_nothing_seals_it(tmp_path):
@@ -94,7 +96,8 @@ def test_the_hunter_wins_where_nothing_seals_it(tmp_path):
         server.wait()
     assert done.returncode == 0, done.stderr
     assert "hunter-found" in done.stdout
-    assert _score(tmp_path / "open") == 100.0
+    scores = _scores(tmp_path / "open")
+    assert scores["S_loc"] == scores["S_grasp_contact"] == 100.0
 
 
 def test_a_sealed_run_is_refused_in_one_line_where_unshare_is_missing(tmp_path, monkeypatch):
