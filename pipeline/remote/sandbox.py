@@ -70,7 +70,7 @@ def seal_for(secret_file: str | None, run_folder: str | None) -> Seal:
     """The seal of a held-out run: the run folder and the secret file (and its folder) hidden."""
     folders = [os.path.realpath(run_folder)] if run_folder else []
     files = []
-    if secret_file is not None:
+    if secret_file not in (None, "-"):  # "-": read from stdin, which the policy never gets
         real = os.path.realpath(secret_file)
         folders.append(os.path.dirname(real))
         files.append(real)

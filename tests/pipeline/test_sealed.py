@@ -158,3 +158,16 @@ def test_the_sandbox_shows_no_other_process_no_secret_writes_only_scratch_and_ca
     assert locked == "True" and uid != "0"
     assert writes == "Read-only file system wrote"  # no planting code a worker or the driver imports later
     assert not (Path(__file__).parent / "planted.py").exists()
+
+
+def test_the_secret_can_come_from_stdin_and_then_no_command_line_names_a_file(tmp_path):
+    run = tmp_path / "run"
+    evaluate("still", "test-1k", run, episodes=1, workers=0, resolution=RESOLUTION, progress=False, summary=False,
+             test_seed=SECRET)
+    piped = subprocess.run([str(BIN / "pipeline"), "replay", str(run), "--test-seed-file", "-", "--quiet"],
+                           input=SECRET + "\n", capture_output=True, text=True)
+    assert piped.returncode == 0, piped.stderr
+    wrong = subprocess.run([str(BIN / "pipeline"), "replay", str(run), "--test-seed-file", "-"],
+                           input="c3a9f1e07d2b4c68a5e19f30b7d64c28\n", capture_output=True, text=True)
+    assert wrong.returncode == 2 and "does not match" in wrong.stderr
+    assert sandbox.seal_for("-", str(run)).files == ()  # nothing to cover: the policy never gets stdin
