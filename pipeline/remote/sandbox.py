@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from functools import cache
 
 from schemas.errors import SpecError
+from schemas.names import printable
 
 #: Folders every sealed policy loses (besides the run folder and the secret file's folder).
 HIDDEN = ("/tmp", "/var/tmp", "/dev/shm", "/run", "/root", "/home")
@@ -95,15 +96,15 @@ def unshare_path() -> str | None:
 
 @cache
 def _probe(unshare: str) -> str | None:
-    """None if ``unshare`` makes the namespaces a sealed policy needs, else why not."""
+    """None if ``unshare`` seals a process here (the whole seal, around ``python -c pass``), else why not."""
     try:
-        done = subprocess.run([unshare, *UNSHARE_FLAGS, "true"], stdin=subprocess.DEVNULL, capture_output=True,
-                              timeout=PROBE_TIMEOUT_S, check=False)
+        done = subprocess.run(_sealed(unshare, Seal(), [sys.executable, "-S", "-c", "pass"]), stdin=subprocess.DEVNULL,
+                              capture_output=True, timeout=PROBE_TIMEOUT_S, check=False, env=environment())
     except (OSError, subprocess.TimeoutExpired) as exc:
         return str(exc)
     if done.returncode != 0:
-        return done.stderr.decode("utf-8", "replace").strip().splitlines()[-1:][0] if done.stderr.strip() else \
-            f"exit {done.returncode}"
+        text = done.stderr.decode("utf-8", "replace").strip()
+        return printable(text.splitlines()[0], 200) if text else f"exit {done.returncode}"
     return None
 
 
@@ -126,13 +127,17 @@ def check_available() -> str:
     return unshare
 
 
-def command(seal: Seal, ref: str, fd: int) -> list[str]:
-    """The command that serves ``ref`` sealed, on the listening socket ``fd``."""
+def _sealed(unshare: str, seal: Seal, argv: list[str]) -> list[str]:
+    """``argv`` run sealed by ``unshare`` (module docstring)."""
     spec = {"folders": list(seal.folders), "files": list(seal.files), "home": os.path.expanduser("~"),
             "keep": [os.path.realpath(p or os.getcwd()) for p in (*sys.path, sys.prefix, sys.base_prefix, sys.exec_prefix,
                                                                   os.path.dirname(os.path.realpath(sys.executable)))]}
-    return [check_available(), *UNSHARE_FLAGS, sys.executable, "-m", "pipeline.remote.sandbox", json.dumps(spec),
-            "--", sys.executable, "-m", "pipeline.remote.sandbox", "serve", ref, str(fd)]
+    return [unshare, *UNSHARE_FLAGS, sys.executable, "-m", "pipeline.remote.sandbox", json.dumps(spec), "--", *argv]
+
+
+def command(seal: Seal, ref: str, fd: int) -> list[str]:
+    """The command that serves ``ref`` sealed, on the listening socket ``fd``."""
+    return _sealed(check_available(), seal, [sys.executable, "-m", "pipeline.remote.sandbox", "serve", ref, str(fd)])
 
 
 def environment() -> dict[str, str]:

@@ -114,6 +114,16 @@ def test_a_sealed_run_is_refused_in_one_line_where_unshare_is_missing(tmp_path, 
     assert "sealed" in done.stderr and SECRET not in done.stderr
 
 
+def test_a_sealed_run_is_refused_where_user_namespaces_are_off(tmp_path, monkeypatch):
+    fake = tmp_path / "unshare"  # as util-linux answers where unprivileged user namespaces are disabled
+    fake.write_text("#!/bin/sh\necho 'unshare: unshare failed: Operation not permitted' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tmp_path}:{os.environ['PATH']}")
+    with pytest.raises(SpecError, match="this machine cannot: unshare: unshare failed: Operation not permitted"):
+        evaluate(HUNTER, "test-1k", tmp_path / "run", episodes=1, workers=0, test_seed=SECRET, progress=False)
+    assert not (tmp_path / "run").exists()
+
+
 def test_a_private_seed_refuses_an_in_process_user_policy(tmp_path):
     with pytest.raises(SpecError, match="in-process"):
         evaluate(HUNTER, "test-1k", tmp_path / "run", episodes=1, workers=0, test_seed=SECRET, isolate=False,
