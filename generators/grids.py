@@ -233,6 +233,13 @@ def _derive(motion_type: str, cols: dict[str, np.ndarray]) -> None:
         cols["period_s"] = 1.0 / cols["frequency"]
 
 
+def derived_columns(motion_type: str, axes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The grid axes ``axes`` (one value per row) with the derived columns :func:`feasible` reads."""
+    cols = dict(axes)
+    _derive(motion_type, cols)
+    return cols
+
+
 @dataclass(frozen=True, eq=False)
 class ConfigPool:
     """A motion type's feasible configurations in their fixed order.

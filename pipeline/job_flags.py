@@ -36,7 +36,8 @@ def add_selection(p: argparse.ArgumentParser, shard_size: int, episodes: str, *,
 def selection_of(args: argparse.Namespace, slice_name: str | None) -> Selection:
     from pipeline.jobs.spec import Selection
 
-    return Selection(slice_name, args.episodes, args.shard_size, getattr(args, "specs", None), cli.read_test_seed(args))
+    return Selection(slice_name, args.episodes, args.shard_size, getattr(args, "specs", None), cli.read_test_seed(args),
+                     getattr(args, "test_seed_file", None))
 
 
 # --- byte settings -----------------------------------------------------------------------

@@ -71,6 +71,8 @@ class OpenOptions:
     timeout_s: float = field(default_factory=watchdog_s)
     isolate: bool = True
     config: Config | None = None
+    #: A held-out run's seal (:class:`pipeline.remote.sandbox.Seal`): a user's code runs sealed.
+    seal: Any = None
 
 
 @runtime_checkable
@@ -387,7 +389,7 @@ def make_module(ref: str, options: OpenOptions) -> Policy:
         return make_policy(ref)
     from pipeline.remote.isolated import IsolatedPolicy  # lazy: the child-process runner
 
-    return IsolatedPolicy(ref, timeout_s=options.timeout_s + REMOTE_SLACK_S)
+    return IsolatedPolicy(ref, timeout_s=options.timeout_s + REMOTE_SLACK_S, seal=options.seal)
 
 
 def make_builtin(ref: str, options: OpenOptions) -> Policy:

@@ -181,27 +181,36 @@ def add_test_seed(parser: argparse.ArgumentParser, what: str) -> None:
     group.add_argument("--test-seed", metavar="SECRET", help=f"{what} (>= 16 characters; "
                        "make one with: python -c \"import secrets; print(secrets.token_hex(16))\")")
     group.add_argument("--test-seed-file", metavar="FILE",
-                       help="the same secret read from FILE's first line (keeps it out of the shell's history)")
+                       help="the same secret read from FILE's first line (keeps it out of the shell's history; "
+                       "- reads it from stdin)")
 
 
 #: The most bytes a --test-seed-file is read for (a secret is one short line).
 TEST_SEED_FILE_BYTES = 4096
 
 
-def read_test_seed(args: argparse.Namespace) -> str | None:
-    """The secret of ``--test-seed`` or ``--test-seed-file`` (its first line), or None;
-    an unreadable file is a SpecError naming it (never the secret)."""
-    if getattr(args, "test_seed_file", None) is None:
-        return getattr(args, "test_seed", None)
-    path = args.test_seed_file
+def _read_seed_file(path: str) -> bytes:
+    """At most :data:`TEST_SEED_FILE_BYTES` + 1 bytes of the regular file ``path``."""
     try:
         handle, status = open_regular(path)  # a FIFO with no writer would block for ever
         if handle is None:
             raise SpecError(f"--test-seed-file {shorten(path, 80)}: {file_kind(status.st_mode)}, not a regular file")
         with handle:
-            data = handle.read(TEST_SEED_FILE_BYTES + 1)
+            return handle.read(TEST_SEED_FILE_BYTES + 1)
     except OSError as exc:
         raise SpecError(f"--test-seed-file {shorten(path, 80)}: cannot read it ({exc.strerror or exc})") from None
+
+
+def read_test_seed(args: argparse.Namespace) -> str | None:
+    """The secret of ``--test-seed`` or ``--test-seed-file`` (its first line; ``-``: stdin),
+    or None; an unreadable file is a SpecError naming it (never the secret)."""
+    if getattr(args, "test_seed_file", None) is None:
+        return getattr(args, "test_seed", None)
+    path = args.test_seed_file
+    if path == "-":  # a pipe: no command line names where the secret is
+        data, path = sys.stdin.buffer.read(TEST_SEED_FILE_BYTES + 1), "- (stdin)"
+    else:
+        data = _read_seed_file(path)
     if len(data) > TEST_SEED_FILE_BYTES:
         raise SpecError(f"--test-seed-file {shorten(path, 80)}: longer than {TEST_SEED_FILE_BYTES} bytes, not a secret")
     try:

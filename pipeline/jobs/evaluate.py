@@ -56,6 +56,7 @@ from pipeline.policy_registry import (
     kind_of,
     open_policy,
 )
+from pipeline.remote.sandbox import Seal, sealing
 from schemas.errors import AllEpisodesFailed, DyanaError, PolicyError, SpecError
 from schemas.names import printable
 from schemas.runs import is_run
@@ -84,6 +85,8 @@ class EvalSettings:
     protocol: EvalProtocol = EvalProtocol()
     #: The policy's kind (:mod:`pipeline.policy_registry`).
     kind: str = "builtin"
+    #: A held-out run's seal for a user's policy (:mod:`pipeline.remote.sandbox`); not recorded.
+    seal: Seal | None = None
 
     @property
     def call_timeout_s(self) -> float:
@@ -94,7 +97,7 @@ class EvalSettings:
         return kind_named(self.kind)
 
     def open_options(self) -> OpenOptions:
-        return OpenOptions(self.call_timeout_s, self.isolate, self.config)
+        return OpenOptions(self.call_timeout_s, self.isolate, self.config, self.seal)
 
     def extra(self) -> dict[str, Any]:
         """The manifest's rollout keys (the policy's name, not its ref: a restarted server
@@ -384,12 +387,14 @@ def run_eval(spec: JobSpec, report: Report | None = None) -> Manifest:
     ranges = shard_ranges(total, selection.shard_size)
     storage.refuse_export("run")
     config = kind.configure(choice.ref, choice.config)
-    options = OpenOptions(WATCHDOG_S if choice.deadline_s is None else choice.deadline_s, choice.isolate, config)
+    seal = sealing(kind.name, private, choice.isolate, selection.test_seed_file,
+                   None if storage.remote else str(storage.folder))
+    options = OpenOptions(WATCHDOG_S if choice.deadline_s is None else choice.deadline_s, choice.isolate, config, seal)
     name, privileged = describe_policy(choice.ref, options)
     if kind.check is not None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run
         kind.check(config)
     settings = EvalSettings(build_settings, slice_name, choice.ref, name, privileged, choice.deadline_s, choice.isolate,
-                            config, protocol, kind.name)
+                            config, protocol, kind.name, seal)
     if storage.remote and kind.audit_dir is not None:
         raise SpecError(f"--out {str(storage.out)[:60]}: a {kind.name} run keeps its audit trail on local disk; "
                         "evaluate it locally")

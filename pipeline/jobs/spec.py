@@ -49,10 +49,13 @@ class Selection:
     shard_size: int = 128
     specs_path: str | None = None
     test_seed: str | None = None
+    #: Where ``test_seed`` was read from (hidden from a sealed policy; never recorded).
+    test_seed_file: str | None = None
 
     def __post_init__(self) -> None:
         _optional_text("slice", self.slice_name)
         _optional_text("specs_path", self.specs_path)
+        _optional_text("test_seed_file", self.test_seed_file)
         if isinstance(self.shard_size, bool) or not isinstance(self.shard_size, int) or self.shard_size < 1:
             raise SpecError(f"--shard-size must be an integer >= 1, got {shorten(repr(self.shard_size))}")
 
@@ -157,7 +160,7 @@ def byte_settings(resolution: int = DEFAULT_RESOLUTION, renderer: str = DEFAULT_
 
 
 #: The keyword options of build() / build_job() / evaluate(), by the part they belong to.
-SELECTION_OPTIONS = ("episodes", "shard_size", "specs_path", "test_seed")
+SELECTION_OPTIONS = ("episodes", "shard_size", "specs_path", "test_seed", "test_seed_file")
 SETTINGS_OPTIONS = ("resolution", "renderer", "formats")
 EXECUTION_OPTIONS = ("workers", "scheduler", "progress")
 POLICY_OPTIONS = ("config", "isolate", "deadline_s", "protocol")

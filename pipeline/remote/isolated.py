@@ -13,6 +13,8 @@ worker, and the child runs in a session of its own: a policy that signals its pa
 (``os.kill(os.getppid(), SIGKILL)``) or its process group reaches no Dyana process; its
 episode fails at that call, naming the signal. The policy's process group (its own
 children too) ends when the policy is closed, and when the eval dies, even by SIGKILL.
+With a :class:`~pipeline.remote.sandbox.Seal` (a held-out run) the process is sealed in
+namespaces of its own (:mod:`pipeline.remote.sandbox`).
 """
 
 from __future__ import annotations
@@ -25,8 +27,10 @@ from collections import deque
 import numpy as np
 
 from pipeline.policies.base import Observation, Task
+from pipeline.remote import sandbox
 from pipeline.remote.client import RemotePolicy, ServerError
 from pipeline.remote.launcher import Launched
+from pipeline.remote.sandbox import Seal
 from schemas.errors import PolicyError
 from schemas.names import printable, shorten
 
@@ -37,12 +41,17 @@ START_TIMEOUT_S = 120.0
 class IsolatedPolicy:
     """The Policy protocol over a child ``pipeline serve`` process (see the module docstring)."""
 
-    def __init__(self, ref: str, timeout_s: float) -> None:
+    def __init__(self, ref: str, timeout_s: float, seal: Seal | None = None) -> None:
         self.ref = ref
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p or os.getcwd() for p in sys.path)}
-        command = [sys.executable, "-m", "pipeline.cli", "serve", "--policy", ref, "--host", "127.0.0.1",
-                   "--port", "0", "--max-connections", "1"]
-        self._process = Launched(command, env)
+        if seal is None:
+            env = {**os.environ, "PYTHONPATH": os.pathsep.join(p or os.getcwd() for p in sys.path)}
+            command = [sys.executable, "-m", "pipeline.cli", "serve", "--policy", ref, "--host", "127.0.0.1",
+                       "--port", "0", "--max-connections", "1"]
+            self._process = Launched(command, env)
+        else:  # sealed (pipeline.remote.sandbox): it serves a socket made here, in its own namespaces
+            with sandbox.listening_socket() as sock:
+                self._process = Launched(sandbox.command(seal, ref, sock.fileno()), sandbox.environment(),
+                                         pass_fd=sock.fileno())
         self._last_lines: deque[str] = deque(maxlen=3)
         url = self._wait_for_url()
         self._drain = threading.Thread(target=self._drain_stderr, name="dyana-policy-stderr", daemon=True)

@@ -132,16 +132,20 @@ def _watch(child: subprocess.Popen[bytes], watched: set[signal.Signals]) -> tupl
 
 
 def main(argv: Sequence[str]) -> int:
-    """Run ``argv`` as the policy's process under this launcher (see the module docstring)."""
+    """Run ``argv`` as the policy's process under this launcher (see the module docstring);
+    ``--pass-fd N`` first passes that open descriptor on (a sealed policy's listening socket)."""
     watched = set(signal.valid_signals()) - UNWATCHED
     signal.pthread_sigmask(signal.SIG_BLOCK, watched)
+    passed: tuple[int, ...] = ()
+    if len(argv) > 2 and argv[0] == "--pass-fd" and argv[1].isdigit():
+        passed, argv = (int(argv[1]),), argv[2:]
     if not argv:
-        print("usage: python -m pipeline.remote.launcher COMMAND...", file=sys.stderr)
+        print("usage: python -m pipeline.remote.launcher [--pass-fd N] COMMAND...", file=sys.stderr)
         return 2
     me, prctl = os.getpid(), _libc_prctl()
     child = subprocess.Popen(
         list(argv), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, start_new_session=True,
-        preexec_fn=lambda: _child_setup(me, prctl),
+        preexec_fn=lambda: _child_setup(me, prctl), pass_fds=passed,
     )
     report: str | None = None
     graceful = True
@@ -174,10 +178,12 @@ class Stop:
 class Launched:
     """A command run as a policy's process under the launcher: the worker's side (above)."""
 
-    def __init__(self, command: Sequence[str], env: dict[str, str]) -> None:
+    def __init__(self, command: Sequence[str], env: dict[str, str], pass_fd: int | None = None) -> None:
+        passing = [] if pass_fd is None else ["--pass-fd", str(pass_fd)]
         self._launcher = subprocess.Popen(
-            [sys.executable, "-m", "pipeline.remote.launcher", *command], stdin=subprocess.PIPE,
+            [sys.executable, "-m", "pipeline.remote.launcher", *passing, *command], stdin=subprocess.PIPE,
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, start_new_session=True,
+            pass_fds=() if pass_fd is None else (pass_fd,),
         )
         self._out = bytearray()
         self._ended: Stop | None = None

@@ -193,8 +193,10 @@ async def serve_async(
     max_message_bytes: int = protocol.MAX_MESSAGE_BYTES,
     max_connections: int = protocol.MAX_CONNECTIONS,
     wire: Wire | None = None,
+    sock: Any = None,
 ) -> None:
     """Serve (on ``wire``, default dyana/1) until ``stop`` completes (or forever); ``on_listening(host, port)`` gets the bound port.
+    ``sock``, a listening socket, is served instead of ``host:port`` (a sealed policy's: :mod:`pipeline.remote.sandbox`).
 
     A request over ``max_message_bytes`` closes its connection (code 1009); a connection
     beyond ``max_connections`` open at once is told the server is busy and closed (1013),
@@ -220,10 +222,10 @@ async def serve_async(
             open_sessions -= 1
 
     try:
+        where: dict[str, Any] = {"host": host, "port": port} if sock is None else {"sock": sock}
         server = await ws_serve(
             handler,
-            host,
-            port,
+            **where,
             compression=None,
             max_size=max_message_bytes,
             ping_interval=20,
@@ -255,9 +257,10 @@ def serve(
     max_message_bytes: int = protocol.MAX_MESSAGE_BYTES,
     max_connections: int = protocol.MAX_CONNECTIONS,
     wire: Wire | None = None,
+    sock: Any = None,
 ) -> None:
-    """Serve ``policy`` on ``ws://host:port`` (``wire``, default dyana/1) until SIGINT/SIGTERM;
-    prints the address on stderr."""
+    """Serve ``policy`` on ``ws://host:port`` (or the listening ``sock``; ``wire``, default dyana/1)
+    until SIGINT/SIGTERM; prints the address on stderr."""
     wire = wire or DYANA
 
     def listening(bound_host: str, bound_port: int) -> None:
@@ -279,7 +282,7 @@ def serve(
                 pass
         await serve_async(
             policy, host, port, on_listening=listening, stop=stop,
-            max_message_bytes=max_message_bytes, max_connections=max_connections, wire=wire,
+            max_message_bytes=max_message_bytes, max_connections=max_connections, wire=wire, sock=sock,
         )
 
     asyncio.run(main())

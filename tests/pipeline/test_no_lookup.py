@@ -24,6 +24,7 @@ from scoring.io import load_run
 from scoring.report import score_run
 from tests.pipeline.spy_policy import OUT_ENV, SpyPolicy
 from tests.pipeline.test_remote import start_server
+from tests.pipeline.test_sealed import needs_unshare
 
 BIN = Path(sys.executable).parent
 SECRET = "5b0e1c9d27f84a6e93c1d0b8f2a47e65"
@@ -87,12 +88,13 @@ def _grasp_contact(run: Path) -> float:
 
 
 def _lookup_scores(tmp_path: Path, episodes: int, resolution: int) -> tuple[float, float]:
-    common = dict(episodes=episodes, workers=0, resolution=resolution, isolate=False, progress=False, summary=False)
-    evaluate(LOOKUP, "test-1k", tmp_path / "public", **common)
-    evaluate(LOOKUP, "test-1k", tmp_path / "private", test_seed=SECRET, **common)
+    common = dict(episodes=episodes, workers=0, resolution=resolution, progress=False, summary=False)
+    evaluate(LOOKUP, "test-1k", tmp_path / "public", isolate=False, **common)
+    evaluate(LOOKUP, "test-1k", tmp_path / "private", test_seed=SECRET, **common)  # sealed: pipeline.remote.sandbox
     return _grasp_contact(tmp_path / "public"), _grasp_contact(tmp_path / "private")
 
 
+@needs_unshare
 def test_a_lookup_policy_wins_the_public_split_and_falls_to_chance_on_a_private_one(tmp_path):
     public, private = _lookup_scores(tmp_path, 3, RESOLUTION)
     assert public == 100.0
@@ -100,6 +102,7 @@ def test_a_lookup_policy_wins_the_public_split_and_falls_to_chance_on_a_private_
 
 
 @pytest.mark.slow(cover="tests/pipeline/test_no_lookup.py::test_a_lookup_policy_wins_the_public_split_and_falls_to_chance_on_a_private_one")
+@needs_unshare
 def test_a_lookup_policy_falls_to_chance_on_a_private_split_at_scale(tmp_path):
     public, private = _lookup_scores(tmp_path, 36, 96)  # four episodes of each of the nine cells
     assert public >= 95.0
@@ -132,7 +135,7 @@ def test_the_manifest_keeps_a_hash_and_no_seed_and_the_bytes_are_deterministic(t
     text = (run / "catalog.json").read_text()
     manifest = json.loads(text)
     record = manifest["test_seed"]
-    assert set(record) == {"kdf", "n", "r", "p", "salt", "hash"} and record["kdf"] == "scrypt"
+    assert set(record) == {"kdf", "n", "r", "p", "salt", "hash", "scheme"} and record["kdf"] == "scrypt"
     assert manifest["seed"] is None
     seed = derive(SECRET, "test-1k")
     assert SECRET not in text and str(seed.generator_seed) not in text
