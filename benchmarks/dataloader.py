@@ -30,7 +30,7 @@ blob; ``--shard-size`` episodes per shard), then times, best of ``--repeats``:
   that DataLoader's own transport (collate into fresh shared memory, one file descriptor
   passed per tensor) sets. ``torch_fast_speedup`` (``torch_fast_first_epoch_speedup``,
   ``torch_fast_ready_speedup``) is the same for ``ds.torch().loader(batch_size=32,
-  shuffle=True, num_workers=W, persistent_workers=True)`` (:mod:`catalog.torch_batches`:
+  shuffle=True, num_workers=W, persistent_workers=True)`` (:mod:`catalog.loader.torch_batches`:
   the same batches, each built by its worker in one reused shared-memory slab); None
   where the code predates it.
 
@@ -76,9 +76,9 @@ import numpy as np
 import simplejpeg
 
 import catalog  # noqa: E402
-from catalog.manifest import CodeInfo, Manifest, write_manifest  # noqa: E402
-from catalog.parquet_io import read_frames  # noqa: E402
-from catalog.shard import ShardWriter  # noqa: E402
+from catalog.store.manifest import CodeInfo, Manifest, write_manifest  # noqa: E402
+from catalog.tables.parquet_io import read_frames  # noqa: E402
+from catalog.tables.shard import ShardWriter  # noqa: E402
 from schemas.frames import EpisodeFrames  # noqa: E402
 from schemas.motion import LineToken, Motion  # noqa: E402
 from schemas.scene import GRASP_FRAMES  # noqa: E402
@@ -229,7 +229,7 @@ class _Ready:
 def _torch_epochs(root: Path, verify: str, workers: int, epochs: int) -> dict[str, list[float]] | None:
     """Wall seconds of each epoch of a shuffled map-style DataLoader (persistent workers), over
     the dataset and over ready-made items (``ready``), and of ``ds.torch().loader`` over both
-    (``fast``, ``fast_ready``; skipped where ``catalog.torch_batches`` does not exist)."""
+    (``fast``, ``fast_ready``; skipped where ``catalog.loader.torch_batches`` does not exist)."""
     try:
         import torch
     except ImportError:
@@ -237,7 +237,7 @@ def _torch_epochs(root: Path, verify: str, workers: int, epochs: int) -> dict[st
     ds = catalog.open(root, verify=verify)
     times: dict[str, list[float]] = {}
     try:
-        from catalog.torch_batches import torch_loader
+        from catalog.loader.torch_batches import torch_loader
     except ImportError:
         torch_loader = None
     runs = [("loader", ds.torch()), ("ready", _Ready(ds))]

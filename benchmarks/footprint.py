@@ -4,7 +4,7 @@ For every buildable slice, ``--sample`` episodes spread evenly over the slice (i
 round(i * n / k)) are built at 224 px through ``pipeline build --specs`` (the specs renumbered
 0..k-1, everything else as the recipe has it); the frames and MCAP bytes are divided by the
 sample's frames and the episodes table's bytes by its episodes. The result is written to
-``catalog/footprint.json`` (read by ``catalog list`` and :mod:`catalog.footprint`), which this
+``catalog/store/footprint.json`` (read by ``catalog list`` and :mod:`catalog.store.footprint`), which this
 script regenerates; the last line printed is JSON.
 
     python benchmarks/footprint.py                # 24 episodes per slice
@@ -23,8 +23,8 @@ from pathlib import Path
 
 import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 
-from catalog.footprint import FOOTPRINT_PATH
-from catalog.manifest import load_manifest
+from catalog.store.footprint import FOOTPRINT_PATH
+from catalog.store.manifest import load_manifest
 from generators.recipe import spec_for
 from pipeline.jobs.build import build
 from schemas.slices import SLICES
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sample", type=int, default=24, help="episodes per slice (default 24)")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--write", action="store_true", help="write catalog/footprint.json (default with --sample 24+)")
+    parser.add_argument("--write", action="store_true", help="write catalog/store/footprint.json (default with --sample 24+)")
     args = parser.parse_args(argv)
     names = [name for name, d in SLICES.items() if not d.union]
     rows = {}

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 
-from catalog.manifest import load_manifest  # noqa: E402
+from catalog.store.manifest import load_manifest  # noqa: E402
 from schemas.slices import ATOMIC_SLICES  # noqa: E402
 
 #: Steps between lerobot-train's log lines (``--log_freq``).

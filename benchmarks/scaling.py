@@ -165,7 +165,7 @@ def _s3(bucket: str) -> Iterator[bool]:
 
 
 def _commit() -> str | None:
-    from catalog.manifest import git_commit
+    from catalog.store.manifest import git_commit
 
     return git_commit(bench_setup.ROOT)
 

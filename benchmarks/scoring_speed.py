@@ -33,10 +33,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from catalog.hashing import sha256_file  # noqa: E402
-from catalog.manifest import CodeInfo, Manifest, load_manifest, write_manifest  # noqa: E402
-from catalog.parquet_io import write_table  # noqa: E402
-from catalog.records import FileRecord, ShardRecord, shard_paths  # noqa: E402
+from catalog.store.hashing import sha256_file  # noqa: E402
+from catalog.store.manifest import CodeInfo, Manifest, load_manifest, write_manifest  # noqa: E402
+from catalog.store.records import FileRecord, ShardRecord, shard_paths  # noqa: E402
+from catalog.tables.parquet_io import write_table  # noqa: E402
 from schemas.objects import OBJECTS  # noqa: E402
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES  # noqa: E402
 from schemas.tables import ARRAY_WIDTHS, FRAMES_SCHEMA, ROLLOUT_EPISODES_SCHEMA  # noqa: E402

@@ -15,7 +15,7 @@ from schemas import cli
 from schemas.errors import DyanaError
 
 if TYPE_CHECKING:  # the commands import their modules when run, so --help stays fast
-    from catalog.records import ShardRecord
+    from catalog.store.records import ShardRecord
 
 
 def _resumable(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:

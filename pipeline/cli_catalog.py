@@ -27,7 +27,7 @@ from schemas.slices import get_slice
 from schemas.versions import DATASET_VERSION, FPS
 
 if TYPE_CHECKING:  # imported by the commands when run
-    from catalog.records import ShardRecord
+    from catalog.store.records import ShardRecord
 
 
 def _print_json(data: object) -> None:
@@ -44,7 +44,7 @@ def _size(n: int) -> str:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from catalog.footprint import expected_footprint
+    from catalog.store.footprint import expected_footprint
     from generators.recipe import slice_overview
 
     rows = slice_overview()
@@ -69,7 +69,7 @@ def cmd_list(args: argparse.Namespace) -> int:
         parquet, total = ("-", "-") if size is None else (_size(size["parquet"]), _size(size["total"]))
         print(f"{row['slice']:<17} {motion:<10} {setting:<8} {row['episodes']:>9,} {row['frames']:>11,} {seed:>5} "
               f"{parquet:>9} {total:>9}")
-    print("sizes: expected on disk at 224 px (catalog/footprint.json, measured by benchmarks/footprint.py); "
+    print("sizes: expected on disk at 224 px (catalog/store/footprint.json, measured by benchmarks/footprint.py); "
           "'+ mcap' is the default --formats parquet,mcap")
     return 0
 
@@ -124,8 +124,8 @@ def _specs_arguments(p: argparse.ArgumentParser) -> None:
 
 def _seed_text(location: str, seed: int | None) -> str:
     """A folder's seed as ``catalog info`` shows it: a private test seed by its hash only."""
-    from catalog.manifest import MANIFEST_NAME, load_manifest
-    from catalog.storage import as_location
+    from catalog.store.manifest import MANIFEST_NAME, load_manifest
+    from catalog.store.storage import as_location
     from generators.heldout import MANIFEST_KEY
 
     if seed is not None:
@@ -203,7 +203,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 def _export_arguments(p: argparse.ArgumentParser) -> None:
     from catalog.export.layout import FORMATS
     from catalog.export.video import CODECS
-    from catalog.lerobot_names import ENV_KEY
+    from catalog.loader.lerobot_names import ENV_KEY
 
     p.add_argument("dirs", metavar="DIR", nargs="+", help="built slice or evaluated run folders (holding "
                    "catalog.json); several become one dataset, episodes renumbered in the order given")
@@ -233,10 +233,10 @@ def _setting(value: object) -> str:
 
 def cmd_info(args: argparse.Namespace) -> int:
     # lazy, as the other commands: the job modules load numpy, pyarrow and the env
-    from catalog.info import folder_info, shown_settings
-    from catalog.repeat_sets import repeats_hint
+    from catalog.store.info import folder_info, shown_settings
+    from catalog.store.repeat_sets import repeats_hint
 
-    hint = repeats_hint(args.dir)  # as every reader of one run says it (catalog.manifest.load_manifest)
+    hint = repeats_hint(args.dir)  # as every reader of one run says it (catalog.store.manifest.load_manifest)
     if hint:
         raise SpecError(hint)
     info = folder_info(args.dir)

@@ -41,7 +41,7 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 from urllib.parse import urlsplit, urlunsplit
 
-from catalog.hashing import sha256_file
+from catalog.store.hashing import sha256_file
 from schemas.errors import PolicyError, SpecError
 from schemas.names import shorten
 

@@ -1,6 +1,6 @@
 """What makes a Dyana folder a run (a policy's rollouts) and not a built slice: it names its
 policy, in its manifest (``catalog.json``'s ``policy`` key, :attr:`Manifest.extra
-<catalog.manifest.Manifest.extra>`) and in its episodes tables (the ``policy`` column of
+<catalog.store.manifest.Manifest.extra>`) and in its episodes tables (the ``policy`` column of
 :data:`schemas.tables.ROLLOUT_FIELDS`). :func:`is_run` is the one test, for both."""
 
 from __future__ import annotations

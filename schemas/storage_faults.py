@@ -4,7 +4,7 @@ recognised and described without importing its client.
 botocore, aiobotocore and s3fs are optional and heavy; ``schemas`` imports none of them,
 so their exceptions are recognised by the module that defines them and described by class
 name and the attributes botocore documents (``kwargs``, ``response``). The storage layer
-(:mod:`catalog.storage`) turns them into :class:`schemas.errors.StorageError` naming the
+(:mod:`catalog.store.storage`) turns them into :class:`schemas.errors.StorageError` naming the
 URL; the command-line layer (:mod:`schemas.cli`) gives any that escape one line and exit 2.
 """
 

@@ -5,7 +5,7 @@
 Reads recorded shards only (never the simulator). Bad input (not a run folder, a
 missing column, an empty run, a run missing some of its episodes 0..N-1) prints one line
 on stderr and exits with code 2. Every output is checked before scoring and written by
-:mod:`catalog.outputs`' rule: a file is replaced whole, a device or FIFO (``/dev/null``,
+:mod:`catalog.store.outputs`' rule: a file is replaced whole, a device or FIFO (``/dev/null``,
 ``/dev/stdout``) is written as such, and an empty path, a folder, a socket or a path inside
 a run being read is refused.
 """
@@ -18,7 +18,7 @@ import json
 import sys
 from collections.abc import Sequence
 
-from catalog.outputs import check_output, open_output
+from catalog.store.outputs import check_output, open_output
 from schemas import cli
 from schemas.errors import DyanaError
 from schemas.names import shorten
@@ -124,7 +124,7 @@ def _write(path: str, text: str) -> None:
 
 def check_outputs(args: argparse.Namespace) -> None:
     """Before any scoring: every output flag given names a file that may be written
-    (:func:`catalog.outputs.check_output`: not empty, not a folder, not inside a run read)."""
+    (:func:`catalog.store.outputs.check_output`: not empty, not a folder, not inside a run read)."""
     for name, flag in OUTPUTS:
         path = getattr(args, name)
         if path is not None:

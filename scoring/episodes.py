@@ -34,7 +34,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from catalog.outputs import open_output
+from catalog.store.outputs import open_output
 from schemas.errors import DyanaError
 from schemas.names import shorten
 from schemas.obstacles import CONTACT_CLEARANCE

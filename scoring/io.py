@@ -19,8 +19,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from catalog.parquet_io import column_to_numpy
-from catalog.reader import ShardReader, open_folder
+from catalog.tables.parquet_io import column_to_numpy
+from catalog.tables.reader import ShardReader, open_folder
 from schemas.errors import ShardError, SpecError
 from schemas.events import PROJECTILE_MARK, acting, acting_budget, hover_offset, spec_hover_offset
 from schemas.frames import EpisodeFrames
@@ -103,7 +103,7 @@ def _strings(column: pa.ChunkedArray) -> np.ndarray:
 
 def load_run(folder: str | os.PathLike[str]) -> RunData:
     """Read a run or slice folder (``catalog.json`` + shards) for scoring, through
-    :func:`catalog.reader.open_folder` (the checks every reader makes)."""
+    :func:`catalog.tables.reader.open_folder` (the checks every reader makes)."""
     reader = open_folder(folder)
     if not reader.shards or reader.manifest.episodes == 0:
         raise ShardError(f"{folder}: the run is empty (no episodes)")

@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
 
-from catalog.outputs import open_output  # noqa: E402
+from catalog.store.outputs import open_output  # noqa: E402
 from scoring.plot import COLOURS, COLUMN_WIDTH_IN, FONT_PT, MARKERS, STYLES  # noqa: E402
 from scoring.report import RunReport  # noqa: E402
 

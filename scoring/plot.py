@@ -27,7 +27,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from catalog.outputs import open_output  # noqa: E402
+from catalog.store.outputs import open_output  # noqa: E402
 from scoring.chance import CHANCE_LABEL, ChanceRow  # noqa: E402
 from scoring.paper import PAPER_ROWS, paper_label  # noqa: E402
 from scoring.registry import Metric, registered, table_metrics  # noqa: E402

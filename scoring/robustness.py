@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from catalog.parquet_io import column_to_numpy
-from catalog.reader import open_folder
-from catalog.storage import as_location
+from catalog.store.storage import as_location
+from catalog.tables.parquet_io import column_to_numpy
+from catalog.tables.reader import open_folder
 from schemas.errors import ShardError
 from schemas.scene import LOC_TOLERANCE
 from scoring.io import RunData, load_run

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from catalog.records import shard_like_files
+from catalog.store.records import shard_like_files
 
 
 def shard_bytes(folder: Path) -> dict[str, bytes]:

@@ -67,7 +67,7 @@ def test_pyproject_ranges_admit_every_pin():
 
 
 def test_the_byte_determining_distributions_are_pinned():
-    from catalog.versions import BYTE_DISTRIBUTIONS
+    from catalog.store.versions import BYTE_DISTRIBUTIONS
 
     pins = lock.read_lock(LOCK)
     assert [name for name in BYTE_DISTRIBUTIONS if canonicalize_name(name) not in pins] == []

@@ -35,7 +35,7 @@ def _source_files() -> list[str]:
 
 def _loaded_data_files() -> list[str]:
     """The data files the code opens beside its modules (the constants it opens them by)."""
-    from catalog.footprint import FOOTPRINT_PATH
+    from catalog.store.footprint import FOOTPRINT_PATH
     from pipeline.policies.blind import PATH_FILE
     from pipeline.policies.vlm import TEMPLATES
 
@@ -70,7 +70,7 @@ def test_every_module_and_package_file_is_in_the_wheel(wheel_names: set[str]) ->
 
 def test_every_loaded_data_file_is_in_the_wheel(wheel_names: set[str]) -> None:
     loaded = _loaded_data_files()
-    assert "catalog/footprint.json" in loaded and "pipeline/policies/vlm_prompts/v1.txt" in loaded
+    assert "catalog/store/footprint.json" in loaded and "pipeline/policies/vlm_prompts/v1.txt" in loaded
     missing = [name for name in loaded if name not in wheel_names]
     assert not missing, f"read at run time but not in the wheel: {missing}"
 

@@ -1,7 +1,7 @@
 """How a Dyana folder maps onto a LeRobot dataset: features, file paths, metadata files.
 
 Field mapping (one LeRobot frame per Dyana frame, same order; the names are
-:mod:`catalog.lerobot_names`'):
+:mod:`catalog.loader.lerobot_names`'):
 
 =================================  ======================================================
 LeRobot feature                    Dyana source
@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from catalog.lerobot_names import ACTION_KEY, ENV_KEY, IMAGE_KEY, INDEX_FEATURES, STATE_KEY
+from catalog.loader.lerobot_names import ACTION_KEY, ENV_KEY, IMAGE_KEY, INDEX_FEATURES, STATE_KEY
 from schemas.joints import ACTION_NAMES, JOINT_NAMES, OBJECT_POSE_NAMES, PALM_POSE_NAMES
 
 #: Export formats: name -> LeRobot codebase version.

@@ -26,8 +26,8 @@ from typing import Any
 
 from catalog.export.layout import FORMATS
 from catalog.export.video import CODECS, codec_versions
-from catalog.reader import FolderReader
-from catalog.records import FileRecord
+from catalog.store.records import FileRecord
+from catalog.tables.reader import FolderReader
 from schemas.errors import DyanaError
 from schemas.names import shorten
 

@@ -15,7 +15,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from catalog.atomic import atomic_open, atomic_write_text
 from catalog.export.episode_stats import Moments, merge_all
 from catalog.export.layout import (
     DYANA_META,
@@ -30,10 +29,11 @@ from catalog.export.layout import (
     vector_names,
 )
 from catalog.export.lerobot import ExportSettings, Json, Part
-from catalog.hashing import sha256_file
-from catalog.lerobot_names import IMAGE_SOURCE, VECTOR_SOURCES
-from catalog.reader import FolderReader
-from catalog.stats import load_stats
+from catalog.loader.lerobot_names import IMAGE_SOURCE, VECTOR_SOURCES
+from catalog.store.atomic import atomic_open, atomic_write_text
+from catalog.store.hashing import sha256_file
+from catalog.tables.reader import FolderReader
+from catalog.tables.stats import load_stats
 from schemas.versions import CODE_VERSION, FPS
 
 

@@ -18,7 +18,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from catalog.atomic import atomic_open, atomic_write_text
 from catalog.export.episode_stats import Moments
 from catalog.export.layout import (
     EPISODE_FACTS,
@@ -35,11 +34,12 @@ from catalog.export.layout import (
 )
 from catalog.export.lerobot import ExportError, ExportPlan, Json, Part, Unit, json_int, part_path
 from catalog.export.video import VideoWriter
-from catalog.hashing import sha256_file
-from catalog.lerobot_names import IMAGE_SOURCE, INDEX_FEATURES, VECTOR_SOURCES
-from catalog.parquet_io import column_to_numpy
-from catalog.reader import ShardReader, open_folder
-from catalog.records import FileRecord
+from catalog.loader.lerobot_names import IMAGE_SOURCE, INDEX_FEATURES, VECTOR_SOURCES
+from catalog.store.atomic import atomic_open, atomic_write_text
+from catalog.store.hashing import sha256_file
+from catalog.store.records import FileRecord
+from catalog.tables.parquet_io import column_to_numpy
+from catalog.tables.reader import ShardReader, open_folder
 from schemas.versions import FPS
 
 _IMREAD = getattr(cv2, "IMREAD_COLOR_RGB", None)

@@ -27,7 +27,7 @@ from types import ModuleType, TracebackType
 
 import numpy as np
 
-from catalog.atomic import commit, discard, temp_path
+from catalog.store.atomic import commit, discard, temp_path
 from schemas.errors import DyanaError
 
 #: Keyframe interval in frames (LeRobot encodes with g=2).

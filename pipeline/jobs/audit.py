@@ -14,10 +14,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from catalog.atomic import atomic_write_text
-from catalog.hashing import sha256_file
-from catalog.manifest import Manifest
-from catalog.records import FileRecord
+from catalog.store.atomic import atomic_write_text
+from catalog.store.hashing import sha256_file
+from catalog.store.manifest import Manifest
+from catalog.store.records import FileRecord
 from schemas.errors import ShardError
 
 #: The previous release's listing of a trail's files.

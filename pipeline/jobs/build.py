@@ -14,8 +14,8 @@ import hashlib
 from pathlib import Path
 from typing import Any
 
-from catalog.manifest import Manifest
-from catalog.stats import written_partial
+from catalog.store.manifest import Manifest
+from catalog.tables.stats import written_partial
 from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult, run_job
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import JobSpec, job_spec

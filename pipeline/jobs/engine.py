@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar
 
-from catalog.atomic import remove_stray_temps
 from catalog.export.layout import DYANA_META
-from catalog.manifest import git_commit
+from catalog.store.atomic import remove_stray_temps
+from catalog.store.manifest import git_commit
 from pipeline.jobs.lock import LOCK_FILE, folder_lock
 from pipeline.jobs.progress import Progress, Unit
 from pipeline.jobs.sink import ShardSink

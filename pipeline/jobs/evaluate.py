@@ -28,11 +28,11 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from catalog.manifest import Manifest, load_manifest, manifest_path
-from catalog.reader import ShardReader
-from catalog.records import ShardRecord
-from catalog.stats import written_partial
-from catalog.storage import as_location
+from catalog.store.manifest import Manifest, load_manifest, manifest_path
+from catalog.store.records import ShardRecord
+from catalog.store.storage import as_location
+from catalog.tables.reader import ShardReader
+from catalog.tables.stats import written_partial
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, derive, private_specs
 from pipeline.jobs.audit import read_audit, stamped, write_audit
@@ -140,7 +140,7 @@ def eval_shard(task: ShardTask, settings: EvalSettings, sink: ShardSink) -> dict
 
 
 def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[str, Any]:
-    from catalog.shard import ShardWriter
+    from catalog.tables.shard import ShardWriter
 
     env = settings_env(settings.build)
     stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from catalog.atomic import atomic_write_text, remove_stray_temps
 from catalog.export.layout import DYANA_META
 from catalog.export.lerobot import (
     WORK_DIR,
@@ -45,9 +44,10 @@ from catalog.export.lerobot import (
 )
 from catalog.export.meta import assemble, tasks_of
 from catalog.export.unit import export_unit
-from catalog.reader import FolderReader, open_folder
-from catalog.records import FileRecord
-from catalog.storage import is_remote
+from catalog.store.atomic import atomic_write_text, remove_stray_temps
+from catalog.store.records import FileRecord
+from catalog.store.storage import is_remote
+from catalog.tables.reader import FolderReader, open_folder
 from pipeline.jobs.engine import LocalFolder, Previous, Range, run_folder_job
 from pipeline.jobs.lock import LOCK_FILE
 from pipeline.jobs.sink import ShardSink

@@ -1,7 +1,7 @@
 """`catalog migrate`: bring a folder of a previous release up to this one's manifest:
 move a dataset 2.0.0 folder (all three files of a shard in ``shards/``) into the table
 folders (``frames/``, ``episodes/``, ``mcap/``) without rewriting any file, and seal a
-manifest written before Dyana sealed every key (``key_sha256``, :mod:`catalog.manifest`).
+manifest written before Dyana sealed every key (``key_sha256``, :mod:`catalog.store.manifest`).
 
 Sealing comes after checking every file the manifest lists (size, sha256, readable) and
 that no unlisted file lies in a data folder; a VLM run's ``vlm/index.json`` is checked
@@ -22,9 +22,9 @@ import dataclasses
 import os
 from pathlib import Path
 
-from catalog.integrity import check_files, raise_first
-from catalog.manifest import Manifest, load_manifest, manifest_path, write_manifest
-from catalog.records import TABLE_LAYOUT, FileRecord, ShardRecord, is_legacy, shard_paths
+from catalog.store.manifest import Manifest, load_manifest, manifest_path, write_manifest
+from catalog.store.records import TABLE_LAYOUT, FileRecord, ShardRecord, is_legacy, shard_paths
+from catalog.tables.integrity import check_files, raise_first
 from pipeline.jobs.audit import LEGACY_INDEX, legacy_trail
 from pipeline.jobs.lock import folder_lock
 from pipeline.policy_registry import KINDS

@@ -22,7 +22,7 @@ default ``~/.cache/dyana/staging``) and publishes them as it goes:
 
 Before starting, the URL is checked writable (a tiny probe object written and removed:
 the bucket exists, the credentials and endpoint work), and the client's failures are one
-:class:`~schemas.errors.StorageError` naming the URL (:mod:`catalog.storage`). Then a
+:class:`~schemas.errors.StorageError` naming the URL (:mod:`catalog.store.storage`). Then a
 remote ``catalog.json`` describing this job, written by code that may have written these
 bytes (the one rule of :func:`pipeline.jobs.state.code_decision`, as for a local folder:
 after another commit one sample shard is rebuilt locally and compared first), with every
@@ -48,9 +48,9 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from catalog.manifest import MANIFEST_NAME, Manifest, git_commit
-from catalog.records import ShardRecord
-from catalog.storage import as_location, check_writable, listed_sizes, reaching
+from catalog.store.manifest import MANIFEST_NAME, Manifest, git_commit
+from catalog.store.records import ShardRecord
+from catalog.store.storage import as_location, check_writable, listed_sizes, reaching
 from pipeline.jobs.lock import LOCK_FILE, held
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.state import (

@@ -3,7 +3,7 @@ the protocol with ``repeat=r`` (so a seeded perturbation differs between repeats
 the same whenever repeat r is run again), one ordinary run folder per repeat
 (``RUN/repeat-00``, ...), and ``RUN/repeats.json`` naming them with their manifest hashes.
 ``scoring eval RUN`` reads such a folder as one robustness experiment; the folder's layout
-(:data:`REPEATS_FILE`, :func:`repeat_folders`) is :mod:`catalog.repeat_sets`'s, which every
+(:data:`REPEATS_FILE`, :func:`repeat_folders`) is :mod:`catalog.store.repeat_sets`'s, which every
 reader of one run uses to refuse a folder of repeats saying what to pass instead.
 """
 
@@ -14,9 +14,9 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from catalog.atomic import atomic_open
-from catalog.manifest import Manifest, load_manifest
-from catalog.repeat_sets import REPEATS_FILE, repeat_folders
+from catalog.store.atomic import atomic_open
+from catalog.store.manifest import Manifest, load_manifest
+from catalog.store.repeat_sets import REPEATS_FILE, repeat_folders
 from pipeline.jobs.spec import JobSpec, Storage
 from pipeline.loop.conditions import MAX_REPEATS, EvalProtocol
 from schemas.errors import AllEpisodesFailed, SpecError

@@ -15,7 +15,7 @@ Nothing recorded is taken on trust where it can be re-derived: a run's ``status`
 from the re-execution (``ok`` when the last recorded step ends the episode, ``error``
 when the recording stops before), ``policy`` and ``privileged`` from the manifest,
 checked against the policy where replay can make it. Unlisted files in the data
-folders are refused first (:func:`catalog.integrity.stray_files`).
+folders are refused first (:func:`catalog.tables.integrity.stray_files`).
 
 Every column of every frame (state arrays bit for bit, the JPEG bytes) and of the
 episodes table is compared, then the shard is rewritten into a scratch folder and
@@ -23,7 +23,7 @@ its three files' sha256 are compared with the manifest (which also covers the MC
 and the Parquet metadata). The first difference raises :class:`ReplayMismatch`
 naming the shard, episode, frame and column, with both values; :func:`replay` (and
 ``catalog verify``) add each library version the folder records that differs from the
-installed one (:mod:`catalog.versions`), the likeliest cause of such a difference.
+installed one (:mod:`catalog.store.versions`), the likeliest cause of such a difference.
 
 :func:`replay_shard` is the one place a recorded shard is re-executed: ``catalog verify``
 (:mod:`pipeline.jobs.verify`) rebuilds its sampled shards through it too.
@@ -42,12 +42,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from catalog.integrity import raise_first, stray_files
-from catalog.manifest import MANIFEST_NAME, Manifest
-from catalog.parquet_io import episode_row, episodes_table, frames_table
-from catalog.reader import ShardReader, check_file, open_folder
-from catalog.records import ShardRecord, shard_stem
-from catalog.versions import mismatch_note
+from catalog.store.manifest import MANIFEST_NAME, Manifest
+from catalog.store.records import ShardRecord, shard_stem
+from catalog.store.versions import mismatch_note
+from catalog.tables.integrity import raise_first, stray_files
+from catalog.tables.parquet_io import episode_row, episodes_table, frames_table
+from catalog.tables.reader import ShardReader, check_file, open_folder
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, matching, private_specs
 from pipeline.jobs.progress import EpisodeReport, report_quietly
@@ -248,7 +248,7 @@ def replay_shard(
     ``report`` hears each episode re-executed; ``columns``: a run's ``policy`` and
     ``privileged`` columns (:func:`rollout_columns`); ``drawn``: the specs its episodes must
     hold (a privately drawn run's, :func:`drawn_specs`). The first difference is a ReplayMismatch."""
-    from catalog.shard import ShardWriter
+    from catalog.tables.shard import ShardWriter
 
     root, shard, rollout = reader.root, reader.record, reader.rollout
     stem = shard_stem(shard.first, shard.end)

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from catalog.manifest import MANIFEST_NAME, Manifest
-from catalog.records import ShardRecord
+from catalog.store.manifest import MANIFEST_NAME, Manifest
+from catalog.store.records import ShardRecord
 from pipeline.jobs.audit import audit_path, read_audit, stamped
 from pipeline.loop.rollout import RolloutResult, run_episode
 from pipeline.loop.wrappers import RecordEpisode

@@ -19,7 +19,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from catalog.records import ShardRecord
+from catalog.store.records import ShardRecord
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.tasks import ShardTask, TaskFn
 from schemas.errors import ShardError

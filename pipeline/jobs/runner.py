@@ -26,7 +26,7 @@ such a folder holds):
   partial statistics each task returned (``result["partial_stats"]``, computed in the
   worker from the frames file it wrote, kept in the resume state with the job's other
   :attr:`Job.keep` keys; a shard without them is read once), then ``catalog.json`` is
-  written last (one way, :meth:`catalog.manifest.Manifest.create`), then files of a
+  written last (one way, :meth:`catalog.store.manifest.Manifest.create`), then files of a
   replaced job are removed.
 
 The manifest's hash covers the slice, seed, settings, statistics and the ordered file
@@ -41,12 +41,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic
 
-from catalog.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
-from catalog.reader import ShardReader
-from catalog.records import ShardRecord, shard_like_files
-from catalog.stats import PartialStats, Stats, merge_partials, shard_partial, write_stats
-from catalog.storage import as_location, listed_sizes, where
-from catalog.versions import installed_versions
+from catalog.store.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
+from catalog.store.records import ShardRecord, shard_like_files
+from catalog.store.storage import as_location, listed_sizes, where
+from catalog.store.versions import installed_versions
+from catalog.tables.reader import ShardReader
+from catalog.tables.stats import PartialStats, Stats, merge_partials, shard_partial, write_stats
 from pipeline.jobs.audit import audit_records, remove_unlisted_audit
 from pipeline.jobs.engine import Destination, LocalFolder, Previous, run_folder_job
 from pipeline.jobs.object_store import ObjectStore, prepare_remote, remote_job
@@ -61,7 +61,7 @@ __all__ = ["PARTIAL_STATS", "Execution", "Job", "JobResult", "ShardTask", "Stora
            "remove_unlisted_shards", "run_job", "shard_ranges"]
 
 #: The key of a task result holding its shard's partial statistics
-#: (:meth:`catalog.stats.PartialStats.to_dict`, from :func:`catalog.stats.written_partial`).
+#: (:meth:`catalog.tables.stats.PartialStats.to_dict`, from :func:`catalog.tables.stats.written_partial`).
 PARTIAL_STATS = "partial_stats"
 
 

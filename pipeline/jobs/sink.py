@@ -9,7 +9,7 @@ job's output is, never into a path that exists only on the driver.
 A task writes its shard through :meth:`ShardSink.writing`, which yields a local folder:
 
 - a local sink yields the folder itself (files written under temporary names, then
-  renamed: :mod:`catalog.atomic`), exactly as before sinks existed;
+  renamed: :mod:`catalog.store.atomic`), exactly as before sinks existed;
 - a URL sink yields a private scratch folder on the worker's own disk (under ``TMPDIR``);
   once the task's writing succeeded each file is uploaded as one object (an object store
   shows an object whole or not at all), then the scratch folder is removed. A task that
@@ -33,8 +33,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from catalog.atomic import TEMP_PATTERN
-from catalog.storage import as_location, check_writable, is_url, reaching
+from catalog.store.atomic import TEMP_PATTERN
+from catalog.store.storage import as_location, check_writable, is_url, reaching
 from schemas.errors import SpecError
 from schemas.names import shorten
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from catalog.storage import as_location, is_url
+from catalog.store.storage import as_location, is_url
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.tasks import Execution
 from pipeline.loop.conditions import EvalProtocol

@@ -8,7 +8,7 @@ the job keeps of their tasks' results: partial statistics, an eval's counts).
 Whether the recorded code may have written this code's bytes is one rule,
 :func:`code_decision`, for a local folder (:func:`previous_work`) and an object store
 (:mod:`pipeline.jobs.object_store`) alike: the package version (written into every MCAP
-file) and the byte-determining library versions (:mod:`catalog.versions`) must match, or
+file) and the byte-determining library versions (:mod:`catalog.store.versions`) must match, or
 every shard is rebuilt (no folder mixes shards of two installations). The git commit does
 not decide it (a docs-only commit changes no byte), but after another commit (or an
 unknown one) one sample shard is rebuilt and compared first (:mod:`pipeline.jobs.resume`).
@@ -24,11 +24,11 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from catalog.atomic import atomic_write_text
-from catalog.manifest import Manifest, load_manifest, manifest_path
-from catalog.reader import check_file
-from catalog.records import FileRecord, ShardRecord
-from catalog.versions import installed_versions
+from catalog.store.atomic import atomic_write_text
+from catalog.store.manifest import Manifest, load_manifest, manifest_path
+from catalog.store.records import FileRecord, ShardRecord
+from catalog.store.versions import installed_versions
+from catalog.tables.reader import check_file
 from schemas.errors import ShardError, SpecError
 from schemas.renderers import renderer_of
 from schemas.versions import CODE_VERSION

@@ -1,7 +1,7 @@
 """`catalog verify`: every listed file intact, and sampled shards rebuilt byte for byte.
 
 Integrity (sha256, sizes, readable Parquet/MCAP, no stray temps) comes from
-``catalog.integrity``. Rebuilding re-executes each sampled shard through
+``catalog.tables.integrity``. Rebuilding re-executes each sampled shard through
 :func:`pipeline.jobs.replay.replay_shard` (the one re-execution of a recording): the
 episode stage, the renderer and the writers run again on the specs stored in the shard's
 episodes table (so slices built from a user's ``--specs`` file verify too), and every
@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from catalog.integrity import verify_files
-from catalog.manifest import Manifest, load_manifest
-from catalog.reader import open_folder
-from catalog.records import ShardRecord
-from catalog.storage import as_location
-from catalog.versions import mismatch_note
+from catalog.store.manifest import Manifest, load_manifest
+from catalog.store.records import ShardRecord
+from catalog.store.storage import as_location
+from catalog.store.versions import mismatch_note
+from catalog.tables.integrity import verify_files
+from catalog.tables.reader import open_folder
 from pipeline.jobs.replay import check_rebuildable, private_seed, recorded_settings, replay, replay_shard
 from schemas.cli import ProgressMeter
 from schemas.errors import ReplayMismatch, ShardError, SpecError

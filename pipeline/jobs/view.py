@@ -6,7 +6,7 @@ timelines (``frame`` and ``time``), read from the shards alone.
 
 Axes: Dyana's world is left-handed (X right, Y up, Z forward) and rerun's 3D view is
 right-handed, so every 3D thing is logged in the MCAP shard's ``world`` frame
-(:mod:`catalog.mcap_layout`): ``x = Dyana x`` (right), ``y = Dyana z`` (forward), ``z = Dyana y``
+(:mod:`catalog.tables.mcap_layout`): ``x = Dyana x`` (right), ``y = Dyana z`` (forward), ``z = Dyana y``
 (up), declared as ``rr.ViewCoordinates.RFU``; positions swap y and z, rotation quaternions
 ``(qx, qy, qz, qw)`` become ``(-qx, -qz, -qy, qw)``. Logged as is, the scene would be the
 mirror image of what the camera shows. The camera is logged at ``world/camera`` (its pose
@@ -27,12 +27,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyarrow as pa
 
-from catalog.manifest import Manifest
-from catalog.mcap_layout import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
-from catalog.outputs import DESCRIPTOR_ALIAS, check_output, staged_output
-from catalog.parquet_io import column_to_numpy
-from catalog.reader import open_folder
-from catalog.storage import as_location
+from catalog.store.manifest import Manifest
+from catalog.store.outputs import DESCRIPTOR_ALIAS, check_output, staged_output
+from catalog.store.storage import as_location
+from catalog.tables.mcap_layout import camera_calibration, camera_pose, to_foxglove_position, to_foxglove_quaternion
+from catalog.tables.parquet_io import column_to_numpy
+from catalog.tables.reader import open_folder
 from schemas.errors import DyanaError, OutputError, SpecError
 from schemas.names import shorten
 from schemas.scene import LOC_TOLERANCE, PHASES

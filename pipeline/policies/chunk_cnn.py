@@ -32,7 +32,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from catalog.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY, pad_key
+from catalog.loader.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY, pad_key
 from schemas.errors import PolicyError
 from schemas.names import printable
 

@@ -18,7 +18,7 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 import catalog
-from catalog.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY, VECTOR_SOURCES, pad_key
+from catalog.loader.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY, VECTOR_SOURCES, pad_key
 from pipeline.policies.chunk_cnn import ChunkCNNConfig, ChunkCNNPolicy
 
 

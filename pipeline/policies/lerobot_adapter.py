@@ -7,7 +7,7 @@ takes a batch of observations keyed as LeRobot keys them and returns the next ac
 makes such an object a Dyana policy:
 
 * **Observations** are keyed exactly as ``catalog.open(..., keys="lerobot")`` keys the
-  training data (:func:`catalog.lerobot_keys.observation_features`): the egocentric
+  training data (:func:`catalog.loader.lerobot_keys.observation_features`): the egocentric
   image as (1, 3, H, W) float32 in [0, 1], ``observation.state`` (1, 21), ``task``.
   ``observation.environment_state`` (the object's true pose) is training data only:
   the loop never shows it to a policy. With ``history=K`` the adapter stacks the K
@@ -32,8 +32,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from catalog.lerobot_keys import observation_features
-from catalog.lerobot_names import IMAGE_KEY, STATE_KEY, pad_key
+from catalog.loader.lerobot_keys import observation_features
+from catalog.loader.lerobot_names import IMAGE_KEY, STATE_KEY, pad_key
 from pipeline.policies.base import Observation, Task
 from schemas.errors import PolicyError
 

@@ -33,7 +33,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from catalog.lerobot_names import ACTION_KEY, ENV_KEY, IMAGE_KEY, STATE_KEY
+from catalog.loader.lerobot_names import ACTION_KEY, ENV_KEY, IMAGE_KEY, STATE_KEY
 from pipeline.policies.base import Task
 from pipeline.policies.lerobot_adapter import LeRobotAdapter
 from schemas.errors import PolicyError, SpecError

@@ -10,8 +10,8 @@ import atexit
 from collections.abc import Sequence
 from pathlib import Path
 
-from catalog.records import ShardRecord
-from catalog.shard import ShardWriter
+from catalog.store.records import ShardRecord
+from catalog.tables.shard import ShardWriter
 from generators.encode import encode_bgr_jpeg
 from generators.render import Renderer
 from pipeline.stages.episode import episode

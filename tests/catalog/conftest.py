@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 import pytest
 
-from catalog.manifest import CodeInfo, Manifest, write_manifest
-from catalog.shard import ShardWriter
+from catalog.store.manifest import CodeInfo, Manifest, write_manifest
+from catalog.tables.shard import ShardWriter
 from schemas.frames import EpisodeFrames
 from schemas.motion import ArcToken, LineToken, Motion
 from schemas.scene import GRASP_FRAMES

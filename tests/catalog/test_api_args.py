@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 import catalog
-from catalog.opening import MAX_CACHE_MB, MAX_RESIZE
-from catalog.reader import open_folder
+from catalog.loader.opening import MAX_CACHE_MB, MAX_RESIZE
+from catalog.tables.reader import open_folder
 from schemas.errors import SpecError
 
 BAD = [

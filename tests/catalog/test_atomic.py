@@ -4,7 +4,7 @@ import sys
 
 import pytest
 
-from catalog import atomic
+from catalog.store import atomic
 
 
 def test_write_text_appears_complete(tmp_path):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from catalog.manifest import CodeInfo, Manifest, write_manifest
+from catalog.store.manifest import CodeInfo, Manifest, write_manifest
 from pipeline import cli as pipeline_cli
 from pipeline.cli_catalog import main as catalog_main
 from schemas.errors import SpecError

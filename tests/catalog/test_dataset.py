@@ -15,11 +15,11 @@ import pyarrow.parquet as pq
 import pytest
 
 import catalog
-from catalog.dataset import FrameDataset
-from catalog.manifest import Manifest, load_manifest, write_manifest
-from catalog.shard import ShardWriter
-from catalog.stats import STATS_NAME, compute_stats, load_stats, write_stats
-from catalog.stream import FrameStream
+from catalog.loader.dataset import FrameDataset
+from catalog.loader.stream import FrameStream
+from catalog.store.manifest import Manifest, load_manifest, write_manifest
+from catalog.tables.shard import ShardWriter
+from catalog.tables.stats import STATS_NAME, compute_stats, load_stats, write_stats
 from schemas.errors import ShardError, SpecError
 from schemas.motion import ArcToken, HarmonicToken, Motion, Track
 from schemas.scene import PHASES
@@ -601,8 +601,8 @@ def test_file_replaced_after_open_is_refused(copy):
 
 def test_image_offsets_span_pages_and_row_groups(tmp_path):
     """Over 1024 frames of 64 px noise JPEGs: two row groups of several 1 MiB pages each."""
-    from catalog.pages import image_offsets
-    from catalog.parquet_io import DATA_PAGE_SIZE, read_frames
+    from catalog.tables.pages import image_offsets
+    from catalog.tables.parquet_io import DATA_PAGE_SIZE, read_frames
 
     root = tmp_path / "big"
     settings = {**SETTINGS, "resolution": 64}
@@ -641,9 +641,9 @@ def test_null_values_in_a_hashed_frames_file_are_named(copy):
     raises ShardError naming the file and column, not a numpy reshape error."""
     import pyarrow as pa
 
-    from catalog.hashing import sha256_file
-    from catalog.parquet_io import writer_options
-    from catalog.records import FileRecord, ShardRecord
+    from catalog.store.hashing import sha256_file
+    from catalog.store.records import FileRecord, ShardRecord
+    from catalog.tables.parquet_io import writer_options
     from schemas.versions import SCHEMA_VERSION
 
     manifest = load_manifest(copy)

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from catalog.info import rebuild_verdict
-from catalog.manifest import Manifest, write_manifest
-from catalog.shard import ShardWriter
-from catalog.versions import installed_versions
+from catalog.store.info import rebuild_verdict
+from catalog.store.manifest import Manifest, write_manifest
+from catalog.store.versions import installed_versions
+from catalog.tables.shard import ShardWriter
 from pipeline.cli_catalog import main
 from schemas.versions import DATASET_VERSION
 
@@ -202,7 +202,7 @@ def test_the_recorded_versions_are_printed_and_compared_with_the_installed_ones(
     assert rows["rebuild"] == f"yes: this code writes dataset {DATASET_VERSION} (--renderer window), as the folder records, with the " \
                               "library versions it records"
 
-    monkeypatch.setattr("catalog.info.installed_versions", lambda: {**installed, "pyarrow": "99.0.0"})
+    monkeypatch.setattr("catalog.store.info.installed_versions", lambda: {**installed, "pyarrow": "99.0.0"})
     code, out, _ = info(capsys, str(tmp_path / "same"), "--json")
     verdict = json.loads(out)["rebuild"]
     assert code == 0 and verdict["possible"] is False

@@ -8,12 +8,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from catalog.atomic import temp_path
-from catalog.integrity import check_files, verify_files
-from catalog.manifest import Manifest, load_manifest, write_manifest
-from catalog.mcap_reader import iter_messages, mcap_summary
-from catalog.parquet_io import check_parquet, read_frames
-from catalog.reader import open_folder
+from catalog.store.atomic import temp_path
+from catalog.store.manifest import Manifest, load_manifest, write_manifest
+from catalog.tables.integrity import check_files, verify_files
+from catalog.tables.mcap_reader import iter_messages, mcap_summary
+from catalog.tables.parquet_io import check_parquet, read_frames
+from catalog.tables.reader import open_folder
 from schemas.errors import SettingsMismatch, ShardError
 from schemas.tables import EPISODES_SCHEMA, FRAMES_SCHEMA
 
@@ -183,8 +183,8 @@ def test_manifest_over_wrong_files_is_caught_by_the_structural_check(slice_dir):
     """sha256 and size match (the manifest was written over bad files): the content check names them."""
     from dataclasses import replace
 
-    from catalog.hashing import sha256_file
-    from catalog.manifest import Manifest, write_manifest
+    from catalog.store.hashing import sha256_file
+    from catalog.store.manifest import Manifest, write_manifest
 
     manifest = load_manifest(slice_dir)
     paths = _paths(slice_dir)

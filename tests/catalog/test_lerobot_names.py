@@ -1,4 +1,4 @@
-"""LeRobot's key names are written once (catalog.lerobot_names): the export, the keyed reader
+"""LeRobot's key names are written once (catalog.loader.lerobot_names): the export, the keyed reader
 and the closed loop's LeRobot policies import them, so they cannot drift apart."""
 
 from __future__ import annotations
@@ -9,11 +9,19 @@ from pathlib import Path
 import numpy as np
 
 from catalog.export.layout import VECTOR_NAMES, VIDEO_KEY, features
-from catalog.lerobot_keys import lerobot_item
-from catalog.lerobot_names import ACTION_KEY, ENV_KEY, IMAGE_KEY, INDEX_FEATURES, STATE_KEY, VECTOR_SOURCES, pad_key
+from catalog.loader.lerobot_keys import lerobot_item
+from catalog.loader.lerobot_names import (
+    ACTION_KEY,
+    ENV_KEY,
+    IMAGE_KEY,
+    INDEX_FEATURES,
+    STATE_KEY,
+    VECTOR_SOURCES,
+    pad_key,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
-HOME = ROOT / "catalog" / "lerobot_names.py"
+HOME = ROOT / "catalog" / "loader" / "lerobot_names.py"
 NAMES = ("observation.images", "observation.state", "observation.environment_state")
 
 

@@ -5,8 +5,8 @@ from dataclasses import replace
 
 import pytest
 
-from catalog.hashing import canonical_json, sha256_bytes, sha256_file, slice_hash
-from catalog.manifest import (
+from catalog.store.hashing import canonical_json, sha256_bytes, sha256_file, slice_hash
+from catalog.store.manifest import (
     SEAL_KEY,
     CodeInfo,
     Manifest,
@@ -16,7 +16,7 @@ from catalog.manifest import (
     seal_of,
     write_manifest,
 )
-from catalog.records import FileRecord, ShardRecord, shard_paths
+from catalog.store.records import FileRecord, ShardRecord, shard_paths
 from schemas.errors import ShardError
 
 from .conftest import CODE, SETTINGS

@@ -15,9 +15,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from catalog import mcap_layout
-from catalog.mcap_hand import HAND_FRAMES, SKELETON_ENTITY, SKELETON_LINKS, SKELETON_TOPIC
-from catalog.mcap_layout import (
+from catalog.tables import mcap_layout
+from catalog.tables.mcap_hand import HAND_FRAMES, SKELETON_ENTITY, SKELETON_LINKS, SKELETON_TOPIC
+from catalog.tables.mcap_layout import (
     IMAGE_SCHEMA,
     IMAGE_TOPIC,
     camera_calibration,
@@ -27,10 +27,10 @@ from catalog.mcap_layout import (
     to_foxglove_position,
     to_foxglove_quaternion,
 )
-from catalog.mcap_reader import iter_messages, mcap_summary, read_episode_metadata, read_metadata, read_timeline
-from catalog.mcap_writer import McapShardWriter
-from catalog.parquet_io import column_to_numpy
-from catalog.shard import ShardWriter
+from catalog.tables.mcap_reader import iter_messages, mcap_summary, read_episode_metadata, read_metadata, read_timeline
+from catalog.tables.mcap_writer import McapShardWriter
+from catalog.tables.parquet_io import column_to_numpy
+from catalog.tables.shard import ShardWriter
 from schemas.errors import ShardError
 from schemas.frames import EpisodeFrames
 from schemas.rotations import euler_to_quaternion

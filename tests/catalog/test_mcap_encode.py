@@ -1,4 +1,4 @@
-"""The MCAP messages encoded directly (catalog.mcap_encode) are the protobuf runtime's
+"""The MCAP messages encoded directly (catalog.tables.mcap_encode) are the protobuf runtime's
 bytes: every per-frame message of a written episode equals the message built field by
 field and serialised deterministically, zeros and negative zeros included."""
 
@@ -19,9 +19,9 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 
-from catalog.mcap_encode import doubles, length_delimited, rows, timestamp, varint
-from catalog.mcap_hand import SKELETON_ENTITY, SKELETON_LINKS, SKELETON_RGBA, SKELETON_THICKNESS_PX
-from catalog.mcap_layout import (
+from catalog.tables.mcap_encode import doubles, length_delimited, rows, timestamp, varint
+from catalog.tables.mcap_hand import SKELETON_ENTITY, SKELETON_LINKS, SKELETON_RGBA, SKELETON_THICKNESS_PX
+from catalog.tables.mcap_layout import (
     TF_FRAMES,
     camera_calibration,
     camera_pose,
@@ -29,8 +29,8 @@ from catalog.mcap_layout import (
     to_foxglove_position,
     to_foxglove_quaternion,
 )
-from catalog.mcap_reader import iter_messages
-from catalog.mcap_writer import McapShardWriter
+from catalog.tables.mcap_reader import iter_messages
+from catalog.tables.mcap_writer import McapShardWriter
 from schemas.rotations import euler_to_quaternion
 
 from .conftest import SETTINGS, make_episode

@@ -1,4 +1,4 @@
-"""catalog.outputs: a user-named output is renamed into place only over a regular file (or
+"""catalog.store.outputs: a user-named output is renamed into place only over a regular file (or
 nothing); a device or FIFO is written as such; a folder, socket or block device, and a
 path inside a folder being read, are refused naming them."""
 
@@ -10,7 +10,7 @@ import stat
 
 import pytest
 
-from catalog.outputs import check_output, open_output, place, staged_output
+from catalog.store.outputs import check_output, open_output, place, staged_output
 from schemas.errors import OutputError
 
 
@@ -143,7 +143,7 @@ def test_stdout_redirected_to_a_file_is_appended_to_and_dev_shm_is_a_folder_of_f
     import sys
 
     target = tmp_path / "log.txt"
-    code = ("import sys; print('table', flush=True); from catalog.outputs import open_output\n"
+    code = ("import sys; print('table', flush=True); from catalog.store.outputs import open_output\n"
             "with open_output('/dev/stdout') as h: h.write('csv\\n')")
     with open(target, "w") as out:
         subprocess.run([sys.executable, "-c", code], stdout=out, check=True)

@@ -8,10 +8,10 @@ import os
 import pyarrow.parquet as pq
 import pytest
 
-from catalog.manifest import load_manifest
-from catalog.page_index import image_page_locations
-from catalog.pages import image_column_index, image_offsets, image_pages
-from catalog.remote_images import RemoteImages
+from catalog.store.manifest import load_manifest
+from catalog.tables.page_index import image_page_locations
+from catalog.tables.pages import image_column_index, image_offsets, image_pages
+from catalog.tables.remote_images import RemoteImages
 from schemas.errors import ShardError
 
 

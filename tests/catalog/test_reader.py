@@ -1,4 +1,4 @@
-"""The one shard reader (catalog.reader): each check raises its typed error naming the file."""
+"""The one shard reader (catalog.tables.reader): each check raises its typed error naming the file."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from pathlib import Path
 import pyarrow as pa
 import pytest
 
-from catalog.manifest import Manifest, load_manifest, write_manifest
-from catalog.parquet_io import read_episodes, read_frames, write_table
-from catalog.reader import open_folder
+from catalog.store.manifest import Manifest, load_manifest, write_manifest
+from catalog.tables.parquet_io import read_episodes, read_frames, write_table
+from catalog.tables.reader import open_folder
 from schemas.errors import (
     DuplicateEpisode,
     FrameNumberingError,

@@ -11,11 +11,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from catalog import parquet_io
-from catalog.atomic import find_stray_temps
-from catalog.hashing import sha256_file
-from catalog.parquet_io import column_to_numpy, read_episodes, read_frames
-from catalog.shard import ShardWriter
+from catalog.store.atomic import find_stray_temps
+from catalog.store.hashing import sha256_file
+from catalog.tables import parquet_io
+from catalog.tables.parquet_io import column_to_numpy, read_episodes, read_frames
+from catalog.tables.shard import ShardWriter
 from schemas.errors import ShardError
 from schemas.motion import Motion
 from schemas.spec import EpisodeSpec
@@ -234,7 +234,7 @@ def test_failed_write_caught_inside_with_still_leaves_nothing(tmp_path):
 
 def test_failure_while_renaming_leaves_no_partial_shard(tmp_path, monkeypatch):
     """If the last of the three renames fails, the two already renamed must not stay behind."""
-    from catalog import atomic
+    from catalog.store import atomic
 
     real_commit = atomic.commit
     calls = []

@@ -11,7 +11,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import catalog  # noqa: E402
-from catalog.manifest import load_manifest  # noqa: E402
+from catalog.store.manifest import load_manifest  # noqa: E402
 
 from .conftest import frame_keys as _keys  # noqa: E402
 
@@ -84,10 +84,10 @@ def test_batched_fetch_equals_items(built):
 
 
 def test_wrappers_pickle_by_reference(built):
-    """spawn-started workers unpickle the wrappers from catalog.torch_adapter."""
+    """spawn-started workers unpickle the wrappers from catalog.loader.torch_adapter."""
     wrapped = catalog.open(built).torch()
     clone = pickle.loads(pickle.dumps(wrapped))
-    assert type(clone).__module__ == "catalog.torch_adapter" and len(clone) == len(wrapped)
+    assert type(clone).__module__ == "catalog.loader.torch_adapter" and len(clone) == len(wrapped)
     assert isinstance(clone, torch.utils.data.Dataset)
     stream = pickle.loads(pickle.dumps(catalog.open(built).iterable().torch()))
     assert isinstance(stream, torch.utils.data.IterableDataset)
@@ -97,7 +97,7 @@ def test_catalog_does_not_import_torch():
     import subprocess
     import sys
 
-    code = "import catalog, catalog.dataset, catalog.stats, catalog.torch_adapter, sys; print('torch' in sys.modules)"
+    code = "import catalog, catalog.loader.dataset, catalog.tables.stats, catalog.loader.torch_adapter, sys; print('torch' in sys.modules)"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "False"
 

@@ -1,4 +1,4 @@
-"""``ds.torch().loader(...)`` (catalog.torch_batches) against the default DataLoader (skipped without torch)."""
+"""``ds.torch().loader(...)`` (catalog.loader.torch_batches) against the default DataLoader (skipped without torch)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import catalog  # noqa: E402
-from catalog.manifest import load_manifest  # noqa: E402
-from catalog.torch_batches import FrameBatches, torch_loader  # noqa: E402
+from catalog.loader.torch_batches import FrameBatches, torch_loader  # noqa: E402
+from catalog.store.manifest import load_manifest  # noqa: E402
 from schemas.errors import ShardError  # noqa: E402
 
 from .conftest import frame_keys as _keys  # noqa: E402
@@ -153,7 +153,7 @@ def test_batch_of_positions_in_process_is_plain_tensors(built):
 def test_batches_after_the_first_name_their_slab_by_token(built):
     """Each worker's slabs travel to the main process once and are reused: the main process
     registers at most SLABS of them per worker, however many batches pass."""
-    from catalog import torch_batches
+    from catalog.loader import torch_batches
 
     ds = catalog.open(built)
     loader = ds.torch().loader(batch_size=2, num_workers=2, persistent_workers=True)

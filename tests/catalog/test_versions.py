@@ -10,8 +10,8 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from catalog.manifest import SEAL_KEY, Manifest, load_manifest, write_manifest
-from catalog.versions import (
+from catalog.store.manifest import SEAL_KEY, Manifest, load_manifest, write_manifest
+from catalog.store.versions import (
     BYTE_DISTRIBUTIONS,
     VERSIONS_KEY,
     checked_versions,

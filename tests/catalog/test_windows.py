@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catalog.windows import (
+from catalog.loader.windows import (
     episode_starts,
     history_span,
     history_window,

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from catalog.hashing import sha256_file
-from catalog.manifest import SEAL_KEY, Manifest, load_manifest, write_manifest
-from catalog.parquet_io import read_episodes, read_frames, write_table
-from catalog.records import FileRecord, ShardRecord
+from catalog.store.hashing import sha256_file
+from catalog.store.manifest import SEAL_KEY, Manifest, load_manifest, write_manifest
+from catalog.store.records import FileRecord, ShardRecord
+from catalog.tables.parquet_io import read_episodes, read_frames, write_table
 
 
 def rewrite_frames(folder: Path, shard_index: int, mutate: Callable[[pa.Table], pa.Table]) -> ShardRecord:

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from catalog.manifest import load_manifest
-from catalog.reader import open_folder
+from catalog.store.manifest import load_manifest
+from catalog.tables.reader import open_folder
 from pipeline.jobs.build import build
 from pipeline.jobs.evaluate import evaluate
 from pipeline.policies.vlm import VLMConfig, template_path

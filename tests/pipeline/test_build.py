@@ -15,8 +15,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from catalog.integrity import verify_files
-from catalog.manifest import load_manifest
+from catalog.store.manifest import load_manifest
+from catalog.tables.integrity import verify_files
 from pipeline.jobs.build import build
 from pipeline.jobs.state import STATE_FILE
 from schemas.errors import SpecError

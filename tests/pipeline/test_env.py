@@ -11,7 +11,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from catalog.shard import rollout_frame_limit
+from catalog.tables.shard import rollout_frame_limit
 from generators.encode import JPEG_QUALITY, decode_jpeg
 from generators.grasp import grasp_angles
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM

@@ -15,9 +15,9 @@ import pytest
 
 import pipeline.jobs.engine as engine_module
 import pipeline.jobs.evaluate as evaluate_module
-from catalog.integrity import verify_files
-from catalog.manifest import load_manifest
-from catalog.shard import ShardWriter, rollout_frame_limit
+from catalog.store.manifest import load_manifest
+from catalog.tables.integrity import verify_files
+from catalog.tables.shard import ShardWriter, rollout_frame_limit
 from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate
 from pipeline.loop.env import horizon
@@ -86,7 +86,7 @@ def test_a_run_is_a_verifiable_rollout_folder(runs):
 
 def test_the_oracle_reproduces_the_ground_truth_states(runs):
     """Through the environment, the oracle's frames are the build's frames up to grasp completion."""
-    from catalog.parquet_io import column_to_numpy, read_frames
+    from catalog.tables.parquet_io import column_to_numpy, read_frames
     from pipeline.stages.episode import episode
 
     root, _ = runs

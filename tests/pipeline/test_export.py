@@ -20,7 +20,7 @@ import catalog
 from catalog.export.layout import VIDEO_KEY
 from catalog.export.lerobot import ExportError, ExportSettings
 from catalog.export.video import decode_frames, psnr
-from catalog.stats import load_stats
+from catalog.tables.stats import load_stats
 from pipeline.cli_catalog import main as catalog_main
 from pipeline.jobs import export as export_module
 from pipeline.jobs.export import export
@@ -372,7 +372,7 @@ def test_a_rerun_removes_temps_and_work_files_a_killed_export_left(built, export
 def test_settings_that_do_not_match_the_images_are_named_in_the_source(built, tmp_path):
     """A catalog.json edited to another resolution (and re-hashed) is blamed on the source's
     frames file, not on the export's own video."""
-    from catalog.manifest import Manifest, load_manifest, write_manifest
+    from catalog.store.manifest import Manifest, load_manifest, write_manifest
 
     source = tmp_path / "edited"
     shutil.copytree(built, source)

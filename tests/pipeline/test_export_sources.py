@@ -107,7 +107,7 @@ def test_an_interrupted_export_of_two_folders_resumes_to_the_same_bytes(sources,
 
 
 def test_the_same_folder_twice_and_mixed_image_sizes_are_refused_in_one_line(sources, tmp_path, capsys):
-    from catalog.manifest import Manifest, load_manifest, write_manifest
+    from catalog.store.manifest import Manifest, load_manifest, write_manifest
 
     code = catalog_main(["export", str(sources[0]), str(sources[0]), "--out", str(tmp_path / "x"), "--quiet"])
     err = capsys.readouterr().err

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from catalog.manifest import load_manifest
-from catalog.parquet_io import read_episodes, read_frames
-from catalog.shard import ShardWriter
+from catalog.store.manifest import load_manifest
+from catalog.tables.parquet_io import read_episodes, read_frames
+from catalog.tables.shard import ShardWriter
 from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate, summarize
 from pipeline.jobs.replay import replay

@@ -10,10 +10,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from catalog.integrity import verify_files
-from catalog.manifest import Manifest, load_manifest, write_manifest
-from catalog.reader import open_folder
-from catalog.records import LEGACY_LAYOUT, FileRecord, ShardRecord, shard_paths
+from catalog.store.manifest import Manifest, load_manifest, write_manifest
+from catalog.store.records import LEGACY_LAYOUT, FileRecord, ShardRecord, shard_paths
+from catalog.tables.integrity import verify_files
+from catalog.tables.reader import open_folder
 from pipeline.jobs.build import build
 from pipeline.jobs.migrate import migrate
 from pipeline.jobs.replay import replay

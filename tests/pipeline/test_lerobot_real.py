@@ -21,7 +21,7 @@ import pytest
 
 import catalog
 from catalog.export.lerobot import ExportSettings
-from catalog.manifest import load_manifest
+from catalog.store.manifest import load_manifest
 from pipeline.jobs.export import export
 
 VENVS = Path(os.environ.get("DYANA_LEROBOT_VENVS", Path.home() / ".cache" / "dyana" / "lerobot-venvs"))

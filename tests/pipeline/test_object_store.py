@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import catalog
-from catalog.manifest import load_manifest
-from catalog.storage import RangeReader
+from catalog.store.manifest import load_manifest
+from catalog.store.storage import RangeReader
 from pipeline.jobs.build import build
 from tests.s3_server import s3_server
 from tests.shard_files import shard_bytes

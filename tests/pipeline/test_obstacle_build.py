@@ -14,9 +14,9 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 
-from catalog.mcap_layout import OBSTACLE_TOPIC
-from catalog.mcap_reader import count_messages, iter_messages, read_timeline
-from catalog.reader import open_folder
+from catalog.tables.mcap_layout import OBSTACLE_TOPIC
+from catalog.tables.mcap_reader import count_messages, iter_messages, read_timeline
+from catalog.tables.reader import open_folder
 from schemas.obstacles import OBSTACLE_MARGIN
 from schemas.spec import EpisodeSpec
 

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from websockets.sync.client import connect
 
-from catalog.manifest import load_manifest
-from catalog.parquet_io import read_episodes
+from catalog.store.manifest import load_manifest
+from catalog.tables.parquet_io import read_episodes
 from generators.recipe import spec_for
 from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.replay import replay

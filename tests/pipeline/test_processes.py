@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pytest
 
-from catalog.manifest import load_manifest
-from catalog.parquet_io import read_episodes
+from catalog.store.manifest import load_manifest
+from catalog.tables.parquet_io import read_episodes
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="process groups and /proc as on Linux")
 

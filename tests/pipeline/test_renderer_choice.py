@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from catalog.info import folder_info
+from catalog.store.info import folder_info
 from pipeline.jobs.build import build
 from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.replay import replay

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from catalog.integrity import verify_files
-from catalog.manifest import load_manifest
+from catalog.store.manifest import load_manifest
+from catalog.tables.integrity import verify_files
 from pipeline.jobs.build import build
 from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.replay import replay
@@ -93,9 +93,9 @@ def test_a_tampered_jpeg_byte_is_named(which, request, tmp_path):
 
 def test_a_tampered_mcap_is_named_by_file(built, tmp_path):
     """Columns all match but the MCAP copy of the data differs: replay names the file."""
-    from catalog.hashing import sha256_file
-    from catalog.manifest import Manifest, write_manifest
-    from catalog.records import FileRecord, ShardRecord
+    from catalog.store.hashing import sha256_file
+    from catalog.store.manifest import Manifest, write_manifest
+    from catalog.store.records import FileRecord, ShardRecord
 
     folder = _copy(built, tmp_path)
     manifest = load_manifest(folder)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from catalog.manifest import Manifest, load_manifest, write_manifest
+from catalog.store.manifest import Manifest, load_manifest, write_manifest
 from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.replay import replay
 from pipeline.jobs.verify import verify
@@ -79,7 +79,7 @@ def test_a_rewritten_episodes_column_is_named_by_replay(copy, column, value):
 def test_a_run_written_with_a_false_column_by_dyanas_own_writer_is_named_by_replay(tmp_path, monkeypatch, column, value):
     """The whole shard (episodes table and MCAP) written by the shard writer with one
     episode's column false, hashed and sealed: only re-deriving the column can tell."""
-    from catalog.shard import ShardWriter
+    from catalog.tables.shard import ShardWriter
 
     add = ShardWriter.add_episode
 

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from catalog.hashing import sha256_file
-from catalog.integrity import verify_files
-from catalog.manifest import load_manifest
-from catalog.records import FileRecord
+from catalog.store.hashing import sha256_file
+from catalog.store.manifest import load_manifest
+from catalog.store.records import FileRecord
+from catalog.tables.integrity import verify_files
 from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.migrate import migrate
 from pipeline.jobs.replay import replay

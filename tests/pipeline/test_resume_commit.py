@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from catalog.manifest import CodeInfo, load_manifest, write_manifest
-from catalog.stats import STATS_NAME, compute_stats
+from catalog.store.manifest import CodeInfo, load_manifest, write_manifest
+from catalog.tables.stats import STATS_NAME, compute_stats
 from pipeline.jobs import build as build_module
 from pipeline.jobs import engine, object_store, runner
 from pipeline.jobs.build import build_job
@@ -131,7 +131,7 @@ def test_an_unknown_commit_samples_too(tmp_path, monkeypatch):
 
 def test_a_commit_that_changes_bytes_is_refused_at_resume(tmp_path, monkeypatch):
     _interrupted(tmp_path, monkeypatch)
-    monkeypatch.setattr("catalog.mcap_writer.LIBRARY", "dyana/changed")  # the MCAP header's bytes
+    monkeypatch.setattr("catalog.tables.mcap_writer.LIBRARY", "dyana/changed")  # the MCAP header's bytes
     with pytest.raises(ShardError) as refused:
         _build(tmp_path)
     message = str(refused.value)
@@ -209,12 +209,12 @@ def test_eval_counts_come_from_the_shards_and_the_state(tmp_path, monkeypatch):
 def test_a_shard_whose_statistics_a_worker_cannot_compute_is_read_by_the_driver(reference, tmp_path, monkeypatch):
     """A worker that cannot compute its shard's statistics (a non-finite value) returns none;
     the driver reads that shard where the output is (and would name the file), as before."""
-    import catalog.stats
+    import catalog.tables.stats
 
     def fails(shard):
         raise ShardError("a non-finite value")
 
-    monkeypatch.setattr(catalog.stats, "shard_partial", fails)  # the worker's; the runner keeps its own
+    monkeypatch.setattr(catalog.tables.stats, "shard_partial", fails)  # the worker's; the runner keeps its own
     result = _build(tmp_path)
     monkeypatch.undo()
     assert result.manifest.hash == reference.hash  # it covers stats.json's sha256

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from catalog.manifest import load_manifest
-from catalog.records import shard_paths
+from catalog.store.manifest import load_manifest
+from catalog.store.records import shard_paths
 from pipeline.jobs import tasks as task_module
 from pipeline.jobs.lock import FolderBusy, folder_lock
 from pipeline.jobs.runner import Execution, Job, JobResult, Storage, run_job
@@ -128,7 +128,7 @@ def test_an_interrupted_run_of_another_job_is_refused(tmp_path, monkeypatch):
 def test_a_run_resumed_under_other_library_versions_rebuilds_every_shard(tmp_path, monkeypatch):
     """Shards of two installations never mix in one folder: the manifest records one set of
     versions, so a finished or interrupted run resumed with another pyarrow rebuilds all."""
-    from catalog.versions import installed_versions
+    from catalog.store.versions import installed_versions
     from pipeline.jobs import runner, state
 
     interrupt_at_the_second_shard(tmp_path)

@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-import catalog.storage
-from catalog.storage import as_location, where
+import catalog.store.storage
+from catalog.store.storage import as_location, where
 from pipeline.cli_catalog import main as catalog_main
 from schemas.errors import SpecError
 from schemas.storage_faults import describe_storage_fault, is_storage_fault
@@ -57,7 +57,7 @@ def test_an_endpoint_that_accepts_and_never_answers_times_out(no_aws, monkeypatc
     monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{listener.getsockname()[1]}")
     monkeypatch.setenv("AWS_ACCESS_KEY_ID", "dyana-test")
     monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "dyana-test-secret")
-    monkeypatch.setattr(catalog.storage, "CLIENT_TIMEOUTS", {"connect_timeout": 1, "read_timeout": 1})
+    monkeypatch.setattr(catalog.store.storage, "CLIENT_TIMEOUTS", {"connect_timeout": 1, "read_timeout": 1})
     try:
         start = time.monotonic()
         code = catalog_main(["info", "s3://dyana-test/silent"])

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from catalog.manifest import SEAL_KEY, Manifest, load_manifest, seal_of, write_manifest
-from catalog.versions import VERSIONS_KEY, installed_versions
+from catalog.store.manifest import SEAL_KEY, Manifest, load_manifest, seal_of, write_manifest
+from catalog.store.versions import VERSIONS_KEY, installed_versions
 from pipeline.jobs.build import build
 from pipeline.jobs.migrate import migrate
 from pipeline.jobs.replay import replay
@@ -73,7 +73,7 @@ def test_a_recorded_version_that_differs_is_named(built, tmp_path):
 def test_an_installed_version_that_differs_is_named(built, tmp_path, monkeypatch):
     real = installed_versions()
     folder = _tampered(built, tmp_path, real)
-    monkeypatch.setattr("catalog.versions.installed_versions", lambda: {**real, "pybullet": "9.9.9"})
+    monkeypatch.setattr("catalog.store.versions.installed_versions", lambda: {**real, "pybullet": "9.9.9"})
     for message in _failures(folder):
         assert message.endswith(f"; recorded pybullet {real['pybullet']}, installed 9.9.9")
 

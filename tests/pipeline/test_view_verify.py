@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from catalog.manifest import load_manifest
+from catalog.store.manifest import load_manifest
 from pipeline.jobs.build import build
 from schemas.errors import ShardError
 
@@ -61,8 +61,8 @@ def test_view_3d_world_is_right_handed_and_agrees_with_the_image(built, tmp_path
     y forward, z up). An object on the image's right must be on the camera's right in 3D
     too, and the logged camera (pose and pinhole) must put it on the image where the
     renderer drew it."""
-    from catalog.parquet_io import column_to_numpy
-    from catalog.reader import open_folder
+    from catalog.tables.parquet_io import column_to_numpy
+    from catalog.tables.reader import open_folder
     from generators.camera import project
     from pipeline.jobs.view import write_recording
     from schemas.rotations import quaternion_to_matrix
@@ -103,7 +103,7 @@ def test_view_obstacle_boxes_are_the_same_boxes_in_the_right_handed_world(tmp_pa
     Dyana's world with y and z swapped: the yaw quaternion is converted with the positions."""
     import math
 
-    from catalog.reader import open_folder
+    from catalog.tables.reader import open_folder
     from pipeline.jobs.view import write_recording
     from schemas.rotations import quaternion_to_matrix
     from schemas.spec import EpisodeSpec
@@ -188,9 +188,9 @@ def test_verify_rebuild_catches_what_hashes_cannot(built, tmp_path):
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from catalog.hashing import sha256_file
-    from catalog.manifest import Manifest, load_manifest, write_manifest
-    from catalog.records import ShardRecord
+    from catalog.store.hashing import sha256_file
+    from catalog.store.manifest import Manifest, load_manifest, write_manifest
+    from catalog.store.records import ShardRecord
 
     copy = tmp_path / SLICE
     shutil.copytree(built, copy)
@@ -237,7 +237,7 @@ def test_view_leaves_no_temporary_file_behind_on_failure(built, tmp_path, monkey
 
 
 def test_verify_names_settings_it_does_not_know(built, tmp_path):
-    from catalog.manifest import Manifest, load_manifest, write_manifest
+    from catalog.store.manifest import Manifest, load_manifest, write_manifest
 
     copy = tmp_path / SLICE
     shutil.copytree(built, copy)

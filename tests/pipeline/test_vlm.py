@@ -98,7 +98,7 @@ def test_each_fault_fails_only_its_episode_with_the_reason(serve, tmp_path, mode
     with catalog.open(run) as ds:
         assert [e.status for e in ds.episodes] == ["error", "error"]
     assert [r["outcome"] for r in read_audit(run / "vlm")] == [kind, kind]
-    from catalog.reader import open_folder
+    from catalog.tables.reader import open_folder
 
     errors = open_folder(run).episodes(["error"]).column("error").to_pylist()
     assert all(f"vlm {kind} at frame" in e for e in errors), errors

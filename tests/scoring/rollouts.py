@@ -10,10 +10,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from catalog.hashing import sha256_file
-from catalog.manifest import CodeInfo, Manifest, write_manifest
-from catalog.parquet_io import write_table
-from catalog.records import FileRecord, ShardRecord, shard_paths
+from catalog.store.hashing import sha256_file
+from catalog.store.manifest import CodeInfo, Manifest, write_manifest
+from catalog.store.records import FileRecord, ShardRecord, shard_paths
+from catalog.tables.parquet_io import write_table
 from schemas.tables import (
     ARRAY_WIDTHS,
     EPISODES_SCHEMA,

@@ -320,7 +320,7 @@ def test_null_values_in_a_column_are_refused_in_one_line(tmp_path, capsys):
 
 def _drop_shard(folder, index):
     """Remove shard ``index``'s files and re-hash catalog.json without it (a consistent manifest)."""
-    from catalog.manifest import Manifest, load_manifest, write_manifest
+    from catalog.store.manifest import Manifest, load_manifest, write_manifest
 
     manifest = load_manifest(folder)
     for record in manifest.shards[index].files.values():

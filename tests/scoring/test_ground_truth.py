@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from catalog.manifest import CodeInfo, Manifest, write_manifest
-from catalog.shard import ShardWriter
+from catalog.store.manifest import CodeInfo, Manifest, write_manifest
+from catalog.tables.shard import ShardWriter
 from scoring.cli import main
 
 episode_module = pytest.importorskip("pipeline.stages.episode")

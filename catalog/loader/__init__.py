@@ -1,0 +1,3 @@
+"""The researchers' dataloader: ``catalog.open`` over built slices or rollouts, its index, filters,
+windows, caches, streams and torch adapters.
+"""
