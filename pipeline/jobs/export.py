@@ -293,7 +293,20 @@ def export(
     tasks = tuple(ShardTask(readers[u.source].manifest.slice, u.episode, u.episode + u.episodes) for u in plan.units)
     execution = Execution(0 if workers <= 1 else workers, None, progress)
     work = Work(tasks, export_shard, plan, key_prefix="export", verb="exported")
-    outcome = run_folder_job(LocalFolder(target), product, work, execution, overwrite=overwrite,
-                             total_frames=sum(u.frames for u in plan.units))
+    existed = target.exists()
+    fresh = not existed or not any(target.iterdir())
+    try:
+        outcome = run_folder_job(LocalFolder(target), product, work, execution, overwrite=overwrite,
+                                 total_frames=sum(u.frames for u in plan.units))
+    except DyanaError:
+        # a source found damaged mid-export (its sha256 is checked as it is read): an export
+        # this run began leaves nothing, no work folder or part a later run would take up
+        if fresh and target.is_dir():
+            if existed:
+                for child in target.iterdir():
+                    shutil.rmtree(child) if child.is_dir() else child.unlink()
+            else:
+                shutil.rmtree(target)
+        raise
     return ExportReport(target, outcome.result.episodes, outcome.result.frames, outcome.units_run,
                         outcome.units_resumed, outcome.up_to_date, time.perf_counter() - start)

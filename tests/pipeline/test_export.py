@@ -341,6 +341,25 @@ def test_an_export_into_or_around_a_source_is_refused_and_the_source_stays_verif
     assert catalog_main(["verify", str(source)]) == 0
 
 
+def test_a_source_found_damaged_mid_export_leaves_no_work_behind(built, tmp_path, capsys):
+    """Before: `catalog export A B` with B damaged was refused but left .dyana-export/job.json
+    and A's part file in the new export folder."""
+    from pipeline.jobs.build import build
+
+    other = tmp_path / "other"
+    build("circular-fast", other, episodes=2, shard_size=2, resolution=RESOLUTION, workers=0, progress=False)
+    damaged = other / "circular-fast"
+    frames = next((damaged / "frames").glob("*.parquet"))
+    data = bytearray(frames.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # same size: found only by the sha256 as it is read
+    frames.write_bytes(bytes(data))
+    target = tmp_path / "exp"
+    code = catalog_main(["export", str(built), str(damaged), "--out", str(target), "--quiet"])
+    err = capsys.readouterr().err
+    assert code != 0 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert not target.exists()
+
+
 def test_an_object_store_out_is_refused_in_one_line_and_makes_no_local_folder(built, tmp_path, capsys,
                                                                               monkeypatch):
     monkeypatch.chdir(tmp_path)
