@@ -13,6 +13,7 @@ from pipeline.policy_registry import config_from_flags, flag_defaults, kind_of, 
 from pipeline.remote.wires import PROTOCOLS
 from schemas import cli
 from schemas.errors import DyanaError
+from schemas.names import printable
 
 if TYPE_CHECKING:  # the commands import their modules when run, so --help stays fast
     from catalog.store.records import ShardRecord
@@ -60,7 +61,7 @@ def cmd_build(args: argparse.Namespace) -> int:
         verb = "up to date" if result.up_to_date else "built"
         print(
             f"{verb} {manifest.slice}: {manifest.episodes} episodes, {manifest.frames} frames, "
-            f"{len(manifest.shards)} shards -> {str(args.out).rstrip('/')}/{manifest.slice}/catalog.json "
+            f"{len(manifest.shards)} shards -> {printable(str(args.out).rstrip('/'), 400)}/{manifest.slice}/catalog.json "
             f"(hash {manifest.hash[:16]})"
         )
     return 0
