@@ -402,16 +402,16 @@ def run(prog: str, description: str, commands: Sequence[Command], argv: Sequence
     except BrokenPipeError:
         _silence_stdout()
         return EXIT_BROKEN_PIPE
-    except (DyanaError, OSError) as exc:
+    except Exception as exc:
+        if not isinstance(exc, DyanaError) and is_storage_fault(exc):  # before OSError: FSTimeoutError is one
+            print(f"{where}: error: {storage_line(exc, args)}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        if not isinstance(exc, (DyanaError, OSError)):
+            raise
         if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EPIPE, errno.EIO) and exc.filename is None:
             _silence_stdout()
             message = f"cannot write the output: {exc.strerror}"
         else:
             message = redact_credentials(one_line(exc))
         print(f"{where}: error: {message}", file=sys.stderr)
-        return exit_code(exc)
-    except Exception as exc:
-        if not is_storage_fault(exc):
-            raise
-        print(f"{where}: error: {storage_line(exc, args)}", file=sys.stderr)
         return exit_code(exc)

@@ -13,8 +13,10 @@ from __future__ import annotations
 from urllib.parse import urlsplit
 
 #: Top-level packages whose exceptions are an object store's failures (aiohttp: s3fs's
-#: HTTP client, whose ClientPayloadError is a body shorter than its announced length).
-STORAGE_PACKAGES = ("botocore", "aiobotocore", "s3fs", "aiohttp")
+#: HTTP client, whose ClientPayloadError is a body shorter than its announced length;
+#: fsspec: its FSTimeoutError).
+STORAGE_PACKAGES = ("botocore", "aiobotocore", "s3fs", "aiohttp", "fsspec")
+_TIMEOUTS = ("TimeoutError", "FSTimeoutError", "AioReadTimeoutError", "ServerTimeoutError")
 _CREDENTIALS = ("NoCredentialsError", "PartialCredentialsError", "CredentialRetrievalError",
                 "NoAuthTokenError", "UnauthorizedSSOTokenError")
 _UNREACHABLE = ("EndpointConnectionError", "ConnectTimeoutError", "ReadTimeoutError", "ConnectionClosedError",
@@ -24,9 +26,31 @@ CREDENTIALS_HINT = ("set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY (and AWS_EN
                     "server), or pass key=, secret= and endpoint_url= in a UPath")
 
 
+def _chain(exc: BaseException) -> list[BaseException]:
+    """``exc`` and what it was raised from or while handling (not past ``raise ... from None``)."""
+    found: list[BaseException] = []
+    current: BaseException | None = exc
+    while current is not None and len(found) < 8:
+        found.append(current)
+        current = current.__cause__ or (None if current.__suppress_context__ else current.__context__)
+    return found
+
+
+def _raised_in_storage(exc: BaseException) -> bool:
+    """The innermost frame of ``exc``'s traceback is the object-store client's code (a
+    builtin exception it raised: a TimeoutError from aiohttp, an IndexError of s3fs's)."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    name = tb.tb_frame.f_globals.get("__name__", "") if tb is not None else ""
+    return str(name).split(".")[0] in STORAGE_PACKAGES
+
+
 def is_storage_fault(exc: BaseException) -> bool:
-    """True for an exception raised by the object-store client (by its defining module)."""
-    return any(str(kind.__module__).split(".")[0] in STORAGE_PACKAGES for kind in type(exc).__mro__)
+    """True for an exception of the object-store client: defined by one of its packages, raised
+    in their code, or raised while handling such an exception."""
+    return any(_raised_in_storage(e) or any(str(kind.__module__).split(".")[0] in STORAGE_PACKAGES
+                                            for kind in type(e).__mro__) for e in _chain(exc))
 
 
 def _names(exc: BaseException) -> set[str]:
@@ -51,6 +75,8 @@ def describe_storage_fault(exc: BaseException) -> str:
     if names & set(_UNREACHABLE):
         endpoint = _endpoint(exc)
         return f"cannot reach the object store{' at ' + endpoint if endpoint else ''} ({type(exc).__name__})"
+    if any(_names(e) & set(_TIMEOUTS) for e in _chain(exc)):
+        return "the object store did not answer in time (a request's deadline passed)"
     if "ClientPayloadError" in names:
         return "the object store's reply was cut short (fewer bytes than it announced)"
     response = getattr(exc, "response", None)

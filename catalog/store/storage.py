@@ -34,8 +34,23 @@ _URL = re.compile(r"^([a-z][a-z0-9+.-]*)://", re.IGNORECASE)
 READ_AHEAD = 64 * 1024
 #: botocore's client timeouts for a URL Dyana opens (its defaults are 60 s each): an endpoint
 #: that accepts and never answers fails after its attempts (AWS_MAX_ATTEMPTS, botocore's
-#: default 5) of 10 s each, not never. An endpoint that trickles bytes is not cut by them.
+#: default 5) of 10 s each, not never. An S3 URL's requests are also bounded in all
+#: (:mod:`catalog.store.s3_session`), so one that trickles bytes is cut too.
 CLIENT_TIMEOUTS = {"connect_timeout": 5, "read_timeout": 10}
+
+
+def client_options(scheme: str) -> dict[str, Any]:
+    """The fsspec options of a URL Dyana opens: for S3 (s3fs) the client's timeouts and the
+    bounded session; none for other schemes (their file systems take other options)."""
+    if scheme.lower() not in ("s3", "s3a"):
+        return {}
+    config: dict[str, Any] = dict(CLIENT_TIMEOUTS)
+    try:
+        from catalog.store.s3_session import BoundedSession
+    except ImportError:  # no aiobotocore: s3fs itself will say what is missing
+        return {"config_kwargs": config}
+    config["http_session_cls"] = BoundedSession
+    return {"config_kwargs": config}
 
 
 def is_url(location: Any) -> bool:
@@ -66,7 +81,7 @@ def as_location(location: str | os.PathLike[str], name: str = "path") -> Path:
             # s3://bucket//x writes keys under "/x/": a folder no reader finds again
             raise SpecError(f"{name}: {printable(repr(location))} has an empty folder name or a control character")
         try:
-            path = UPath(str(location), config_kwargs=dict(CLIENT_TIMEOUTS))
+            path = UPath(str(location), **client_options(str(location).split("://", 1)[0]))
             path.fs  # noqa: B018  # the file system's class: an uninstalled one (gs:// without gcsfs) fails here
         except (ValueError, ImportError) as exc:
             raise ShardError(f"{str(location)[:80]}: not a storage URL this installation reads ({exc})") from None

@@ -69,6 +69,12 @@ def _markers() -> list[tuple[str, int, Marker, bool]]:
     return out
 
 
+def _names_a_cover(argument: str) -> bool:
+    """``(covered by tests/x.py[::test] and ...)``: the faster test(s) that cover a slow block."""
+    found = re.fullmatch(r"\(covered by (tests/\S+?\.py)(::\w+)?\b.*\)", argument)
+    return found is not None and (ROOT / found.group(1)).is_file()
+
+
 def test_markers_are_well_formed() -> None:
     wrong = []
     for path, line, marker, before_block in _markers():
@@ -77,8 +83,9 @@ def test_markers_are_well_formed() -> None:
             wrong.append(f"{where}: unknown marker {marker.kind!r} (known: {', '.join(MARKER_KINDS)})")
         elif marker.kind in ("needs", "skip") and not marker.argument:
             wrong.append(f"{where}: `{marker.kind}` needs a {'module' if marker.kind == 'needs' else 'reason'}")
-        elif marker.kind == "slow" and marker.argument:
-            wrong.append(f"{where}: `slow` takes nothing, got {marker.argument!r}")
+        elif marker.kind == "slow" and marker.argument and not _names_a_cover(marker.argument):
+            wrong.append(f"{where}: `slow` takes nothing or '(covered by tests/FILE.py...)' naming a test file "
+                         f"that exists, got {marker.argument!r}")
         if not before_block:
             wrong.append(f"{where}: a docs-test marker must be on the line right before a ```bash or ```python fence")
     assert not wrong, "\n".join(wrong)

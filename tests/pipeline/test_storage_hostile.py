@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+import catalog.store.s3_session
 import catalog.store.storage
 from catalog.store.storage import as_location, where
 from pipeline.cli_catalog import main as catalog_main
@@ -58,6 +59,7 @@ def test_an_endpoint_that_accepts_and_never_answers_times_out(no_aws, monkeypatc
     monkeypatch.setenv("AWS_ACCESS_KEY_ID", "dyana-test")
     monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "dyana-test-secret")
     monkeypatch.setattr(catalog.store.storage, "CLIENT_TIMEOUTS", {"connect_timeout": 1, "read_timeout": 1})
+    monkeypatch.setattr(catalog.store.s3_session, "REQUEST_TOTAL_S", 1.0)  # each attempt cut at 1 s in all
     try:
         start = time.monotonic()
         code = catalog_main(["info", "s3://dyana-test/silent"])
@@ -88,3 +90,46 @@ def test_an_unreachable_scheduler_leaves_no_folder_behind(tmp_path, capsys, monk
     err = capsys.readouterr().err
     assert code != 0 and err.count("\n") == 1 and "Traceback" not in err, err
     assert not (tmp_path / "out" / "linear-fast").exists()
+
+
+def test_an_endpoint_that_trickles_its_reply_is_cut_by_the_request_deadline(no_aws, monkeypatch, capsys):  # noqa: F811
+    """Before: a reply of a byte a second passed every per-read timeout and never ended."""
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(16)
+    stop = threading.Event()
+
+    def trickle(connection: socket.socket) -> None:
+        with connection:
+            connection.recv(65536)  # the request
+            connection.sendall(b"HTTP/1.1 200 OK\r\nContent-Length: 1000000\r\nContent-Type: application/xml\r\n\r\n")
+            while not stop.is_set():
+                try:
+                    connection.sendall(b" ")
+                except OSError:
+                    return
+                time.sleep(0.2)
+
+    def accept() -> None:
+        listener.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                threading.Thread(target=trickle, args=(listener.accept()[0],), daemon=True).start()
+            except OSError:
+                continue
+
+    threading.Thread(target=accept, daemon=True).start()
+    monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{listener.getsockname()[1]}")
+    monkeypatch.setenv("AWS_ACCESS_KEY_ID", "dyana-test")
+    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "dyana-test-secret")
+    monkeypatch.setattr(catalog.store.s3_session, "REQUEST_TOTAL_S", 1.0)
+    try:
+        start = time.monotonic()
+        code = catalog_main(["info", "s3://dyana-test/trickle"])
+        elapsed = time.monotonic() - start
+    finally:
+        stop.set()
+        listener.close()
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "s3://dyana-test/trickle" in err, err
+    assert elapsed < 60, elapsed
