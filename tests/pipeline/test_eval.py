@@ -247,7 +247,7 @@ def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
     nothing in its bytes (they once turned slow calls into deadline errors). The runs are
     fresh processes with one BLAS/OpenMP thread each: in this long-lived test process,
     spinning thread pools left by earlier tests (torch) would otherwise make the loaded run
-    crawl for minutes, which tests nothing more. The burners stop after 10 s (the loaded
+    crawl for minutes, which tests nothing more. The burners stop after 6 s (the loaded
     run's start-up and first acts, where deadlines once bit, run beside them; in a full
     suite run the loaded run otherwise took two minutes)."""
     import multiprocessing
@@ -264,7 +264,7 @@ def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
         return json.loads((tmp_path / name / "catalog.json").read_text())
 
     idle = run("idle")
-    burners = [multiprocessing.get_context("spawn").Process(target=_burn, args=(10.0,), daemon=True) for _ in range(2)]
+    burners = [multiprocessing.get_context("spawn").Process(target=_burn, args=(6.0,), daemon=True) for _ in range(2)]
     for burner in burners:
         burner.start()
     try:
@@ -305,7 +305,7 @@ def test_an_edited_policy_file_is_not_up_to_date(tmp_path):
     (tmp_path / "mine.py").write_text("import numpy as np\n\ndef hold(obs):\n"
                                       "    return np.concatenate([obs['palm_pose'][:3], obs['joint_angles']])\n")
     argv = [str(BIN / "pipeline"), "eval", "--policy", "mine:hold", "--slice", "test-1k", "--episodes", "1",
-            "--resolution", "32", "--out", "run", "--quiet"]
+            "--resolution", "32", "--workers", "1", "--out", "run", "--quiet"]  # one Dask worker: not the subject
 
     def run(*extra: str) -> subprocess.CompletedProcess:
         return subprocess.run([*argv, *extra], cwd=tmp_path, capture_output=True, text=True, timeout=300)

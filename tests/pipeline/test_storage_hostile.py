@@ -38,6 +38,7 @@ def test_a_reply_cut_short_is_a_storage_fault_named_as_such():
     assert describe_storage_fault(exc) == "the object store's reply was cut short (fewer bytes than it announced)"
 
 
+@pytest.mark.slow(cover="tests/pipeline/test_storage_hostile.py::test_an_endpoint_that_trickles_its_reply_is_cut_by_the_request_deadline")
 def test_an_endpoint_that_accepts_and_never_answers_times_out(no_aws, monkeypatch, capsys):  # noqa: F811
     listener = socket.socket()
     listener.bind(("127.0.0.1", 0))
