@@ -38,42 +38,61 @@ def test_a_reply_cut_short_is_a_storage_fault_named_as_such():
     assert describe_storage_fault(exc) == "the object store's reply was cut short (fewer bytes than it announced)"
 
 
-@pytest.mark.slow(cover="tests/pipeline/test_storage_hostile.py::test_an_endpoint_that_trickles_its_reply_is_cut_by_the_request_deadline")
-def test_an_endpoint_that_accepts_and_never_answers_times_out(no_aws, monkeypatch, capsys):  # noqa: F811
+def _info_against(handle, name: str, monkeypatch, capsys) -> float:
+    """`catalog info s3://dyana-test/NAME` against an endpoint on 127.0.0.1 whose every
+    connection ``handle(connection, stop)`` serves; asserts one line naming the URL, exit 2;
+    the seconds it took."""
     listener = socket.socket()
     listener.bind(("127.0.0.1", 0))
     listener.listen(16)
-    held: list[socket.socket] = []
     stop = threading.Event()
 
-    def accept() -> None:  # accept every connection and never answer it
+    def accept() -> None:
         listener.settimeout(0.2)
         while not stop.is_set():
             try:
-                held.append(listener.accept()[0])
+                threading.Thread(target=handle, args=(listener.accept()[0], stop), daemon=True).start()
             except OSError:
                 continue
 
-    thread = threading.Thread(target=accept, daemon=True)
-    thread.start()
+    threading.Thread(target=accept, daemon=True).start()
     monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{listener.getsockname()[1]}")
     monkeypatch.setenv("AWS_ACCESS_KEY_ID", "dyana-test")
     monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "dyana-test-secret")
-    monkeypatch.setattr(catalog.store.storage, "CLIENT_TIMEOUTS", {"connect_timeout": 1, "read_timeout": 1})
-    monkeypatch.setattr(catalog.store.s3_session, "REQUEST_TOTAL_S", 1.0)  # each attempt cut at 1 s in all
     try:
         start = time.monotonic()
-        code = catalog_main(["info", "s3://dyana-test/silent"])
+        code = catalog_main(["info", f"s3://dyana-test/{name}"])
         elapsed = time.monotonic() - start
     finally:
         stop.set()
-        thread.join(timeout=5)
-        for connection in held:
-            connection.close()
         listener.close()
     err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "s3://dyana-test/silent" in err, err
-    assert elapsed < 30, elapsed
+    assert code == 2 and err.count("\n") == 1 and f"s3://dyana-test/{name}" in err, err
+    return elapsed
+
+
+def _silent(connection: socket.socket, stop: threading.Event) -> None:
+    """Accept and never answer."""
+    with connection:
+        stop.wait(60)
+
+
+def _trickle(connection: socket.socket, stop: threading.Event) -> None:
+    """Answer a byte every 0.2 s, for ever."""
+    with connection:
+        connection.recv(65536)  # the request
+        connection.sendall(b"HTTP/1.1 200 OK\r\nContent-Length: 1000000\r\nContent-Type: application/xml\r\n\r\n")
+        while not stop.wait(0.2):
+            try:
+                connection.sendall(b" ")
+            except OSError:
+                return
+
+
+@pytest.mark.slow(cover="tests/pipeline/test_storage_hostile.py::test_an_endpoint_that_trickles_its_reply_is_cut_by_the_request_deadline")
+def test_an_endpoint_that_accepts_and_never_answers_times_out(no_aws, monkeypatch, capsys):  # noqa: F811
+    monkeypatch.setattr(catalog.store.storage, "CLIENT_TIMEOUTS", {"connect_timeout": 1, "read_timeout": 1})
+    assert _info_against(_silent, "silent", monkeypatch, capsys) < 30
 
 
 @pytest.mark.parametrize("scheduler", ["tcp://127.0.0.1:{port}", "bogus://127.0.0.1:{port}"])
@@ -95,42 +114,5 @@ def test_an_unreachable_scheduler_leaves_no_folder_behind(tmp_path, capsys, monk
 
 def test_an_endpoint_that_trickles_its_reply_is_cut_by_the_request_deadline(no_aws, monkeypatch, capsys):  # noqa: F811
     """Before: a reply of a byte a second passed every per-read timeout and never ended."""
-    listener = socket.socket()
-    listener.bind(("127.0.0.1", 0))
-    listener.listen(16)
-    stop = threading.Event()
-
-    def trickle(connection: socket.socket) -> None:
-        with connection:
-            connection.recv(65536)  # the request
-            connection.sendall(b"HTTP/1.1 200 OK\r\nContent-Length: 1000000\r\nContent-Type: application/xml\r\n\r\n")
-            while not stop.is_set():
-                try:
-                    connection.sendall(b" ")
-                except OSError:
-                    return
-                time.sleep(0.2)
-
-    def accept() -> None:
-        listener.settimeout(0.2)
-        while not stop.is_set():
-            try:
-                threading.Thread(target=trickle, args=(listener.accept()[0],), daemon=True).start()
-            except OSError:
-                continue
-
-    threading.Thread(target=accept, daemon=True).start()
-    monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{listener.getsockname()[1]}")
-    monkeypatch.setenv("AWS_ACCESS_KEY_ID", "dyana-test")
-    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "dyana-test-secret")
     monkeypatch.setattr(catalog.store.s3_session, "REQUEST_TOTAL_S", 1.0)
-    try:
-        start = time.monotonic()
-        code = catalog_main(["info", "s3://dyana-test/trickle"])
-        elapsed = time.monotonic() - start
-    finally:
-        stop.set()
-        listener.close()
-    err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "s3://dyana-test/trickle" in err, err
-    assert elapsed < 60, elapsed
+    assert _info_against(_trickle, "trickle", monkeypatch, capsys) < 60
