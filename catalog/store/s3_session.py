@@ -24,5 +24,6 @@ class BoundedSession(AIOHTTPSession):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._timeout = aiohttp.ClientTimeout(total=REQUEST_TOTAL_S, sock_connect=self._timeout.sock_connect,
-                                              sock_read=self._timeout.sock_read)
+        socket_waits: aiohttp.ClientTimeout = vars(self)["_timeout"]  # aiobotocore's, from the client's config
+        self._timeout = aiohttp.ClientTimeout(total=REQUEST_TOTAL_S, sock_connect=socket_waits.sock_connect,
+                                              sock_read=socket_waits.sock_read)

@@ -85,7 +85,7 @@ def as_location(location: str | os.PathLike[str], name: str = "path") -> Path:
             path.fs  # noqa: B018  # the file system's class: an uninstalled one (gs:// without gcsfs) fails here
         except (ValueError, ImportError) as exc:
             raise ShardError(f"{str(location)[:80]}: not a storage URL this installation reads ({exc})") from None
-        return path  # type: ignore[return-value]  # Path's API, not its class
+        return path
     return Path(location)
 
 
