@@ -49,7 +49,7 @@ from catalog.store.records import FileRecord
 from catalog.store.storage import is_remote
 from catalog.tables.reader import FolderReader, open_folder
 from pipeline.jobs.engine import LocalFolder, Previous, Range, run_folder_job
-from pipeline.jobs.lock import LOCK_FILE
+from pipeline.jobs.lock import LOCK_FILE, FolderBusy
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import Storage
 from pipeline.jobs.state import file_intact
@@ -298,6 +298,8 @@ def export(
     try:
         outcome = run_folder_job(LocalFolder(target), product, work, execution, overwrite=overwrite,
                                  total_frames=sum(u.frames for u in plan.units))
+    except FolderBusy:
+        raise  # another process is writing the folder: nothing here is this run's
     except DyanaError:
         # a source found damaged mid-export (its sha256 is checked as it is read): an export
         # this run began leaves nothing, no work folder or part a later run would take up
