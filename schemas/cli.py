@@ -327,8 +327,15 @@ def _version(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", action="version", version=f"%(prog)s ({VERSION})")
 
 
+#: Every program's ``--help`` ends with Dyana's three programs, so one leads to the others.
+PROGRAMS_EPILOG = (
+    "Dyana's programs: pipeline (build, eval, serve, replay, view), catalog (list, stats, specs, verify, "
+    "migrate, export, info) and scoring (eval); PROGRAM COMMAND --help for each. Manual: docs/ (README.md's first screen)."
+)
+
+
 def make_parser(prog: str, description: str, commands: Sequence[Command]) -> OneLineParser:
-    parser = OneLineParser(prog=prog, description=description)
+    parser = OneLineParser(prog=prog, description=description, epilog=PROGRAMS_EPILOG)
     _version(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=OneLineParser)
     for command in commands:

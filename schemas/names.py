@@ -10,7 +10,9 @@ also hide a URL's password (:func:`redact_credentials`), so no message prints on
 
 from __future__ import annotations
 
+import difflib
 import re
+from collections.abc import Iterable
 from typing import Any
 
 from schemas.errors import SpecError
@@ -63,3 +65,12 @@ def validate_name(kind: str, value: Any) -> str:
             f"{kind} must be a name (a string), got {shorten(value)}"
         )
     return value
+
+
+def did_you_mean(value: Any, choices: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the choice closest to a mistyped ``value`` (difflib's
+    ratio of at least 0.6), else ``""``: appended to an "unknown name" message."""
+    if not isinstance(value, str) or len(value) > 200:
+        return ""
+    close = difflib.get_close_matches(value, list(choices), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""

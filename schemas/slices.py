@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from schemas.errors import SliceError, SpecError
-from schemas.names import shorten
+from schemas.names import did_you_mean, shorten
 from schemas.scene import COMPLEX_MOTION_TYPES, INTERCEPT_SECONDS, MOTION_TYPES
 
 #: Figure 4(a): episodes of each motion type in Dyana-12M.
@@ -140,4 +140,4 @@ def get_slice(name: str) -> SliceDef:
     """Look a slice up by name; an unknown name raises :class:`SliceError` listing the known ones."""
     if isinstance(name, str) and name in SLICES:
         return SLICES[name]
-    raise SliceError(f"unknown slice {shorten(name)!r} (expected one of: {', '.join(SLICES)})")
+    raise SliceError(f"unknown slice {shorten(name)!r}{did_you_mean(name, SLICES)} (expected one of: {', '.join(SLICES)})")

@@ -35,7 +35,7 @@ from typing import Any, NotRequired, Protocol, TypedDict, runtime_checkable
 import numpy as np
 
 from schemas.errors import SpecError
-from schemas.names import shorten
+from schemas.names import did_you_mean, shorten
 
 #: Built-in policies: name -> "module:class".
 BUILTIN = {
@@ -196,7 +196,8 @@ def make_policy(ref: str) -> Policy:
         raise SpecError(f"policy must be a non-empty string, got {shorten(repr(ref))}")
     target = _resolve(BUILTIN.get(ref, ref)) if (ref in BUILTIN or ":" in ref) else None
     if target is None:
-        raise SpecError(f"unknown policy {shorten(repr(ref))}: expected one of {sorted(BUILTIN)} or module:callable")
+        raise SpecError(f"unknown policy {shorten(repr(ref))}{did_you_mean(ref, BUILTIN)}: "
+                        f"expected one of {sorted(BUILTIN)} or module:callable")
     if _is_policy(target) and not inspect.isclass(target):
         return target
     if not callable(target):

@@ -69,7 +69,8 @@ def test_module_callable_references():
 @pytest.mark.parametrize(
     "ref, message",
     [
-        ("teleport", "unknown policy 'teleport'"),
+        ("teleport", "unknown policy 'teleport': expected"),  # nothing close: no suggestion
+        ("predictiv", r"unknown policy 'predictiv' \(did you mean 'predictive'\?\)"),
         ("", "non-empty"),
         ("no_such_module_xyz:act", "cannot import module 'no_such_module_xyz'"),
         ("pipeline.policies.still:Nope", "has no attribute 'Nope'"),

@@ -62,7 +62,7 @@ def test_unknown_slice_names_value_and_known_slices():
     with pytest.raises(SliceError) as info:
         get_slice("linear-sloww")
     message = str(info.value)
-    assert "unknown slice 'linear-sloww'" in message
+    assert "unknown slice 'linear-sloww' (did you mean 'linear-slow'?)" in message
     assert all(name in message for name in SLICES)
     assert "\n" not in message and not message.startswith('"')
     assert isinstance(info.value, DyanaError) and isinstance(info.value, KeyError)
