@@ -39,3 +39,13 @@ def expected_footprint(parts: dict[str, tuple[int, int]]) -> Footprint | None:
         parquet += frames * row["frames_bytes_per_frame"] + episodes * row["episodes_bytes_per_episode"]
         mcap += frames * row["mcap_bytes_per_frame"]
     return Footprint(round(parquet), round(mcap))
+
+
+
+def footprint_at(name: str, episodes: int, frames: int, resolution: int) -> Footprint | None:
+    """:func:`expected_footprint` of one slice's ``episodes`` and ``frames`` built at
+    ``resolution``; None at another resolution than the one measured (JPEG sizes do not
+    scale simply) or for a slice not measured."""
+    if resolution != json.loads(FOOTPRINT_PATH.read_text())["resolution"]:
+        return None
+    return expected_footprint({name: (episodes, frames)})

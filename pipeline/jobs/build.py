@@ -16,6 +16,7 @@ from typing import Any
 
 from catalog.store.manifest import Manifest
 from catalog.tables.stats import written_partial
+from pipeline.jobs.progress import announcement
 from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult, run_job
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import JobSpec, job_spec
@@ -102,6 +103,8 @@ def run_build(spec: JobSpec) -> JobResult:
         payload=settings,
         verb="built",
         key_prefix="shard",
+        about="" if spec.execution.say is None else announcement(
+            "building", slice_name, total, selection.shard_size, settings.resolution, counted=specs_json is None),
     )
     return run_job(job, spec.execution, destination)
 

@@ -230,6 +230,8 @@ def _run_locked(destination: Destination, product: Product[UnitT, Result], work:
     todo = [task for task in tasks if (task.first, task.end) not in done]
     say = execution.say
     episodes = sum(end - first for first, end in ranges)
+    if say is not None and work.about:
+        say(work.about)
     meter = None if say is None else Progress(len(ranges), episodes, total_frames=total_frames, say=say)
     if meter is not None and say is not None and done:
         say(f"resuming: {len(done)} of {len(ranges)} shards already {verb}")

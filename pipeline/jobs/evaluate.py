@@ -36,6 +36,7 @@ from catalog.tables.stats import written_partial
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
 from generators.heldout import TestSeed, derive, private_specs
 from pipeline.jobs.audit import read_audit, stamped, write_audit
+from pipeline.jobs.progress import announcement
 from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult, ShardTask, run_job, shard_ranges
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import JobSpec, Storage, job_spec
@@ -410,6 +411,9 @@ def run_eval(spec: JobSpec, report: Report | None = None) -> Manifest:
         key_prefix="eval",
         audit_dir=kind.audit_dir,
         keep=(PARTIAL_STATS, COUNTS),
+        about="" if spec.execution.say is None else announcement(
+            f"evaluating {printable(name, 60)} on", slice_name + (" (held out)" if private else ""), total,
+            selection.shard_size, build_settings.resolution, counted=False),
     )
     timing: dict[str, Any] = {"episodes": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
 

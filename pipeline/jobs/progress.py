@@ -116,3 +116,29 @@ class Progress:
             self._running.pop(key, None)
             self._finished[key] = (record.end - record.first, record.frames)
             self._show()
+
+
+def announcement(verb: str, slice_name: str, episodes: int, shard_size: int, resolution: int, counted: bool = True) -> str:
+    """How big a job is, said before it starts: episodes, shards and, when ``counted``, the
+    recipe's frames (:func:`generators.recipe.slice_summary`) and about how many bytes (the
+    measured footprint, :mod:`catalog.store.footprint`)."""
+    from catalog.store.footprint import footprint_at
+    from generators.recipe import slice_summary
+
+    shards = -(-episodes // shard_size)
+    line = f"{verb} {slice_name}: {episodes:,} episodes"
+    if counted:  # the recipe's count (a specs file's or a rollout's frames are their own)
+        frames = int(slice_summary(slice_name, episodes)["total_frames"])
+        line += f", {frames:,} frames"
+    line += f", {shards:,} shard{'s' if shards != 1 else ''} of {shard_size}"
+    size = None if not counted else footprint_at(slice_name, episodes, frames, resolution)
+    if size is not None:
+        line += f", about {_size(size.total)}"
+    if shards > 1:
+        line += "; Ctrl-C keeps finished shards, the same command resumes"
+    return line
+
+
+def _size(count: float) -> str:
+    """A byte count as MB or GB, two significant figures."""
+    return f"{count / 1e9:.2g} GB" if count >= 1e9 else f"{max(count / 1e6, 0.1):.2g} MB"

@@ -89,6 +89,8 @@ class Job(Generic[Payload]):
     with_stats: bool = True
     audit_dir: str | None = None
     keep: tuple[str, ...] = (PARTIAL_STATS,)
+    #: How big the job is, said before it starts (:attr:`pipeline.jobs.tasks.Work.about`).
+    about: str = ""
     ranges: tuple[Range, ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -100,7 +102,7 @@ class Job(Generic[Payload]):
 
     def work(self) -> Work[Payload]:
         """The job's units, as the engine runs them."""
-        return Work(self.tasks, self.task_fn, self.payload, self.key_prefix, self.verb)
+        return Work(self.tasks, self.task_fn, self.payload, self.key_prefix, self.verb, self.about)
 
     def identity(self) -> Identity:
         """What the folder must already hold for this job to reuse it."""

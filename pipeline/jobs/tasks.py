@@ -232,13 +232,16 @@ def connect(client_class: Callable[..., Any], scheduler: str) -> Any:
 class Work(Generic[Payload]):
     """A job's units: its ``tasks``, the worker function that runs one
     (``task_fn(task, payload, sink)``), the ``payload`` sent with each, the prefix of their
-    Dask keys and the verb progress lines use (``built``, ``evaluated``, ``exported``)."""
+    Dask keys, the verb progress lines use (``built``, ``evaluated``, ``exported``) and
+    ``about``: how big the job is, said before its first unit starts (not when the folder is
+    already up to date)."""
 
     tasks: tuple[ShardTask, ...]
     task_fn: TaskFn[Payload]
     payload: Payload
     key_prefix: str = "shard"
     verb: str = "built"
+    about: str = ""
 
 
 @dataclass(frozen=True)

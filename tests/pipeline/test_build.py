@@ -369,7 +369,8 @@ def test_a_dask_build_prints_only_dyana_lines_even_beside_another_dashboard(tmp_
         result = _cli("build", "--slice", SLICE, "--episodes", "4", "--shard-size", "2", "--workers", "2",
                       "--resolution", "32", "--out", str(tmp_path))
     assert result.returncode == 0, result.stderr
-    lines = result.stderr.splitlines()
+    about, *lines = result.stderr.splitlines()
+    assert about.startswith("building linear-fast: ") and "frames" in about, result.stderr  # how big, said first
     assert lines and all(line.startswith("[") for line in lines), result.stderr
 
 

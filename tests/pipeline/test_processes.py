@@ -271,14 +271,15 @@ def _interrupted_build(out: str, env: dict[str, str] | None = None) -> tuple[int
     lines, reader = _lines(proc)
     try:
         deadline = time.monotonic() + 120
-        while not lines and proc.poll() is None and time.monotonic() < deadline:  # a first episode is done
-            time.sleep(0.05)
+        while not any(line.startswith("[") for line in lines) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # a first episode is done
         os.killpg(proc.pid, signal.SIGINT)
         proc.wait(timeout=60)
         reader.join(10)
     finally:
         _stop(proc)
-    return proc.returncode, [line for line in lines if not line.startswith("[")]  # not the progress lines
+    assert lines and lines[0].startswith("building linear-fast: "), lines  # how big, said first
+    return proc.returncode, [line for line in lines[1:] if not line.startswith("[")]  # not the progress lines
 
 
 def test_ctrl_c_during_build_is_one_line(tmp_path):

@@ -255,7 +255,9 @@ def _build(out: Path, *flags: str) -> subprocess.CompletedProcess:
 def test_a_dask_build_reports_episodes_before_its_shard_finishes_and_quiet_is_silent(tmp_path):
     shown = _build(tmp_path / "shown")
     assert shown.returncode == 0, shown.stderr
-    lines = shown.stderr.splitlines()
+    about, *lines = shown.stderr.splitlines()
+    assert about == "building linear-fast: 8 episodes, 225 frames, 2 shards of 4; Ctrl-C keeps finished shards, " \
+                    "the same command resumes", about  # how big the job is, before its first line of progress
     # two shards on one Dask worker (a job of one shard would run in the driver)
     early = [line for line in lines if re.match(r"\[0/2 shards\] [1-3]/8 episodes, \d+ frames, [\d.]+ frames/s, eta ", line)]
     assert early, shown.stderr  # a worker process's episode reached the driver before its shard was done
