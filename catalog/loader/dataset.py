@@ -87,14 +87,14 @@ import numpy as np
 from catalog.loader.decode import DecodePlan, decode_plan, decode_rgb
 from catalog.loader.index import ACTION_SLICE, DISTANCE_COLUMN, STATE_SLICES, Episode, Options, ShardFile
 from catalog.loader.lerobot_keys import lerobot_item
-from catalog.loader.selection import Selection
+from catalog.loader.selection import Selection, describe_episodes
 from catalog.loader.shard_cache import OpenShard, ShardCache
 from catalog.loader.stream import FrameStream
 from catalog.loader.torch_adapter import torch_dataset
 from catalog.loader.windows import episode_starts, history_span, horizon_span
 from catalog.store.manifest import Manifest
 from catalog.tables.stats import Stats, combine, load_stats
-from schemas.errors import ShardError
+from schemas.errors import ShardError, SpecError
 from schemas.scene import PHASES
 
 _getpid = os.getpid
@@ -193,8 +193,16 @@ class FrameDataset:
         return self.filtered(Selection.of(motion_type, intercept_setting, object, episodes, where))
 
     def filtered(self, selection: Selection) -> FrameDataset:
-        """The episodes ``selection`` matches (what :meth:`select` builds from its arguments)."""
-        return self._view([k for k, e in enumerate(self._episodes) if selection.matches(e)])
+        """The episodes ``selection`` matches (what :meth:`select` builds from its arguments);
+        SpecError when it matches none of them, saying what the folders hold (an empty
+        dataset would only fail later, in a DataLoader, or train on nothing); ``episodes=[]``
+        asks for none and gets an empty dataset."""
+        keep = [k for k, e in enumerate(self._episodes) if selection.matches(e)]
+        asked_none = selection.episodes is not None and len(selection.episodes) == 0  # episodes=[]: nothing, on purpose
+        if not keep and self._episodes and not asked_none:
+            raise SpecError(f"no episode matches the filters ({selection.describe()}); "
+                            f"{'the folders hold' if len(self._roots) > 1 else 'the folder holds'} {describe_episodes(self._episodes)}")
+        return self._view(keep)
 
     def _view(self, keep: Sequence[int]) -> FrameDataset:
         return FrameDataset(

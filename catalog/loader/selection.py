@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,6 +92,17 @@ class Selection:
         return all(v is None for v in (self.motion_type, self.intercept_setting, self.object, self.episodes,
                                        self.where))
 
+    def describe(self) -> str:
+        """The filters that are set, as ``name=values`` (cut short)."""
+        parts = [f"{name}={sorted(value)}" for name, value in (
+            ("motion_type", self.motion_type), ("intercept_setting", self.intercept_setting), ("object", self.object))
+            if value is not None]
+        if self.episodes is not None:
+            parts.append(f"episodes={shorten(repr(self.episodes if isinstance(self.episodes, range) else sorted(self.episodes)))}")
+        if self.where is not None:
+            parts.append("where=" + shorten(getattr(self.where, "__name__", repr(self.where)), 60))
+        return ", ".join(parts)
+
     def matches(self, e: Episode) -> bool:
         return (
             (self.motion_type is None or e.motion_type in self.motion_type)
@@ -100,3 +111,12 @@ class Selection:
             and (self.episodes is None or e.episode_index in self.episodes)
             and (self.where is None or bool(self.where(e)))
         )
+
+
+def describe_episodes(episodes: Sequence[Episode]) -> str:
+    """What a list of episodes holds, for a message: its count, motion types, intercept
+    settings, objects and episode_index range."""
+    indices = [e.episode_index for e in episodes]
+    kinds = {name: sorted({getattr(e, name) for e in episodes}) for name in ("motion_type", "intercept_setting", "object")}
+    return (f"{len(episodes)} episodes: motion_type {kinds['motion_type']}, intercept_setting {kinds['intercept_setting']}, "
+            f"object {shorten(repr(kinds['object']), 120)}, episode_index {min(indices)}-{max(indices)}")

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
 from catalog.store.manifest import MANIFEST_NAME, Manifest, load_manifest
 from catalog.store.storage import as_location, is_remote
@@ -122,13 +121,6 @@ class FolderInfo:
         }
 
 
-def _dyana_subfolders(root: Path) -> list[str]:
-    """Names of the local sub-folders holding a catalog.json (``pipeline build`` writes ``OUT/SLICE``)."""
-    if is_remote(root) or not root.is_dir():
-        return []
-    return sorted(p.name for p in root.iterdir() if (p / MANIFEST_NAME).is_file())
-
-
 def folder_info(location: str) -> FolderInfo:
     """:class:`FolderInfo` of a built slice or run folder (a local path or a URL); a
     ShardError naming the folder when it is missing or holds no readable catalog.json."""
@@ -140,11 +132,6 @@ def folder_info(location: str) -> FolderInfo:
             raise ShardError(f"{location}: no such folder")
         if not root.is_dir():
             raise ShardError(f"{location}: not a folder (give a built slice or run folder)")
-        inside = _dyana_subfolders(root)
-        if inside and not (root / MANIFEST_NAME).exists():
-            shown = ", ".join(inside[:4]) + (", ..." if len(inside) > 4 else "")
-            raise ShardError(f"{location}: no catalog.json here; it holds Dyana folders ({shown}): "
-                             f"run `catalog info {root / inside[0]}`")
     manifest = load_manifest(root)
     manifest_bytes = len((root / MANIFEST_NAME).read_bytes())
     recorded = [f for shard in manifest.shards for f in shard.files.values()]

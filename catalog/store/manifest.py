@@ -340,6 +340,28 @@ def _refuse_constant(name: str) -> float:
     raise _NotJson(name)
 
 
+def dyana_subfolders(directory: str | os.PathLike[str]) -> list[str]:
+    """Names of the local sub-folders that hold a catalog.json (``pipeline build --out OUT``
+    writes ``OUT/SLICE``): what a reader given ``OUT`` suggests instead."""
+    root = as_location(directory)
+    try:
+        if is_remote(root) or not root.is_dir():
+            return []
+        return sorted(p.name for p in root.iterdir() if (p / MANIFEST_NAME).is_file())
+    except OSError:
+        return []
+
+
+def _parent_hint(directory: str | os.PathLike[str]) -> str | None:
+    """For a folder that holds built folders rather than being one: one line naming them."""
+    inside = dyana_subfolders(directory)
+    if not inside:
+        return None
+    shown = ", ".join(inside[:4]) + (", ..." if len(inside) > 4 else "")
+    return (f"{directory}: no catalog.json here; it holds Dyana folders ({shown}): "
+            f"give one of them, e.g. {as_location(directory) / inside[0]}")
+
+
 def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> Manifest:
     """Read and validate ``DIR/catalog.json``, its seal first; ShardError naming the file
     on any problem. ``sealed=False`` accepts a manifest without a seal (``catalog migrate``
@@ -348,7 +370,7 @@ def load_manifest(directory: str | os.PathLike[str], *, sealed: bool = True) -> 
     try:
         text = path.read_text(encoding="utf-8") if is_remote(path) else _read_regular(path)
     except FileNotFoundError:
-        hint = repeats_hint(directory)  # a folder of repeats says what to pass instead
+        hint = repeats_hint(directory) or _parent_hint(directory)  # what to pass instead
         raise ShardError(
             hint or f"{path}: no catalog.json (not a built slice or run folder, or the build did not finish)"
         ) from None

@@ -281,7 +281,13 @@ def test_filters_select_episodes(tmp_path):
     assert [e.episode_index for e in cans.episodes] == [3, 5]
     picked = everything.select(where=lambda e: e.episode_index % 3 == 0)
     assert [e.episode_index for e in picked.episodes] == [0, 3]
-    assert len(catalog.open(root, episodes=[])) == 0
+    assert len(catalog.open(root, episodes=[])) == 0  # asked for none
+    with pytest.raises(SpecError, match=r"no episode matches the filters \(motion_type=\['linear'\], intercept_setting="
+                                        r"\['slow'\]\); the folder holds 6 episodes: motion_type \['circular', 'harmonic', "
+                                        r"'linear'\], intercept_setting \['fast', 'medium', 'slow'\]"):
+        catalog.open(root, motion_type="linear", intercept_setting="slow")  # before: 0 frames, silently
+    with pytest.raises(SpecError, match="no episode matches the filters"):
+        circular.select(where=lambda e: e.episode_index == 0)
     for bad in ({"motion_type": "lineer"}, {"intercept_setting": "quick"}, {"object": "teapot"}, {"episodes": ["1"]}):
         with pytest.raises(SpecError):
             catalog.open(root, **bad)

@@ -143,7 +143,7 @@ def _edited(root: Path) -> None:
         (lambda root: root.mkdir(), "empty", "no catalog.json (not a built slice or run folder"),
         (_repeats, "repeats", "is a folder of 1 repeat (repeat-00, indexed by repeats.json), not one run: pass one"),
         (lambda root: write_slice(root / "linear-fast"), "out",
-         "no catalog.json here; it holds Dyana folders (linear-fast): run `catalog info "),
+         "no catalog.json here; it holds Dyana folders (linear-fast): give one of them, e.g. "),
         (_edited, "edited", "catalog.json: edited after it was written (changed: seed;"),
     ],
     ids=["missing", "not-dyana", "repeats", "build-output", "edited"],
