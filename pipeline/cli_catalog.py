@@ -215,7 +215,7 @@ def _export_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=cli.output_path, required=True, metavar="OUT", help="the export's folder (one export per folder)")
     p.add_argument("--codec", choices=sorted(CODECS), default="h264", help="video codec (default: h264)")
     p.add_argument("--workers", type=cli.positive_int, default=None, help="processes encoding shards in parallel "
-                   f"(default: one per core, {cli.default_worker_count()} here)")
+                   f"(default: one per core{cli.cores_here()})")
     cli.add_overwrite(p)
     cli.add_quiet(p)
 

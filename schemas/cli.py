@@ -125,12 +125,21 @@ def default_worker_count() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
+#: True while the documentation site renders the parsers (``docs/hooks/cli_reference.py``):
+#: help texts then leave out what depends on the machine building the site (its cores).
+FOR_THE_SITE = False
+
+
+def cores_here() -> str:
+    """``", N here"``: this machine's default worker count, for a help text; empty on the site."""
+    return "" if FOR_THE_SITE else f", {default_worker_count()} here"
+
+
 def add_workers(parser: argparse.ArgumentParser) -> None:
     """``--workers`` and ``--scheduler``: where the shards run."""
-    cores = default_worker_count()
     parser.add_argument(
         "--workers", type=positive_int, default=None,
-        help=f"local single-threaded worker processes (default: one per core, {cores} here; a job of one shard "
+        help=f"local single-threaded worker processes (default: one per core{cores_here()}; a job of one shard "
         "runs in this process)",
     )
     parser.add_argument("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")

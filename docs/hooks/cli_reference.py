@@ -41,7 +41,10 @@ def parser_of(entry: str) -> argparse.ArgumentParser:
     def capture(self: argparse.ArgumentParser, *args: object, **kwargs: object) -> None:
         raise _Captured(self)
 
-    with mock.patch.object(argparse.ArgumentParser, "parse_args", capture):
+    import schemas.cli
+
+    with mock.patch.object(argparse.ArgumentParser, "parse_args", capture), \
+            mock.patch.object(schemas.cli, "FOR_THE_SITE", True):  # no "2 here" from the docs machine
         try:
             main([])
         except _Captured as captured:
@@ -72,8 +75,11 @@ def _columns(width: int) -> Iterator[None]:
             os.environ["COLUMNS"] = old
 
 
-def _cell(text: str) -> str:
-    return " ".join(text.split()).replace("|", "\\|")
+def _cell(text: str, code: bool = False) -> str:
+    """One table cell: whitespace joined, ``|`` escaped and, outside a code span, ``<``/``>`` as
+    entities (``OUT/<slice>/`` would otherwise be read as an HTML tag and vanish)."""
+    cell = " ".join(text.split()).replace("|", "\\|")
+    return cell if code else cell.replace("<", "&lt;").replace(">", "&gt;")
 
 
 def _help(action: argparse.Action, prog: str) -> str:
@@ -99,7 +105,7 @@ def _option_rows(parser: argparse.ArgumentParser) -> list[str]:
             names = ", ".join(f"{o} {metavar}" if takes_value else o for o in action.option_strings)
         else:
             names = str(action.metavar or action.dest)
-        rows.append(f"| `{_cell(names)}` | {_cell(_help(action, parser.prog))} |")
+        rows.append(f"| `{_cell(names, code=True)}` | {_cell(_help(action, parser.prog))} |")
     return rows
 
 

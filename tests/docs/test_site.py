@@ -133,6 +133,8 @@ def test_cli_reference_has_every_subcommand() -> None:
             for action in cli_reference.arguments(sub):
                 for option in action.option_strings:
                     assert f"`{option}" in text or f", {option}" in text, f"{program} {name} {option} missing"
+    assert "OUT/&lt;slice&gt;/" in text  # before: "OUT//", <slice> taken for an HTML tag
+    assert "one per core;" in text and not re.search(r"\d here", text)  # before: the docs machine's "2 here"
 
 
 def test_every_timing_file_shows_its_load() -> None:
