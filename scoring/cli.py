@@ -60,9 +60,10 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--reading", choices=sorted(READINGS), default=DEFAULT_READING,
-        help="how the paper's ambiguous metrics are read: 'paper' (default: E_loc at the endpoint, E_gra at "
-        "completion, every step in Q_smooth/Q_line, S_loc above the object's top) or 'lenient' (minimum "
-        "errors, zero steps dropped, S_loc in XZ only); docs/reference/metrics.md",
+        help="how the metrics are read: 'dyana' (default: S_loc above the object's top, Q_smooth/Q_line x "
+        "success over every episode), 'paper' (the paper's text only: S_loc in XZ, Q over the successful "
+        "trajectories, n_Q of them) or 'lenient' (as 'paper' with minimum errors and zero steps dropped); "
+        "docs/reference/metrics.md, Readings",
     )
     p.add_argument(
         "--chance", nargs="+", metavar="RUN",

@@ -72,10 +72,10 @@ class Reading:
     quality: str = "weighted"
 
     def __post_init__(self) -> None:
-        for field, rules in (("e_loc", E_LOC_RULES), ("e_gra", E_GRA_RULES), ("steps", STEP_RULES),
-                             ("s_loc", S_LOC_RULES), ("quality", QUALITY_RULES)):
-            if getattr(self, field) not in rules:
-                raise ValueError(f"Reading.{field} must be one of {rules}, got {getattr(self, field)!r}")
+        for rule, choices in (("e_loc", E_LOC_RULES), ("e_gra", E_GRA_RULES), ("steps", STEP_RULES),
+                              ("s_loc", S_LOC_RULES), ("quality", QUALITY_RULES)):
+            if getattr(self, rule) not in choices:
+                raise ValueError(f"Reading.{rule} must be one of {choices}, got {getattr(self, rule)!r}")
 
 
 #: Dyana's reading, the default: the paper's rules where its text is clear, the height band
