@@ -144,7 +144,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
             raise DyanaError("--latency-plot: no run to plot (a built slice's ground truth and --realtime runs "
                              "have no latency setting)")
     chance = None if not args.chance else chance_of(args.chance, reports, args.obstacle_contact, args.reading)
-    robust = [robustness(load_repeats(run), args.reading) for run in args.runs if is_repeats_folder(run)]
+    robust = [robustness(load_repeats(run), args.reading, args.obstacle_contact == "fail")
+              for run in args.runs if is_repeats_folder(run)]
     if args.json:
         payload = [report_dict(r) for r in reports]
         if robust or chance:

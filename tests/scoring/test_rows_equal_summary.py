@@ -110,3 +110,18 @@ def test_an_obstacle_contact_is_a_failure_in_the_rows_written_as_csv(tmp_path):
     reported = run_episodes(score_run(data, obstacle_contact="report")).to_pylist()
     assert reported[0]["obstacle_contact"] and reported[0]["grasp_contact"]  # 'report' only counts it
     assert np.isclose(100.0 * np.mean([r["grasped"] for r in rows]), score_run(data).overall.metrics["S_gra"])
+
+
+def test_robustness_rates_are_the_repeats_summary_rates():
+    """A repeats report's per-repeat success rates apply the same failures (obstacle contact)."""
+    from pathlib import Path
+
+    from scoring.robustness import RepeatSet, robustness
+
+    data = _run("obstacle-medium")
+    repeats = RepeatSet(Path("repeats"), {"policy": "some-policy"}, (data, data), ({}, {}))
+    for contact in CONTACT_MODES:
+        summary = score_run(data, obstacle_contact=contact).overall.metrics
+        report = robustness(repeats, contact_fails=contact == "fail")
+        for name, rates in report["rates"].items():
+            assert rates == [pytest.approx(summary[name])] * 2, (contact, name)
