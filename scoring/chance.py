@@ -27,17 +27,20 @@ CHANCE_LABEL = "chance (best blind)"
 class ChanceRow:
     """Per metric, the best blind value (None if no blind run has one) and the label of
     the run that reached it; ``runs`` the blind runs' labels, ``episodes`` their episode count;
-    ``by_motion`` the same best values within each motion type (what the plot's bars mark)."""
+    ``by_motion`` the same best values within each motion type (what the plot's bars mark);
+    ``averaged_over`` each best mean's coverage (the episodes it averages in that run)."""
 
     runs: tuple[str, ...]
     episodes: int
     metrics: dict[str, float | None]
     best_of: dict[str, str | None]
     by_motion: dict[str, dict[str, float | None]] = field(default_factory=dict)
+    averaged_over: dict[str, int | None] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, object]:
         return {"label": CHANCE_LABEL, "runs": list(self.runs), "episodes": self.episodes,
                 "metrics": dict(self.metrics), "best_of": dict(self.best_of),
+                "averaged_over": dict(self.averaged_over),
                 "by_motion": {group: dict(metrics) for group, metrics in self.by_motion.items()}}
 
 
@@ -47,16 +50,21 @@ def chance_row(runs: Sequence[tuple[str, Summary]]) -> ChanceRow:
         raise ValueError("a chance row needs at least one blind run")
     metrics: dict[str, float | None] = {}
     best_of: dict[str, str | None] = {}
+    averaged_over: dict[str, int | None] = {}
     for metric in table_metrics():
         name = metric.name
-        given = [(value, label) for label, s in runs if (value := s.metrics[name]) is not None]
+        given = [(value, label, s) for label, s in runs if (value := s.metrics[name]) is not None]
+        if not metric.is_rate:
+            averaged_over[name] = None
         if not given:
             metrics[name] = best_of[name] = None
             continue
         pick = min if metric.lower_is_better else max
-        value, label = pick(given, key=lambda pair: pair[0])
+        value, label, best = pick(given, key=lambda entry: entry[0])
         metrics[name], best_of[name] = value, label
-    return ChanceRow(tuple(label for label, _ in runs), runs[0][1].episodes, metrics, best_of)
+        if not metric.is_rate:
+            averaged_over[name] = best.averaged_over.get(name)
+    return ChanceRow(tuple(label for label, _ in runs), runs[0][1].episodes, metrics, best_of, {}, averaged_over)
 
 
 def chance_by_group(runs: Sequence[tuple[str, Mapping[str, Summary]]]) -> dict[str, dict[str, float | None]]:

@@ -60,9 +60,10 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--reading", choices=sorted(READINGS), default=DEFAULT_READING,
-        help="how the paper's ambiguous metrics are read: 'paper' (default: E_loc at the endpoint, E_gra at "
-        "completion, every step in Q_smooth/Q_line, S_loc above the object's top) or 'lenient' (minimum "
-        "errors, zero steps dropped, S_loc in XZ only); docs/reference/metrics.md",
+        help="how the metrics are read: 'dyana' (default: S_loc above the object's top, Q_smooth/Q_line x "
+        "success over every episode), 'paper' (the paper's text only: S_loc in XZ, Q over the successful "
+        "trajectories, n_Q of them) or 'lenient' (as 'paper' with minimum errors and zero steps dropped); "
+        "docs/reference/metrics.md, Readings",
     )
     p.add_argument(
         "--chance", nargs="+", metavar="RUN",
@@ -143,7 +144,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
             raise DyanaError("--latency-plot: no run to plot (a built slice's ground truth and --realtime runs "
                              "have no latency setting)")
     chance = None if not args.chance else chance_of(args.chance, reports, args.obstacle_contact, args.reading)
-    robust = [robustness(load_repeats(run), args.reading) for run in args.runs if is_repeats_folder(run)]
+    robust = [robustness(load_repeats(run), args.reading, args.obstacle_contact == "fail")
+              for run in args.runs if is_repeats_folder(run)]
     if args.json:
         payload = [report_dict(r) for r in reports]
         if robust or chance:

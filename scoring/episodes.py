@@ -2,16 +2,20 @@
 
 The summaries say how a policy did; this table says where, so a failure can be found
 and opened (``pipeline view RUN --episode N``). Statuses are applied as in
-:func:`scoring.metrics.aggregate`: an episode that ended in error is neither localized
-nor grasped and has R_time 0 whatever its frames show.
+:func:`scoring.metrics.aggregate` (the same :func:`scoring.metrics.failed`): an episode
+that ended in error (a policy error, a time-out), or whose hand touched an obstacle under
+``--obstacle-contact fail``, is neither localized nor grasped, has R_time 0 and its Q as
+the reading scores a failure, whatever its frames show. So each metric's column averages
+(a rate: its flag's percentage) to the summary's value.
 
 Columns (:func:`episode_fields`): the run (label, folder, slice, policy); the episode
 (index, id, motion type, interception setting, object, hand, rollout format); its
 ``status`` (``ok``/``error``) and ``error`` message; ``acting_frames``; the event
 frames ``t_loc``, ``t_gra``, ``t_grasp_contact`` (counted from the first acting frame,
 null when the event never happened); the three successes as booleans; ``E_loc``,
-``E_gra`` (null without acting frames), ``Q_smooth``, ``Q_line`` (null unless
-localized) and ``R_time`` (one column each per metric of :mod:`scoring.registry`);
+``E_gra`` (null without acting frames), ``Q_smooth``, ``Q_line`` (``dyana`` reading: Q x
+success, 0 for a failure; ``paper``/``lenient``: null unless a successful trajectory)
+and ``R_time`` (one column each per metric of :mod:`scoring.registry`);
 ``min_obstacle_clearance`` and ``obstacle_contact`` (null without
 obstacles); the episode's ``failure`` class (:mod:`scoring.taxonomy`) and its evidence:
 ``palm_displacement`` (the palm's largest distance from its first acting position),
@@ -38,6 +42,7 @@ from catalog.store.outputs import open_output
 from schemas.errors import DyanaError
 from schemas.names import shorten
 from schemas.obstacles import CONTACT_CLEARANCE
+from scoring.metrics import failed
 from scoring.registry import registered
 from scoring.report import RunReport
 
@@ -99,7 +104,7 @@ def run_episodes(report: RunReport) -> pa.Table:
     """The per-episode rows of one scored run."""
     data, per, failures = report.data, report.per_episode, report.failures
     n = data.episodes
-    ok = ~np.asarray(data.error, dtype=bool)
+    ok = ~failed(data.error, data.min_clearance, report.obstacle_contact == "fail")
     rates = [m for m in registered() if m.is_rate]
     means = [m for m in registered() if not m.is_rate]
     columns = {
@@ -114,7 +119,7 @@ def run_episodes(report: RunReport) -> pa.Table:
         "object": pa.array(data.object.tolist(), pa.string()),
         "hand": pa.array(data.hand.tolist(), pa.string()),
         "rollout_format": pa.array(data.rollout_format.tolist(), pa.string()),
-        "status": pa.array(np.where(ok, "ok", "error").tolist(), pa.string()),
+        "status": pa.array(np.where(data.error, "error", "ok").tolist(), pa.string()),
         "error": pa.array(data.error_message.tolist(), pa.string()),
         "acting_frames": pa.array(per.acting_frames, pa.int64()),
         **{m.event_column: _event(m.event(per)) for m in rates if m.event is not None},

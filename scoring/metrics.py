@@ -10,7 +10,7 @@ loop over frames or episodes. The definitions are written out in docs/reference/
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,11 +40,12 @@ LOWER_IS_BETTER = tuple(m.name for m in table_metrics() if m.lower_is_better)
 Z95 = 1.959963984540054
 
 
-#: The choices of :class:`Reading` (the first of each is the ``paper`` reading's).
+#: The choices of :class:`Reading` (the first of each is the ``dyana`` reading's).
 E_LOC_RULES = ("endpoint", "minimum")
 E_GRA_RULES = ("completion", "minimum")
 STEP_RULES = ("keep", "drop")
 S_LOC_RULES = ("top", "xz")
+QUALITY_RULES = ("weighted", "successful")
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,10 @@ class Reading:
     (``minimum``); ``steps``: Q_smooth/Q_line over every step of the path (``keep``) or
     without the steps of at most :data:`STEP_MIN` (``drop``); ``s_loc``: localization
     also needs the palm above the object's top by at most :data:`TOP_BAND` (``top``), or
-    the XZ distance only (``xz``).
+    the XZ distance only (``xz``); ``quality``: Q_smooth/Q_line of every episode, times its
+    success (:data:`scoring.registry.SUCCESS`; ``weighted``, 0 for a failure), or
+    unweighted over the successful trajectories only (``successful``: localized and grasped).
+    Q is always measured over the whole acting palm trajectory.
     """
 
     name: str
@@ -65,20 +69,26 @@ class Reading:
     e_gra: str = "completion"
     steps: str = "keep"
     s_loc: str = "top"
+    quality: str = "weighted"
 
     def __post_init__(self) -> None:
-        for field, rules in (("e_loc", E_LOC_RULES), ("e_gra", E_GRA_RULES), ("steps", STEP_RULES), ("s_loc", S_LOC_RULES)):
-            if getattr(self, field) not in rules:
-                raise ValueError(f"Reading.{field} must be one of {rules}, got {getattr(self, field)!r}")
+        for rule, choices in (("e_loc", E_LOC_RULES), ("e_gra", E_GRA_RULES), ("steps", STEP_RULES),
+                              ("s_loc", S_LOC_RULES), ("quality", QUALITY_RULES)):
+            if getattr(self, rule) not in choices:
+                raise ValueError(f"Reading.{rule} must be one of {choices}, got {getattr(self, rule)!r}")
 
 
-#: The paper's text read literally where it is ambiguous: the default.
-PAPER = Reading("paper")
-#: Dyana's rules before the readings were made explicit: minimum errors, zero steps
-#: dropped, S_loc in the XZ plane only (each kinder to a policy that games it).
-LENIENT = Reading("lenient", e_loc="minimum", e_gra="minimum", steps="drop", s_loc="xz")
-READINGS = {r.name: r for r in (PAPER, LENIENT)}
-DEFAULT_READING = PAPER.name
+#: Dyana's reading, the default: the paper's rules where its text is clear, the height band
+#: for "above", and trajectory quality weighted by success (as SPL weights path length).
+DYANA = Reading("dyana")
+#: The paper's text only: A.5's XZ localization test, Q unweighted over the successful
+#: trajectories ("for successful trajectories"), the captions' endpoint errors.
+PAPER = Reading("paper", s_loc="xz", quality="successful")
+#: The paper's text read the other way where it is ambiguous ("shortest" distances; zero
+#: steps dropped): kinder to a policy that games it.
+LENIENT = Reading("lenient", e_loc="minimum", e_gra="minimum", steps="drop", s_loc="xz", quality="successful")
+READINGS = {r.name: r for r in (DYANA, PAPER, LENIENT)}
+DEFAULT_READING = DYANA.name
 #: The ``top`` rule: the palm centre's height above the object's top surface lies in
 #: [0, TOP_BAND]: above it, and within the localization tolerance of the ground truth's
 #: hover height (the ground truth hovers at PALM_HOVER = 0.35 over the top).
@@ -187,9 +197,10 @@ class EpisodeMetrics:
     """Per-episode facts read off the acting frames (arrays of length ``n``).
 
     ``t_loc``/``t_gra`` count from the first acting frame and are -1 when the event
-    never happens; ``e_loc``/``e_gra`` are NaN for an episode without acting frames;
-    ``q_smooth``/``q_line`` are NaN unless the episode localized; ``r_time`` is 0
-    unless both events happened. Statuses are not applied here (see :func:`aggregate`).
+    never happens; ``e_loc``/``e_gra``/``q_smooth``/``q_line`` are NaN for an episode
+    without acting frames (Q over the whole acting palm trajectory); ``r_time`` is 0
+    unless both events happened; ``quality`` is the reading's rule for Q
+    (:data:`QUALITY_RULES`). Statuses are not applied here (see :func:`aggregate`).
     """
 
     acting_frames: np.ndarray
@@ -201,6 +212,7 @@ class EpisodeMetrics:
     q_line: np.ndarray
     r_time: np.ndarray
     t_contact: np.ndarray
+    quality: str = DYANA.quality
 
     @property
     def contact_grasped(self) -> np.ndarray:
@@ -229,7 +241,7 @@ def episode_metrics(
     acting_budget: np.ndarray | None = None,
     hover_offset: np.ndarray | None = None,
     top_offset: np.ndarray | None = None,
-    reading: Reading = PAPER,
+    reading: Reading = DYANA,
 ) -> EpisodeMetrics:
     """Per-episode metrics from the acting frames of ``n`` episodes.
 
@@ -300,21 +312,18 @@ def episode_metrics(
     first_contact = _segment_min(np.where(held, local, never), offsets, never)
     t_contact = np.where(first_contact == never, -1, first_contact)
 
-    localized = t_loc >= 0
-    on_path = local <= t_loc[owner]
-    path_counts = np.bincount(owner[on_path], minlength=n)
-    path_offsets = np.concatenate([[0], np.cumsum(path_counts)])
-    q_smooth, q_line = path_quality(path_offsets, palm[on_path], reading.steps)
-    q_smooth = np.where(localized, q_smooth, np.nan)
-    q_line = np.where(localized, q_line, np.nan)
+    q_smooth, q_line = path_quality(offsets, palm, reading.steps)  # the whole acting trajectory
+    q_smooth = np.where(has_frames, q_smooth, np.nan)
+    q_line = np.where(has_frames, q_line, np.nan)
 
+    localized = t_loc >= 0
     both = localized & (t_gra >= 0)
     done = np.maximum(t_loc, t_gra) + 1
     budget = counts if acting_budget is None else np.asarray(acting_budget, dtype=np.int64)
     if budget.shape != (n,):
         raise ValueError(f"acting_budget must have shape ({n},), got {budget.shape}")
     r_time = np.where(both, 1.0 - done / np.maximum(budget, 1), 0.0)
-    return EpisodeMetrics(counts, t_loc, t_gra, e_loc, e_gra, q_smooth, q_line, r_time, t_contact)
+    return EpisodeMetrics(counts, t_loc, t_gra, e_loc, e_gra, q_smooth, q_line, r_time, t_contact, reading.quality)
 
 
 def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -353,7 +362,8 @@ class Summary:
 
     ``metrics`` maps each metric's name to a float or None (success rates in
     percent); ``intervals`` maps each to ``(low, high)`` or None, success rates by
-    Wilson (percent), the means by the normal approximation.
+    Wilson (percent), the means by the normal approximation; ``averaged_over`` maps each
+    mean to the number of episodes it averages (its coverage).
     """
 
     episodes: int
@@ -365,6 +375,7 @@ class Summary:
     #: Episodes with obstacles, and those in which the hand touched one (obstacle contact).
     obstacle_episodes: int = 0
     collisions: int = 0
+    averaged_over: dict[str, int] = field(default_factory=dict)
 
     @property
     def collision_rate(self) -> float | None:
@@ -374,6 +385,17 @@ class Summary:
 
 def _mean(values: np.ndarray) -> float | None:
     return float(values.mean()) if len(values) else None
+
+
+def failed(error: np.ndarray, min_clearance: np.ndarray | None = None, contact_fails: bool = True) -> np.ndarray:
+    """(n,) the episodes scored as failures whatever their frames show: those in ``error``
+    (a policy error or time-out) and, with ``contact_fails``, those whose hand touched an
+    obstacle (``min_clearance`` at or below :data:`schemas.obstacles.CONTACT_CLEARANCE`).
+    The summaries and the per-episode rows both apply it."""
+    error = np.asarray(error, dtype=bool)
+    if min_clearance is None or not contact_fails:
+        return error
+    return error | (np.asarray(min_clearance, dtype=np.float64) <= CONTACT_CLEARANCE)
 
 
 def aggregate(
@@ -389,13 +411,13 @@ def aggregate(
     ``min_clearance`` (n,) is each episode's smallest hand-obstacle clearance over its acting
     frames (+inf without obstacles): at or below :data:`schemas.obstacles.CONTACT_CLEARANCE`
     the hand touched an obstacle, counted in ``collisions``; with ``contact_fails`` such an
-    episode also counts as a failure, like an error.
+    episode also counts as a failure, like an error (:func:`failed`).
 
-    An episode whose status is ``error`` counts as a failure in both success rates
-    (and so scores ``R_time`` 0 and is left out of ``Q_smooth``/``Q_line``) whatever
-    its recorded frames show; its recorded acting frames still count in ``E_loc``
+    An episode whose status is ``error`` counts as a failure in every success rate
+    (and so scores ``R_time`` 0, and Q_smooth/Q_line 0 or nothing, by the reading)
+    whatever its recorded frames show; its recorded acting frames still count in ``E_loc``
     and ``E_gra``. Episodes without acting frames are left out of those two means.
-    ``Q_smooth``/``Q_line`` average over successfully localized episodes (None if none).
+    Each mean averages the episodes its metric counts (``averaged_over``; None if none).
     """
     error = np.asarray(error, dtype=bool)
     if error.shape != (len(per),):
@@ -408,13 +430,12 @@ def aggregate(
         with_obstacles = np.isfinite(clearance) & keep
         collided = with_obstacles & (clearance <= CONTACT_CLEARANCE)
         obstacle_episodes, collisions = int(with_obstacles.sum()), int(collided.sum())
-        if contact_fails:
-            error = error | collided
     n = int(keep.sum())
-    ok = ~error
+    ok = ~failed(error, min_clearance, contact_fails)
     n_loc, n_gra = int((per.localized & ok & keep).sum()), int((per.grasped & ok & keep).sum())
     metrics: dict[str, float | None] = {}
     intervals: dict[str, tuple[float, float] | None] = {}
+    averaged_over: dict[str, int] = {}
     for metric in table_metrics():
         if metric.is_rate:
             k = int((metric.success(per, ok) & keep).sum())
@@ -423,7 +444,9 @@ def aggregate(
             intervals[metric.name] = (100.0 * low, 100.0 * high) if n else None
         else:
             assert metric.value is not None and metric.counted is not None
-            values = metric.value(per, ok)[metric.counted(per, ok) & keep]
+            counted = metric.counted(per, ok) & keep
+            values = metric.value(per, ok)[counted]
             metrics[metric.name] = _mean(values)
             intervals[metric.name] = mean_interval(values, z)
-    return Summary(n, errors, n_loc, n_gra, metrics, intervals, obstacle_episodes, collisions)
+            averaged_over[metric.name] = int(counted.sum())
+    return Summary(n, errors, n_loc, n_gra, metrics, intervals, obstacle_episodes, collisions, averaged_over)

@@ -41,7 +41,8 @@ class Metric:
     value where counted, else null.
     ``lower_is_better`` orders the chance row and the table's arrows; ``in_paper``: a column
     of the paper's Table 3 (its published rows carry a value); ``on_radar``: an axis of the
-    plot's radar; ``headline``: listed first in every table.
+    plot's radar; ``headline``: listed first in every table; ``coverage``: a mean's column
+    after which every table shows a column of this name, the episodes it averages.
     """
 
     name: str
@@ -57,6 +58,7 @@ class Metric:
     in_paper: bool = False
     on_radar: bool = True
     headline: bool = False
+    coverage: str = ""
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.isidentifier():
@@ -67,6 +69,8 @@ class Metric:
             raise SpecError(f"metric {self.name}: a rate needs event, event_column and flag_column")
         if self.kind == "mean" and (self.value is None or self.counted is None):
             raise SpecError(f"metric {self.name}: a mean needs value and counted")
+        if self.coverage and (self.kind != "mean" or not self.coverage.isidentifier()):
+            raise SpecError(f"metric {self.name}: coverage must name a column of a mean, got {shorten(repr(self.coverage))}")
 
     @property
     def is_rate(self) -> bool:
@@ -152,8 +156,34 @@ def _measured(per: Any, ok: np.ndarray) -> np.ndarray:
     return per.acting_frames > 0
 
 
-def _localized(per: Any, ok: np.ndarray) -> np.ndarray:
-    return per.localized & ok
+#: Dyana's success, the headline (S_grasp_contact today): an episode's trajectory quality
+#: counts under the ``dyana`` reading only if it succeeded. One name, so that a stricter
+#: success registered later can take its place.
+SUCCESS = "S_grasp_contact"
+
+
+def success(per: Any, ok: np.ndarray) -> np.ndarray:
+    """(n,) whether each episode reached :data:`SUCCESS` (and is ``ok``)."""
+    return metric_named(SUCCESS).success(per, ok)
+
+
+def _completed(per: Any, ok: np.ndarray) -> np.ndarray:
+    """The paper's successful trajectories: localized and grasped (both of its successes)."""
+    return per.localized & per.grasped & ok
+
+
+def _quality_value(name: str) -> Callable[[Any, np.ndarray], np.ndarray]:
+    """Q per episode: ``weighted`` (the ``dyana`` reading), Q x success, so 0 for a failure;
+    ``successful``, Q itself."""
+    def value(per: Any, ok: np.ndarray) -> np.ndarray:
+        q = getattr(per, name)
+        return np.where(success(per, ok), q, 0.0) if per.quality == "weighted" else q
+    return value
+
+
+def _quality_counted(per: Any, ok: np.ndarray) -> np.ndarray:
+    """``weighted``: every episode; ``successful``: the successful trajectories only."""
+    return _all(per, ok) if per.quality == "weighted" else _completed(per, ok)
 
 
 register(Metric("S_loc", "rate", "%", event=lambda per: per.t_loc, event_column="t_loc", flag_column="localized",
@@ -164,8 +194,9 @@ register(Metric("S_gra", "rate", "%", event=lambda per: per.t_gra, event_column=
                 in_paper=True))
 register(Metric("E_gra", "mean", "units", lower_is_better=True, value=lambda per, ok: per.e_gra, counted=_measured,
                 in_paper=True))
-register(Metric("Q_smooth", "mean", "", value=lambda per, ok: per.q_smooth, counted=_localized, in_paper=True))
-register(Metric("Q_line", "mean", "", value=lambda per, ok: per.q_line, counted=_localized, in_paper=True))
+register(Metric("Q_smooth", "mean", "", value=_quality_value("q_smooth"), counted=_quality_counted, in_paper=True))
+register(Metric("Q_line", "mean", "", value=_quality_value("q_line"), counted=_quality_counted, in_paper=True,
+                coverage="n_Q"))
 # An episode in error scores 0.
 register(Metric("R_time", "mean", "", value=lambda per, ok: np.where(ok, per.r_time, 0.0), counted=_all,
                 in_paper=True))

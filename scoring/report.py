@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -193,6 +193,7 @@ def summary_dict(summary: Summary, failures: dict[str, int] | None = None) -> di
     }
     out.update(summary.metrics)
     out["intervals"] = {name: _interval(summary.intervals[name]) for name in metric_names()}
+    out["averaged_over"] = dict(summary.averaged_over)
     if summary.obstacle_episodes:
         out["obstacles"] = obstacle_dict(summary)
     if failures is not None:
@@ -229,6 +230,7 @@ def report_dict(report: RunReport) -> dict[str, Any]:
         "grasped": overall.grasped,
         "metrics": dict(overall.metrics),
         "intervals": {name: _interval(overall.intervals[name]) for name in metric_names()},
+        "averaged_over": dict(overall.averaged_over),
     }
     if overall.obstacle_episodes:
         out["obstacles"] = dict(obstacle_dict(overall), contact=report.obstacle_contact)
@@ -253,19 +255,28 @@ def main_headers() -> tuple[str, ...]:
         for m in table_metrics()
         for header in (
             (f"{m.name} ({m.unit}) {_arrow(m)}", f"{m.name} 95% CI") if m.is_rate else (f"{m.name} {_arrow(m)}",)
-        )
+        ) + _coverage(m)
     )
+
+
+def _coverage(metric: Metric) -> tuple[str, ...]:
+    """The coverage column that follows ``metric`` in every table (``n_Q``), if any."""
+    return (metric.coverage,) if metric.coverage else ()
 
 
 def group_headers() -> tuple[str, ...]:
     """The breakdown tables' columns: one per metric, in the tables' order."""
     return ("Run", "Group", "Episodes", "Errors") + tuple(
-        f"{m.name} ({m.unit})" if m.is_rate else m.name for m in table_metrics()
+        header for m in table_metrics() for header in (f"{m.name} ({m.unit})" if m.is_rate else m.name,) + _coverage(m)
     )
+HEADLINE_NOTE = (
+    "S_grasp_contact, the contact-grounded grasp, is the headline: blind play cannot win it. "
+    "n_Q: the episodes Q_smooth and Q_line average (reading dyana: every episode, Q x success; "
+    "paper, lenient: the successful trajectories only)."
+)
 LEGEND = (
     "^ higher is better, v lower is better; CI: 95% Wilson interval; - : nothing to average over; "
-    "(privileged): the policy read the ground-truth spec (an upper bound, not a fair entry). "
-    "S_grasp_contact, the contact-grounded grasp, is the headline: blind play cannot win it."
+    "(privileged): the policy read the ground-truth spec (an upper bound, not a fair entry). " + HEADLINE_NOTE
 )
 
 
@@ -293,30 +304,38 @@ def _ci(value: tuple[float, float] | None) -> str:
     return "-" if value is None else f"[{value[0]:.1f}, {value[1]:.1f}]"
 
 
-def _cells(metrics: dict[str, float | None], intervals: dict[str, tuple[float, float] | None] | None) -> list[str]:
-    """The metric cells of a main-table row (intervals None: "-" for every CI)."""
+def _count(averaged_over: Mapping[str, int | None] | None, name: str) -> str:
+    value = None if averaged_over is None else averaged_over.get(name)
+    return "-" if value is None else str(value)
+
+
+def _cells(metrics: dict[str, float | None], intervals: dict[str, tuple[float, float] | None] | None,
+           averaged_over: Mapping[str, int | None] | None, with_ci: bool = True) -> list[str]:
+    """The metric cells of a row (intervals None: "-" for every CI; ``with_ci`` False: the
+    breakdowns' cells), each coverage column the count of its metric (``averaged_over``)."""
     cells = []
     for m in table_metrics():
         cells.append(_num(metrics[m.name]))
-        if m.is_rate:
+        if m.is_rate and with_ci:
             cells.append(_ci(None if intervals is None else intervals[m.name]))
+        cells += [_count(averaged_over, m.name) for _ in _coverage(m)]
     return cells
 
 
 def _main_row(report: RunReport) -> list[str]:
     s = report.overall
-    return [report.label, str(s.episodes), str(s.errors)] + _cells(s.metrics, s.intervals)
+    return [report.label, str(s.episodes), str(s.errors)] + _cells(s.metrics, s.intervals, s.averaged_over)
 
 
 def _paper_rows() -> list[list[str]]:
     """The paper's published rows (Tables 3 and 4) in the main table's columns."""
-    return [[paper_label(row), "-", "-"] + _cells(row.metrics, None) for row in PAPER_ROWS]
+    return [[paper_label(row), "-", "-"] + _cells(row.metrics, None, None) for row in PAPER_ROWS]
 
 
 def _chance_rows(chance: ChanceRow | None) -> list[list[str]]:
     if chance is None:
         return []
-    return [[CHANCE_LABEL, str(chance.episodes), "-"] + _cells(chance.metrics, None)]
+    return [[CHANCE_LABEL, str(chance.episodes), "-"] + _cells(chance.metrics, None, chance.averaged_over)]
 
 
 def _main_rows(reports: Sequence[RunReport], paper: bool, chance: ChanceRow | None) -> list[list[str]]:
@@ -327,7 +346,7 @@ def _group_rows(reports: Sequence[RunReport], key: str) -> list[list[str]]:
     rows = []
     for report in reports:
         for group, s in report.breakdowns[key].items():
-            rows.append([report.label, group, str(s.episodes), str(s.errors)] + [_num(s.metrics[n]) for n in metric_names()])
+            rows.append([report.label, group, str(s.episodes), str(s.errors)] + _cells(s.metrics, None, s.averaged_over, False))
     return rows
 
 
@@ -413,7 +432,7 @@ def markdown(reports: Sequence[RunReport], paper: bool = False, chance: ChanceRo
     main_rows = _main_rows(reports, paper, chance)
     parts = ["## Scores", "", _markdown_table(headers, main_rows), "",
              "↑ higher is better, ↓ lower is better. CI: 95% Wilson interval. -: nothing to average over. "
-             "S_grasp_contact, the contact-grounded grasp, is the headline: blind play cannot win it."
+             + HEADLINE_NOTE
              + (CHANCE_NOTE if chance else "") + (PAPER_NOTE if paper else ""), "", reading_note(reports), ""]
     for key, _, _, title in BREAKDOWNS:
         parts += [f"### By {title}", "", _markdown_table(group_headers(), _group_rows(reports, key)), ""]
@@ -426,9 +445,11 @@ def markdown(reports: Sequence[RunReport], paper: bool = False, chance: ChanceRo
 
 
 def csv_fields() -> list[str]:
-    """The CSV's columns: the row's run and group, counts, then each metric and its interval."""
+    """The CSV's columns: the row's run and group, counts, then each metric and its interval
+    (and its coverage column, ``n_Q``)."""
     return ["label", "run", "slice", "policy", "reading", "breakdown", "group", "episodes", "errors", "localized",
-            "grasped"] + [f"{name}{suffix}" for name in metric_names() for suffix in ("", "_low", "_high")]
+            "grasped"] + [column for m in table_metrics() for column in (m.name, f"{m.name}_low", f"{m.name}_high")
+                          + _coverage(m)]
 
 
 def _csv_value(value: Any) -> Any:
@@ -448,6 +469,7 @@ def _csv_row(report: RunReport, breakdown: str, group: str, s: Summary) -> dict[
         row[name] = _csv_value(s.metrics[name])
         row[f"{name}_low"] = _csv_value(None if interval is None else float(interval[0]))
         row[f"{name}_high"] = _csv_value(None if interval is None else float(interval[1]))
+    row.update({m.coverage: s.averaged_over.get(m.name, "") for m in table_metrics() if m.coverage})
     return row
 
 
@@ -470,5 +492,6 @@ def csv_text(reports: Sequence[RunReport], chance: ChanceRow | None = None) -> s
                     "reading": reports[0].reading if reports else "", "breakdown": "all", "group": "all",
                     "episodes": chance.episodes})
         row.update({name: _csv_value(chance.metrics[name]) for name in metric_names()})
+        row.update({m.coverage: _csv_value(chance.averaged_over.get(m.name)) for m in table_metrics() if m.coverage})
         writer.writerow(row)
     return buffer.getvalue()

@@ -35,7 +35,7 @@ from catalog.tables.reader import open_folder
 from schemas.errors import ShardError
 from schemas.scene import LOC_TOLERANCE
 from scoring.io import RunData, load_run
-from scoring.metrics import DEFAULT_READING, EpisodeMetrics, episode_metrics, reading_named
+from scoring.metrics import DEFAULT_READING, EpisodeMetrics, episode_metrics, failed, reading_named
 from scoring.registry import registered
 
 REPEATS_FILE = "repeats.json"
@@ -123,8 +123,8 @@ def _divergence(targets: tuple[dict[int, np.ndarray], ...], episodes: list[int])
     return float(np.mean(values)) if values else None
 
 
-def _summary(repeats: RepeatSet, per: list[EpisodeMetrics], select: np.ndarray) -> dict[str, Any]:
-    ok = [~np.asarray(r.error, dtype=bool) for r in repeats.runs]
+def _summary(repeats: RepeatSet, per: list[EpisodeMetrics], select: np.ndarray, contact_fails: bool) -> dict[str, Any]:
+    ok = [~failed(r.error, r.min_clearance, contact_fails) for r in repeats.runs]  # as each repeat's summary
     tracked = [m for m in registered() if m.is_rate and m.consistency]
     success = {m.name: np.stack([m.success(p, o) for p, o in zip(per, ok)])[:, select] for m in tracked}
     spread = {}
@@ -149,9 +149,10 @@ def _summary(repeats: RepeatSet, per: list[EpisodeMetrics], select: np.ndarray) 
     }
 
 
-def robustness(repeats: RepeatSet, reading: str = DEFAULT_READING) -> dict[str, Any]:
+def robustness(repeats: RepeatSet, reading: str = DEFAULT_READING, contact_fails: bool = True) -> dict[str, Any]:
     """The robustness report (module docstring): overall and by motion type, under the
-    metric ``reading`` (:data:`scoring.metrics.READINGS`)."""
+    metric ``reading`` (:data:`scoring.metrics.READINGS`); with ``contact_fails`` an obstacle
+    contact fails an episode, as in ``scoring eval --obstacle-contact fail``."""
     per = [_per_episode(run, reading) for run in repeats.runs]
     n = repeats.runs[0].episodes
     out = {
@@ -160,10 +161,10 @@ def robustness(repeats: RepeatSet, reading: str = DEFAULT_READING) -> dict[str, 
         "slice": repeats.index.get("slice"),
         "repeats": len(repeats.runs),
         "protocol": repeats.index.get("protocol"),
-        **_summary(repeats, per, np.ones(n, dtype=bool)),
+        **_summary(repeats, per, np.ones(n, dtype=bool), contact_fails),
     }
     motions = repeats.runs[0].motion_type
-    out["by_motion"] = {m: _summary(repeats, per, motions == m) for m in sorted(set(motions.tolist()))}
+    out["by_motion"] = {m: _summary(repeats, per, motions == m, contact_fails) for m in sorted(set(motions.tolist()))}
     return out
 
 

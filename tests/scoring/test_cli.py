@@ -70,12 +70,15 @@ def test_json_keys_and_values(capsys, run):
     assert m["S_loc"] == pytest.approx(100 / 3)
     assert m["S_gra"] == pytest.approx(100 / 3)
     assert m["E_loc"] == pytest.approx((0.1 + 1.0 + 0.1) / 3, rel=1e-6)
-    # E_gra at completion (the paper reading): GOOD completes at its 0.05 frame; MISS never
-    # completes, so its last acting frame's 0.7 counts (the lenient reading's minimum was 0.6)
+    # E_gra at completion (the dyana and paper readings): GOOD completes at its 0.05 frame; MISS
+    # never completes, so its last acting frame's 0.7 counts (the lenient reading's minimum is 0.6)
     assert m["E_gra"] == pytest.approx((0.05 + 0.7 + 0.05) / 3, rel=1e-6)
-    steps = np.array([1.0, 0.8])  # palm 2 -> 1 -> 0.2
-    assert m["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()), rel=1e-6)
-    assert m["Q_line"] == pytest.approx(1.0)
+    # Q over the whole acting palm path, weighted by the contact grasp: GOOD's (palm
+    # 2 -> 1 -> 0.2 -> 0.1), 0 for MISS and for the failed (error) episode, over all three
+    steps = np.array([1.0, 0.8, 0.1])
+    assert m["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()) / 3, rel=1e-6)
+    assert m["Q_line"] == pytest.approx(1 / 3)
+    assert result["averaged_over"] == {"E_loc": 3, "E_gra": 3, "Q_smooth": 3, "Q_line": 3, "R_time": 3}
     # A rollout's N is its acting horizon ceil(1.2 x 4) = 5 (it stops at grasp completion):
     # T = max(2, 3) + 1 = 4 of N = 5; the other two episodes score 0.
     assert m["R_time"] == pytest.approx((1 - 4 / 5) / 3 + 0 + 0)
@@ -87,7 +90,8 @@ def test_json_keys_and_values(capsys, run):
     fast = result["by_speed"]["fast"]
     assert (fast["episodes"], fast["errors"], fast["S_loc"]) == (2, 1, 50.0)
     assert result["by_motion"]["circular"]["S_gra"] == 0.0
-    assert result["by_motion"]["circular"]["Q_smooth"] is None
+    assert result["by_motion"]["circular"]["Q_smooth"] == 0.0  # a failure's weighted Q
+    assert result["by_motion"]["circular"]["averaged_over"]["Q_line"] == 1
     assert list(result["by_object"]) == ["tennis_ball", "mug"]
 
 
@@ -168,7 +172,7 @@ def test_per_episode_rows_name_each_episode_and_agree_with_the_summary(tmp_path,
     assert good["error"] in (None, "")  # CSV has no null string
     assert (good["t_loc"], good["t_gra"], good["localized"], good["grasped"]) == (2, 3, True, True)
     assert good["E_loc"] == pytest.approx(0.1, rel=1e-6) and good["R_time"] == pytest.approx(1 - 4 / 5)
-    assert (miss["t_loc"], miss["t_gra"], miss["localized"], miss["Q_smooth"]) == (None, None, False, None)
+    assert (miss["t_loc"], miss["t_gra"], miss["localized"], miss["Q_smooth"]) == (None, None, False, 0.0)  # Q x 0
     assert miss["object"] == "mug" and miss["E_loc"] == pytest.approx(1.0, rel=1e-6)
     # an error episode keeps the frames it recorded but counts as a failure, as in the summary
     assert failed["status"] == "error" and failed["error"]
@@ -409,14 +413,23 @@ def test_an_output_url_is_refused_in_one_line_without_a_local_folder(tmp_path, c
 
 
 def test_reading_flag_switches_the_ambiguous_rules(capsys, run):
+    readings = {}
+    for name in ("dyana", "paper", "lenient"):
+        _, out, _ = run_main(capsys, "eval", str(run), "--json", "--reading", name)
+        readings[name] = json.loads(out)
+    dyana, paper, lenient = readings.values()
+    assert [r["reading"] for r in readings.values()] == ["dyana", "paper", "lenient"]
     _, out, _ = run_main(capsys, "eval", str(run), "--json")
-    paper = json.loads(out)
-    _, out, _ = run_main(capsys, "eval", str(run), "--json", "--reading", "lenient")
-    lenient = json.loads(out)
-    assert (paper["reading"], lenient["reading"]) == ("paper", "lenient")
+    assert json.loads(out) == dyana  # the default
     # MISS never completes its grasp: at its last frame 0.7, its minimum 0.6
     assert lenient["metrics"]["E_gra"] == pytest.approx((0.05 + 0.6 + 0.05) / 3, rel=1e-6)
     assert paper["metrics"]["E_gra"] == pytest.approx((0.05 + 0.7 + 0.05) / 3, rel=1e-6)
+    # paper: Q unweighted over the one successful trajectory (GOOD, ok), and n_Q says so
+    steps = np.array([1.0, 0.8, 0.1])
+    assert paper["metrics"]["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()), rel=1e-6)
+    assert paper["metrics"]["Q_line"] == pytest.approx(1.0)
+    assert paper["metrics"]["Q_smooth"] == pytest.approx(3 * dyana["metrics"]["Q_smooth"])
+    assert (paper["averaged_over"]["Q_smooth"], dyana["averaged_over"]["Q_smooth"]) == (1, 3)
     with pytest.raises(SystemExit) as exit_info:
         main(["eval", str(run), "--reading", "median"])
     assert exit_info.value.code == 2 and "median" in capsys.readouterr().err

@@ -54,7 +54,7 @@ def test_bad_arguments_are_a_spec_error_naming_the_argument(pair, change, messag
         (lambda run: score_run(None), "data must be a RunData"),
         (lambda run: score_run("run-folder"), "data must be a RunData"),
         (lambda run: score_run(run, 5), "label must be text or None, got 5"),
-        (lambda run: score_run(run, reading="x" * 10_000), r"reading must be one of \['lenient', 'paper'\], got 'xxx.*characters\)$"),
+        (lambda run: score_run(run, reading="x" * 10_000), r"reading must be one of \['dyana', 'lenient', 'paper'\], got 'xxx.*characters\)$"),
         (lambda run: score_run(run, reading={}), r"reading must be one of .*got \{\}"),
         (lambda run: score_run(run, reading=None), "reading must be one of .*got None"),
         (lambda run: score_run(run, obstacle_contact=[]), r"obstacle_contact must be one of .*got \[\]"),

@@ -10,6 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from scoring.metrics import (
+    DEFAULT_READING,
+    DYANA,
     LENIENT,
     METRIC_NAMES,
     PAPER,
@@ -40,8 +42,8 @@ def score(*episodes, grasp=None, reading=LENIENT, top=None):
     """episode_metrics over the given episodes, all with grasp_angles CLOSED by default.
 
     The hand-made answers below were worked out for the ``lenient`` reading (minimum errors,
-    zero steps dropped, S_loc in XZ), Dyana's only rules before readings existed; the
-    ``paper`` reading's differences are tested after them."""
+    zero steps dropped, S_loc in XZ, Q unweighted), Dyana's only rules before readings
+    existed; the other readings' differences are tested after them."""
     offsets = np.concatenate([[0], np.cumsum([len(e[0]) for e in episodes])])
     cat = [np.concatenate([e[i] for e in episodes]) if episodes else np.zeros((0, 3)) for i in range(4)]
     grasp = np.tile(CLOSED, (len(episodes), 1)) if grasp is None else np.asarray(grasp)
@@ -156,27 +158,30 @@ def test_paths_of_two_points():
     assert quality(xs(1, 1)) == (1.0, 0.0)
 
 
-def test_quality_uses_palm_path_up_to_t_loc_inclusive():
-    # palm: 0 -> 1 -> 4 -> 4.8 (localized at x=4.8 with the object at 5), then wanders off
+def test_quality_uses_the_whole_acting_palm_path():
+    # palm: 0 -> 1 -> 4 -> 4.8 (localized at x=4.8 with the object at 5), then 0 and 9: the
+    # frames after t_loc count too (A.8/A.9's "full palm trajectory")
     palm = xs(0, 1, 4, 4.8, 0, 9)
     obj = [[5.0, 0.0, 0.0]] * 6
     per = score(episode(palm, obj=obj))
     assert per.t_loc[0] == 3
-    steps = np.array([1.0, 3.0, 0.8])
+    steps = np.array([1.0, 3.0, 0.8, 4.8, 9.0])
     assert per.q_smooth[0] == pytest.approx(1 / (1 + steps.std() / steps.mean()))
-    assert per.q_line[0] == pytest.approx(1.0)
+    assert per.q_line[0] == pytest.approx(3 / 5)  # one step of five runs against the chord 0 -> 9
 
 
 def test_quality_edge_cases_through_episode_metrics():
     obj = [[0.0, 0.0, 0.0]] * 3
-    first = score(episode(xs(0.1, 2, 3), obj=obj))  # localized on the first acting frame: N_p = 1
-    assert (first.t_loc[0], first.q_smooth[0], first.q_line[0]) == (0, 1.0, 0.0)
-    second = score(episode(xs(1, 0.2, 3), obj=obj))  # N_p = 2
-    assert (second.t_loc[0], second.q_smooth[0], second.q_line[0]) == (1, 1.0, 1.0)
-    still = score(episode([[0.2, 0, 0], [0.2, 0, 0]]))  # N_p = 1, coincident later frame not included
+    one = score(episode(xs(0.1)))  # one acting frame: N_p = 1
+    assert (one.q_smooth[0], one.q_line[0]) == (1.0, 0.0)
+    two = score(episode(xs(1, 0.2)))  # N_p = 2
+    assert (two.q_smooth[0], two.q_line[0]) == (1.0, 1.0)
+    still = score(episode([[0.2, 0, 0], [0.2, 0, 0]]))  # a zero step, dropped; no chord
     assert (still.q_smooth[0], still.q_line[0]) == (1.0, 0.0)
-    missed = score(episode(xs(1, 2, 3), obj=obj))
-    assert np.isnan(missed.q_smooth[0]) and np.isnan(missed.q_line[0])
+    missed = score(episode(xs(1, 2, 3), obj=obj))  # measured whether or not it localized
+    assert not missed.localized[0] and (missed.q_smooth[0], missed.q_line[0]) == (1.0, 1.0)
+    none = score(episode(np.zeros((0, 3))))
+    assert np.isnan(none.q_smooth[0]) and np.isnan(none.q_line[0])
 
 
 def test_two_coincident_points_on_the_path():
@@ -221,7 +226,7 @@ def test_episode_without_acting_frames():
 
 
 def naive(palm, obj, joints, tips, grasp, reading=LENIENT, top=0.0):
-    """Frame-by-frame reference implementation of the written definitions (either reading)."""
+    """Frame-by-frame reference implementation of the written definitions (any reading)."""
     n = len(palm)
     d = [float(np.hypot(palm[t][0] - obj[t][0], palm[t][2] - obj[t][2])) for t in range(n)]
 
@@ -232,8 +237,8 @@ def naive(palm, obj, joints, tips, grasp, reading=LENIENT, top=0.0):
     t_loc = next((t for t in range(n) if over(t)), -1)
     t_gra = next((t for t in range(n) if all(joints[t][j] >= 0.8 * grasp[j] for j in range(15))), -1)
     q_smooth = q_line = float("nan")
-    if t_loc >= 0:
-        p = [np.asarray(palm[t], dtype=float) for t in range(t_loc + 1)]
+    if n:
+        p = [np.asarray(palm[t], dtype=float) for t in range(n)]
         segs = [p[k + 1] - p[k] for k in range(len(p) - 1)]
         chord = p[-1] - p[0]
         cn = float(np.linalg.norm(chord))
@@ -273,7 +278,7 @@ def episodes(draw):
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(episodes(), min_size=1, max_size=6), st.sampled_from([LENIENT, PAPER]))
+@given(st.lists(episodes(), min_size=1, max_size=6), st.sampled_from([LENIENT, PAPER, DYANA]))
 def test_vectorised_matches_the_frame_by_frame_definitions(eps, reading):
     arrays = [
         episode(np.asarray(p).reshape(-1, 3), obj=np.asarray(o).reshape(-1, 3),
@@ -307,8 +312,9 @@ def test_aggregate_means_and_percentages():
     assert summary.metrics["S_gra"] == pytest.approx(50.0)
     assert summary.metrics["E_loc"] == pytest.approx((0.2 + 1.0) / 2)
     assert summary.metrics["E_gra"] == pytest.approx((0.1 + 0.3) / 2)
-    assert summary.metrics["Q_smooth"] == pytest.approx(1.0)  # only the localized episode counts
+    assert summary.metrics["Q_smooth"] == pytest.approx(1.0)  # only the successful trajectory counts
     assert summary.metrics["Q_line"] == pytest.approx(1.0)
+    assert summary.averaged_over == {"E_loc": 2, "E_gra": 2, "Q_smooth": 1, "Q_line": 1, "R_time": 2}
     assert summary.metrics["R_time"] == pytest.approx((1 - 2 / 3 + 0.0) / 2)
     assert tuple(summary.metrics) == METRIC_NAMES
     low, high = summary.intervals["S_loc"]
@@ -429,10 +435,12 @@ def test_the_ground_truth_grasps_with_contact_and_a_blind_fist_does_not():
     assert blind.metrics["S_grasp_contact"] == 0.0
 
 
-# --- the paper reading (the default): where it differs from the lenient one ---------
+# --- the dyana (the default) and paper readings: where they differ from the lenient one -----
 
 
-def test_paper_reading_is_the_default():
+def test_dyana_reading_is_the_default():
+    assert DEFAULT_READING == "dyana" and (DYANA.s_loc, DYANA.quality) == ("top", "weighted")
+    assert (PAPER.s_loc, PAPER.quality) == ("xz", "successful")  # A.5's XZ test; "for successful trajectories"
     per = episode_metrics(np.array([0, 2]), np.array(xs(1.0, 0.2, y=0.3)), np.zeros((2, 3)), np.zeros((2, 15)),
                           np.array([0.1, 0.5]), np.ones((1, 15)))
     assert per.e_loc[0] == pytest.approx(0.2) and per.e_gra[0] == pytest.approx(0.5)  # the last frame's
@@ -442,7 +450,8 @@ def test_e_loc_at_the_endpoint_and_e_gra_at_completion():
     joints = np.tile(OPEN, (4, 1))
     joints[2:] = CLOSED
     palm = episode(xs(1.0, 0.1, 0.5, 2.0, y=0.3), joints=joints, tips=[0.05, 0.2, 0.4, 0.9])
-    lenient, paper = score(palm), score(palm, reading=PAPER)
+    lenient, paper, dyana = score(palm), score(palm, reading=PAPER), score(palm, reading=DYANA)
+    assert (dyana.e_loc[0], dyana.e_gra[0]) == (paper.e_loc[0], paper.e_gra[0])
     assert (lenient.e_loc[0], lenient.e_gra[0]) == (pytest.approx(0.1), pytest.approx(0.05))
     assert paper.e_loc[0] == pytest.approx(2.0)  # where the palm ended
     assert paper.e_gra[0] == pytest.approx(0.4)  # at t_gra = 2, the grasp's completion
@@ -467,20 +476,21 @@ def test_s_loc_needs_the_palm_above_the_top_surface():
     obj = [[0.0, 1.0, 0.0]] * 4
     top = np.array([0.5])  # the object's top at y = 1.5
     inside = episode(xs(1, 0.1, 0.1, 0.1, y=1.2), obj=obj)  # over it in XZ, but below its top
-    assert score(inside, top=top).localized[0]
-    assert not score(inside, top=top, reading=PAPER).localized[0]
+    assert score(inside, top=top).localized[0] and score(inside, top=top, reading=PAPER).localized[0]
+    assert not score(inside, top=top, reading=DYANA).localized[0]
     hover = episode([[1, 1.85, 0], [0.1, 2.3, 0], [0.1, 1.85, 0], [0.1, 1.5, 0]], obj=obj)
-    per = score(hover, top=top, reading=PAPER)
+    per = score(hover, top=top, reading=DYANA)
     assert per.t_loc[0] == 2  # 0.8 above the top is too high; 0.35 (the ground truth's hover) is in
     edge = episode([[0.1, 1.5 + TOP_BAND, 0]], obj=obj[:1])
-    assert score(edge, top=top, reading=PAPER).localized[0]  # both ends of the band are inclusive
+    assert score(edge, top=top, reading=DYANA).localized[0]  # both ends of the band are inclusive
 
 
 def test_contact_grasp_follows_the_reading_s_loc():
     obj = [[0.0, 1.0, 0.0]] * 2
     fist_inside = episode(xs(0.1, 0.1, y=1.0), obj=obj, joints=np.tile(CLOSED, (2, 1)), tips=[0.05, 0.05])
     assert score(fist_inside, top=np.array([0.5])).contact_grasped[0]
-    assert not score(fist_inside, top=np.array([0.5]), reading=PAPER).contact_grasped[0]
+    assert score(fist_inside, top=np.array([0.5]), reading=PAPER).contact_grasped[0]
+    assert not score(fist_inside, top=np.array([0.5]), reading=DYANA).contact_grasped[0]
 
 
 def test_reading_rejects_unknown_rules():
@@ -488,3 +498,33 @@ def test_reading_rejects_unknown_rules():
         Reading("odd", e_loc="median")
     with pytest.raises(ValueError, match="steps"):
         path_quality(np.array([0, 1]), np.zeros((1, 3)), "skip")
+
+
+# --- quality weighted by success (the dyana reading) ------------------------------------
+
+
+def test_blind_play_cannot_win_quality_under_the_default_reading():
+    """A straight line at constant speed that passes over the object and closes the hand away
+    from it (blind play) is a perfect path: the paper's unweighted Q gives it 1.00 over its one
+    successful trajectory; weighted by the contact grasp it scores 0, below a wobbly approach
+    that does grasp the object."""
+    from scoring.registry import SUCCESS, metric_named, success
+
+    assert metric_named(SUCCESS).headline  # the success that weights Q is the headline's
+    line = episode(xs(-2, -1, 0, 1, 2), joints=np.tile(CLOSED, (5, 1)), tips=[1.0] * 5)
+    miss = episode(xs(3, 4, 5, 6), tips=[1.0] * 4)
+    wobbly = episode(xs(2, 1.5, 1.4, 0.6, 0.1, y=0.3), joints=np.tile(CLOSED, (5, 1)), tips=[0.9, 0.8, 0.6, 0.3, 0.05])
+    summaries = {}
+    for reading in (PAPER, DYANA):
+        blind = aggregate(score(line, miss, miss, reading=reading), np.zeros(3, bool))
+        model = aggregate(score(wobbly, reading=reading), np.zeros(1, bool))
+        summaries[reading.name] = blind, model
+    blind, model = summaries["paper"]
+    assert (blind.metrics["Q_smooth"], blind.metrics["Q_line"]) == (1.0, 1.0) and blind.averaged_over["Q_line"] == 1
+    assert blind.metrics["Q_smooth"] > model.metrics["Q_smooth"]
+    blind, model = summaries["dyana"]
+    assert (blind.metrics["Q_smooth"], blind.metrics["Q_line"]) == (0.0, 0.0) and blind.averaged_over["Q_line"] == 3
+    per = score(wobbly, reading=DYANA)
+    assert success(per, np.ones(1, bool))[0]
+    assert per.q_smooth[0] > 0.0 and model.metrics["Q_smooth"] == pytest.approx(per.q_smooth[0])
+    assert model.metrics["Q_line"] == pytest.approx(1.0)

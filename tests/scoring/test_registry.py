@@ -74,6 +74,7 @@ def test_a_toy_metric_is_listed_wherever_metrics_are(tmp_path, capsys, run, toys
     _eval(capsys, str(run), "--csv", str(table), "--markdown", str(md), "--plot", str(png), "--episodes", str(rows))
     fields = next(csv.reader(io.StringIO(table.read_text())))
     assert fields[-6:] == ["toy_frames", "toy_frames_low", "toy_frames_high", "S_early", "S_early_low", "S_early_high"]
+    assert fields[fields.index("Q_line_high") + 1] == "n_Q"  # the coverage of Q_smooth and Q_line
     assert "toy_frames ↓" in md.read_text() and png.read_bytes()[:4] == b"\x89PNG"
     episodes = pq.read_table(rows)
     names = episodes.column_names

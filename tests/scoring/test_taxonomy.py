@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from scoring.cli import main
-from scoring.metrics import LENIENT, PAPER, episode_metrics
+from scoring.metrics import DYANA, LENIENT, PAPER, episode_metrics
 from scoring.taxonomy import (
     CROSSING_WINDOW,
     FAILURE_CLASSES,
@@ -46,7 +46,7 @@ def episode(palm, obj=PATH, close_at: int | None = None, tip: float = 0.05) -> d
             "tips": tips}
 
 
-def classify(*episodes, error=None, hover=None, clearance=None, contact_fails=True, reading=PAPER) -> Failures:
+def classify(*episodes, error=None, hover=None, clearance=None, contact_fails=True, reading=DYANA) -> Failures:
     counts = [len(e["palm"]) for e in episodes]
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     palm = np.concatenate([e["palm"] for e in episodes]).reshape(-1, 3)
@@ -163,7 +163,8 @@ def test_a_flying_object_is_reached_in_3d_at_its_hover_point():
     assert failures.failure.tolist() == ["success", "perception_prediction"]
     assert failures.path_miss[1] == pytest.approx(1.0)
     assert only(classify(too_high, reading=LENIENT)) == "success"  # on the table, lenient reading: XZ only
-    assert only(classify(too_high)) != "success"  # paper reading: 1.5 over the top is not "above" it
+    assert only(classify(too_high, reading=PAPER)) == "success"  # the paper's A.5 test: XZ only too
+    assert only(classify(too_high)) != "success"  # dyana reading: 1.5 over the top is not "above" it
 
 
 def test_an_episode_without_acting_frames_did_not_move_and_has_no_evidence():
