@@ -53,11 +53,18 @@ def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | No
     same = f"this code writes dataset {version} (--renderer {renderer}), as the folder records"
     if manifest.versions is None:
         return Rebuild(True, f"{same} (it records no library versions: written before Dyana recorded them)")
-    differ = version_differences(manifest.versions, installed_versions() if installed is None else installed)
+    here = installed_versions() if installed is None else installed
+    libraries = {name: v for name, v in manifest.versions.items() if name != "python"}
+    differ = version_differences(libraries, here)
     if differ:
+        pins = " ".join(f"'{name}=={v}'" for name, v in sorted(libraries.items()) if v is not None and here.get(name) != v)
+        fix = f"pip install {pins}" if pins else "uninstall the libraries it did not use"
         return Rebuild(False, f"{same}, but with other libraries ({'; '.join(differ)}): the rebuilt bytes may "
-                              "differ; install the versions the folder records (.ci/constraints.txt) to rebuild "
-                              "it byte for byte")
+                              f"differ; to rebuild it byte for byte, {fix}")
+    python = version_differences({"python": manifest.versions["python"]}, here) if "python" in manifest.versions else []
+    if python:  # the lock pins libraries, not the interpreter: a checked difference, not a verdict
+        return Rebuild(True, f"{same}, with the library versions it records ({python[0]}: the bytes depend on the "
+                             "libraries, which match; `catalog verify DIR --sample 1` rebuilds a shard to confirm)")
     return Rebuild(True, f"{same}, with the library versions it records")
 
 

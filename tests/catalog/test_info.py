@@ -215,7 +215,13 @@ def test_rebuild_verdict_names_every_differing_version(tmp_path):
     manifest = _with_versions(tmp_path / "s", {"python": "3.11.7", "numpy": "2.1.0", "opencv-python-headless": None})
     same = rebuild_verdict(manifest, {"python": "3.11.7", "numpy": "2.1.0", "pyarrow": "1"})
     assert same.possible
-    other = rebuild_verdict(manifest, {"python": "3.12.1", "numpy": "2.1.0", "opencv-python-headless": "4.10.0.84"})
+    other = rebuild_verdict(manifest, {"python": "3.12.1", "numpy": "2.2.0", "opencv-python-headless": "4.10.0.84"})
     assert not other.possible
-    assert "(recorded opencv-python-headless (none), installed 4.10.0.84; recorded python 3.11.7, installed 3.12.1)" \
+    assert "(recorded numpy 2.1.0, installed 2.2.0; recorded opencv-python-headless (none), installed 4.10.0.84)" \
         in other.reason
+    assert other.reason.endswith("to rebuild it byte for byte, pip install 'numpy==2.1.0'")  # what to run, not the lock
+    # another Python alone: the libraries decide the bytes (a 3.12 build read under 3.11 verifies byte for byte),
+    # so no advice to install a lock that is already installed; verify is named to confirm
+    python = rebuild_verdict(manifest, {"python": "3.12.1", "numpy": "2.1.0"})
+    assert python.possible and "recorded python 3.11.7, installed 3.12.1" in python.reason
+    assert "constraints" not in python.reason and "catalog verify DIR --sample 1" in python.reason
