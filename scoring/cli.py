@@ -89,6 +89,19 @@ def load_runs(runs: Sequence[str]) -> list[RunData]:
     return data
 
 
+def episodes_note(data: Sequence[RunData]) -> str | None:
+    """One line when the runs do not hold the same episodes (another slice, another count, a
+    held-out split beside the public one): their rows then do not compare like for like."""
+    sets = [frozenset(d.episode_id.tolist()) for d in data]
+    if len(sets) < 2 or all(s == sets[0] for s in sets[1:]):
+        return None
+    common = frozenset.intersection(*sets)
+    held = ", ".join(f"{d.name}: {len(s)} of {d.slice}" for d, s in zip(data[:4], sets[:4]))
+    more = f", and {len(data) - 4} more" if len(data) > 4 else ""
+    return (f"note: the runs hold different episodes ({held}{more}; {len(common)} in common): compare rows "
+            f"over the same episodes (e.g. the same --slice and --episodes, and the same --test-seed-file)")
+
+
 def score_all(data: Sequence[RunData], obstacle_contact: str = DEFAULT_CONTACT, reading: str = DEFAULT_READING) -> list[RunReport]:
     """Score loaded runs; labels are made unique across them."""
     labels = unique_labels([default_label(d) for d in data], [d.name for d in data])
@@ -98,7 +111,11 @@ def score_all(data: Sequence[RunData], obstacle_contact: str = DEFAULT_CONTACT, 
 def evaluate(runs: Sequence[str], obstacle_contact: str = DEFAULT_CONTACT, reading: str = DEFAULT_READING) -> list[RunReport]:
     """Load and score each run (a folder of repeats gives one run per repeat); labels are
     made unique across the runs."""
-    return score_all(load_runs(runs), obstacle_contact, reading)
+    data = load_runs(runs)
+    note = episodes_note(data)
+    if note is not None:
+        print(note, file=sys.stderr)
+    return score_all(data, obstacle_contact, reading)
 
 
 def chance_of(blind_runs: Sequence[str], scored: Sequence[RunReport], obstacle_contact: str, reading: str) -> ChanceRow:

@@ -505,3 +505,14 @@ def test_a_latency_plot_of_no_run_with_a_latency_is_refused_before_any_output(tm
     code, _, err = run_main(capsys, "eval", str(folder), "--latency-plot", str(plot), "--csv", str(table))
     assert code == 2 and "--latency-plot: no run to plot" in err and len(err.strip().splitlines()) == 1
     assert not plot.exists() and not table.exists()
+
+
+def test_runs_over_different_episodes_are_named_in_one_note(tmp_path, capsys, run):
+    """Before: `scoring eval runs/*` set 32 episodes beside 4 without a word."""
+    code, _, err = run_main(capsys, "eval", str(run), str(run))
+    assert code == 0 and "note:" not in err  # the same episodes: nothing to say
+    fewer = write_run(tmp_path / "fewer", [Ep(**GOOD, motion_type="linear", intercept_setting="fast")], policy="still")
+    code, out, err = run_main(capsys, "eval", str(run), str(fewer))
+    assert code == 0 and "still" in out
+    assert err.count("\n") == 1 and err.startswith("note: the runs hold different episodes (oracle-run: 3 of ")
+    assert "fewer: 1 of " in err and "1 in common" in err
