@@ -34,6 +34,7 @@ from scoring.metrics import (
 from scoring.paper import PAPER_ROWS, paper_label
 from scoring.registry import Metric, metric_names, table_metrics
 from scoring.taxonomy import FAILURE_CLASSES, Failures, episode_failures
+from scoring.text_table import aligned, packed, wrapped
 
 #: Breakdowns: JSON key, the episode attribute grouped on, canonical group order, title.
 BREAKDOWNS = (
@@ -350,18 +351,6 @@ def _group_rows(reports: Sequence[RunReport], key: str) -> list[list[str]]:
     return rows
 
 
-def _aligned(headers: Sequence[str], rows: Sequence[Sequence[str]], text_columns: int = 1) -> str:
-    """Text columns left-aligned, numbers right-aligned, two spaces apart."""
-    widths = [max(len(str(c)) for c in column) for column in zip(headers, *rows)]
-
-    def line(cells: Sequence[str]) -> str:
-        padded = [str(c).ljust(w) if i < text_columns else str(c).rjust(w) for i, (c, w) in enumerate(zip(cells, widths))]
-        return "  ".join(padded).rstrip()
-
-    rule = "  ".join("-" * w for w in widths)
-    return "\n".join([line(headers), rule, *(line(r) for r in rows)])
-
-
 OBSTACLE_HEADERS = ("Run", "Episodes with obstacles", "Obstacle contacts", "Collision rate (%) v", "95% CI", "Contact")
 OBSTACLE_NOTE = (
     "Obstacle contact: the hand's surface came within 0 units of an obstacle in an acting frame. "
@@ -406,15 +395,29 @@ def format_table(reports: Sequence[RunReport], paper: bool = False, chance: Chan
     ``chance`` the chance row follows, with ``paper`` the published rows), then by motion
     and by interception, and obstacle contacts for runs with obstacles."""
     main_rows = _main_rows(reports, paper, chance)
-    parts = [_aligned(main_headers(), main_rows),
-             LEGEND + (CHANCE_NOTE if chance else "") + (PAPER_NOTE if paper else ""), reading_note(reports)]
+    parts = [packed(main_headers(), main_rows, 1, [[1, 2], *_metric_columns(3, intervals=True)]),
+             wrapped(LEGEND + (CHANCE_NOTE if chance else "") + (PAPER_NOTE if paper else "")),
+             wrapped(reading_note(reports))]
     for key, _, _, title in BREAKDOWNS[:2]:
-        parts += ["", f"By {title}:", _aligned(group_headers(), _group_rows(reports, key), text_columns=2)]
+        parts += ["", f"By {title}:", packed(group_headers(), _group_rows(reports, key), 2,
+                                              [[2, 3], *_metric_columns(4, intervals=False)])]
     obstacle_rows = _obstacle_rows(reports)
     if obstacle_rows:
-        parts += ["", "Obstacles:", _aligned(OBSTACLE_HEADERS, obstacle_rows), OBSTACLE_NOTE]
-    parts += ["", "Failures:", _aligned(FAILURE_HEADERS, _failure_rows(reports), text_columns=2), FAILURE_NOTE]
+        parts += ["", "Obstacles:", aligned(OBSTACLE_HEADERS, obstacle_rows), wrapped(OBSTACLE_NOTE)]
+    parts += ["", "Failures:", packed(FAILURE_HEADERS, _failure_rows(reports), 2,
+                                                 [[i] for i in range(2, len(FAILURE_HEADERS))]), wrapped(FAILURE_NOTE)]
     return "\n".join(parts) + "\n"
+
+
+def _metric_columns(start: int, intervals: bool) -> list[list[int]]:
+    """The column indices of each metric (its value, its interval where ``intervals``, its
+    coverage), from column ``start``, in :func:`main_headers`' / :func:`group_headers`' order."""
+    groups, at = [], start
+    for m in table_metrics():
+        size = 1 + (1 if intervals and m.is_rate else 0) + len(_coverage(m))
+        groups.append(list(range(at, at + size)))
+        at += size
+    return groups
 
 
 def _markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
