@@ -1,6 +1,7 @@
 """Running one page's blocks: bash and python in page order, in one temporary folder.
 
-``python -m tests.docs.runner PAGE FOLDER [--with-slow]`` runs one page in a process of its
+``python -m tests.docs.runner PAGE [PAGE ...] FOLDER [--with-slow]`` runs one page (or
+several in order, in one folder, as a reader follows the manual) in a process of its
 own (so pages run side by side and a page's imports, folder and environment stay out of
 pytest), printing the blocks it did not run as JSON; a failure exits 1 with the page, line
 and output on stderr.
@@ -161,19 +162,24 @@ def _tail(output: bytes | str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="run one page's ```bash and ```python blocks")
-    parser.add_argument("page", help="the page, relative to the repository")
-    parser.add_argument("folder", help="an empty folder to run it in")
+    parser = argparse.ArgumentParser(description="run pages' ```bash and ```python blocks")
+    parser.add_argument("page", nargs="+", help="the page (or pages, run in order as a reader follows them: "
+                                                "one folder, the environment carried on), relative to the repository")
+    parser.add_argument("folder", help="an empty folder to run them in")
     parser.add_argument("--with-slow", action="store_true", help="run the blocks marked slow too")
     args = parser.parse_args(argv)
-    run = PageRun(load(args.page), Path(args.folder).resolve(), dict(os.environ))
+    folder, env = Path(args.folder).resolve(), dict(os.environ)
     # Stopped (pytest interrupted, a timeout): still end the processes the page started.
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(f"{args.page}: stopped"))
-    try:
-        skipped = run.run(args.with_slow)
-    except BlockFailed as failed:
-        print(failed, file=sys.stderr)
-        return 1
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(f"{' '.join(args.page)}: stopped"))
+    skipped: list[str] = []
+    for page in args.page:  # each page starts in the folder, as a reader opens it in their working folder
+        run = PageRun(load(page), folder, env)
+        try:
+            skipped += run.run(args.with_slow)
+        except BlockFailed as failed:
+            print(failed, file=sys.stderr)
+            return 1
+        env = run.env
     print(json.dumps(skipped))
     return 0
 
