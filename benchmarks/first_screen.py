@@ -36,8 +36,9 @@ def _uptime() -> str:
     return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
 
 
-def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[str, float], str]:
-    """Seconds, seconds per ``== phase`` line printed, and the output's last lines."""
+def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[str, float], str, dict[str, str]]:
+    """Seconds, seconds per ``== phase`` line printed, the output's last lines, and each
+    phase's pytest summary line (``N passed ...``), if it printed one."""
     start = time.monotonic()
     process = subprocess.Popen(["bash", "-euo", "pipefail", "-c", command], cwd=cwd, env=env, text=True,
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
@@ -45,8 +46,11 @@ def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[st
     phases: dict[str, float] = {}
     phase, phase_start = "install", start
     tail: list[str] = []
+    summaries: dict[str, str] = {}
     for line in process.stdout:
         tail = (tail + [line.rstrip()])[-20:]
+        if re.search(r"\d+ passed", line):
+            summaries[phase] = line.strip()
         if line.startswith("== "):
             now = time.monotonic()
             phases[phase] = round(now - phase_start, 1)
@@ -55,7 +59,7 @@ def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[st
         sys.exit(f"{command!r} failed in {cwd}:\n" + "\n".join(tail))
     end = time.monotonic()
     phases[phase] = round(end - phase_start, 1)
-    return round(end - start, 1), phases, "\n".join(tail)
+    return round(end - start, 1), phases, "\n".join(tail), summaries
 
 
 def measure(python: str) -> dict:
@@ -70,13 +74,13 @@ def measure(python: str) -> dict:
     with tempfile.TemporaryDirectory(prefix="dyana-first-screen-") as tmp:
         clone = Path(tmp) / "dyana"
         subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
-        seconds, _, tail = _timed(COMMAND_1, clone, env)
+        seconds, _, tail, _ = _timed(COMMAND_1, clone, env)
         found = re.search(r"hash ([0-9a-f]{16})", tail)
         record["command_1"] = {"command": COMMAND_1, "seconds": seconds, "hash": found.group(1) if found else None}
-        seconds, phases, tail = _timed(COMMAND_2, clone, env)
-        summary = [line for line in tail.splitlines() if re.search(r"\d+ passed", line)]
+        seconds, phases, _, summaries = _timed(COMMAND_2, clone, env)
+        # the default test run's line ("== tests"), not the peer run's that follows it
         record["command_2"] = {"command": COMMAND_2, "seconds": seconds, "phases": phases,
-                               "tests_summary": summary[-1] if summary else None}
+                               "tests_summary": summaries.get("tests"), "peer_summary": summaries.get("real")}
     record["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     record["uptime_end"] = _uptime()
     return record

@@ -140,7 +140,8 @@ def _section(root: Path, source: Source, files: str) -> list[str]:
 
 def _json_section(text: str) -> list[str]:
     record = json.loads(text)
-    rows = [f"| `{key}` | {json.dumps(value)} |" for key, value in _flatten(record)]
+    # values as code: "<data>/linear-fast" would otherwise lose "<data>" to the HTML parser
+    rows = [f"| `{key}` | `{json.dumps(value)}` |" for key, value in _flatten(record)]
     return [load_note(json.dumps(record)), "", "| field | value |", "|---|---|", *rows, ""]
 
 
@@ -199,6 +200,7 @@ def test_complex_page(root: Path) -> str:
 def script_summary(path: Path) -> str:
     """The first paragraph of a benchmark script's docstring, on one line."""
     doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+    doc = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", doc)  # Sphinx roles (:mod:`x`) as plain code
     return " ".join(doc.split("\n\n")[0].split())
 
 
