@@ -3,7 +3,7 @@ limits, and the hand does not enter the table, the obstacles or the object.
 
 One :class:`HandBody` owns a pybullet DIRECT client with the hand's collision shapes
 (the URDF of :mod:`generators.hand_urdf`: the palm box and one cylinder per finger
-segment), the table top (the plane Y = 0 under the whole palm box), the episode's
+segment; and the wrist cylinder the URDF draws), the table top (the plane Y = 0 under the whole palm box), the episode's
 obstacles and the object (its shape's main solid, :mod:`schemas.shapes`). Bodies are
 posed kinematically; the only physics asked of pybullet is its collision query
 (``getClosestPoints``), single-threaded and without a time step, so a step's result is
@@ -14,7 +14,7 @@ a pure function of the state, the target and the object's pose. Each :meth:`Hand
    :data:`PALM_MAX_SPEED` (both Euclidean, by scaling the vector); every joint's change
    to :data:`JOINT_MAX_SPEED`. A target within the limits is reached exactly.
 2. checks the limited state: no part of the hand deeper than :data:`TOUCH` in the table
-   or an obstacle, and the palm no deeper in the object (at its pose of the new frame)
+   or an obstacle, and the palm and wrist no deeper in the object (at its pose of the new frame)
    than it was before the move or :data:`TOUCH`, whichever is more: the object keeps its
    scripted motion and may run into the hand, the hand may not push further in. The
    fingers may close into the object's volume (the ground truth's grasps do, by up to
@@ -31,7 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from generators.bullet import p
-from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
+from generators.clearance import WRIST_LENGTH, WRIST_RADIUS
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, WRIST_OFFSET
 from generators.scene import load_hand, set_hand_pose
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle
@@ -57,6 +58,8 @@ TABLE_HALF = (50.0, 1.0, 50.0)
 TABLE_CENTRE = (0.0, -1.0, 0.0)
 
 _ORIENTATION = p.getQuaternionFromEuler([float(a) for a in REST_PALM[3:]])
+#: The wrist cylinder's centre from the palm's (rest orientation: behind the wrist point along -Z).
+_WRIST_CENTRE = np.asarray(WRIST_OFFSET) + np.array([0.0, 0.0, -WRIST_LENGTH / 2])
 
 
 def limit_palm(palm: np.ndarray, velocity: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -102,6 +105,10 @@ class HandBody:
         self._client = p.connect(p.DIRECT)
         p.setPhysicsEngineParameter(fixedTimeStep=1.0 / FPS, deterministicOverlappingPairs=1, physicsClientId=self._client)
         self._table = _collision_body(self._client, p.GEOM_BOX, TABLE_CENTRE, (0, 0, 0, 1), halfExtents=TABLE_HALF)
+        # the wrist (visual only in the URDF): its own body, posed with the palm (the palm
+        # keeps the rest orientation, so the cylinder's axis stays along Z)
+        self._wrist = _collision_body(self._client, p.GEOM_CYLINDER, (0.0, -50.0, 0.0), _ORIENTATION,
+                                      radius=WRIST_RADIUS, height=WRIST_LENGTH)
         self._hands: dict[str, tuple[int, np.ndarray]] = {}
         self._scene: tuple[object, ...] | None = None
         self._static: tuple[int, ...] = ()
@@ -144,18 +151,22 @@ class HandBody:
 
     def depths(self, palm: np.ndarray, joints: np.ndarray, object_pose: np.ndarray) -> tuple[float, float]:
         """How deep the hand in this state is in the table or an obstacle, and how deep its
-        palm is in the object at ``object_pose`` (x, y, z, qx, qy, qz, qw): 0 when clear."""
+        palm or wrist is in the object at ``object_pose`` (x, y, z, qx, qy, qz, qw): 0 when clear."""
         client = self._client
         set_hand_pose(client, self._hand, self._indices, np.concatenate([palm, REST_PALM[3:]]), joints)
+        wrist = [float(v) for v in palm + _WRIST_CENTRE]
+        p.resetBasePositionAndOrientation(self._wrist, wrist, _ORIENTATION, physicsClientId=client)
         pose = [float(v) for v in object_pose]
         p.resetBasePositionAndOrientation(self._object, pose[:3], pose[3:], physicsClientId=client)
         fixed = 0.0
         for body in self._static:
-            for point in p.getClosestPoints(self._hand, body, 0.0, physicsClientId=client):
-                fixed = max(fixed, -point[8])
+            for part in (self._hand, self._wrist):
+                for point in p.getClosestPoints(part, body, 0.0, physicsClientId=client):
+                    fixed = max(fixed, -point[8])
         inside = 0.0
-        for point in p.getClosestPoints(self._hand, self._object, 0.0, linkIndexA=-1, physicsClientId=client):
-            inside = max(inside, -point[8])
+        for part, link in ((self._hand, -1), (self._wrist, -1)):
+            for point in p.getClosestPoints(part, self._object, 0.0, linkIndexA=link, physicsClientId=client):
+                inside = max(inside, -point[8])
         return fixed, inside
 
     def step(self, palm_target: np.ndarray, joint_target: np.ndarray, object_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
