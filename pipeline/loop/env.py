@@ -2,8 +2,8 @@
 actions drive the hand at 20 FPS through the build's stages (object motion, hand
 kinematics, render, JPEG); the hand is a body (:mod:`generators.hand_body`) that follows
 each action within speed and acceleration limits and does not enter the table, an
-obstacle or, with its palm, the object. It only simulates; recording and the evaluation protocols wrap
-it (:mod:`pipeline.loop.wrappers`). The same spec and actions give the same bytes.
+obstacle or, with its palm and wrist, the object. It only simulates; recording and the
+evaluation protocols wrap it (:mod:`pipeline.loop.wrappers`). The same spec and actions give the same bytes.
 Observation, spaces, events and recording: docs/guides/your-policy.md.
 """
 
