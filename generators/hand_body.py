@@ -3,8 +3,9 @@ limits, and the hand does not enter the table, the obstacles or the object.
 
 One :class:`HandBody` owns a pybullet DIRECT client with the hand's collision shapes
 (the URDF of :mod:`generators.hand_urdf`: the palm box and one cylinder per finger
-segment; and the wrist cylinder the URDF draws), the table top (the plane Y = 0 under the whole palm box), the episode's
-obstacles and the object (its shape's main solid, :mod:`schemas.shapes`). Bodies are
+segment; and the wrist cylinder the URDF draws), the table top (the plane Y = 0 under
+the whole palm box), the episode's obstacles and the object (its shape's main solid,
+:mod:`schemas.shapes`; the mug's handle and the markings are left out). Bodies are
 posed kinematically; the only physics asked of pybullet is its collision query
 (``getClosestPoints``), single-threaded and without a time step, so a step's result is
 a pure function of the state, the target and the object's pose. Each :meth:`HandBody.step`:
@@ -14,8 +15,9 @@ a pure function of the state, the target and the object's pose. Each :meth:`Hand
    :data:`PALM_MAX_SPEED` (both Euclidean, by scaling the vector); every joint's change
    to :data:`JOINT_MAX_SPEED`. A target within the limits is reached exactly.
 2. checks the limited state: no part of the hand deeper than :data:`TOUCH` in the table
-   or an obstacle, and the palm and wrist no deeper in the object (at its pose of the new frame)
-   than it was before the move or :data:`TOUCH`, whichever is more: the object keeps its
+   or an obstacle, the palm centre inside the palm box if one is given, and the palm and
+   wrist no deeper in the object (at its pose of the new frame) than they were before the
+   move or :data:`TOUCH`, whichever is more: the object keeps its
    scripted motion and may run into the hand, the hand may not push further in. The
    fingers may close into the object's volume (the ground truth's grasps do, by up to
    0.39 units): they are stopped by the table and the obstacles only.
