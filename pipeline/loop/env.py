@@ -1,7 +1,9 @@
 """The closed-loop environment :class:`DyanaEnv`, registered as :data:`ENV_ID`: a policy's
 actions drive the hand at 20 FPS through the build's stages (object motion, hand
-kinematics, render, JPEG). It only simulates; recording and the evaluation protocols wrap
-it (:mod:`pipeline.loop.wrappers`). The same spec and actions give the same bytes.
+kinematics, render, JPEG); the hand is a body (:mod:`generators.hand_body`) that follows
+each action within speed and acceleration limits and does not enter the table, an
+obstacle or, with its palm and wrist, the object. It only simulates; recording and the
+evaluation protocols wrap it (:mod:`pipeline.loop.wrappers`). The same spec and actions give the same bytes.
 Observation, spaces, events and recording: docs/guides/your-policy.md.
 """
 
@@ -17,6 +19,7 @@ from gymnasium import spaces
 from generators.encode import JPEG_QUALITY, decode_jpeg, encode_bgr_jpeg
 from generators.grasp import grasp_angles
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_PALM, forward_kinematics
+from generators.hand_body import HandBody
 from generators.motion import object_pose
 from generators.recipe import spec_for
 from generators.render import Renderer, check_resolution
@@ -160,6 +163,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         #: or ``step`` (one) made: what a recorder reads.
         self.new_frames: tuple[SimFrame, ...] = ()
         self._renderer = renderer if isinstance(renderer, Renderer) else None
+        self._body: HandBody | None = None
         self._own_renderer = self._renderer is None
         self._kind = kind
         self._next_index = 0
@@ -217,6 +221,9 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         self.grasp_angles = grasp_angles(spec.object, spec.object_size, spec.hand).astype(np.float32)
         self._loc_frame = self._gra_frame = None
         self._frame = -1
+        if self._body is None:
+            self._body = HandBody((PALM_LOW, PALM_HIGH))
+        self._body.reset(spec.hand, spec.object, spec.object_size, spec.obstacles)
         rest = REST_STATE
         frames = [self._simulate(k, rest[:3], rest[3:]) for k in range(self._first + 1)]
         self.new_frames = tuple(frames)
@@ -232,7 +239,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
 
         Args:
             action: (18,) palm target xyz + 15 joint targets (cast to float32, then
-                clipped to the workspace and the joint limits).
+                clipped to the workspace and the joint limits); the hand follows it
+                within the body's limits (:mod:`generators.hand_body`).
 
         Returns:
             observation: the next frame's observation (``observe_images`` empty).
@@ -250,7 +258,9 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         palm = np.clip(act[:3].astype(np.float64), PALM_LOW, PALM_HIGH).astype(np.float32)
         joints = np.clip(act[3:].astype(np.float64), JOINT_LOWER, JOINT_UPPER).astype(np.float32)
         completed_before = self._gra_frame is not None
-        made = self._simulate(frame + 1, palm, joints)
+        assert self._body is not None  # reset makes it
+        reached = self._body.step(palm, joints, self.object_pose[frame + 1])
+        made = self._simulate(frame + 1, reached[0].astype(np.float32), reached[1].astype(np.float32))
         self.new_frames = (made,)
         terminated = self._gra_frame is not None and not completed_before
         truncated = not terminated and frame + 2 >= self._limit
@@ -281,7 +291,10 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         return decode_jpeg(self._last_jpeg)
 
     def close(self) -> None:
-        """Close the renderer if the env made it."""
+        """Close the hand's body, and the renderer if the env made it."""
+        if self._body is not None:
+            self._body.close()
+            self._body = None
         if self._own_renderer and self._renderer is not None:
             self._renderer.close()
             self._renderer = None

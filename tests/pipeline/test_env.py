@@ -15,6 +15,7 @@ from catalog.tables.shard import rollout_frame_limit
 from generators.encode import JPEG_QUALITY, decode_jpeg
 from generators.grasp import grasp_angles
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
+from generators.hand_body import JOINT_MAX_SPEED, PALM_MAX_ACCELERATION, limit_palm
 from generators.recipe import spec_for
 from pipeline.loop.actions import as_chunk, run_chunk
 from pipeline.loop.env import ENV_ID, DyanaEnv, SliceEpisodes, horizon
@@ -196,13 +197,16 @@ def test_terminates_when_the_grasp_completes(env):
     assert np.all(frames.phase[spec.observe_frames :] == APPROACH)
 
 
-def test_actions_are_clipped_to_the_palm_box_and_joint_limits(env):
+def test_actions_are_clipped_to_the_palm_box_and_joint_limits_then_followed_within_the_body_limits(env):
     spec = spec_for("test-1k", 2)
     obs, _ = env.reset(options={"spec": spec})
     action = np.concatenate([[100.0, -5.0, -100.0], JOINT_UPPER + 1.0])
     obs, *_ = env.step(action)
-    np.testing.assert_array_equal(obs["palm_pose"][:3], np.array([PALM_BOX[0][1], PALM_BOX[1][0], PALM_BOX[2][0]], dtype=np.float32))
-    np.testing.assert_array_equal(obs["joint_angles"], JOINT_UPPER.astype(np.float32))
+    corner = np.array([PALM_BOX[0][1], PALM_BOX[1][0], PALM_BOX[2][0]])
+    reached = limit_palm(REST_PALM[:3], np.zeros(3), corner)  # from rest, toward the clipped target
+    assert 0.0 < np.linalg.norm(reached - REST_PALM[:3]) <= PALM_MAX_ACCELERATION / 20**2 + 1e-12
+    np.testing.assert_array_equal(obs["palm_pose"][:3], reached.astype(np.float32))
+    np.testing.assert_array_equal(obs["joint_angles"], np.minimum(JOINT_UPPER, JOINT_MAX_SPEED / 20).astype(np.float32))
     np.testing.assert_array_equal(obs["palm_pose"][3:], REST_PALM[3:].astype(np.float32))
     frames, _ = env.recording()
     np.testing.assert_array_equal(frames.action[spec.observe_frames], action.astype(np.float32))  # as issued
@@ -385,9 +389,9 @@ def test_every_observation_lies_in_its_space_even_at_the_limits(env):
     # a learner that wants [-1, 1] actions rescales the finite Box
     rescaled = gymnasium.wrappers.RescaleAction(DyanaEnv(RES), np.float32(-1), np.float32(1))
     rescaled.reset(options={"spec": spec})
-    obs, *_ = rescaled.step(np.ones(18, dtype=np.float32))
-    np.testing.assert_allclose(obs["palm_pose"][:3], high[:3], rtol=1e-6)
-    np.testing.assert_allclose(obs["joint_angles"], high[3:], rtol=1e-6)
+    np.testing.assert_allclose(rescaled.action(np.ones(18, dtype=np.float32)), high, rtol=1e-6)
+    obs, *_ = rescaled.step(np.ones(18, dtype=np.float32))  # the hand heads there, within the body's limits
+    assert np.all(obs["palm_pose"][:3] > REST_PALM[:3]) and np.all(obs["joint_angles"] > 0)
 
 
 def test_flattened_observations_are_the_current_frame(env):

@@ -18,7 +18,7 @@ import pytest
 from generators.hand import JOINT_LOWER, JOINT_UPPER
 from pipeline.loop.env import ENV_ID, DyanaEnv
 from pipeline.loop.spaces import PALM_HIGH, PALM_LOW
-from pipeline.loop.views import STATE_WIDTH, VIEWS, state_vector
+from pipeline.loop.views import STATE_WIDTH, VIEWS, absolute_action, state_vector
 from pipeline.loop.wrappers import RecordEpisode
 from schemas.errors import DyanaError, PolicyError
 
@@ -56,14 +56,21 @@ def test_each_view_shows_the_full_observation_in_its_own_space():
 def test_normalized_actions_map_minus_one_and_one_onto_the_real_bounds():
     env = DyanaEnv(RES, episodes="test-1k", normalize_actions=True)
     assert env.action_space == gymnasium.spaces.Box(-1.0, 1.0, (18,), np.float32)
-    env.reset(seed=SEED)
+    obs, _ = env.reset(seed=SEED)
+    bounds = np.concatenate([PALM_LOW, JOINT_LOWER]), np.concatenate([PALM_HIGH, JOINT_UPPER])
     for value, palm, joints in ((-1.0, PALM_LOW, JOINT_LOWER), (1.0, PALM_HIGH, JOINT_UPPER), (5.0, PALM_HIGH, JOINT_UPPER),
                                 (0.0, (PALM_LOW + PALM_HIGH) / 2, (JOINT_LOWER + JOINT_UPPER) / 2)):
-        obs, _, terminated, truncated, _ = env.step(np.full(18, value, dtype=np.float32))
-        np.testing.assert_allclose(obs["palm_pose"][:3], palm, rtol=1e-6, atol=1e-6)
-        np.testing.assert_allclose(obs["joint_angles"], joints, rtol=1e-6, atol=1e-6)
+        action = np.full(18, value, dtype=np.float32)
+        target = np.clip(absolute_action(action), *bounds)
+        np.testing.assert_allclose(target[:3], palm, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(target[3:], joints, rtol=1e-6, atol=1e-6)
+        start = np.concatenate([obs["palm_pose"][:3], obs["joint_angles"]]).astype(np.float64)
+        obs, _, terminated, truncated, _ = env.step(action)  # the hand heads there, within the body's limits
+        reached = np.concatenate([obs["palm_pose"][:3], obs["joint_angles"]]).astype(np.float64)
+        assert np.linalg.norm(reached[:3] - target[:3]) < np.linalg.norm(start[:3] - target[:3])
+        assert np.all(np.abs(reached[3:] - target[3:]) <= np.abs(start[3:] - target[3:]) + 1e-6)
         if terminated or truncated:  # the joints at their upper limits complete the grasp
-            env.reset(seed=SEED)
+            obs, _ = env.reset(seed=SEED)
     frame = env.current_frame
     with pytest.raises(PolicyError, match="NaN"):
         env.step(np.full(18, np.nan))
