@@ -23,7 +23,7 @@ from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import shorten
 from schemas.renderers import renderer_of
 from schemas.scene import DEFAULT_RESOLUTION
-from schemas.versions import DATASET_VERSION, FPS
+from schemas.versions import DATASET_VERSION, FPS, HAND_MODEL
 
 #: JPEG quality (0-100) of built datasets (:mod:`generators.encode` encodes with it).
 JPEG_QUALITY = 90
@@ -72,6 +72,11 @@ class BuildSettings:
     protocol: dict | None = field(default=None, metadata=_setting(
         "a run's evaluation protocol: latency, real time, perturbation, disturbance, repeat (stored only when "
         "not the plain loop)", "--latency-frames", "--realtime", "--perturb", "--disturb", "--repeats"))
+    #: A run's hand model (schemas.versions.HAND_MODEL); empty for builds, whose ground truth
+    #: the body passes unchanged, and for runs recorded before the hand was a body.
+    hand_model: str = field(default="", metadata=_setting(
+        "a run's hand model: body-1, a pybullet body with speed, acceleration and joint limits (stored only for "
+        "runs)", derived="set by pipeline eval (schemas.versions.HAND_MODEL)"))
     #: What is stored: Parquet always, MCAP (for viewing) unless left out.
     formats: tuple[str, ...] = field(default=ALL_FORMATS, metadata=_setting(
         "what is stored: parquet,mcap or parquet (the MCAP files are for viewing)", "--formats"))
@@ -84,6 +89,9 @@ class BuildSettings:
             raise SpecError(f"jpeg_quality must be an integer in [1, 100], got {shorten(repr(self.jpeg_quality))}")
         if renderer_of(self.dataset_version) is None:
             raise SpecError(f"dataset_version {self.dataset_version!r} is not one this code writes")
+        if not isinstance(self.hand_model, str) or (self.hand_model and self.hand_model != HAND_MODEL):
+            raise SpecError(f"hand_model must be {HAND_MODEL!r} (or absent: a run from before the hand body), "
+                            f"got {shorten(repr(self.hand_model))}")
         if self.protocol is not None and not isinstance(self.protocol, dict):
             raise SpecError(f"protocol must be an object or None, got {shorten(repr(self.protocol))}")
 
@@ -95,13 +103,16 @@ class BuildSettings:
         return renderer
 
     def to_dict(self) -> dict[str, Any]:
-        """The manifest's settings; ``obstacle_clearance`` and ``protocol`` only when set, so
-        builds without obstacles and plain runs keep the settings (and hashes) they always had."""
+        """The manifest's settings; ``obstacle_clearance``, ``protocol`` and ``hand_model`` only
+        when set, so builds without obstacles and plain runs keep the settings (and hashes)
+        they always had."""
         out = asdict(self)
         if not self.obstacle_clearance:
             del out["obstacle_clearance"]
         if self.protocol is None:
             del out["protocol"]
+        if not self.hand_model:
+            del out["hand_model"]
         out["formats"] = list(self.formats)
         return out
 

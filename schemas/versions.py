@@ -17,3 +17,11 @@ DATASET_VERSION = "4.0.0"
 #: folder layout of 3.0.0 and later).
 READABLE_DATASET_VERSIONS = ("2.0.0", "3.0.0", "4.0.0")
 FPS = 20
+#: The closed loop's hand: a run records it (``settings.hand_model``). ``body-1``: a pybullet
+#: body with speed, acceleration and joint limits that enters neither the table nor an
+#: obstacle (:mod:`generators.hand_body`, issue 38). Runs recorded before it have no
+#: ``hand_model`` (the hand was a pose the policy wrote): they are read and scored, and
+#: re-executed byte for byte by :data:`POSE_HAND_COMMIT`'s code.
+HAND_MODEL = "body-1"
+#: The last commit whose closed loop has the pose hand (runs without ``hand_model``).
+POSE_HAND_COMMIT = "84c8d50"

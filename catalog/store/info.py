@@ -14,7 +14,7 @@ from schemas.errors import ShardError, SpecError
 from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
 from schemas.runs import is_run
 from schemas.settings import BuildSettings, setting_names
-from schemas.versions import READABLE_DATASET_VERSIONS
+from schemas.versions import HAND_MODEL, POSE_HAND_COMMIT, READABLE_DATASET_VERSIONS
 
 #: The folder kinds: a built slice (ground truth) or a policy's evaluated rollouts.
 KINDS = ("slice", "rollouts")
@@ -47,6 +47,11 @@ def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | No
         where = f"; check out commit {commit} to rebuild it" if commit else ""
         writes = " and ".join(REBUILDABLE_DATASET_VERSIONS)
         return Rebuild(False, f"written by dataset {version}; this code writes {writes}: {readable}{where}")
+    hand = manifest.settings.get("hand_model")
+    if is_run(manifest.extra) and hand != HAND_MODEL:
+        recorded = "before the hand was a body" if hand is None else f"with hand {hand!r}"
+        return Rebuild(False, f"a run recorded {recorded}; this code's closed loop has hand {HAND_MODEL!r}: "
+                              f"readable and scored as it is; commit {POSE_HAND_COMMIT} re-executes it")
     protocol = manifest.settings.get("protocol")
     if isinstance(protocol, Mapping) and protocol.get("realtime"):
         return Rebuild(False, "a real-time run (settings.protocol.realtime) depends on the machine's timing")
@@ -71,13 +76,14 @@ def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | No
 def shown_settings(settings: Mapping[str, object]) -> dict[str, object]:
     """Every byte setting (:class:`schemas.settings.BuildSettings`) with the value the folder's
     bytes have: the stored ones, and for those a manifest leaves out their defaults
-    (``obstacle_clearance`` false, ``protocol`` none: the plain loop). Settings this code
+    (``obstacle_clearance`` false, ``protocol`` none: the plain loop; ``hand_model`` none: a
+    build, or a run from before the hand body). Settings this code
     cannot read as its own (an older dataset version's) are shown as stored."""
     try:
         typed = BuildSettings.from_dict(settings)
     except SpecError:
         return dict(settings)
-    return {name: getattr(typed, name) for name in setting_names()}
+    return {name: None if getattr(typed, name) == "" else getattr(typed, name) for name in setting_names()}
 
 
 @dataclass(frozen=True)

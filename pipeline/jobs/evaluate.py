@@ -62,6 +62,7 @@ from schemas.errors import AllEpisodesFailed, DyanaError, PolicyError, SpecError
 from schemas.names import printable
 from schemas.runs import is_run
 from schemas.settings import BuildSettings
+from schemas.versions import HAND_MODEL
 
 DEFAULT_SHARD_SIZE = 32
 
@@ -384,7 +385,7 @@ def run_eval(spec: JobSpec, report: Report | None = None) -> Manifest:
     total = selection.first_episodes(definition.episodes, slice_name)
     protocol = choice.protocol
     build_settings = dataclasses.replace(spec.settings, obstacle_clearance=definition.may_hold_obstacles,
-                                         protocol=None if protocol.plain else protocol.to_dict())
+                                         protocol=None if protocol.plain else protocol.to_dict(), hand_model=HAND_MODEL)
     ranges = shard_ranges(total, selection.shard_size)
     storage.refuse_export("run")
     config = kind.configure(choice.ref, choice.config)

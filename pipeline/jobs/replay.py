@@ -60,8 +60,10 @@ from schemas.errors import PolicyError, ReplayMismatch, ShardError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.names import printable, shorten
 from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
+from schemas.runs import is_run
 from schemas.settings import BuildSettings
 from schemas.spec import EpisodeSpec
+from schemas.versions import HAND_MODEL, POSE_HAND_COMMIT
 
 
 @dataclass(frozen=True)
@@ -78,8 +80,9 @@ class ReplayReport:
 
 def check_rebuildable(directory: object, manifest: Manifest) -> str:
     """The renderer that re-executes ``manifest``'s dataset version (:mod:`schemas.renderers`),
-    or ShardError when this code writes another (rebuilds and replays compare bytes, so an
-    older version's folder can be read and scored but not re-executed)."""
+    or ShardError when this code writes another, or when the folder is a run recorded with
+    another hand model (:data:`schemas.versions.HAND_MODEL`): rebuilds and replays compare
+    bytes, so such a folder can be read and scored but not re-executed."""
     built_with = manifest.settings.get("dataset_version")
     renderer = renderer_of(built_with)
     if renderer is None:
@@ -87,6 +90,14 @@ def check_rebuildable(directory: object, manifest: Manifest) -> str:
             f"{directory}/catalog.json: written as dataset version {built_with!r}; this code writes "
             f"{' and '.join(map(repr, REBUILDABLE_DATASET_VERSIONS))}, so its shards cannot be re-executed "
             f"byte for byte (check out the commit {manifest.code.commit or 'that wrote it'})"
+        )
+    hand = manifest.settings.get("hand_model")
+    if is_run(manifest.extra) and hand != HAND_MODEL:
+        raise ShardError(
+            f"{directory}/catalog.json: a run recorded "
+            + ("before the hand was a body (no settings.hand_model)" if hand is None else f"with hand {hand!r}")
+            + f"; this code's closed loop has hand {HAND_MODEL!r}, so its rollouts cannot be re-executed byte for "
+            f"byte here (read and score it as it is; commit {POSE_HAND_COMMIT} replays it)"
         )
     return renderer
 

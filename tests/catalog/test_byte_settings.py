@@ -29,6 +29,7 @@ CHANGED = {
     "dataset_version": "3.0.0",
     "obstacle_clearance": True,
     "protocol": {"latency_frames": 2, "realtime": False},
+    "hand_model": "body-1",
     "formats": ("parquet",),
 }
 

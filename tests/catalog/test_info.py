@@ -17,7 +17,7 @@ from catalog.store.manifest import Manifest, write_manifest
 from catalog.store.versions import installed_versions
 from catalog.tables.shard import ShardWriter
 from pipeline.cli_catalog import main
-from schemas.versions import DATASET_VERSION
+from schemas.versions import DATASET_VERSION, HAND_MODEL, POSE_HAND_COMMIT
 
 from .conftest import CODE, SETTINGS, make_frames, make_images, make_spec, write_slice
 
@@ -35,7 +35,9 @@ def disk_bytes(root: Path) -> tuple[int, int]:
 
 
 def rollout_folder(root: Path, settings: dict) -> Manifest:
-    """Two rollouts of policy ``p`` (one cut short by an error) and their catalog.json."""
+    """Two rollouts of policy ``p`` (one cut short by an error) and their catalog.json, recorded
+    with this code's hand unless ``settings`` says otherwise."""
+    settings = {key: value for key, value in {"hand_model": HAND_MODEL, **settings}.items() if value is not None}
     with ShardWriter(root, 0, 2, settings, rollout=True) as writer:
         for i, (status, keep) in enumerate((("ok", None), ("error", 7))):
             spec = make_spec(i, slice_name="test-1k")
@@ -60,7 +62,8 @@ def test_a_built_slice_as_text(slice_dir, capsys):
     assert rows["dataset"] == f"{DATASET_VERSION} (this code writes {DATASET_VERSION})"
     assert rows["code"] == f"0.1.0, commit {CODE.commit}"
     assert rows["slice"] == "linear-fast, seed 7"
-    assert rows["settings"] == ("formats=parquet,mcap fps=20 image_format=jpeg jpeg_quality=90 obstacle_clearance=false "
+    assert rows["settings"] == ("formats=parquet,mcap fps=20 hand_model=null image_format=jpeg jpeg_quality=90 "
+                                "obstacle_clearance=false "
                                 "protocol=null resolution=32")
     assert rows["episodes"] == "5 in 3 shards"
     assert rows["frames"] == f"{manifest.frames:,}"
@@ -111,6 +114,15 @@ def test_an_older_dataset_version_is_readable_but_not_rebuilt(tmp_path, capsys):
         "rebuild   no: written by dataset 2.0.0; this code writes 3.0.0 and 4.0.0: readable, not re-executable; "
         f"check out commit {CODE.commit} to rebuild it"
     )
+
+
+def test_a_run_from_before_the_hand_body_is_read_not_rebuilt(tmp_path, capsys):
+    rollout_folder(tmp_path / "run", {**SETTINGS, "hand_model": None})
+    code, out, _ = info(capsys, str(tmp_path / "run"), "--json")
+    verdict = json.loads(out)["rebuild"]
+    assert code == 0 and verdict["possible"] is False
+    assert verdict["reason"].startswith("a run recorded before the hand was a body;")
+    assert f"commit {POSE_HAND_COMMIT} re-executes it" in verdict["reason"]
 
 
 def test_a_real_time_run_is_not_rebuilt(tmp_path, capsys):

@@ -134,3 +134,20 @@ def test_scoring_refuses_a_run_whose_first_shard_was_removed_and_re_sealed(copy)
         load_run(copy)
     result = _cli("scoring", "eval", str(copy))
     assert result.returncode != 0 and "episodes 0-1 are missing" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_run_from_before_the_hand_body_is_scored_but_not_re_executed(copy):
+    """A run records its hand model; one recorded before the hand was a body (no
+    settings.hand_model) would re-execute to other states under the body's limits, so replay
+    and verify refuse it in one line naming the commit that replays it, and scoring reads it."""
+    from schemas.versions import HAND_MODEL, POSE_HAND_COMMIT
+
+    manifest = load_manifest(copy)
+    assert manifest.settings["hand_model"] == HAND_MODEL  # what a run records today
+    older = {k: v for k, v in manifest.settings.items() if k != "hand_model"}
+    write_manifest(copy, Manifest.create(manifest.slice, manifest.seed, older, manifest.shards, code=manifest.code,
+                                         extra=manifest.extra, stats=manifest.stats, versions=manifest.versions))
+    for check in (replay, verify):
+        with pytest.raises(ShardError, match=f"a run recorded before the hand was a body.*commit {POSE_HAND_COMMIT}"):
+            check(copy)
+    assert len(load_run(copy).episode_index) == 3
