@@ -116,7 +116,8 @@ def speed_bin(speed: float) -> str:
 def as_row(spec: EpisodeSpec, frame: int, result: HoldResult) -> dict:
     return {"index": spec.episode_index, "object": spec.object, "motion_type": spec.motion_type,
             "setting": spec.intercept_setting, "hand": spec.hand, "frame": frame, "held": result.held,
-            "slip": round(result.slip, 4), "rise": round(result.rise, 4), "contacts": result.contacts}
+            "slip": round(result.slip, 4), "rise": round(result.rise, 4), "contacts": result.contacts,
+            "penetration": round(result.penetration, 4)}
 
 
 def ground_truth(specs: list[EpisodeSpec]) -> tuple[list[dict], list[HoldResult], list[float], dict]:
@@ -155,12 +156,16 @@ def blind(specs: list[EpisodeSpec]) -> dict:
               "blind-first-seen": lambda s: FirstSeenExact(tuple(plan(s)[1][0, [0, 2]]))}
     for name, make in makers.items():
         closed = held = 0
+        cases = []
         for spec in specs:
             palm, joints = play(make(spec), spec)
             res = episode_hold(spec, palm, joints)
             closed += res is not None
             held += bool(res is not None and res[1].held)
-        out[name] = {"n": len(specs), "closed": closed, "held": held, "rate": round(held / len(specs), 4)}
+            if res is not None and (res[1].held or res[1].penetration > 0.0):
+                cases.append(as_row(spec, res[0], res[1]))
+        out[name] = {"n": len(specs), "closed": closed, "held": held, "rate": round(held / len(specs), 4),
+                     "held_or_starting_inside": cases}
     return out
 
 
@@ -226,6 +231,7 @@ def main(argv=None) -> int:
                          "by_setting": summary(rows, "setting"), "by_hand": summary(rows, "hand"),
                          "by_speed": summary(rows, "speed_bin"),
                          "failure_slip_median": float(np.median([r["slip"] for r in failures])) if failures else None,
+                         "penetration_max": max(r["penetration"] for r in rows),
                          "failure_contacts_at_end": dict(collections.Counter(r["contacts"] for r in failures)),
                          "held_examples": [r for r in rows if r["held"]][:10],
                          "failure_examples": failures[:10]},

@@ -11,7 +11,8 @@ touches the object presses on it and one that does not closes a little further. 
 palm is driven along a fixed path: it keeps its horizontal velocity, which decays to
 zero, while it rises :data:`LIFT_HEIGHT` over :data:`LIFT_SECONDS` (both minimum
 jerk), then stays still for :data:`HOLD_SECONDS`. The object is held when, at the end,
-its centre is within :data:`SLIP_TOLERANCE` of where it started in the palm's frame.
+its centre is within :data:`SLIP_TOLERANCE` of where it started in the palm's frame,
+and the hand did not start inside it (deeper than :data:`PENETRATION_TOLERANCE`).
 
 Units are the scene's (1 unit = 10 cm, seconds, kilograms), so gravity is 98.1 units/s^2
 and a torque of 1 N m is 100 kg unit^2/s^2. Fixed time step, a fixed solver iteration
@@ -47,6 +48,7 @@ from generators.hold_params import (
     LIFT_HEIGHT,
     LIFT_SECONDS,
     PALM_MASS,
+    PENETRATION_TOLERANCE,
     SEGMENT_MASS,
     SLIP_TOLERANCE,
     SOLVER_ITERATIONS,
@@ -62,19 +64,23 @@ from schemas.rotations import euler_to_quaternion, matrix_to_quaternion, quatern
 
 @dataclass(frozen=True)
 class HoldResult:
-    """What the hold test saw. ``held``: the object's centre ended within
+    """What the hold test saw. ``held``: the hand did not start inside the object (by
+    more than :data:`PENETRATION_TOLERANCE`) and the object's centre ended within
     :data:`SLIP_TOLERANCE` of its start in the palm's frame; ``slip``: that distance
     (units); ``rise``: how far the object's centre rose (units); ``contacts``: hand
-    links (palm, segments) touching the object at the end."""
+    links (palm, segments) touching the object at the end; ``penetration``: how deep the
+    hand was inside the object at the start (units, 0 when apart)."""
 
     held: bool
     slip: float
     rise: float
     contacts: int
+    penetration: float
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.slip) and np.isfinite(self.rise)):
-            raise SpecError(f"hold result: slip {self.slip!r} and rise {self.rise!r} must be finite")
+        if not all(np.isfinite(v) for v in (self.slip, self.rise, self.penetration)):
+            raise SpecError(f"hold result: slip, rise and penetration must be finite, got "
+                            f"{self.slip!r}, {self.rise!r}, {self.penetration!r}")
 
 
 def _vector(name: str, value, n: int) -> np.ndarray:
@@ -212,6 +218,8 @@ def hold_test(object_name: str, object_size: float, side: str, palm_pose, palm_v
         drive = p.createConstraint(hand, -1, -1, -1, p.JOINT_FIXED, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
                                    palm[:3].tolist(), childFrameOrientation=quat, **kw)
         start = _relative(palm[:3], quat, pose[:3])
+        p.performCollisionDetection(**kw)
+        depth = max([0.0] + [-c[8] for c in p.getClosestPoints(hand, obj, 0.0, **kw)])
         steps = int(round((LIFT_SECONDS + HOLD_SECONDS) * STEPS_PER_SECOND))
         path = palm_path(palm[:3], palm_v, np.arange(1, steps + 1, dtype=np.float64) / STEPS_PER_SECOND)
         for target in path:
@@ -224,4 +232,6 @@ def hold_test(object_name: str, object_size: float, side: str, palm_pose, palm_v
         p.resetSimulation(**kw)
     end = _relative(palm_pos, palm_quat, obj_pos)
     slip = float(np.linalg.norm(end - start))
-    return HoldResult(held=bool(slip <= SLIP_TOLERANCE), slip=slip, rise=float(obj_pos[1] - pose[1]), contacts=contacts)
+    held = slip <= SLIP_TOLERANCE and depth <= PENETRATION_TOLERANCE
+    return HoldResult(held=bool(held), slip=slip, rise=float(obj_pos[1] - pose[1]), contacts=contacts,
+                      penetration=float(depth))

@@ -29,6 +29,12 @@ HOLD_SECONDS = 0.5
 #: palm's frame; an object settling in the fingers moves less, a dropped one ~LIFT_HEIGHT.
 SLIP_TOLERANCE = 0.5
 
+#: A hand that starts more than 0.05 units (5 mm) inside the object holds nothing: no real
+#: hand gets there, and pybullet's push-out would jam the object between palm and fingers
+#: (a blind hand that closed with its palm 0.14 deep in a mug "held" it). The ground
+#: truth's fingers close to touching, its palm 0.23 above the object (0.000 measured).
+PENETRATION_TOLERANCE = 0.05
+
 #: The palm's mass (the renderer's URDF) and each finger segment's (kg).
 PALM_MASS = 0.4
 SEGMENT_MASS = 0.02

@@ -11,11 +11,19 @@ from generators.hand import REST_JOINTS, mirror_palm_pose
 from generators.hold import HoldResult, hold_test, palm_path
 from generators.hold_episode import closing_frame, episode_hold
 from generators.hold_grasp import closing_angles, hover_palm, resting_pose
-from generators.hold_params import HOLD_SECONDS, LIFT_HEIGHT, LIFT_SECONDS, SLIP_TOLERANCE, object_mass
+from generators.hold_params import (
+    HOLD_SECONDS,
+    LIFT_HEIGHT,
+    LIFT_SECONDS,
+    PENETRATION_TOLERANCE,
+    SLIP_TOLERANCE,
+    object_mass,
+)
 from generators.recipe import spec_for
 from schemas.errors import SpecError
 from schemas.events import grasp_closed
 from schemas.objects import OBJECTS, object_category
+from schemas.scene import PALM_HOVER
 
 STILL = np.zeros(3)
 
@@ -40,6 +48,14 @@ def test_an_open_hand_or_a_fist_beside_the_object_holds_nothing():
     beside = hold_test(name, size, side, palm + np.array([1.2, 0, 0, 0, 0, 0]), STILL, joints, pose, STILL, STILL)
     for result in (opened, beside):
         assert not result.held and result.slip > SLIP_TOLERANCE and abs(result.rise) < 0.1, result
+
+
+def test_a_hand_that_starts_inside_the_object_holds_nothing():
+    name, size, side, palm, _, joints, pose, _, _ = _grip("mug", offset=(0.0, 0.0, 0.0))
+    sunk = palm - np.array([0, PALM_HOVER + 0.3, 0, 0, 0, 0])  # the palm 0.18 below the mug's top
+    result = hold_test(name, size, side, sunk, STILL, joints, pose, STILL, STILL)
+    assert result.penetration > PENETRATION_TOLERANCE and not result.held
+    assert hold_test(*_grip("baseball")).penetration <= PENETRATION_TOLERANCE
 
 
 def test_same_inputs_same_bytes_whatever_ran_before():
