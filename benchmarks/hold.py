@@ -50,6 +50,7 @@ from generators.hand import REST_JOINTS
 from generators.hold import HoldResult, hold_test
 from generators.hold_episode import episode_hold, palm_velocity
 from generators.hold_grasp import closing_angles, hover_palm, resting_pose
+from generators.hold_params import PENETRATION_TOLERANCE
 from generators.recipe import spec_for
 from pipeline.loop.rollout import task_for
 from pipeline.loop.spaces import PALM_HIGH, PALM_LOW
@@ -232,6 +233,8 @@ def main(argv=None) -> int:
                          "by_speed": summary(rows, "speed_bin"),
                          "failure_slip_median": float(np.median([r["slip"] for r in failures])) if failures else None,
                          "penetration_max": max(r["penetration"] for r in rows),
+                         "starting_inside_by_object": {k: sum(r["penetration"] > PENETRATION_TOLERANCE for r in rows
+                                                              if r["object"] == k) for k in OBJECTS},
                          "failure_contacts_at_end": dict(collections.Counter(r["contacts"] for r in failures)),
                          "held_examples": [r for r in rows if r["held"]][:10],
                          "failure_examples": failures[:10]},

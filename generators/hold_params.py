@@ -32,7 +32,9 @@ SLIP_TOLERANCE = 0.5
 #: A hand that starts more than 0.05 units (5 mm) inside the object holds nothing: no real
 #: hand gets there, and pybullet's push-out would jam the object between palm and fingers
 #: (a blind hand that closed with its palm 0.14 deep in a mug "held" it). The ground
-#: truth's fingers close to touching, its palm 0.23 above the object (0.000 measured).
+#: truth starts at 0 for spheres, upright cylinders and boxes; in lying cylinders its
+#: fingers start up to 0.41 deep (its grasp is sized for the axis across the palm; the
+#: axis follows the path).
 PENETRATION_TOLERANCE = 0.05
 
 #: The palm's mass (the renderer's URDF) and each finger segment's (kg).

@@ -3,6 +3,10 @@ and gives the same bytes for the same inputs."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -26,6 +30,7 @@ from schemas.objects import OBJECTS, object_category
 from schemas.scene import PALM_HOVER
 
 STILL = np.zeros(3)
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _grip(name: str, side: str = "right", offset=(0.2, -0.23, -0.3)):
@@ -64,6 +69,14 @@ def test_same_inputs_same_bytes_whatever_ran_before():
     again = hold_test(*_grip("baseball"))
     assert a == again and a != b
     assert np.float64(a.slip).tobytes() == np.float64(again.slip).tobytes()
+
+
+def test_another_process_gives_the_same_bytes():
+    code = ("import sys; sys.path.insert(0, 'tests/generators'); from test_hold import _grip; "
+            "from generators.hold import hold_test; r = hold_test(*_grip('baseball')); print(r.slip.hex(), r.rise.hex())")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True, cwd=ROOT).stdout.split()
+    here = hold_test(*_grip("baseball"))
+    assert out == [here.slip.hex(), here.rise.hex()]
 
 
 def test_the_left_hand_mirrors_the_right():
