@@ -89,5 +89,5 @@ def test_the_dataloader_selects_irregular_episodes(tmp_path):
     build("irregular-fast", tmp_path, episodes=2, shard_size=2, resolution=32, workers=1, progress=False)
     with catalog.open(tmp_path / "irregular-fast", motion_type="irregular") as ds:
         assert len(ds.episodes) == 2 and {e.motion_type for e in ds.episodes} == {"irregular"}
-    with catalog.open(tmp_path / "irregular-fast", motion_type="linear") as ds:
-        assert len(ds) == 0
+    with pytest.raises(SpecError, match=r"no episode matches the filters \(motion_type=\['linear'\]\)"):
+        catalog.open(tmp_path / "irregular-fast", motion_type="linear")  # refused, saying what the folder holds

@@ -17,6 +17,7 @@ import pytest
 from catalog.tables.mcap_layout import OBSTACLE_TOPIC
 from catalog.tables.mcap_reader import count_messages, iter_messages, read_timeline
 from catalog.tables.reader import open_folder
+from schemas.errors import SpecError
 from schemas.obstacles import OBSTACLE_MARGIN
 from schemas.spec import EpisodeSpec
 
@@ -103,5 +104,5 @@ def test_the_dataloader_selects_obstacle_episodes(built):
     with catalog.open(built, motion_type="obstacle") as data:
         assert len(data.episodes) == 3 and {e.motion_type for e in data.episodes} == {"obstacle"}
         assert data[0]["image"].shape[:2] == (48, 48)
-    with catalog.open(built, motion_type="projectile") as data:
-        assert len(data) == 0
+    with pytest.raises(SpecError, match=r"no episode matches the filters \(motion_type=\['projectile'\]\)"):
+        catalog.open(built, motion_type="projectile")  # refused, saying what the folder holds
