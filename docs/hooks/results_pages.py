@@ -157,9 +157,21 @@ def _flatten(record: object, path: str = "") -> Iterator[tuple[str, object]]:
 RENDERER_NOTE = (
     "The runs behind these files were made with dataset 3.0.0's frames (`--renderer full`: they predate "
     "the window renderer, whose frames differ by 0.09 px a frame); `python benchmarks/closed_loop_results.py "
-    "... --renderer full` reproduces them exactly. The LeRobot ACT row (`lerobot-act-...`) is the exception: "
-    "`benchmarks/lerobot_act.py` trained it and ran it in LeRobot's own environment at 96 px with dataset 4.0.0's "
-    "frames (its record below), on the same episodes; `closed_loop_results.py --add-run` scored it with the others."
+    "... --renderer full` reproduces them exactly."
+)
+#: Only test-1k has the LeRobot row.
+LEROBOT_NOTE = (
+    "The LeRobot ACT row (`lerobot-act-...`) is the exception: `benchmarks/lerobot_act.py` trained it and ran it "
+    "in LeRobot's own environment at 96 px with dataset 4.0.0's frames (its record below), on the same episodes; "
+    "`closed_loop_results.py --add-run` scored it with the others."
+)
+#: Why 450 of test-1k's 1,000 episodes, and why the chance table below has another row.
+EPISODES_NOTE = (
+    "The scores use test-1k's first 450 episodes: 50 in each of its 9 motion x interception cells "
+    "(episode i is in cell i mod 9), so every cell weighs the same, and every row is run on those same 450 "
+    "(`closed_loop_results.py --episodes 450`). The chance row in the scores is the best "
+    "blind value on those 450; the chance-levels table further down is `benchmarks/blind_chance.py`'s own "
+    "measurement on episodes 0-199 (the test that no blind policy beats the ground truth), so its numbers differ."
 )
 
 
@@ -173,7 +185,9 @@ def test_1k_page(root: Path) -> str:
         "`benchmarks/results/` when the site is built; see [metrics](../reference/metrics.md) for "
         "the definitions.",
         "",
-        RENDERER_NOTE,
+        RENDERER_NOTE + " " + LEROBOT_NOTE,
+        "",
+        EPISODES_NOTE,
         "",
     ]
     for source in (*TEST_1K, BASELINE, LEROBOT):
