@@ -62,23 +62,26 @@ def radar_metrics() -> tuple[Metric, ...]:
 
 
 def radar_values(metrics: dict[str, float | None]) -> list[float]:
-    """The radar's metrics mapped to [0, 1], higher better; a missing metric plots as 0."""
+    """The radar's metrics mapped to [0, 1], higher better; a missing metric is NaN (not drawn)."""
     return [m.radar_value(metrics.get(m.name)) for m in radar_metrics()]
 
 
-def _series(reports: Sequence[RunReport], paper: bool) -> list[_Series]:
-    out = [
+def _series(reports: Sequence[RunReport]) -> list[_Series]:
+    return [
         _Series(r.label, r.overall.metrics, COLOURS[i % len(COLOURS)], STYLES[i % len(STYLES)],
                 MARKERS[i % len(MARKERS)], 1.6 if i == 0 else 1.1)
         for i, r in enumerate(reports)
     ]
-    if paper:
-        out += [
-            _Series(paper_label(row), row.metrics, PAPER_COLOURS[i % len(PAPER_COLOURS)],
-                    STYLES[(i // len(PAPER_COLOURS) + 1) % len(STYLES)], MARKERS[i % len(MARKERS)], 0.7)
-            for i, row in enumerate(PAPER_ROWS)
-        ]
-    return out
+
+
+def _paper_series() -> list[_Series]:
+    """The paper's published rows, drawn on a radar of their own (beside the runs they would
+    bury: 8 more lines on one radar could not be told apart)."""
+    return [
+        _Series(paper_label(row), row.metrics, PAPER_COLOURS[i % len(PAPER_COLOURS)],
+                STYLES[(i // len(PAPER_COLOURS) + 1) % len(STYLES)], MARKERS[i % len(MARKERS)], 0.9)
+        for i, row in enumerate(PAPER_ROWS)
+    ]
 
 
 def _radar(ax, series: Sequence[_Series], chance: ChanceRow | None = None) -> None:
@@ -167,26 +170,35 @@ def plot_runs(
     with ``chance`` shaded on the radar and marked on the bars."""
     if not reports:
         raise ValueError("nothing to plot: no runs")
-    series = _series(reports, paper)
-    legend_rows = (len(series) + (chance is not None) + 1) // 2
+    series = _series(reports)
+    radars = [(series, chance, "All metrics, outward is better")]
+    if paper:
+        radars.append((_paper_series(), None, "The paper's published rows (its Unity suite), for scale"))
+    legend_rows = [(len(entries) + (shade is not None) + 1) // 2 for entries, shade, _ in radars]
     bar_entries = len(reports) + (chance is not None and bool(chance.by_motion))
     bar_rows = -(-bar_entries // min(bar_entries, 3))
-    # room for the radar's legend and, under it, the bars' title and legend
+    # each radar with its legend under it; under the last, room for the bars' title and legend
     rates = [m.name for m in table_metrics() if m.is_rate]
-    heights = [3.0, 0.2 * legend_rows + 0.12 * bar_rows + 0.15] + [1.05] * len(rates)
+    heights: list[float] = []
+    for k, rows in enumerate(legend_rows):
+        heights += [3.0, 0.2 * rows + 0.15 + (0.45 if k < len(legend_rows) - 1 else 0.0)]  # room for the next title
+    heights[-1] += 0.12 * bar_rows
+    heights += [1.05] * len(rates)
     figure = plt.figure(figsize=(COLUMN_WIDTH_IN, sum(heights) + 0.5), dpi=300)
     try:
         grid = figure.add_gridspec(len(heights), 1, height_ratios=heights, hspace=0.35)
-        radar = figure.add_subplot(grid[0, 0], projection="polar")
-        _radar(radar, series, chance)
-        radar.set_title("All metrics, outward is better", fontsize=FONT_PT + 1, pad=22)
-        legend_ax = figure.add_subplot(grid[1, 0])
-        legend_ax.axis("off")
-        handles, labels = radar.get_legend_handles_labels()
-        legend_ax.legend(handles, labels, loc="center", ncol=2, fontsize=FONT_PT - 0.5, frameon=False,
-                         handlelength=2.6, columnspacing=1.0)
+        for k, (entries, shade, title) in enumerate(radars):
+            radar = figure.add_subplot(grid[2 * k, 0], projection="polar")
+            _radar(radar, entries, shade)
+            radar.set_title(title, fontsize=FONT_PT + 1, pad=22)
+            legend_ax = figure.add_subplot(grid[2 * k + 1, 0])
+            legend_ax.axis("off")
+            handles, labels = radar.get_legend_handles_labels()
+            legend_ax.legend(handles, labels, loc="center", ncol=2, fontsize=FONT_PT - 0.5, frameon=False,
+                             handlelength=2.6, columnspacing=1.0)
+        first_bar = 2 * len(radars)
         for k, metric in enumerate(rates):
-            ax = figure.add_subplot(grid[2 + k, 0])
+            ax = figure.add_subplot(grid[first_bar + k, 0])
             _bars(ax, reports, metric, show_groups=k == len(rates) - 1, chance=chance)
             if k == 0:
                 ax.set_title("Success by motion type (95% Wilson intervals)", fontsize=FONT_PT + 1, pad=4 + 9 * bar_rows)

@@ -92,9 +92,10 @@ class Metric:
         return f"1/(1+{self.name})" if self.lower_is_better else self.name
 
     def radar_value(self, value: float | None) -> float:
-        """``value`` mapped to [0, 1], higher better; a missing value plots as 0."""
+        """``value`` mapped to [0, 1], higher better; a missing value is NaN, which the radar
+        leaves out (a gap in the line), never a 0 that would read as a score."""
         if value is None:
-            return 0.0
+            return float("nan")
         if self.is_rate:
             return value / 100.0
         if self.lower_is_better:

@@ -300,7 +300,9 @@ def test_radar_values_put_every_metric_on_zero_to_one_outward_better():
 
     metrics = {"S_loc": 50.0, "E_loc": 1.0, "S_gra": 100.0, "E_gra": 0.0, "Q_smooth": 0.8, "Q_line": -0.2, "R_time": None}
     assert RADAR_METRICS == ("S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time")
-    assert radar_values(metrics) == [0.5, 0.5, 1.0, 1.0, 0.8, 0.0, 0.0]
+    values = radar_values(metrics)
+    assert values[:6] == [0.5, 0.5, 1.0, 1.0, 0.8, 0.0]
+    assert np.isnan(values[6])  # R_time missing ("-" in the table): a gap, not a 0 that reads as a score
 
 
 def test_null_values_in_a_column_are_refused_in_one_line(tmp_path, capsys):
