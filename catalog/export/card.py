@@ -15,6 +15,7 @@ from catalog.export.camera import CAMERA_META
 from catalog.export.croissant import CROISSANT, DATA_FILES
 from catalog.export.layout import DYANA_META, VECTOR_NAMES, vector_names
 from catalog.tables.reader import FolderReader
+from schemas.renderers import DEFAULT_RENDERER, renderer_of
 
 #: Dyana's license (pyproject.toml), which the data it generates is released under.
 LICENSE = "Apache-2.0"
@@ -58,9 +59,22 @@ def _source_lines(reader: FolderReader) -> list[str]:
     if "policy" in m.extra:
         lines.append(f"  (an evaluated run of policy `{m.extra['policy']}`: `pipeline eval`)")
     else:
-        lines.append(f"  (`pipeline build --slice {m.slice} --episodes {m.episodes} --shard-size {_shard_size(reader)} "
-                     f"--resolution {m.settings.get('resolution')} --out out` builds it: a folder of this slice hash)")
+        lines.append(f"  (`{_build_command(reader)}` builds it: a folder of this slice hash)")
     return lines
+
+
+def _build_command(reader: FolderReader) -> str:
+    """The ``pipeline build`` that makes a folder of this slice hash (the byte settings' flags)."""
+    m = reader.manifest
+    flags = [f"--slice {m.slice}", f"--episodes {m.episodes}", f"--shard-size {_shard_size(reader)}",
+             f"--resolution {m.settings.get('resolution')}"]
+    renderer = renderer_of(m.settings.get("dataset_version"))
+    if renderer is not None and renderer != DEFAULT_RENDERER:
+        flags.append(f"--renderer {renderer}")
+    formats = m.settings.get("formats")
+    if isinstance(formats, (list, tuple)) and list(formats) != ["parquet", "mcap"]:
+        flags.append(f"--formats {','.join(formats)}")
+    return "pipeline build " + " ".join(flags) + " --out out"
 
 
 def _export_command(settings: Mapping[str, Any], readers: Sequence[FolderReader]) -> str:
@@ -115,6 +129,8 @@ def readme(readers: Sequence[FolderReader], settings: Mapping[str, Any], version
         "",
         'frames = datasets.load_dataset("EXPORT", split="train")  # the frames; videos are separate',
         "```",
+        "",
+        f"With LeRobot {'0.4 or later' if version == 'v3.0' else '0.3.x (or convert it to v3.0 for later releases)'}:",
         "",
         "```python",
         "from lerobot.datasets.lerobot_dataset import LeRobotDataset",

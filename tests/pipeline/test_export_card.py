@@ -138,3 +138,19 @@ def test_camera_json_projects_as_the_renderer_and_equals_the_mcap_calibration(bu
     rotation = [tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w]
     np.testing.assert_allclose(camera["mcap_pose"]["position"], position, atol=1e-12)
     np.testing.assert_allclose(camera["mcap_pose"]["quaternion_xyzw"], rotation, atol=1e-12)
+
+
+def test_the_cards_build_command_rebuilds_the_sources_slice_hash(built, exports, tmp_path, monkeypatch):
+    import re
+    import shlex
+
+    from pipeline.cli import main as pipeline_main
+
+    text = (exports["lerobot"] / "README.md").read_text()
+    command = re.search(r"`(pipeline build [^`]+)` builds it", text).group(1)
+    argv = shlex.split(command)[1:]
+    assert argv[-2:] == ["--out", "out"]
+    monkeypatch.chdir(tmp_path)
+    assert pipeline_main([*argv, "--workers", "1", "--quiet"]) == 0
+    rebuilt = json.loads((tmp_path / "out/linear-fast/catalog.json").read_text())["hash"]
+    assert rebuilt == json.loads((built / "catalog.json").read_text())["hash"]
