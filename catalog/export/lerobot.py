@@ -32,7 +32,7 @@ from schemas.errors import DyanaError
 from schemas.names import shorten
 
 WORK_DIR = ".dyana-export"
-EXPORT_VERSION = 2
+EXPORT_VERSION = 3
 
 #: A JSON value read from or written to a part record or metadata file (checked where it is used).
 Json = Any

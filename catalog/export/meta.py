@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from catalog.export.camera import CAMERA_META, camera_meta
+from catalog.export.card import CITATION, KEYWORDS, LICENSE_URL, description, readme, title
+from catalog.export.croissant import CROISSANT, croissant
 from catalog.export.episode_stats import Moments, merge_all
 from catalog.export.layout import (
     DYANA_META,
@@ -202,6 +206,15 @@ def assemble(out: Path, readers: Sequence[FolderReader], settings: ExportSetting
             written(meta / name)
     _write_json(meta / "info.json", info)
     written(meta / "info.json")
+    _write_json(out / CAMERA_META, camera_meta(height, width))
+    written(out / CAMERA_META)
+    atomic_write_text(out / "README.md", readme(readers, asdict(settings), settings.version, episodes, frames, height,
+                                                width))
+    written(out / "README.md")
+    _write_json(out / CROISSANT, croissant(title(readers), description(readers, episodes, frames, settings.version),
+                                           LICENSE_URL, CITATION, CODE_VERSION, settings.version, files,
+                                           settings.environment_state, KEYWORDS))
+    written(out / CROISSANT)
     firsts = np.cumsum([0] + [r.manifest.episodes for r in readers]).tolist()
     _write_json(out / DYANA_META, {
         "job": dict(identity),
