@@ -1,11 +1,12 @@
 """A saved Stable-Baselines3 model as a Dyana policy: ``pipeline eval --policy sb3:MODEL.zip``.
 
-The reference is ``sb3:PATH`` or ``sb3:ALGO:PATH`` (``ALGO`` one of :data:`ALGOS`, any
-case). SB3's zip does not name the algorithm that saved it, so without ``ALGO`` it is read
-from the zip's ``data``: a ``sac`` or ``td3`` policy class is SAC or TD3 (a DDPG model, a
-TD3 policy, predicts the same as TD3; ``sb3:ddpg:PATH`` records it as DDPG), an
-actor-critic one is PPO if it has PPO's ``clip_range``, else A2C. The model is loaded with
-that class's ``load`` on the CPU, and every action is ``predict(view, deterministic=True)``.
+The reference is ``sb3:PATH`` (or ``sb3:ALGO:PATH``). SB3's zip does not name the
+algorithm that saved it, so it is read from the zip's ``data``, nothing unpickled: a
+``sac`` or ``td3`` policy class is SAC or TD3, an actor-critic one PPO if it has PPO's
+``clip_range``, else A2C. A DDPG model's zip is a TD3 policy's: ``sb3:DDPG:PATH`` records
+it as DDPG (it predicts the same); an ``ALGO`` the zip contradicts is refused. The model is
+loaded with that class's ``load`` on the CPU, and every action is ``predict(view,
+deterministic=True)``.
 
 What the model was trained on comes from the spaces the zip holds, as
 :class:`~pipeline.loop.env.DyanaEnv` makes them (:mod:`pipeline.loop.views`):
@@ -88,8 +89,8 @@ def infer_algo(path: str, data: dict[str, Any]) -> str:
         return family.upper()
     if family == "common" and "gae_lambda" in data:
         return "PPO" if "clip_range" in data else "A2C"
-    raise PolicyError(f"{shorten(path)}: cannot tell which algorithm saved it (policy class from "
-                      f"{shorten(module or '?')}): name it, sb3:ALGO:PATH with ALGO one of {', '.join(ALGOS)}")
+    raise PolicyError(f"{shorten(path)}: not saved by one of {', '.join(ALGOS)} (its policy class comes from "
+                      f"{shorten(module or '?')})")
 
 
 def view_of(path: str, space: Any) -> tuple[str, int | None]:
@@ -147,8 +148,12 @@ def configure(ref: str, config: dict[str, Any] | None) -> dict[str, Any]:
     if config is not None:
         raise SpecError(f"{shorten(ref)}: an sb3: policy takes no --model, --vlm-* or --policy-device flags")
     named, path = split_ref(ref)
-    data = read_data(path)
-    algo = named or infer_algo(path, data)
+    algo = infer_algo(path, read_data(path))
+    if named is not None and named != algo:
+        if (named, algo) != ("DDPG", "TD3"):
+            raise PolicyError(f"{shorten(path)}: saved by {algo}, not {named} (its data says so): "
+                              f"sb3:{path} reads the algorithm from the zip")
+        algo = named
     model = load_model(path, algo)
     view, side = view_of(path, model.observation_space)
     normalized = normalized_of(path, model.action_space)
