@@ -5,8 +5,8 @@ algorithm that saved it, so it is read from the zip's ``data``, nothing unpickle
 ``sac`` or ``td3`` policy class is SAC or TD3, an actor-critic one PPO if it has PPO's
 ``clip_range``, else A2C. A DDPG model's zip is a TD3 policy's: ``sb3:DDPG:PATH`` records
 it as DDPG (it predicts the same); an ``ALGO`` the zip contradicts is refused. The model is
-loaded with that class's ``load`` on the CPU, and every action is ``predict(view,
-deterministic=True)``.
+loaded with that class's ``load`` on the CPU (torch on one thread, as the eval workers
+are), and every action is ``predict(view, deterministic=True)``.
 
 What the model was trained on comes from the spaces the zip holds, as
 :class:`~pipeline.loop.env.DyanaEnv` makes them (:mod:`pipeline.loop.views`):
@@ -194,5 +194,8 @@ def make(ref: str, config: dict[str, Any] | None) -> SB3Policy:
     if sha256_file(Path(path).expanduser()) != config["sha256"]:
         raise PolicyError(f"{shorten(path)} changed since the run started")
     name = f"sb3-{config['algo'].lower()}-{config['sha256'][:8]}"
+    import torch  # stable_baselines3 imported it
+
+    torch.set_num_threads(1)  # the workers are single-threaded; one thread, one summation order
     return SB3Policy(load_model(path, config["algo"]), config["obs"], config["resolution"],
                      config["normalize_actions"], name)
