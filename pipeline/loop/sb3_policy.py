@@ -164,7 +164,7 @@ def configure(ref: str, config: dict[str, Any] | None) -> dict[str, Any]:
             "resolution": side, "normalize_actions": normalized, "saved_by": version}
 
 
-@dataclass
+@dataclass(frozen=True)
 class SB3Policy:
     """A loaded model behind Dyana's policy protocol (one action per step)."""
 
@@ -175,6 +175,13 @@ class SB3Policy:
     name: str
     action_horizon: int = 1
     privileged: bool = False
+
+    def __post_init__(self) -> None:
+        if self.view not in VIEWS or self.view == "full":
+            raise SpecError(f"SB3Policy: view must be 'image', 'state' or 'both', got {shorten(repr(self.view))}")
+        if (self.resolution is None) != (self.view == "state"):
+            raise SpecError(f"SB3Policy: an image view needs its resolution (and 'state' none), "
+                            f"got {self.view!r} at {shorten(repr(self.resolution))}")
 
     def reset(self, task: Task) -> None:
         if self.resolution is not None and task["resolution"] != self.resolution:
