@@ -16,6 +16,9 @@ kind           reference           makes
 ``lerobot``    ``lerobot:PATH``    :class:`pipeline.policies.lerobot_checkpoint.CheckpointPolicy` (a
                                    LeRobot checkpoint folder, loaded with the installed lerobot on
                                    ``--policy-device``; its features are checked up front)
+``sb3``        ``sb3:PATH``        :class:`pipeline.loop.sb3_policy.SB3Policy` (a saved Stable-Baselines3
+                                   model's zip, on the CPU, with the view and action mapping its
+                                   spaces say it was trained with)
 ``openpi``     ``openpi:ws://...`` :class:`pipeline.remote.openpi_client.OpenpiPolicy` (an openpi
                                    policy server; key names in the URL's query)
 ``remote``     ``ws://HOST:PORT``  :class:`pipeline.remote.client.RemotePolicy` (``pipeline serve``)
@@ -426,6 +429,18 @@ def lerobot_from_flags(ref: str, values: Mapping[str, Any]) -> Config:
     return {"device": values["policy_device"] or "cpu"}
 
 
+def make_sb3(ref: str, options: OpenOptions) -> Policy:
+    from pipeline.loop.sb3_policy import make  # lazy: torch and stable_baselines3
+
+    return make(ref, options.config)
+
+
+def configure_sb3(ref: str, config: Config | None) -> Config:
+    from pipeline.loop.sb3_policy import configure
+
+    return configure(ref, config)
+
+
 # openpi policy servers: openpi:ws://HOST:PORT[?key=value...] ---------------------------------
 
 
@@ -467,3 +482,6 @@ register(PolicyKind("lerobot", "lerobot:", make_lerobot, configure=configure_ler
 register(PolicyKind("openpi", "openpi:", make_openpi, configure=configure_openpi, manifest_key="openpi",
                     names_ref=True, form="openpi:ws://HOST:PORT", about="an openpi policy server",
                     examples=("openpi:ws://127.0.0.1:8000?image=observation/image",)))
+register(PolicyKind("sb3", "sb3:", make_sb3, configure=configure_sb3, manifest_key="sb3", form="sb3:MODEL.zip",
+                    about="a saved Stable-Baselines3 model (sb3:ALGO:MODEL.zip names its algorithm)",
+                    examples=("sb3:ppo_dyana.zip", "sb3:SAC:models/sac.zip")))

@@ -1,4 +1,5 @@
-"""The closed-loop environment :class:`DyanaEnv`, registered as :data:`ENV_ID`: a policy's
+"""The closed-loop environment :class:`DyanaEnv`, registered as :data:`ENV_ID` (the learners'
+defaults) and :data:`FULL_ENV_ID` (the full observation): a policy's
 actions drive the hand at 20 FPS through the build's stages (object motion, hand
 kinematics, render, JPEG); the hand is a body (:mod:`generators.hand_body`) that follows
 each action within speed and acceleration limits and does not enter the table, an
@@ -24,7 +25,7 @@ from generators.motion import object_pose
 from generators.recipe import spec_for
 from generators.render import Renderer, check_resolution
 from pipeline.loop.actions import as_action
-from pipeline.loop.registration import ENV_ID, register
+from pipeline.loop.registration import ENV_ID, FULL_ENV_ID, register
 from pipeline.loop.spaces import PALM_HIGH, PALM_LOW, REST_STATE, Observation, action_space, empty_window
 from pipeline.loop.views import VIEWS, absolute_action, normalized_action_space
 from pipeline.stages.episode import measure_hand
@@ -38,7 +39,7 @@ from schemas.slices import get_slice
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
-__all__ = ["ENV_ID", "DyanaEnv", "EpisodeSource", "SimFrame", "SliceEpisodes", "as_spec", "horizon", "register"]
+__all__ = ["ENV_ID", "FULL_ENV_ID", "DyanaEnv", "EpisodeSource", "SimFrame", "SliceEpisodes", "as_spec", "horizon", "register"]
 PHASE = {name: i for i, name in enumerate(PHASES)}
 
 
@@ -113,9 +114,10 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             or a built-in slice's name for its :class:`SliceEpisodes`); None: such a reset
             is refused.
         obs: the observation's view (:mod:`pipeline.loop.views`): ``"full"`` (the policy
-            contract, :class:`~pipeline.policies.base.Observation`), ``"image"``, ``"state"`` or ``"both"``.
+            contract, :class:`~pipeline.policies.base.Observation`), ``"image"``, ``"state"`` or ``"both"``
+            (the registered :data:`ENV_ID`'s default; :data:`FULL_ENV_ID`'s is ``"full"``).
         normalize_actions: actions in [-1, 1], mapped linearly onto the real action Box
-            (False: the dataset's absolute targets).
+            (False: the dataset's absolute targets; :data:`ENV_ID` defaults to True).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": FPS}

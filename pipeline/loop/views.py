@@ -3,13 +3,15 @@
 
 ``obs`` picks a view of the full observation (:class:`~pipeline.loop.spaces.Observation`):
 
-* ``"full"`` (the default): the full dict, the policy contract ``pipeline eval`` uses;
+* ``"full"`` (``DyanaEnv()``'s default and ``Dyana/GraspFull-v0``'s): the full dict, the
+  policy contract ``pipeline eval`` uses;
 * ``"image"``: the (H, W, 3) uint8 frame alone (Stable-Baselines3's ``CnnPolicy``);
 * ``"state"``: :data:`STATE_WIDTH` float32 numbers, the hand's state and the time:
   ``palm_pose`` (6), ``joint_angles`` (15), ``joint_poses`` (90), ``keypoints`` (36),
   then ``timestamp`` (1), bounded as in the full space (``MlpPolicy``). The object is
   only in the image: this view is proprioception, no privileged state;
-* ``"both"``: ``{"image": ..., "state": ...}`` (``MultiInputPolicy``).
+* ``"both"``: ``{"image": ..., "state": ...}`` (``MultiInputPolicy``), with
+  ``normalize_actions=True`` what a plain ``gymnasium.make("Dyana/Grasp-v0")`` gives.
 
 Every view is a fixed-shape Box or a Dict of Boxes, so vector environments batch it
 into shared memory and any learning library takes it as it is. ``normalize_actions``

@@ -18,7 +18,7 @@ from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM
 from generators.hand_body import JOINT_MAX_SPEED, PALM_MAX_ACCELERATION, limit_palm
 from generators.recipe import spec_for
 from pipeline.loop.actions import as_chunk, run_chunk
-from pipeline.loop.env import ENV_ID, DyanaEnv, SliceEpisodes, horizon
+from pipeline.loop.env import ENV_ID, FULL_ENV_ID, DyanaEnv, SliceEpisodes, horizon
 from pipeline.loop.env_checker import check_env
 from pipeline.loop.spaces import PALM_BOX
 from pipeline.loop.wrappers import RecordEpisode, loop_env
@@ -295,13 +295,13 @@ assert not any(name.split(".")[0] in ("pipeline", "generators", "schemas") for n
 out = {}
 with warnings.catch_warnings():
     warnings.simplefilter("error")  # any warning from make/reset/step/flatten fails
-    env = gymnasium.make("pipeline.loop.env:Dyana/Grasp-v0", resolution=64)
+    env = gymnasium.make("pipeline.loop.env:Dyana/GraspFull-v0", resolution=64)
     out["wrappers"] = str(env)
     obs, info = env.reset(seed=2)
     out["reset"] = [obs["frame_index"], len(obs["observe_images"]), float(obs["timestamp"])]
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     out["step"] = [obs["frame_index"], len(obs["observe_images"]), float(obs["timestamp"])]
-    flat = FlattenObservation(gymnasium.make("Dyana/Grasp-v0", resolution=64))
+    flat = FlattenObservation(gymnasium.make("Dyana/GraspFull-v0", resolution=64))
     first, _ = flat.reset(seed=2)
     then = flat.step(flat.action_space.sample())[0]
     out["flat"] = [flat.observation_space.shape, first.shape, then.shape, first in flat.observation_space,
@@ -358,13 +358,13 @@ def test_the_gymnasium_entry_point_registers_the_environment():
     with namespace(plugin.name):
         registered = plugin.load()()
     again = plugin.load()()  # idempotent
-    env = gymnasium.make("Dyana/Grasp-v0", resolution=64)
+    env = gymnasium.make("Dyana/GraspFull-v0", resolution=64)
     obs, _ = env.reset(seed=0)
     print(json.dumps({"plugins": plugins, "ids": [k for k in gymnasium.registry if k.startswith("Dyana")],
                       "registered": [registered, again], "frame": obs["frame_index"]}))
     """)
     assert out["plugins"] == [["Dyana", "pipeline.loop.registration:register"]]
-    assert out["ids"] == [ENV_ID] and out["registered"] == [True, True] and out["frame"] == 0
+    assert out["ids"] == [ENV_ID, FULL_ENV_ID] and out["registered"] == [True, True] and out["frame"] == 0
 
 
 def test_every_observation_lies_in_its_space_even_at_the_limits(env):

@@ -1,6 +1,7 @@
 """The environment in the Gymnasium ecosystem: its options (observation views, normalised
-actions), Stable-Baselines3 and vector environments taking it with no glue, and
-Gymnasium 0.29 (which loads plugins on import) with Dyana imported first."""
+actions), the registered ids' defaults, Stable-Baselines3 and vector environments taking
+``gymnasium.make("Dyana/Grasp-v0")`` with no options, and Gymnasium 0.29 (which loads
+plugins on import) with Dyana imported first."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import numpy as np
 import pytest
 
 from generators.hand import JOINT_LOWER, JOINT_UPPER
-from pipeline.loop.env import ENV_ID, DyanaEnv
+from pipeline.loop.env import ENV_ID, FULL_ENV_ID, DyanaEnv
 from pipeline.loop.spaces import PALM_HIGH, PALM_LOW
 from pipeline.loop.views import STATE_WIDTH, VIEWS, absolute_action, state_vector
 from pipeline.loop.wrappers import RecordEpisode
@@ -28,7 +29,25 @@ SEED = 4  # test-1k episode 4: an observe window of 25 frames
 
 
 def learner_env(**options) -> gymnasium.Env:
-    return gymnasium.make(ENV_ID, resolution=RES, obs="both", normalize_actions=True, **options)
+    return gymnasium.make(ENV_ID, resolution=RES, **options)
+
+
+def plain_env() -> gymnasium.Env:
+    return gymnasium.make(ENV_ID)
+
+
+def test_the_registered_ids_defaults():
+    """``Dyana/Grasp-v0``: the image and state view, actions in [-1, 1] (what learners take);
+    ``Dyana/GraspFull-v0``: the full dict and real actions, as ``DyanaEnv()``'s own defaults."""
+    plain, full = gymnasium.make(ENV_ID), gymnasium.make(FULL_ENV_ID, resolution=RES)
+    assert (plain.unwrapped.obs, plain.unwrapped.normalize_actions, plain.unwrapped.resolution) == ("both", True, 224)
+    assert plain.observation_space == VIEWS["both"].space(224)
+    assert plain.action_space == gymnasium.spaces.Box(-1.0, 1.0, (18,), np.float32)
+    direct = DyanaEnv(RES)
+    assert (full.unwrapped.obs, full.unwrapped.normalize_actions) == (direct.obs, direct.normalize_actions) == ("full", False)
+    assert full.observation_space == direct.observation_space and full.action_space == direct.action_space
+    overridden = gymnasium.make(ENV_ID, resolution=RES, obs="full", normalize_actions=False)
+    assert overridden.observation_space == direct.observation_space
 
 
 def test_each_view_shows_the_full_observation_in_its_own_space():
@@ -105,22 +124,49 @@ def test_gymnasium_check_env_gives_no_warning_with_the_learner_options():
 
 
 def test_async_vector_env_with_its_defaults():
-    """Shared memory and the default start method: the views are fixed-shape Boxes."""
-    vec = gymnasium.vector.AsyncVectorEnv([learner_env, learner_env])
+    """``AsyncVectorEnv`` of two plain ``gymnasium.make("Dyana/Grasp-v0")``: shared memory
+    and the default start method, the default view being fixed-shape Boxes."""
+    vec = gymnasium.vector.AsyncVectorEnv([plain_env, plain_env])
     try:
         obs, _ = vec.reset(seed=SEED)
-        assert obs["image"].shape == (2, RES, RES, 3) and obs["state"].shape == (2, STATE_WIDTH)
+        assert obs["image"].shape == (2, 224, 224, 3) and obs["state"].shape == (2, STATE_WIDTH)
         action = np.zeros((2, 18), dtype=np.float32)
         after, *_ = vec.step(action)
     finally:
         vec.close()
-    single = learner_env()
+    single = plain_env()
     for k in range(2):  # each sub-environment is the single one seeded SEED + k
         first, _ = single.reset(seed=SEED + k)
         then = single.step(action[k])[0]
         for key in ("image", "state"):
             np.testing.assert_array_equal(obs[key][k], first[key])
             np.testing.assert_array_equal(after[key][k], then[key])
+
+
+def ppo_learns(env: gymnasium.Env, steps: int) -> None:
+    """PPO's ``MultiInputPolicy`` (SB3 wraps the env in a DummyVecEnv) learns ``steps`` steps on it."""
+    from stable_baselines3 import PPO
+
+    model = PPO("MultiInputPolicy", env, n_steps=steps, batch_size=steps, n_epochs=1, seed=0, device="cpu")
+    model.learn(steps)
+    assert model.num_timesteps == steps
+    action, _ = model.predict(env.reset(seed=SEED)[0], deterministic=True)
+    assert env.action_space.contains(action)
+
+
+@pytest.mark.torch
+def test_ppo_learns_on_the_registered_env_with_only_a_resolution():
+    """Before: a TypeError in DummyVecEnv (the full dict's observe window has no fixed shape)."""
+    pytest.importorskip("stable_baselines3")
+    ppo_learns(gymnasium.make(ENV_ID, resolution=RES), 8)
+
+
+@pytest.mark.torch
+@pytest.mark.slow(cover="tests/pipeline/test_env_learners.py::test_ppo_learns_on_the_registered_env_with_only_a_resolution")
+def test_ppo_learns_on_the_plain_registered_env():
+    """``gymnasium.make("Dyana/Grasp-v0")`` with no options at all (224 px: about 6 s)."""
+    pytest.importorskip("stable_baselines3")
+    ppo_learns(gymnasium.make(ENV_ID), 8)
 
 
 @pytest.mark.torch
@@ -163,22 +209,28 @@ import json, sys, warnings
 import gymnasium
 from gymnasium.utils.env_checker import check_env
 
-env = gymnasium.make("Dyana/Grasp-v0", resolution=64)
-with warnings.catch_warnings(record=True) as caught:
-    warnings.simplefilter("always")
-    check_env(env.unwrapped)
-print(json.dumps({"version": gymnasium.__version__, "warnings": [str(w.message) for w in caught]}))
+out = {"version": gymnasium.__version__}
+for env_id in ("Dyana/Grasp-v0", "Dyana/GraspFull-v0"):
+    env = gymnasium.make(env_id, resolution=64)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    out[env_id] = [str(w.message) for w in caught]
+print(json.dumps(out))
 """
 
 
 def test_plain_make_and_check_env_in_a_fresh_gymnasium_0_29_interpreter(gymnasium_029):
     """``gymnasium.make("Dyana/Grasp-v0")`` works without importing Dyana (the entry point),
-    and Gymnasium's own ``check_env`` passes with only its advice to normalise the action space."""
+    and Gymnasium's own ``check_env`` passes silently; on the full observation's id, with
+    only its advice to normalise the action space."""
     result = subprocess.run([str(gymnasium_029), "-c", CHECK_IN_FRESH_GYMNASIUM], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     out = json.loads(result.stdout.splitlines()[-1])
     assert out["version"] == "0.29.1"
-    assert len(out["warnings"]) == 1 and "symmetric and normalized" in out["warnings"][0], out["warnings"]
+    assert out["Dyana/Grasp-v0"] == []
+    full = out["Dyana/GraspFull-v0"]
+    assert len(full) == 1 and "symmetric and normalized" in full[0], full
 
 
 #: Dyana imported first: its own ``import gymnasium`` runs the plugins, Dyana's included.
@@ -187,7 +239,7 @@ import json, sys
 import {module}
 import gymnasium
 
-env = gymnasium.make("Dyana/Grasp-v0", resolution=40, obs="state", normalize_actions=True)
+env = gymnasium.make("Dyana/Grasp-v0", resolution=40, obs="state")
 obs, _ = env.reset(seed=2)
 print(json.dumps({{"version": gymnasium.__version__, "shape": obs.shape}}))
 """
