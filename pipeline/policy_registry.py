@@ -41,7 +41,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, cast, runtime_checkable
 from urllib.parse import urlsplit, urlunsplit
 
 from catalog.store.hashing import sha256_file
@@ -432,7 +432,7 @@ def lerobot_from_flags(ref: str, values: Mapping[str, Any]) -> Config:
 def make_sb3(ref: str, options: OpenOptions) -> Policy:
     from pipeline.loop.sb3_policy import make  # lazy: torch and stable_baselines3
 
-    return make(ref, options.config)
+    return cast(Policy, make(ref, options.config))  # a frozen dataclass: its members are read-only
 
 
 def configure_sb3(ref: str, config: Config | None) -> Config:
