@@ -432,7 +432,7 @@ def lerobot_from_flags(ref: str, values: Mapping[str, Any]) -> Config:
 def make_sb3(ref: str, options: OpenOptions) -> Policy:
     from pipeline.loop.sb3_policy import make  # lazy: torch and stable_baselines3
 
-    return cast(Policy, make(ref, options.config))  # a frozen dataclass: its members are read-only
+    return cast("Policy", make(ref, options.config))  # a frozen dataclass: its members are read-only
 
 
 def configure_sb3(ref: str, config: Config | None) -> Config:
