@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import os
+import subprocess
 import time
 
 import bench_setup  # noqa: F401  (puts the repository first on sys.path)
@@ -34,6 +36,7 @@ from generators.visibility import object_surface_points, observe_visibility  # n
 from pipeline import episode  # noqa: E402
 from schemas.scene import MIN_OBSERVE_VISIBLE  # noqa: E402
 from schemas.slices import ATOMIC_SLICES, SLICES  # noqa: E402
+from schemas.versions import DATASET_VERSION  # noqa: E402
 
 SOURCES = ATOMIC_SLICES + ("test-1k",)
 
@@ -105,6 +108,9 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     jobs = [(name, index, args.resolution) for name, index in sample(args.per_source, args.seed)]
+    load_start = [round(v, 2) for v in os.getloadavg()]
+    print(f"{len(jobs)} episodes ({args.per_source} from each of {len(SOURCES)} sources) on {args.workers} workers",
+          flush=True)
     start = time.perf_counter()
     rows: list[dict] = []
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
@@ -124,6 +130,10 @@ def main() -> None:
         )
     result["resolution"] = args.resolution
     result["seconds"] = round(time.perf_counter() - start, 1)
+    result["commit"] = subprocess.run(["git", "rev-parse", "HEAD"], cwd=bench_setup.ROOT, capture_output=True,
+                                      text=True).stdout.strip()
+    result["dataset_version"] = DATASET_VERSION
+    result["load_average_start"], result["load_average_end"] = load_start, [round(v, 2) for v in os.getloadavg()]
     print(json.dumps(result, sort_keys=True))
 
 
