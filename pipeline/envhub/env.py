@@ -5,7 +5,9 @@ repository's ``env.py``, imports it and calls ``make_env(n_envs=..., use_async_e
 (with ``cfg=`` when an ``EnvConfig`` asked): this file, uploaded to a Hub repository, or
 loaded from a local folder (``importlib``; docs/guides/export-lerobot.md). Dyana must be
 installed where it runs. Options come from ``cfg`` (a ``dyana`` EnvConfig's
-``gym_kwargs``), else from keyword arguments: :class:`pipeline.envhub.grasp.LeRobotGrasp`'s.
+``gym_kwargs``) and keyword arguments: :class:`pipeline.envhub.grasp.LeRobotGrasp`'s. Called
+without either (the hub loader's plain call), it records nothing: ``record=FOLDER`` (with
+``policy=PATH``) asks for a run.
 """
 
 from __future__ import annotations
@@ -19,5 +21,5 @@ SUITE = "dyana"
 
 def make_env(n_envs: int = 1, use_async_envs: bool = False, cfg: Any = None, **options: Any) -> dict[str, Any]:
     """``{"dyana": {0: vector env}}`` of ``n_envs`` environments (LeRobot's suites and tasks)."""
-    kwargs = dict(getattr(cfg, "gym_kwargs", None) or {}) | options
+    kwargs = {"record": ""} | dict(getattr(cfg, "gym_kwargs", None) or {}) | options
     return {SUITE: {0: make_vector_env(n_envs, use_async_envs, **kwargs)}}
