@@ -50,6 +50,7 @@ from pipeline.jobs.staged import Recorded, stage_result
 from pipeline.loop.env import SliceEpisodes
 from pipeline.loop.registration import DEFAULT_EPISODES
 from pipeline.loop.rollout import RolloutResult
+from pipeline.loop.spaces import Observation
 from pipeline.loop.wrappers import RecordEpisode, loop_env
 from pipeline.policies.lerobot_checkpoint import PREFIX, check_device, configure, policy_name
 from schemas.errors import SpecError
@@ -69,9 +70,9 @@ STATE_WIDTH = 21
 DEFAULT_RECORD = "dyana-run"
 
 
-def lerobot_observation(obs: dict[str, Any]) -> dict[str, Any]:
+def lerobot_observation(obs: Observation) -> dict[str, Any]:
     """A Dyana observation under the keys LeRobot's rollout reads (``pixels``, ``agent_pos``)."""
-    state = np.concatenate([np.asarray(obs[k], np.float32) for k in STATE_SOURCES])
+    state = np.concatenate([np.asarray(obs[k], np.float32) for k in STATE_SOURCES])  # type: ignore[literal-required]
     return {"pixels": {CAMERA: obs["image"]}, "agent_pos": state}
 
 
@@ -270,7 +271,7 @@ class LeRobotGrasp(gymnasium.Env):
                                               bool(info["localized"]), bool(info["grasped"]), self._waited))
         return succeeded
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
+    def render(self) -> np.ndarray | None:
         """The latest frame (``render_mode="rgb_array"``), else None."""
         return self._image if self.render_mode == "rgb_array" else None
 
