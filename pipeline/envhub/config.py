@@ -18,8 +18,8 @@ from typing import Any
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
-from catalog.loader.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY
-from pipeline.envhub.grasp import CAMERA, DEFAULT_RECORD, LEROBOT_ENV_ID, STATE_WIDTH
+from catalog.loader.lerobot_names import ACTION_KEY, CAMERA, IMAGE_KEY, STATE_KEY
+from pipeline.envhub.grasp import DEFAULT_RECORD, LEROBOT_ENV_ID, STATE_WIDTH
 from pipeline.loop.registration import DEFAULT_EPISODES
 from pipeline.loop.spaces import ACTION_WIDTH
 from schemas.renderers import DEFAULT_RENDERER

@@ -45,7 +45,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from catalog.loader.lerobot_names import IMAGE_KEY, STATE_KEY, VECTOR_SOURCES
+from catalog.loader.lerobot_names import CAMERA, STATE_KEY, VECTOR_SOURCES
 from pipeline.jobs.staged import Recorded, stage_result
 from pipeline.loop.env import SliceEpisodes
 from pipeline.loop.registration import DEFAULT_EPISODES
@@ -61,9 +61,6 @@ from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
 LEROBOT_ENV_ID = "Dyana/LeRobot-v0"
-#: LeRobot names ``pixels[camera]`` ``observation.images.<camera>``: the export's image key's camera.
-IMAGES_PREFIX = "observation.images."
-CAMERA = IMAGE_KEY.removeprefix(IMAGES_PREFIX)
 STATE_SOURCES = VECTOR_SOURCES[STATE_KEY]
 STATE_WIDTH = 21
 #: Where the run is recorded unless ``record`` says otherwise.
@@ -198,8 +195,12 @@ class LeRobotGrasp(gymnasium.Env):
         self.source = SliceEpisodes(episodes)  # an unknown slice fails here, naming it
         self.slice_name = episodes
         self.render_mode = render_mode
-        self.recorder = self._recorder(record, overwrite, policy, policy_device, resolution, renderer)
         self.loop: RecordEpisode = loop_env(resolution, renderer=renderer, episodes=self.source)
+        try:
+            self.recorder = self._recorder(record, overwrite, policy, policy_device, resolution, renderer)
+        except BaseException:
+            self.loop.close()
+            raise
         self.observation_space = observation_space(resolution)
         self.action_space = self.loop.action_space
         self._spec: EpisodeSpec | None = None

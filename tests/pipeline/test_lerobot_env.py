@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from catalog.loader.lerobot_names import IMAGE_KEY, STATE_KEY
+from catalog.loader.lerobot_names import CAMERA, IMAGE_KEY, IMAGES_PREFIX, STATE_KEY
 from catalog.store.manifest import load_manifest
 from generators.recipe import spec_for
 from pipeline.envhub import env as envhub
-from pipeline.envhub.grasp import CAMERA, IMAGES_PREFIX, LeRobotGrasp, command_line_policy, make_vector_env
+from pipeline.envhub.grasp import LeRobotGrasp, command_line_policy, make_vector_env
 from pipeline.jobs.evaluate import evaluate
 from pipeline.loop.wrappers import loop_env
 from schemas.errors import SpecError
