@@ -108,6 +108,12 @@ class RecordPlan:
     renderer: str
     overwrite: bool
 
+    def __post_init__(self) -> None:
+        if isinstance(self.resolution, bool) or not isinstance(self.resolution, int):
+            raise SpecError(f"--env.resolution must be an integer, got {shorten(repr(self.resolution))}")
+        if not isinstance(self.overwrite, bool):
+            raise SpecError(f"--env.overwrite must be true or false, got {shorten(repr(self.overwrite))}")
+
 
 class RunRecorder:
     """The seeded episodes of the environments recording into one folder, staged until the
@@ -222,8 +228,8 @@ class LeRobotGrasp(gymnasium.Env):
         if not path:
             raise SpecError("--env.record needs the checkpoint the run names: --policy.path=PATH (or --env.policy=PATH)")
         plan = RecordPlan(str(Path(record).expanduser().absolute()), PREFIX + path,
-                          check_device(device or argv_device or "cpu"), self.slice_name, int(resolution),
-                          renderer, bool(overwrite))
+                          check_device(device or argv_device or "cpu"), self.slice_name, resolution, renderer,
+                          overwrite)
         return join_recorder(plan)
 
     @property

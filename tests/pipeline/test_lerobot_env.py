@@ -106,6 +106,8 @@ def test_recording_needs_a_checkpoint_an_empty_folder_and_the_first_episodes(tmp
     (tmp_path / "full" / "x").write_text("x")
     with pytest.raises(SpecError, match="holds files"):
         LeRobotGrasp(resolution=RESOLUTION, record=str(tmp_path / "full"), policy=str(checkpoint))
+    with pytest.raises(SpecError, match="--env.overwrite must be true or false, got 'yes'"):
+        LeRobotGrasp(resolution=RESOLUTION, record=str(tmp_path / "run"), policy=str(checkpoint), overwrite="yes")
     env = LeRobotGrasp(resolution=RESOLUTION, record=str(tmp_path / "run"), policy=str(checkpoint))
     env.reset(seed=1005)
     done = False
