@@ -160,11 +160,11 @@ def test_lerobot_eval_runs_dyana_and_records_what_pipeline_eval_records(source, 
 
     env_py = Path(__file__).resolve().parents[2] / "pipeline" / "envhub" / "env.py"
     probe = ("import sys\nfrom lerobot.envs.utils import _import_hub_module, _call_make_env, _normalize_hub_result, "
-             "preprocess_observation, add_envs_task\n"
+             "preprocess_observation\n"
              "envs = _normalize_hub_result(_call_make_env(_import_hub_module(sys.argv[1], 'dyana/envhub'), n_envs=2, "
              "use_async_envs=False, cfg=None))\n"
              "env = envs['dyana'][0]\nobs, _ = env.reset(seed=[1000, 1001])\n"
-             "batch = add_envs_task(env, preprocess_observation(obs))\n"
+             "batch = {**preprocess_observation(obs), 'task': list(env.call('task_description'))}  # as lerobot-eval\n"
              "print(sorted(batch), tuple(batch['observation.state'].shape), batch['task'][0])\nenv.close()\n")
     shown = _run([str(venv / "bin" / "python"), "-c", probe, str(env_py)], tmp_path, 600).stdout
     assert "['observation.images.ego', 'observation.state', 'task'] (2, 21) Catch the paper roll" in shown, shown
