@@ -141,6 +141,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def _serve_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", required=True, help=policy_help(servable=True))
+    p.add_argument("--policy-device", metavar="DEVICE",
+                   help="where a lerobot:PATH policy runs: cpu (default), cuda, cuda:N or mps")
     p.add_argument("--host", default="127.0.0.1", help="interface to listen on (default: 127.0.0.1)")
     p.add_argument("--port", type=cli.port, default=8000, help="port (default: 8000; 0 picks a free one, printed)")
     p.add_argument(
@@ -169,14 +171,17 @@ def _setting(text: str) -> tuple[str, str]:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from pipeline.remote.serve import serve
+    from pipeline.policy_registry import serving_factory
+    from pipeline.remote.serve import checked_factory, serve
     from pipeline.remote.wires import wire_for
 
     wire = wire_for(args.protocol, args.openpi_key)
     _importable_cwd(args.policy)
+    factory = checked_factory(serving_factory(args.policy, vars(args)), wire, args.policy)
     serve(
-        args.policy, args.host, args.port,
+        factory, args.host, args.port,
         max_message_bytes=args.max_message_mb << 20, max_connections=args.max_connections, wire=wire,
+        label=args.policy,
     )
     return 0
 

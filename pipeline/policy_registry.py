@@ -275,6 +275,17 @@ def config_from_flags(ref: str, values: Mapping[str, Any]) -> Config | None:
     return kind.from_flags(ref, {dest: values.get(dest, default) for dest, default in kind.flags.items()})
 
 
+def serving_factory(ref: str, values: Mapping[str, Any]) -> Callable[[], Policy]:
+    """What ``pipeline serve`` serves for ``ref``: a maker of its policy in this process, with
+    its kind's configuration from the command line's ``values``; SpecError for a kind it
+    cannot serve (one that is itself a server, or a VLM)."""
+    kind = kind_of(ref)
+    if not kind.servable:
+        raise SpecError(f"pipeline serve serves {policy_help(servable=True)}, not {shorten(repr(ref))}")
+    options = OpenOptions(isolate=False, config=kind.configure(ref, config_from_flags(ref, values)))
+    return lambda: kind.make(ref, options)
+
+
 def open_policy(ref: str, options: OpenOptions | None = None) -> Policy:
     """A fresh policy for ``ref`` (its kind's ``make``)."""
     return kind_of(ref).make(ref, options or OpenOptions())
@@ -477,7 +488,7 @@ register(PolicyKind("vlm", VLM_PREFIX, make_vlm, configure=configure_vlm, manife
                     from_flags=vlm_from_flags, examples=("vlm:http://127.0.0.1:8000/v1",)))
 register(PolicyKind("lerobot", "lerobot:", make_lerobot, configure=configure_lerobot, manifest_key="lerobot",
                     form="lerobot:PATH", about="a LeRobot checkpoint folder, run with the lerobot installed here",
-                    flags={"policy_device": None}, from_flags=lerobot_from_flags,
+                    flags={"policy_device": None}, from_flags=lerobot_from_flags, servable=True,
                     examples=("lerobot:outputs/train/pretrained_model", "lerobot:ckpt")))
 register(PolicyKind("openpi", "openpi:", make_openpi, configure=configure_openpi, manifest_key="openpi",
                     names_ref=True, form="openpi:ws://HOST:PORT", about="an openpi policy server",

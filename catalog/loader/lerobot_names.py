@@ -27,6 +27,10 @@ IMAGE_KEY = "observation.images.ego"
 STATE_KEY = "observation.state"
 ENV_KEY = "observation.environment_state"
 ACTION_KEY = "action"
+#: LeRobot's image features are ``observation.images.<camera>`` (an environment's ``pixels[camera]``
+#: in its evaluation); Dyana's one camera is :data:`CAMERA`.
+IMAGES_PREFIX = "observation.images."
+CAMERA = IMAGE_KEY.removeprefix(IMAGES_PREFIX)
 #: The Dyana column the image feature holds.
 IMAGE_SOURCE = "image"
 #: Each vector feature -> the Dyana frames columns it concatenates, in order.

@@ -40,6 +40,7 @@ from pipeline.jobs.progress import announcement
 from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult, ShardTask, run_job, shard_ranges
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import JobSpec, Storage, job_spec
+from pipeline.jobs.staged import Recorded, staged_result
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.fault_text import split_reason
 from pipeline.loop.rollout import WATCHDOG_S, run_episode
@@ -89,6 +90,8 @@ class EvalSettings:
     kind: str = "builtin"
     #: A held-out run's seal for a user's policy (:mod:`pipeline.remote.sandbox`); not recorded.
     seal: Seal | None = None
+    #: Where the episodes were staged when they ran elsewhere (:mod:`pipeline.jobs.staged`); not recorded.
+    recorded: str | None = None
 
     @property
     def call_timeout_s(self) -> float:
@@ -152,9 +155,11 @@ def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[
     try:
         with ShardWriter(run_dir, task.first, task.end, settings.build.to_dict(), rollout=True) as writer:
             for spec in task.specs():
-                if policy is None:
-                    policy = fresh_policy(settings)
-                result = run_episode(env, policy, spec, settings.deadline_s)
+                if settings.recorded is not None:
+                    result = staged_result(settings.recorded, spec)
+                else:
+                    policy = fresh_policy(settings) if policy is None else policy
+                    result = run_episode(env, policy, spec, settings.deadline_s)
                 if isinstance(policy, Audited):
                     audit.extend(stamped(policy.take_audit(), result.spec.episode_id))
                 writer.add_episode(
@@ -346,13 +351,17 @@ def evaluate(policy_ref: str, slice_name: str, out: str | Path, **options: Any) 
       device; kinds that take none refuse it;
     - ``test_seed`` (a secret): draws a held-out slice's episodes from it instead of the
       public seed (:mod:`generators.heldout`): the manifest keeps its hash only (key ``test_seed``);
+    - ``recorded`` (:class:`~pipeline.jobs.staged.Recorded`): the episodes ran elsewhere
+      (LeRobot's own loop, :mod:`pipeline.envhub`) and are written from their staged results;
     - ``summary`` (True) and ``stream`` (stdout): where the summary is printed;
     - ``require_success``: a run in which every episode failed raises AllEpisodesFailed
       after it is written and summarised (the run is read once for both).
 
     :func:`run_eval` takes the :class:`~pipeline.jobs.spec.JobSpec`."""
+    recorded = options.pop("recorded", None)
     report = Report(**{k: options.pop(k) for k in ("summary", "stream", "require_success") if k in options})
-    return run_eval(job_spec(slice_name, out, options, shard_size=DEFAULT_SHARD_SIZE, policy_ref=policy_ref), report)
+    spec = job_spec(slice_name, out, options, shard_size=DEFAULT_SHARD_SIZE, policy_ref=policy_ref)
+    return run_eval(spec, report, recorded)
 
 
 @dataclass(frozen=True)
@@ -365,9 +374,10 @@ class Report:
     require_success: bool = False
 
 
-def run_eval(spec: JobSpec, report: Report | None = None) -> Manifest:
+def run_eval(spec: JobSpec, report: Report | None = None, recorded: Recorded | None = None) -> Manifest:
     """Run an eval's :class:`~pipeline.jobs.spec.JobSpec` (its ``policy`` part set): the
-    run's manifest; the summary as ``report`` says (:func:`evaluate`)."""
+    run's manifest; the summary as ``report`` says (:func:`evaluate`). With ``recorded``
+    the episodes already ran elsewhere: they are written from its staged results."""
     from schemas.slices import get_slice
 
     report = Report() if report is None else report
@@ -392,11 +402,11 @@ def run_eval(spec: JobSpec, report: Report | None = None) -> Manifest:
     seal = sealing(kind.name, private, choice.isolate, selection.test_seed_file,
                    None if storage.remote else str(storage.folder))
     options = OpenOptions(WATCHDOG_S if choice.deadline_s is None else choice.deadline_s, choice.isolate, config, seal)
-    name, privileged = describe_policy(choice.ref, options)
-    if kind.check is not None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run
+    name, privileged = describe_policy(choice.ref, options) if recorded is None else (recorded.name, recorded.privileged)
+    if kind.check is not None and recorded is None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run
         kind.check(config)
     settings = EvalSettings(build_settings, slice_name, choice.ref, name, privileged, choice.deadline_s, choice.isolate,
-                            config, protocol, kind.name, seal)
+                            config, protocol, kind.name, seal, None if recorded is None else recorded.folder)
     if storage.remote and kind.audit_dir is not None:
         raise SpecError(f"--out {str(storage.out)[:60]}: a {kind.name} run keeps its audit trail on local disk; "
                         "evaluate it locally")

@@ -235,6 +235,11 @@ def load(checkpoint: Checkpoint, device: str) -> ProcessedPolicy:
     return ProcessedPolicy(policy, checkpoint.inputs(), preprocessor, postprocessor)
 
 
+def policy_name(config: dict[str, Any]) -> str:
+    """The name a run records for a checkpoint's policy, from its configuration (:func:`configure`): type and model hash."""
+    return f"lerobot-{config['type']}-{config['model_sha256'][:8]}"
+
+
 def make(ref: str, config: dict[str, Any] | None) -> CheckpointPolicy:
     """The policy of ``lerobot:PATH`` (``config`` as :func:`configure` made it, or None)."""
     config = config if config is not None and "checkpoint" in config else configure(ref, config)
@@ -243,5 +248,5 @@ def make(ref: str, config: dict[str, Any] | None) -> CheckpointPolicy:
     if sha256 != config.get("model_sha256", sha256):
         raise PolicyError(f"{shorten(checkpoint.folder)}/model.safetensors changed since the run started")
     loaded = load(checkpoint, config["device"])
-    name = f"lerobot-{checkpoint.policy_type}-{sha256[:8]}"
+    name = policy_name({"type": checkpoint.policy_type, "model_sha256": sha256})
     return CheckpointPolicy(loaded, name, device=config["device"], image_size=checkpoint.image_size)

@@ -54,34 +54,41 @@ class Wire:
 def policy_factory(policy: str | PolicyFactory, wire: Wire | None = None) -> PolicyFactory:
     """A zero-argument factory from a policy name / ``module:callable`` ref, or the factory itself.
 
-    A name is resolved once here, and the policy it makes must describe itself (name,
-    action horizon, privileged flag) and be one ``wire`` can serve, so that a bad one
-    fails before listening.
+    A name is resolved once here (:func:`checked_factory`), so that a bad one fails before
+    listening. (``pipeline serve`` resolves any servable kind's reference, ``lerobot:PATH``
+    too, through :func:`pipeline.policy_registry.serving_factory`, then checks it here.)
     """
-    wire = wire or DYANA
     if isinstance(policy, str):
-        sample = make_policy(policy)
-        try:
-            protocol.check(protocol.metadata_message(sample.name, sample.action_horizon, sample.privileged))
-            if not isinstance(sample.name, str) or not sample.name:
-                raise protocol.ProtocolError(f"policy name must be a non-empty string, got {sample.name!r}")
-            if isinstance(sample.action_horizon, bool) or not isinstance(sample.action_horizon, int):
-                raise protocol.ProtocolError(f"action_horizon must be an integer >= 1, got {sample.action_horizon!r}")
-            if not isinstance(sample.privileged, bool):
-                raise protocol.ProtocolError(f"privileged must be True or False, got {sample.privileged!r}")
-            refused = wire.refuse(sample)
-            if refused:
-                raise protocol.ProtocolError(refused)
-        except (AttributeError, TypeError, ValueError, protocol.ProtocolError) as exc:
-            raise DyanaError(f"policy {policy!r} cannot be served: {_describe(exc)}") from None
-        finally:
-            close = getattr(sample, "close", None)
-            if callable(close):
-                close()
-        return lambda: make_policy(policy)
+        return checked_factory(lambda: make_policy(policy), wire, policy)
     if callable(policy):
         return policy
     raise DyanaError(f"serve needs a policy name, a module:callable ref or a factory, got {policy!r}")
+
+
+def checked_factory(factory: PolicyFactory, wire: Wire | None, label: str) -> PolicyFactory:
+    """``factory``, once the policy it makes has described itself (name, action horizon,
+    privileged flag) and is one ``wire`` (default dyana/1) can serve; DyanaError naming
+    ``label`` if not. The sample policy is closed."""
+    wire = wire or DYANA
+    sample = factory()
+    try:
+        protocol.check(protocol.metadata_message(sample.name, sample.action_horizon, sample.privileged))
+        if not isinstance(sample.name, str) or not sample.name:
+            raise protocol.ProtocolError(f"policy name must be a non-empty string, got {sample.name!r}")
+        if isinstance(sample.action_horizon, bool) or not isinstance(sample.action_horizon, int):
+            raise protocol.ProtocolError(f"action_horizon must be an integer >= 1, got {sample.action_horizon!r}")
+        if not isinstance(sample.privileged, bool):
+            raise protocol.ProtocolError(f"privileged must be True or False, got {sample.privileged!r}")
+        refused = wire.refuse(sample)
+        if refused:
+            raise protocol.ProtocolError(refused)
+    except (AttributeError, TypeError, ValueError, protocol.ProtocolError) as exc:
+        raise DyanaError(f"policy {label!r} cannot be served: {_describe(exc)}") from None
+    finally:
+        close = getattr(sample, "close", None)
+        if callable(close):
+            close()
+    return factory
 
 
 def _describe(exc: BaseException) -> str:
@@ -258,13 +265,15 @@ def serve(
     max_connections: int = protocol.MAX_CONNECTIONS,
     wire: Wire | None = None,
     sock: Any = None,
+    label: str | None = None,
 ) -> None:
     """Serve ``policy`` on ``ws://host:port`` (or the listening ``sock``; ``wire``, default dyana/1)
-    until SIGINT/SIGTERM; prints the address on stderr."""
+    until SIGINT/SIGTERM; prints the address on stderr, naming the policy ``label`` (default:
+    its reference or factory's name)."""
     wire = wire or DYANA
 
     def listening(bound_host: str, bound_port: int) -> None:
-        name = policy if isinstance(policy, str) else getattr(policy, "__name__", "policy")
+        name = label or (policy if isinstance(policy, str) else getattr(policy, "__name__", "policy"))
         print(f"serving {name} on ws://{bound_host}:{bound_port} ({wire.name})", file=sys.stderr, flush=True)
 
     async def main() -> None:

@@ -125,7 +125,9 @@ def test_the_policy_and_protocol_options_are_the_registries():
     eval_options, serve_options = _subparser("eval"), _subparser("serve")
     assert eval_options["policy"].help == policy_help()
     assert all(kind.form in policy_help() for kind in KINDS) and "openpi:ws://HOST:PORT" in policy_help()
-    assert serve_options["policy"].help == policy_help(servable=True) == "oracle, still, chase, predictive or module:callable"
+    assert serve_options["policy"].help == policy_help(servable=True) == (
+        "oracle, still, chase, predictive, module:callable or lerobot:PATH (a LeRobot checkpoint folder, run with the "
+        "lerobot installed here)")
     assert serve_options["protocol"].choices == tuple(PROTOCOLS) == ("dyana", "openpi")
     flags = {dest for kind in KINDS for dest in kind.flags}
     assert flags and flags <= set(eval_options)  # every kind's flags are eval's options
