@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from catalog.loader.lerobot_names import ACTION_KEY, IMAGE_KEY, STATE_KEY
 from catalog.tables.mcap_layout import WORLD_FRAME, camera_calibration, camera_pose
 from schemas.scene import CAMERA_EYE, CAMERA_FAR, CAMERA_FOV_DEG, CAMERA_NEAR, CAMERA_TARGET, CAMERA_UP
 
@@ -50,7 +51,7 @@ def camera_meta(height: int, width: int) -> dict[str, Any]:
     position, quaternion = camera_pose()
     return {
         "camera": "ego",
-        "video_key": "observation.images.ego",
+        "video_key": IMAGE_KEY,
         "fixed": True,
         "model": "pinhole",
         "width": width,
@@ -68,7 +69,7 @@ def camera_meta(height: int, width: int) -> dict[str, Any]:
         "pixel_convention": "(column, row) from the image's top-left corner; pixel (c, r) is centred at "
                             "(c + 0.5, r + 0.5)",
         "world": "Dyana's world: X right, Y up, Z forward (left-handed), metres; the frame of "
-                 "observation.state's palm pose and of action",
+                 f"{STATE_KEY}'s palm pose and of {ACTION_KEY}",
         "eye": list(CAMERA_EYE),
         "target": list(CAMERA_TARGET),
         "up": list(CAMERA_UP),

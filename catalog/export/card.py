@@ -14,6 +14,7 @@ from typing import Any
 from catalog.export.camera import CAMERA_META
 from catalog.export.croissant import CROISSANT, DATA_FILES
 from catalog.export.layout import DYANA_META, VECTOR_NAMES, vector_names
+from catalog.loader.lerobot_names import IMAGE_KEY
 from catalog.tables.reader import FolderReader
 from schemas.renderers import DEFAULT_RENDERER, renderer_of
 
@@ -111,7 +112,7 @@ def readme(readers: Sequence[FolderReader], settings: Mapping[str, Any], version
         "",
         "## Contents",
         "",
-        f"- `observation.images.ego`: the egocentric camera, {width}x{height} px, "
+        f"- `{IMAGE_KEY}`: the egocentric camera, {width}x{height} px, "
         f"{settings['codec']} video under `videos/`",
         *features,
         "- `timestamp`, `frame_index`, `episode_index`, `index`, `task_index`; the task texts in `meta/tasks`",

@@ -9,7 +9,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from catalog.export.layout import V30_EPISODES_PATH, VECTOR_NAMES, vector_names
-from catalog.loader.lerobot_names import INDEX_FEATURES
+from catalog.loader.lerobot_names import IMAGE_KEY, INDEX_FEATURES
 
 CROISSANT = "croissant.json"
 CROISSANT_CONFORMS_TO = "http://mlcommons.org/croissant/1.0"
@@ -84,7 +84,7 @@ def _frames(environment_state: bool) -> dict[str, Any]:
                              {"fileSet": {"@id": "data-files"}, "extract": {"column": key}},
                              "frame_index / fps, seconds" if key == "timestamp" else f"LeRobot's {key}"))
     return {"@type": "cr:RecordSet", "@id": "frames", "name": "frames",
-            "description": "One record a frame (20 per second); the images are the videos of observation.images.ego",
+            "description": f"One record a frame (20 per second); the images are the videos of {IMAGE_KEY}",
             "field": fields}
 
 
