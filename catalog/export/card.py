@@ -17,6 +17,7 @@ from catalog.export.layout import DYANA_META, VECTOR_NAMES, vector_names
 from catalog.loader.lerobot_names import IMAGE_KEY
 from catalog.tables.reader import FolderReader
 from schemas.renderers import DEFAULT_RENDERER, renderer_of
+from schemas.runs import is_run
 
 #: Dyana's license (pyproject.toml), which the data it generates is released under.
 LICENSE = "Apache-2.0"
@@ -41,7 +42,7 @@ def title(readers: Sequence[FolderReader]) -> str:
 
 def description(readers: Sequence[FolderReader], episodes: int, frames: int, version: str) -> str:
     """One paragraph: what the dataset is."""
-    kind = "evaluated runs" if any("policy" in r.manifest.extra for r in readers) else "built episodes"
+    kind = "evaluated runs" if any(is_run(r.manifest.extra) for r in readers) else "built episodes"
     return (f"{episodes} episodes ({frames} frames at 20 fps) of simulated dynamic grasping by a 15-joint hand, "
             f"{kind} of Dyana (a deterministic implementation of the paper's Dynamic Grasp Suite / Dyana-12M "
             f"recipe), as one LeRobot {version} dataset: an egocentric camera video, the hand's state and its actions.")
@@ -57,7 +58,7 @@ def _source_lines(reader: FolderReader) -> list[str]:
     settings = json.dumps(dict(m.settings), sort_keys=True)
     lines = [f"- `{m.slice}`: slice hash `{m.hash}`, {m.episodes} episodes, {m.frames} frames, seed {m.seed}; "
              f"settings `{settings}`"]
-    if "policy" in m.extra:
+    if is_run(m.extra):
         lines.append(f"  (an evaluated run of policy `{m.extra['policy']}`: `pipeline eval`)")
     else:
         lines.append(f"  (`{_build_command(reader)}` builds it: a folder of this slice hash)")
