@@ -232,7 +232,7 @@ def naive(palm, obj, joints, tips, grasp, reading=LENIENT, top=0.0):
 
     def over(t):
         height = palm[t][1] - obj[t][1] - top
-        return d[t] <= 0.3 and (reading.s_loc == "xz" or 0.0 <= height <= 0.65)
+        return d[t] <= 0.3 and (reading.s_loc == "xz" or 0.0 <= height <= TOP_BAND)  # 0.35 + 0.3, as computed
 
     t_loc = next((t for t in range(n) if over(t)), -1)
     t_gra = next((t for t in range(n) if all(joints[t][j] >= 0.8 * grasp[j] for j in range(15))), -1)
@@ -245,15 +245,16 @@ def naive(palm, obj, joints, tips, grasp, reading=LENIENT, top=0.0):
         if reading.steps == "drop":
             steps = [float(np.linalg.norm(s)) for s in segs if np.linalg.norm(s) > 1e-4]
             q_smooth = 1.0 / (1.0 + float(np.std(steps)) / float(np.mean(steps))) if steps else 1.0
-            cos = [float(s @ chord) / (float(np.linalg.norm(s)) * cn) for s in segs if np.linalg.norm(s) > 1e-8]
-            q_line = float(np.mean(cos)) if cn >= 1e-8 and cos else 0.0
+            cos = [float(s @ chord) / (float(np.linalg.norm(s)) * cn) for s in segs
+                   if np.linalg.norm(s) > 1e-8] if cn >= 1e-8 else []  # no chord: no direction to compare with
+            q_line = float(np.mean(cos)) if cos else 0.0
         else:
             steps = [float(np.linalg.norm(s)) for s in segs]
             mean = float(np.mean(steps)) if steps else 0.0
             q_smooth = 1.0 / (1.0 + float(np.std(steps)) / mean) if mean > 0 else 0.0
             cos = [float(s @ chord) / (float(np.linalg.norm(s)) * cn) if np.linalg.norm(s) > 1e-8 else 0.0
-                   for s in segs]
-            q_line = sum(cos) / len(cos) if cn >= 1e-8 and cos else 0.0
+                   for s in segs] if cn >= 1e-8 else []  # no chord: Q_line 0
+            q_line = sum(cos) / len(cos) if cos else 0.0
     r_time = 1 - (max(t_loc, t_gra) + 1) / n if t_loc >= 0 and t_gra >= 0 else 0.0
     if not n:
         e_loc = e_gra = float("nan")
@@ -277,7 +278,7 @@ def episodes(draw):
     return palm, obj, joints, tips, grasp
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60, deadline=None, derandomize=True)  # the same examples on every run and host
 @given(st.lists(episodes(), min_size=1, max_size=6), st.sampled_from([LENIENT, PAPER, DYANA]))
 def test_vectorised_matches_the_frame_by_frame_definitions(eps, reading):
     arrays = [
