@@ -6,10 +6,6 @@ compared byte for byte across worker counts and schedulers in test_build.py.)"""
 from __future__ import annotations
 
 import hashlib
-import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +16,7 @@ from generators.render import Renderer
 from pipeline.stages.episode import episode
 from schemas.frames import FRAME_ARRAYS
 from schemas.slices import SLICES
+from tests.pipeline.in_thread import fresh_json
 
 RESOLUTION = 32
 #: Episode indices checked in every slice: the first, and one past the first batch.
@@ -61,11 +58,4 @@ def test_every_slice_is_the_same_twice_and_in_another_renderer(reference):
 
 
 def test_every_slice_is_the_same_in_a_fresh_interpreter(reference):
-    code = (
-        f"import json, sys; sys.path.insert(0, {str(Path(__file__).resolve().parents[2])!r}); "
-        "from tests.pipeline.test_determinism import fingerprints; print(json.dumps(fingerprints()))"
-    )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                            env={"PYTHONHASHSEED": "12345", "PATH": "/usr/bin:/bin"})
-    assert result.returncode == 0, result.stderr
-    assert json.loads(result.stdout.strip().splitlines()[-1]) == reference
+    assert fresh_json("tests.pipeline.test_determinism", "fingerprints", "12345") == reference

@@ -15,31 +15,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from catalog.export.card import CITATION, LICENSE_HUB
-from catalog.export.lerobot import ExportSettings
-from pipeline.jobs.export import export
+from tests.pipeline import test_export
+from tests.pipeline.test_export import EPISODES, RESOLUTION, SHARD_SIZE
 
 datasets = pytest.importorskip("datasets")
 
-EPISODES, SHARD_SIZE, RESOLUTION = 5, 2, 64
 FORMATS = ("lerobot", "lerobot-v2.1")
-
-
-@pytest.fixture(scope="module")
-def built(tmp_path_factory) -> Path:
-    from pipeline.jobs.build import build
-
-    out = tmp_path_factory.mktemp("card-src")
-    build("linear-fast", out, episodes=EPISODES, shard_size=SHARD_SIZE, resolution=RESOLUTION, workers=0,
-          progress=False)
-    return out / "linear-fast"
-
-
-@pytest.fixture(scope="module")
-def exports(built, tmp_path_factory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("card-exports")
-    for fmt in FORMATS:
-        export(built, root / fmt, ExportSettings(fmt))
-    return {fmt: root / fmt for fmt in FORMATS}
+#: The source and its exports are test_export's fixtures: one build, one export per format.
+built, exports = test_export.built, test_export.exports
 
 
 def _data_rows(out: Path) -> list[dict]:

@@ -5,10 +5,6 @@ truth passes through the body unchanged; the same actions give the same bytes.""
 from __future__ import annotations
 
 import hashlib
-import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,6 +26,7 @@ from pipeline.loop.spaces import PALM_HIGH, PALM_LOW
 from pipeline.loop.wrappers import loop_env
 from pipeline.stages.episode import episode
 from schemas.versions import FPS
+from tests.pipeline.in_thread import fresh_json
 
 RES = 32
 #: Episodes the adversary plays: one with obstacles, a linear one, an irregular object.
@@ -155,14 +152,7 @@ def test_the_same_actions_give_the_same_bytes_twice_after_other_episodes_and_in_
         again.append((spec, actions, *env.recording()))
     env.close()
     assert fingerprint(reversed(again)) == fingerprint(played)
-    code = (
-        f"import json, sys; sys.path.insert(0, {str(Path(__file__).resolve().parents[2])!r}); "
-        "from tests.pipeline.test_hand_body import replay; print(json.dumps(replay()))"
-    )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                            env={"PYTHONHASHSEED": "7", "PATH": "/usr/bin:/bin"})
-    assert result.returncode == 0, result.stderr
-    assert json.loads(result.stdout.strip().splitlines()[-1]) == [fingerprint(played), states_digest(played)]
+    assert fresh_json("tests.pipeline.test_hand_body", "replay", "7") == [fingerprint(played), states_digest(played)]
     assert states_digest(played) == ADVERSARY_STATES
 
 

@@ -7,9 +7,7 @@ both protocols. The real LeRobot releases: tests/pipeline/test_lerobot_real.py (
 
 from __future__ import annotations
 
-import asyncio
 import io
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +25,7 @@ from scoring.io import load_run
 from scoring.metrics import failed
 from scoring.registry import success
 from scoring.report import score_run
+from tests.pipeline.in_thread import served
 from tests.shard_files import shard_bytes
 
 RESOLUTION = 32
@@ -171,7 +170,7 @@ def test_a_lerobot_style_rollout_records_the_bytes_of_pipeline_eval(tmp_path, mo
 def test_serve_serves_a_lerobot_checkpoint_in_both_protocols(tmp_path, monkeypatch, wire):
     pytest.importorskip("torch")
     from pipeline.policy_registry import serving_factory
-    from pipeline.remote.serve import checked_factory, serve_async
+    from pipeline.remote.serve import checked_factory
     from pipeline.remote.wires import wire_for
     from tests.pipeline import fake_lerobot
 
@@ -179,28 +178,10 @@ def test_serve_serves_a_lerobot_checkpoint_in_both_protocols(tmp_path, monkeypat
     ref = f"lerobot:{_checkpoint(tmp_path / 'ckpt')}"
     chosen = wire_for(wire)
     factory = checked_factory(serving_factory(ref, {"policy_device": "cpu"}), chosen, ref)
-    ready, holder = threading.Event(), {}
-
-    async def main():
-        loop = asyncio.get_running_loop()
-        holder["loop"], holder["stop"] = loop, loop.create_future()
-
-        def listening(host, port):
-            holder["url"] = f"ws://{host}:{port}"
-            ready.set()
-
-        await serve_async(factory, "127.0.0.1", 0, on_listening=listening, stop=holder["stop"], wire=chosen)
-
-    thread = threading.Thread(target=lambda: asyncio.run(main()), daemon=True)
-    thread.start()
-    try:
-        assert ready.wait(30)
-        url = ("openpi:" if wire == "openpi" else "") + holder["url"]
+    with served(factory, wire=chosen) as served_url:
+        url = ("openpi:" if wire == "openpi" else "") + served_url
         local = evaluate(ref, "test-1k", tmp_path / "local", episodes=2, **EPISODES)
         remote = evaluate(url, "test-1k", tmp_path / "remote", episodes=2, **EPISODES)
-    finally:
-        holder["loop"].call_soon_threadsafe(holder["stop"].set_result, None)
-        thread.join(30)
     assert shard_bytes(tmp_path / "remote") == shard_bytes(tmp_path / "local")
     assert remote.extra["policy"] == local.extra["policy"]
 

@@ -25,6 +25,7 @@ from pipeline.policies.base import make_policy
 from pipeline.remote import protocol
 from pipeline.remote.client import RemotePolicy
 from schemas.errors import PolicyError
+from tests.pipeline.in_thread import served
 from tests.shard_files import shard_bytes
 
 BIN = Path(sys.executable).parent
@@ -239,32 +240,13 @@ def test_connections_beyond_the_limit_are_told_busy_and_big_requests_are_cut(tmp
 def test_clients_that_close_at_once_leave_no_threads_behind():
     """Each session's worker thread ends with its connection, even one closed before the
     metadata arrives: the server's thread count returns to where it started."""
-    import asyncio
-
-    from pipeline.remote.serve import serve_async
-
-    ready, holder = threading.Event(), {}
-
-    async def main():
-        loop = asyncio.get_running_loop()
-        holder["loop"], holder["stop"] = loop, loop.create_future()
-
-        def listening(host, port):
-            holder["url"] = f"ws://{host}:{port}"
-            ready.set()
-
-        await serve_async("still", "127.0.0.1", 0, on_listening=listening, stop=holder["stop"], max_connections=64)
-
-    thread = threading.Thread(target=lambda: asyncio.run(main()), daemon=True)
-    thread.start()
-    try:
-        assert ready.wait(30)
-        with connect(holder["url"]) as ws:  # one full session first: imports and threads settle
+    with served("still", max_connections=64) as url:
+        with connect(url) as ws:  # one full session first: imports and threads settle
             assert protocol.decode(ws.recv(timeout=10))["type"] == "metadata"
         time.sleep(0.5)
         start = threading.active_count()
         def handshake_and_close():
-            with connect(holder["url"]):
+            with connect(url):
                 pass
 
         clients = [threading.Thread(target=handshake_and_close) for _ in range(50)]
@@ -276,6 +258,4 @@ def test_clients_that_close_at_once_leave_no_threads_behind():
         while threading.active_count() > start and time.monotonic() < deadline:
             time.sleep(0.1)
         assert threading.active_count() <= start, [t.name for t in threading.enumerate()]
-    finally:
-        holder["loop"].call_soon_threadsafe(holder["stop"].set_result, None)
-        thread.join(20)
+
