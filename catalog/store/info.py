@@ -31,6 +31,18 @@ class Rebuild:
         return {"possible": self.possible, "reason": self.reason}
 
 
+def hand_mismatch(manifest: Manifest) -> str | None:
+    """Why a run recorded with another hand model (:data:`schemas.versions.HAND_MODEL`)
+    cannot be re-executed byte for byte here (None when it can, or is not a run): its
+    rollouts depend on the hand."""
+    hand = manifest.settings.get("hand_model")
+    if not is_run(manifest.extra) or hand == HAND_MODEL:
+        return None
+    recorded = "before the hand was a body (no settings.hand_model)" if hand is None else f"with hand {hand!r}"
+    return (f"a run recorded {recorded}; this code's closed loop has hand {HAND_MODEL!r}: readable and scored "
+            f"as it is; commit {POSE_HAND_COMMIT} re-executes it")
+
+
 def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | None = None) -> Rebuild:
     """Only the dataset versions this code writes are rebuilt byte for byte (4.0.0 with the
     ``window`` renderer, 3.0.0 with ``full``: :mod:`schemas.renderers`; an older one is
@@ -47,11 +59,9 @@ def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | No
         where = f"; check out commit {commit} to rebuild it" if commit else ""
         writes = " and ".join(REBUILDABLE_DATASET_VERSIONS)
         return Rebuild(False, f"written by dataset {version}; this code writes {writes}: {readable}{where}")
-    hand = manifest.settings.get("hand_model")
-    if is_run(manifest.extra) and hand != HAND_MODEL:
-        recorded = "before the hand was a body" if hand is None else f"with hand {hand!r}"
-        return Rebuild(False, f"a run recorded {recorded}; this code's closed loop has hand {HAND_MODEL!r}: "
-                              f"readable and scored as it is; commit {POSE_HAND_COMMIT} re-executes it")
+    other_hand = hand_mismatch(manifest)
+    if other_hand is not None:
+        return Rebuild(False, other_hand)
     protocol = manifest.settings.get("protocol")
     if isinstance(protocol, Mapping) and protocol.get("realtime"):
         return Rebuild(False, "a real-time run (settings.protocol.realtime) depends on the machine's timing")

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from catalog.store.info import hand_mismatch
 from catalog.store.manifest import MANIFEST_NAME, Manifest
 from catalog.store.records import ShardRecord, shard_stem
 from catalog.store.versions import mismatch_note
@@ -60,10 +61,8 @@ from schemas.errors import PolicyError, ReplayMismatch, ShardError, SpecError
 from schemas.frames import EpisodeFrames
 from schemas.names import printable, shorten
 from schemas.renderers import REBUILDABLE_DATASET_VERSIONS, renderer_of
-from schemas.runs import is_run
 from schemas.settings import BuildSettings
 from schemas.spec import EpisodeSpec
-from schemas.versions import HAND_MODEL, POSE_HAND_COMMIT
 
 
 @dataclass(frozen=True)
@@ -91,14 +90,9 @@ def check_rebuildable(directory: object, manifest: Manifest) -> str:
             f"{' and '.join(map(repr, REBUILDABLE_DATASET_VERSIONS))}, so its shards cannot be re-executed "
             f"byte for byte (check out the commit {manifest.code.commit or 'that wrote it'})"
         )
-    hand = manifest.settings.get("hand_model")
-    if is_run(manifest.extra) and hand != HAND_MODEL:
-        raise ShardError(
-            f"{directory}/catalog.json: a run recorded "
-            + ("before the hand was a body (no settings.hand_model)" if hand is None else f"with hand {hand!r}")
-            + f"; this code's closed loop has hand {HAND_MODEL!r}, so its rollouts cannot be re-executed byte for "
-            f"byte here (read and score it as it is; commit {POSE_HAND_COMMIT} replays it)"
-        )
+    other_hand = hand_mismatch(manifest)
+    if other_hand is not None:
+        raise ShardError(f"{directory}/catalog.json: {other_hand}")
     return renderer
 
 

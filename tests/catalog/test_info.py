@@ -121,7 +121,7 @@ def test_a_run_from_before_the_hand_body_is_read_not_rebuilt(tmp_path, capsys):
     code, out, _ = info(capsys, str(tmp_path / "run"), "--json")
     verdict = json.loads(out)["rebuild"]
     assert code == 0 and verdict["possible"] is False
-    assert verdict["reason"].startswith("a run recorded before the hand was a body;")
+    assert verdict["reason"].startswith("a run recorded before the hand was a body (no settings.hand_model);")
     assert f"commit {POSE_HAND_COMMIT} re-executes it" in verdict["reason"]
 
 
