@@ -110,12 +110,8 @@ def score_all(data: Sequence[RunData], obstacle_contact: str = DEFAULT_CONTACT, 
 
 def evaluate(runs: Sequence[str], obstacle_contact: str = DEFAULT_CONTACT, reading: str = DEFAULT_READING) -> list[RunReport]:
     """Load and score each run (a folder of repeats gives one run per repeat); labels are
-    made unique across the runs."""
-    data = load_runs(runs)
-    note = episodes_note(data)
-    if note is not None:
-        print(note, file=sys.stderr)
-    return score_all(data, obstacle_contact, reading)
+    made unique across the runs (:func:`episodes_note` says when they hold different episodes)."""
+    return score_all(load_runs(runs), obstacle_contact, reading)
 
 
 def chance_of(blind_runs: Sequence[str], scored: Sequence[RunReport], obstacle_contact: str, reading: str) -> ChanceRow:
@@ -153,7 +149,11 @@ def check_outputs(args: argparse.Namespace) -> None:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     check_outputs(args)
-    reports = evaluate(args.runs, args.obstacle_contact, args.reading)
+    data = load_runs(args.runs)
+    note = episodes_note(data)
+    if note is not None:
+        print(note, file=sys.stderr)
+    reports = score_all(data, args.obstacle_contact, args.reading)
     if args.latency_plot is not None:
         from scoring.latency import latency_points
 
