@@ -38,6 +38,7 @@ only talks to kinds. Optional abilities of a made policy are protocols, checked 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -132,7 +133,8 @@ class PolicyKind:
     its configuration from their values; ``imports_module``: the reference names a module
     that the current folder may hold; ``servable``: ``pipeline serve`` can serve it.
     ``examples`` are references of this kind: :func:`register` refuses a kind that claims
-    another's example or leaves one of its own to another kind.
+    another's example or leaves one of its own to another kind. ``sealed_files`` marks a
+    kind that runs a user's code: on a private split it is served sealed in a child.
     """
 
     name: str
@@ -152,6 +154,10 @@ class PolicyKind:
     imports_module: bool = False
     servable: bool = False
     examples: tuple[str, ...] = ()
+    #: A kind that runs a user's code (a module, a model that unpickles code when loaded):
+    #: the files of a reference it must read; on a private split it runs sealed
+    #: (:func:`pipeline.remote.sandbox.sealing`). None: it runs no user's code.
+    sealed_files: Callable[[str], tuple[str, ...]] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -441,9 +447,20 @@ def lerobot_from_flags(ref: str, values: Mapping[str, Any]) -> Config:
 
 
 def make_sb3(ref: str, options: OpenOptions) -> Policy:
+    """In this process; sealed in a child on a private split (SB3's ``load`` unpickles code)."""
+    if options.seal is not None:
+        from pipeline.remote.isolated import IsolatedPolicy
+
+        return IsolatedPolicy(ref, timeout_s=options.timeout_s + REMOTE_SLACK_S, seal=options.seal)
     from pipeline.loop.sb3_policy import make  # lazy: torch and stable_baselines3
 
     return cast("Policy", make(ref, options.config))  # a frozen dataclass: its members are read-only
+
+
+def sb3_files(ref: str) -> tuple[str, ...]:
+    from pipeline.loop.sb3_policy import split_ref
+
+    return (os.path.abspath(os.path.expanduser(split_ref(ref)[1])),)
 
 
 def configure_sb3(ref: str, config: Config | None) -> Config:
@@ -478,7 +495,7 @@ def make_openpi(ref: str, options: OpenOptions) -> Policy:
 register(PolicyKind("builtin", lambda ref: ":" not in ref, make_builtin, form="oracle, still, chase, predictive",
                     servable=True, examples=("still", "oracle", "blind-centre", "nosuch")))
 register(PolicyKind("module", lambda ref: ":" in ref, make_module, configure=configure_module, manifest_key="module",
-                    form="module:callable", imports_module=True, servable=True,
+                    form="module:callable", imports_module=True, servable=True, sealed_files=lambda ref: (),
                     examples=("mypkg.policies:make", "vlm.x:make", "ws:x")))
 register(PolicyKind("remote", ("ws://", "wss://"), make_remote, names_ref=True, form="ws://HOST:PORT",
                     about="a pipeline serve or other dyana/1 server", examples=("ws://127.0.0.1:8000", "wss://h/p")))
@@ -494,5 +511,6 @@ register(PolicyKind("openpi", "openpi:", make_openpi, configure=configure_openpi
                     names_ref=True, form="openpi:ws://HOST:PORT", about="an openpi policy server",
                     examples=("openpi:ws://127.0.0.1:8000?image=observation/image",)))
 register(PolicyKind("sb3", "sb3:", make_sb3, configure=configure_sb3, manifest_key="sb3", form="sb3:MODEL.zip",
+                    servable=True, sealed_files=sb3_files,
                     about="a saved Stable-Baselines3 model (sb3:ALGO:MODEL.zip names its algorithm)",
                     examples=("sb3:ppo_dyana.zip", "sb3:SAC:models/sac.zip")))

@@ -58,7 +58,7 @@ from pipeline.policy_registry import (
     kind_of,
     open_policy,
 )
-from pipeline.remote.sandbox import Seal, sealing
+from pipeline.remote.sandbox import Seal, configured, sealing
 from schemas.errors import AllEpisodesFailed, DyanaError, PolicyError, SpecError
 from schemas.names import printable
 from schemas.runs import is_run
@@ -398,9 +398,11 @@ def run_eval(spec: JobSpec, report: Report | None = None, recorded: Recorded | N
                                          protocol=None if protocol.plain else protocol.to_dict(), hand_model=HAND_MODEL)
     ranges = shard_ranges(total, selection.shard_size)
     storage.refuse_export("run")
-    config = kind.configure(choice.ref, choice.config)
-    seal = sealing(kind.name, private, choice.isolate, selection.test_seed_file,
+    shown = None if kind.sealed_files is None else kind.sealed_files(choice.ref)
+    seal = sealing(shown, private, choice.isolate, selection.test_seed_file,
                    None if storage.remote else str(storage.folder))
+    # A sealed kind's configuration may load its code (an SB3 zip): made sealed too, not beside the secret.
+    config = kind.configure(choice.ref, choice.config) if seal is None else configured(seal, choice.ref, choice.config)
     options = OpenOptions(WATCHDOG_S if choice.deadline_s is None else choice.deadline_s, choice.isolate, config, seal)
     name, privileged = describe_policy(choice.ref, options) if recorded is None else (recorded.name, recorded.privileged)
     if kind.check is not None and recorded is None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run

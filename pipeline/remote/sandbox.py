@@ -30,10 +30,12 @@ import ctypes
 import json
 import os
 import re
+import selectors
 import shutil
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
@@ -51,43 +53,53 @@ MS_RDONLY, MS_NOSUID, MS_NODEV, MS_REMOUNT, MS_BIND, MS_REC = 1, 2, 4, 32, 4096,
 PR_SET_NO_NEW_PRIVS = 38
 #: Seconds the probe of :func:`check_available` may take.
 PROBE_TIMEOUT_S = 20.0
+#: Seconds a sealed configuration (:func:`configured`: loading a model once) may take.
+CONFIGURE_TIMEOUT_S = 300.0
+#: The most a sealed configuration may print (a manifest's key, not a data channel).
+MAX_CONFIG_BYTES = 64 << 10
 
 
 @dataclass(frozen=True)
 class Seal:
     """What a sealed policy must not see besides :data:`HIDDEN`: folders (the run's, the
-    secret file's) covered by tmpfs, files (the secret file) covered by ``/dev/null``."""
+    secret file's) covered by tmpfs, files (the secret file) covered by ``/dev/null``; and
+    the files it must still read (``shown``: a saved model), bound back read-only."""
 
     folders: tuple[str, ...] = ()
     files: tuple[str, ...] = ()
+    shown: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        for path in (*self.folders, *self.files):
+        for path in (*self.folders, *self.files, *self.shown):
             if not isinstance(path, str) or not os.path.isabs(path) or "\0" in path:
                 raise SpecError(f"sealed run: {path!r} is not an absolute path")
 
 
-def seal_for(secret_file: str | None, run_folder: str | None) -> Seal:
-    """The seal of a held-out run: the run folder and the secret file (and its folder) hidden."""
+def seal_for(secret_file: str | None, run_folder: str | None, shown: tuple[str, ...] = ()) -> Seal:
+    """The seal of a held-out run: the run folder and the secret file (and its folder)
+    hidden, the policy's own files (``shown``) readable (the secret stays covered even there)."""
     folders = [os.path.realpath(run_folder)] if run_folder else []
     files = []
     if secret_file not in (None, "-"):  # "-": read from stdin, which the policy never gets
         real = os.path.realpath(secret_file)
         folders.append(os.path.dirname(real))
         files.append(real)
-    return Seal(tuple(folders), tuple(files))
+    return Seal(tuple(folders), tuple(files), tuple(os.path.realpath(p) for p in shown))
 
 
-def sealing(kind: str, private: object, isolate: bool, secret_file: str | None, run_folder: str | None) -> Seal | None:
-    """The seal of a run of a ``kind`` policy: a ``module`` policy on a private split runs
-    sealed (refused in process, or where the machine cannot seal it); None otherwise."""
-    if private is None or kind != "module":
+def sealing(shown: tuple[str, ...] | None, private: object, isolate: bool, secret_file: str | None,
+            run_folder: str | None) -> Seal | None:
+    """The seal of a run whose policy runs a user's code (a ``module:callable``, or a saved
+    model that unpickles code when loaded) and reads the files ``shown``: on a private split
+    it runs sealed (refused in process, or where the machine cannot seal it). None for a
+    public run, or a policy that runs no user's code (``shown`` None)."""
+    if private is None or shown is None:
         return None
     if not isolate:
-        raise SpecError("a private test seed runs a module:callable policy sealed in a child process; "
+        raise SpecError("a private test seed runs a user's policy code sealed in a child process; "
                         "--in-process would run it beside the secret")
     check_available()
-    return seal_for(secret_file, run_folder)
+    return seal_for(secret_file, run_folder, shown)
 
 
 def unshare_path() -> str | None:
@@ -131,7 +143,8 @@ def _sealed(unshare: str, seal: Seal, argv: list[str]) -> list[str]:
     """``argv`` run sealed by ``unshare`` (module docstring)."""
     spec = {"folders": list(seal.folders), "files": list(seal.files), "home": os.path.expanduser("~"),
             "keep": [os.path.realpath(p or os.getcwd()) for p in (*sys.path, sys.prefix, sys.base_prefix, sys.exec_prefix,
-                                                                  os.path.dirname(os.path.realpath(sys.executable)))]}
+                                                                  os.path.dirname(os.path.realpath(sys.executable)),
+                                                                  *seal.shown)]}
     return [unshare, *UNSHARE_FLAGS, sys.executable, "-m", "pipeline.remote.sandbox", json.dumps(spec), "--", *argv]
 
 
@@ -220,19 +233,100 @@ def seal_here(spec: dict) -> None:
 
 
 def serve_sealed(ref: str, fd: int) -> None:
-    """Serve ``ref`` (dyana/1, one connection) on the inherited listening socket ``fd``."""
-    from pipeline.remote.serve import serve
+    """Serve ``ref`` (dyana/1, one connection) on the inherited listening socket ``fd``, made
+    as ``pipeline serve`` makes it (its kind's configuration; in this process)."""
+    from pipeline.policy_registry import serving_factory
+    from pipeline.remote.serve import checked_factory, serve
 
-    serve(ref, max_connections=1, sock=socket.socket(fileno=fd))
+    serve(checked_factory(serving_factory(ref, {}), None, ref), max_connections=1, sock=socket.socket(fileno=fd),
+          label=ref)
+
+
+def configure_sealed(ref: str, config_json: str) -> int:
+    """Print ``ref``'s kind's configuration as JSON (in the sandbox); its refusal on stderr, exit 2."""
+    from pipeline.policy_registry import kind_of
+    from schemas.errors import DyanaError
+
+    try:
+        print(json.dumps(kind_of(ref).configure(ref, json.loads(config_json))), flush=True)
+    except DyanaError as exc:
+        print(exc, file=sys.stderr, flush=True)
+        return 2
+    return 0
+
+
+def configured(seal: Seal, ref: str, config: dict | None) -> dict | None:
+    """The configuration of ``ref``'s kind made sealed: for a kind whose configuration loads
+    the user's code (an SB3 zip unpickles it), never in the driver, which holds the secret.
+    What comes back is the policy's word: at most :data:`MAX_CONFIG_BYTES` of JSON, an object
+    or null; PolicyError with its one line otherwise."""
+    from schemas.errors import PolicyError
+
+    argv = [sys.executable, "-m", "pipeline.remote.sandbox", "configure", ref, json.dumps(config)]
+    process = subprocess.Popen(_sealed(check_available(), seal, argv), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, env=environment())
+    try:
+        out, err = capped_output(process, CONFIGURE_TIMEOUT_S, MAX_CONFIG_BYTES)
+    except subprocess.TimeoutExpired:
+        raise PolicyError(f"{printable(ref, 60)}: its configuration took more than {CONFIGURE_TIMEOUT_S:.0f} s") from None
+    if process.returncode != 0:
+        text = err.decode("utf-8", "replace").strip().splitlines()
+        raise PolicyError(printable(text[-1], 300) if text else f"{printable(ref, 60)}: exit {process.returncode}")
+    try:
+        if len(out) > MAX_CONFIG_BYTES:
+            raise ValueError(f"more than {MAX_CONFIG_BYTES} bytes")
+        lines = out.strip().splitlines()  # the last line: a library may print before it
+        made = json.loads(lines[-1] if lines else b"")
+        if made is not None and not isinstance(made, dict):
+            raise ValueError(type(made).__name__)
+    except ValueError as exc:
+        raise PolicyError(f"{printable(ref, 60)}: its sealed configuration is not a JSON object ({exc})") from None
+    return made
+
+
+def capped_output(process: subprocess.Popen[bytes], timeout_s: float, cap: int) -> tuple[bytes, bytes]:
+    """``process``'s stdout and stderr, each kept to ``cap`` + 1 bytes (the rest read and
+    dropped, so a child that prints without end costs no memory), once it exits; killed and
+    TimeoutExpired after ``timeout_s``."""
+    kept: dict[int, bytearray] = {}
+    deadline = time.monotonic() + timeout_s
+    with selectors.DefaultSelector() as selector:
+        for pipe in (process.stdout, process.stderr):
+            if pipe is not None:
+                selector.register(pipe, selectors.EVENT_READ)
+                kept[pipe.fileno()] = bytearray()
+        while selector.get_map():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                process.kill()
+                process.wait()
+                raise subprocess.TimeoutExpired(process.args, timeout_s)
+            for key, _ in selector.select(min(left, 1.0)):
+                chunk = os.read(key.fd, 65536)
+                if not chunk:
+                    selector.unregister(key.fileobj)
+                elif len(kept[key.fd]) <= cap:
+                    kept[key.fd] += chunk[: cap + 1 - len(kept[key.fd])]
+    process.wait(max(0.0, deadline - time.monotonic()))
+    out = bytes(kept[process.stdout.fileno()]) if process.stdout is not None else b""
+    err = bytes(kept[process.stderr.fileno()]) if process.stderr is not None else b""
+    for pipe in (process.stdout, process.stderr):
+        if pipe is not None:
+            pipe.close()
+    return out, err
 
 
 def main(argv: Sequence[str]) -> int:
-    """``SPEC -- COMMAND...`` (seal, then run COMMAND) or ``serve REF FD`` (in the sandbox)."""
+    """``SPEC -- COMMAND...`` (seal, then run COMMAND), ``serve REF FD`` or ``configure REF
+    CONFIG`` (in the sandbox)."""
     if len(argv) == 3 and argv[0] == "serve" and argv[2].isdigit():
         serve_sealed(argv[1], int(argv[2]))
         return 0
+    if len(argv) == 3 and argv[0] == "configure":
+        return configure_sealed(argv[1], argv[2])
     if len(argv) < 3 or argv[1] != "--":
-        print("usage: python -m pipeline.remote.sandbox SPEC -- COMMAND... | serve REF FD", file=sys.stderr)
+        print("usage: python -m pipeline.remote.sandbox SPEC -- COMMAND... | serve REF FD | configure REF CONFIG",
+              file=sys.stderr)
         return 2
     try:
         seal_here(json.loads(argv[0]))

@@ -12,7 +12,7 @@ import pytest
 
 from pipeline.jobs.lock import LOCK_FILE, FolderBusy, folder_lock
 
-RACE_S = 3.0
+RACE_S = 1.0
 PROCESSES = 4
 
 

@@ -140,3 +140,70 @@ def test_a_bad_model_is_one_line_and_exit_2(tmp_path, capsys):
         assert code == 2, name
         assert message in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
         assert not (tmp_path / f"run-{name}" / "catalog.json").exists()
+
+
+class Reader:
+    """A payload in a model's data: unpickling it copies the file ``source`` into ``leak``."""
+
+    def __init__(self, source: Path, leak: Path) -> None:
+        self.source, self.leak = str(source), str(leak)
+
+    def __reduce__(self):
+        code = (f"try:\n    open({self.leak!r}, 'w').write(open({self.source!r}).read())\n"
+                "except OSError:\n    pass\n")
+        return exec, (code,)
+
+
+def with_payload(model: Path, out: Path, payload: Reader) -> Path:
+    """``model`` with ``payload`` in its data, as SB3 stores what JSON cannot hold (cloudpickle)."""
+    import base64
+
+    import cloudpickle
+
+    with zipfile.ZipFile(model) as src, zipfile.ZipFile(out, "w") as dst:
+        for item in src.infolist():
+            body = src.read(item.filename)
+            if item.filename == "data":
+                data = json.loads(body)
+                data["extra"] = {":type:": "<class 'NoneType'>",
+                                 ":serialized:": base64.b64encode(cloudpickle.dumps(payload)).decode()}
+                body = json.dumps(data).encode()
+            dst.writestr(item, body)
+    return out
+
+
+@pytest.mark.skipif(__import__("pipeline.remote.sandbox").remote.sandbox.unavailable() is not None,
+                    reason="cannot seal a policy here (tests/pipeline/test_sealed.py covers the refusal)")
+def test_a_model_runs_code_when_loaded_so_a_private_split_serves_it_sealed(ppo_zip, tmp_path):
+    """SB3's ``load`` unpickles what a zip's data holds: a model is code. Here its payload
+    copies a file out. On a public run it copies a canary (the payload runs, in the driver);
+    on a private split the model is served sealed, so the secret file it names reads as
+    nothing and the copy lands in the sandbox's scratch, never here; the run still scores."""
+    secret = "0f9e8d7c6b5a49382716a5b4c3d2e1f0"
+    keep = tmp_path / "keep"
+    keep.mkdir()
+    (keep / "seed.txt").write_text(secret + "\n")
+    (keep / "canary.txt").write_text("canary\n")
+    leak = tmp_path / "leak.txt"
+    public = with_payload(ppo_zip, tmp_path / "public.zip", Reader(keep / "canary.txt", leak))
+    assert main([*eval_args(f"sb3:{public}", tmp_path / "open"), "--episodes", "1", "--quiet"]) == 0
+    assert leak.read_text() == "canary\n"  # the payload ran
+    leak.unlink()
+    private = with_payload(ppo_zip, tmp_path / "private.zip", Reader(keep / "seed.txt", leak))
+    done = subprocess.run([sys.executable, "-m", "pipeline.cli", *eval_args(f"sb3:{private}", tmp_path / "sealed"),
+                           "--episodes", "1", "--test-seed-file", str(keep / "seed.txt"), "--quiet"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert not leak.exists() and secret not in done.stdout + done.stderr
+    manifest = json.loads((tmp_path / "sealed" / "catalog.json").read_text())
+    assert manifest["episodes"] == 1 and manifest["sb3"]["sha256"] == hashlib.sha256(private.read_bytes()).hexdigest()
+
+
+def test_pipeline_serve_serves_a_model(ppo_zip):
+    """``pipeline serve --policy sb3:MODEL.zip`` makes the same policy as an eval (what a sealed run serves)."""
+    from pipeline.policy_registry import serving_factory
+
+    policy = serving_factory(f"sb3:{ppo_zip}", {})()
+    assert policy.name == "sb3-ppo-" + hashlib.sha256(ppo_zip.read_bytes()).hexdigest()[:8]
+    with pytest.raises(SpecError, match="--model"):
+        serving_factory(f"sb3:{ppo_zip}", {"model": "x"})

@@ -130,10 +130,14 @@ def test_a_private_seed_refuses_an_in_process_user_policy(tmp_path):
                  progress=False)
 
 
-def test_public_runs_and_built_in_policies_are_not_sealed():
-    assert sandbox.sealing("module", None, True, None, "/x") is None
-    assert sandbox.sealing("builtin", object(), True, "/s", "/x") is None
-    assert sandbox.sealing("remote", object(), True, "/s", "/x") is None
+def test_public_runs_and_policies_that_run_no_user_code_are_not_sealed():
+    from pipeline.policy_registry import kind_named
+
+    assert sandbox.sealing((), None, True, None, "/x") is None  # a public run of a module policy
+    for name in ("builtin", "remote", "openpi", "vlm", "lerobot"):  # no user's code runs in Dyana's processes
+        assert kind_named(name).sealed_files is None, name
+    assert kind_named("module").sealed_files("mine:make") == ()
+    assert kind_named("sb3").sealed_files("sb3:PPO:models/m.zip") == (os.path.abspath("models/m.zip"),)
 
 
 @needs_unshare
@@ -181,3 +185,18 @@ def test_the_secret_can_come_from_stdin_and_then_no_command_line_names_a_file(tm
                            input="c3a9f1e07d2b4c68a5e19f30b7d64c28\n", capture_output=True, text=True)
     assert wrong.returncode == 2 and "does not match" in wrong.stderr
     assert sandbox.seal_for("-", str(run)).files == ()  # nothing to cover: the policy never gets stdin
+
+
+def test_a_sealed_configuration_costs_its_caller_no_more_than_the_cap():
+    """What a sealed process prints back is the policy's word: kept to the cap however much it
+    prints, and a process that never ends is killed at the deadline."""
+    loud = subprocess.Popen([sys.executable, "-c", "import sys\nfor _ in range(2000): sys.stdout.write('x' * 65536)\n"
+                                                   "sys.stderr.write('e' * 300000)"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    out, err = sandbox.capped_output(loud, 60, 1000)
+    assert (len(out), len(err), loud.returncode) == (1001, 1001, 0)
+    stuck = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE)
+    with pytest.raises(subprocess.TimeoutExpired):
+        sandbox.capped_output(stuck, 0.5, 1000)
+    assert stuck.returncode is not None
