@@ -158,9 +158,9 @@ def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path, partial:
     try:
         with ShardWriter(run_dir, task.first, task.end, settings.build.to_dict(), rollout=True) as writer:
             for spec in task.specs():
-                held = None if partial is None else partial.load(spec)
+                held = None if partial is None else held_result(partial.load(spec))
                 if held is not None:
-                    result, records = held_result(held)
+                    result, records = held
                 elif settings.recorded is not None:
                     result, records = staged_result(settings.recorded, spec), []
                 else:

@@ -83,10 +83,17 @@ def staged_episode(result: RolloutResult, audit: list[dict[str, Any]]) -> Staged
     return StagedEpisode(result.spec, result.frames, result.images, info)
 
 
-def held_result(held: StagedEpisode) -> tuple[RolloutResult, list[dict[str, Any]]]:
-    """A staged episode (:func:`staged_episode`) as its rollout's result and audit records."""
+def held_result(held: StagedEpisode | None) -> tuple[RolloutResult, list[dict[str, Any]]] | None:
+    """A staged episode (:func:`staged_episode`) as its rollout's result and audit records;
+    None for none, or for one whose counts are not what :func:`staged_episode` keeps."""
+    if held is None:
+        return None
     info = held.info
-    result = RolloutResult(held.spec, held.frames, held.images, str(info["status"]), str(info["error"]),
-                           int(info["steps"]), int(info["calls"]), bool(info["localized"]), bool(info["grasped"]),
-                           float(info["policy_s"]))
-    return result, list(info["audit"])
+    try:
+        result = RolloutResult(held.spec, held.frames, held.images, str(info["status"]), str(info["error"]),
+                               int(info["steps"]), int(info["calls"]), bool(info["localized"]),
+                               bool(info["grasped"]), float(info["policy_s"]))
+        records = [dict(record) for record in info["audit"]]
+    except (KeyError, TypeError, ValueError):
+        return None
+    return result, records

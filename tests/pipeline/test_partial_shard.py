@@ -206,3 +206,23 @@ def test_frames_arrays_survive_any_float_bits(tmp_path):
     shard.save(staged.spec, StagedEpisode(staged.spec, frames, staged.images))
     held = shard.load(staged.spec)
     assert held is not None and held.frames.palm_distance.tobytes() == odd.tobytes()
+
+
+def test_an_eval_episode_is_staged_with_its_counts_and_audit(tmp_path):
+    """What an eval task stages of a rollout comes back as the same result; counts it cannot
+    read make it computed again (None), not a failed shard."""
+    from pipeline.jobs.staged import held_result, staged_episode
+    from pipeline.loop.rollout import RolloutResult
+
+    base = _episode()
+    result = RolloutResult(base.spec, base.frames, base.images, "error", "hung", 7, 3, False, True, 0.25)
+    shard = PartialShard(tmp_path, 0, 4, "job")
+    shard.save(base.spec, staged_episode(result, [{"episode_id": base.spec.episode_id, "text": "a"}]))
+    held = held_result(shard.load(base.spec))
+    assert held is not None
+    back, audit = held
+    assert (back.status, back.error, back.steps, back.calls, back.localized, back.grasped, back.policy_s) == \
+        ("error", "hung", 7, 3, False, True, 0.25)
+    assert back.images == base.images and audit == [{"episode_id": base.spec.episode_id, "text": "a"}]
+    assert held_result(None) is None
+    assert held_result(StagedEpisode(base.spec, base.frames, base.images, {"status": "ok"})) is None
