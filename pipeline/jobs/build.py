@@ -20,7 +20,7 @@ from pipeline.jobs.progress import announcement
 from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult, run_job
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import JobSpec, job_spec
-from pipeline.jobs.tasks import ShardTask, shard_ranges
+from pipeline.jobs.tasks import STAGED_EPISODES, ShardTask, shard_ranges
 from schemas.errors import InfeasibleError, SpecError
 from schemas.settings import BuildSettings
 from schemas.spec import EpisodeSpec
@@ -33,9 +33,10 @@ def build_shard(task: ShardTask, settings: BuildSettings, sink: ShardSink) -> di
     from pipeline.stages.record import write_ground_truth_shard
 
     with sink.writing() as folder:
-        record = write_ground_truth_shard(task.specs(), task.first, task.end, settings, folder)
+        record, taken = write_ground_truth_shard(task.specs(), task.first, task.end, settings, folder,
+                                                 task.partial(folder))
         partial = written_partial(folder, record)  # while the files are on this host
-    return {"record": record.to_dict(), PARTIAL_STATS: partial}
+    return {"record": record.to_dict(), PARTIAL_STATS: partial, STAGED_EPISODES: taken}
 
 
 def build(slice_name: str | None, out: str | Path, **options: Any) -> Manifest:

@@ -18,6 +18,11 @@ recorded for resuming, and how the folder is finished (metadata written last).
 - the folder lock (:mod:`pipeline.jobs.lock`), held from the first look at the folder
   to the last file written; stray temporaries of dead writers are removed;
 - the units still to do run as Dask tasks or in this process (:mod:`pipeline.jobs.tasks`);
+  when the work stages episodes (:attr:`~pipeline.jobs.tasks.Work.staging`), each task
+  keeps its shard's finished episodes in the folder's ``.partial/`` under the job's key and
+  this commit, and takes those an interrupted run left instead of computing them again
+  (:mod:`catalog.tables.partial`); ``.partial/`` goes when the job finishes or is
+  started over (``overwrite``);
 - progress, passed as an argument (``say``: where lines go, or None for none): a line
   per finished episode, at most one per 2 s plus the last (:mod:`pipeline.jobs.progress`);
 - the typed outcome: the product's result, whether it was up to date, units run and kept.
@@ -25,6 +30,8 @@ recorded for resuming, and how the folder is finished (metadata written last).
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -34,10 +41,11 @@ from typing import Any, Generic, Protocol, TypeVar
 from catalog.export.layout import DYANA_META
 from catalog.store.atomic import remove_stray_temps
 from catalog.store.manifest import git_commit
+from catalog.tables.partial import remove_partial
 from pipeline.jobs.lock import LOCK_FILE, folder_lock
 from pipeline.jobs.progress import Progress, Unit
 from pipeline.jobs.sink import ShardSink
-from pipeline.jobs.tasks import Execution, Payload, Work, run_tasks
+from pipeline.jobs.tasks import STAGED_EPISODES, Execution, Payload, ShardTask, Work, run_tasks
 from schemas.errors import SpecError
 from schemas.names import shorten
 
@@ -220,14 +228,17 @@ def _run_locked(destination: Destination, product: Product[UnitT, Result], work:
     # under the lock, before this process writes anything: a temp named with our pid is a
     # dead writer's whose pid was reused (a fresh container rerun gets the same pid)
     remove_stray_temps(folder, keep_own=False)
+    if overwrite:
+        remove_partial(folder)
     commit = git_commit()
     previous = product.previous(folder, commit, overwrite)
     if previous.finished is not None:
+        remove_partial(folder)  # what a run that died after finishing left
         destination.job_done(product.result_files(previous.finished))
         return Outcome(previous.finished, True, 0, len(previous.done))
     done = {key: unit for key, unit in previous.done.items() if key in set(ranges)}
     resumed = len(done)
-    todo = [task for task in tasks if (task.first, task.end) not in done]
+    todo = staged(work, commit, [task for task in tasks if (task.first, task.end) not in done])
     say = execution.say
     episodes = sum(end - first for first, end in ranges)
     if say is not None and work.about:
@@ -244,6 +255,9 @@ def _run_locked(destination: Destination, product: Product[UnitT, Result], work:
         destination.unit_done(product.unit_files(unit))
         if on_result is not None:
             on_result(result)
+        if say is not None and result.get(STAGED_EPISODES):
+            say(f"shard {unit.first}-{unit.end - 1}: {result[STAGED_EPISODES]} of its {unit.end - unit.first} "
+                f"episodes taken from the interrupted run")
         if meter is not None:
             meter.update(unit)
 
@@ -253,5 +267,15 @@ def _run_locked(destination: Destination, product: Product[UnitT, Result], work:
     finally:
         remove_stray_temps(folder)  # what workers that died (killed, out of memory) left behind
     result = product.finish(folder, commit, [done[key] for key in ranges])
+    remove_partial(folder)
     destination.job_done(product.result_files(result))
     return Outcome(result, False, len(todo), resumed)
+
+
+def staged(work: Work[Any], commit: str | None, tasks: list[ShardTask]) -> list[ShardTask]:
+    """``tasks``, staging their finished episodes under the job's key (its identity and this
+    commit: :mod:`catalog.tables.partial`) when ``work`` stages them."""
+    if work.staging is None:
+        return tasks
+    key = hashlib.sha256(f"{work.staging}\n{commit}".encode()).hexdigest()
+    return [dataclasses.replace(task, staging=key) for task in tasks]

@@ -31,6 +31,7 @@ import numpy as np
 from catalog.store.manifest import Manifest, load_manifest, manifest_path
 from catalog.store.records import ShardRecord
 from catalog.store.storage import as_location
+from catalog.tables.partial import PartialShard
 from catalog.tables.reader import ShardReader
 from catalog.tables.stats import written_partial
 from generators.heldout import MANIFEST_KEY as HELD_OUT_KEY
@@ -40,7 +41,8 @@ from pipeline.jobs.progress import announcement
 from pipeline.jobs.runner import PARTIAL_STATS, Job, JobResult, ShardTask, run_job, shard_ranges
 from pipeline.jobs.sink import ShardSink
 from pipeline.jobs.spec import JobSpec, Storage, job_spec
-from pipeline.jobs.staged import Recorded, staged_result
+from pipeline.jobs.staged import Recorded, held_result, staged_episode, staged_result
+from pipeline.jobs.tasks import STAGED_EPISODES
 from pipeline.loop.conditions import EvalProtocol
 from pipeline.loop.fault_text import split_reason
 from pipeline.loop.rollout import WATCHDOG_S, run_episode
@@ -141,36 +143,38 @@ def eval_shard(task: ShardTask, settings: EvalSettings, sink: ShardSink) -> dict
     """Worker side: roll out one shard's episodes and write them where the run's output is
     (:mod:`pipeline.jobs.sink`); the record and timing."""
     with sink.writing() as run_dir:
-        return _eval_shard(task, settings, run_dir)
+        return _eval_shard(task, settings, run_dir, None if settings.recorded is not None else task.partial(run_dir))
 
 
-def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[str, Any]:
+def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path, partial: PartialShard | None) -> dict[str, Any]:
     from catalog.tables.shard import ShardWriter
 
     env = settings_env(settings.build)
-    stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None}
+    stats: dict[str, Any] = {"episodes": 0, "errors": 0, "steps": 0, "calls": 0, "policy_s": 0.0, "remote": None,
+                             "staged": 0}
     policy: Policy | None = None
     audit: list[dict[str, Any]] = []
     start = time.perf_counter()
     try:
         with ShardWriter(run_dir, task.first, task.end, settings.build.to_dict(), rollout=True) as writer:
             for spec in task.specs():
-                if settings.recorded is not None:
-                    result = staged_result(settings.recorded, spec)
+                held = None if partial is None else held_result(partial.load(spec))
+                if held is not None:
+                    result, records = held
+                elif settings.recorded is not None:
+                    result, records = staged_result(settings.recorded, spec), []
                 else:
                     policy = fresh_policy(settings) if policy is None else policy
                     result = run_episode(env, policy, spec, settings.deadline_s)
-                if isinstance(policy, Audited):
-                    audit.extend(stamped(policy.take_audit(), result.spec.episode_id))
-                writer.add_episode(
-                    result.spec,
-                    result.frames,
-                    result.images,
-                    policy=settings.policy_name,
-                    privileged=settings.privileged,
-                    status=result.status,
-                    error=result.error or None,
-                )
+                    records = stamped(policy.take_audit(), result.spec.episode_id) if isinstance(policy, Audited) else []
+                    if partial is not None:
+                        partial.save(spec, staged_episode(result, records))
+                audit.extend(records)
+                writer.add_episode(result.spec, result.frames, result.images, policy=settings.policy_name,
+                                   privileged=settings.privileged, status=result.status, error=result.error or None)
+                if held is not None:  # taken from an interrupted run: no time spent on it now
+                    stats["staged"] += 1
+                    continue
                 stats["episodes"] += 1
                 stats["steps"] += result.steps
                 stats["calls"] += result.calls
@@ -182,12 +186,15 @@ def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path) -> dict[
     finally:
         _retire(policy, stats)
         env.close()
+    if partial is not None:
+        partial.remove()
     audit_dir = settings.policy_kind.audit_dir
     if audit_dir is not None:
         write_audit(run_dir / audit_dir, task.first, task.end, audit)
     stats["seconds"] = time.perf_counter() - start
     # while the files are on this host: what the driver's statistics and summary need
-    out = {"record": writer.result.to_dict(), "stats": stats, PARTIAL_STATS: written_partial(run_dir, writer.result)}
+    out = {"record": writer.result.to_dict(), "stats": stats, PARTIAL_STATS: written_partial(run_dir, writer.result),
+           STAGED_EPISODES: stats["staged"]}
     try:
         out[COUNTS] = shard_counts(run_dir, writer.result, settings)
     except (DyanaError, ValueError):  # unscorable: the driver's read-back of the run says why, as before

@@ -19,7 +19,11 @@ such a folder holds):
   so a killed run resumes, and a complete identical folder is reported up to date; when
   another commit wrote them, one sample shard is rebuilt and compared first
   (:mod:`pipeline.jobs.resume`);
-- the shards run as Dask tasks or in this process (:mod:`pipeline.jobs.tasks`);
+- the shards run as Dask tasks or in this process (:mod:`pipeline.jobs.tasks`); into a
+  local folder, each task stages its shard's finished episodes in ``.partial/``, so a run
+  interrupted mid-shard resumes that shard from its last staged episode
+  (:mod:`catalog.tables.partial`, :func:`staging_key`); an object store's shards are
+  uploaded whole from a worker's scratch folder, so they are redone whole;
 - progress lines go to stderr per finished episode, at most one per 2 s plus the last
   (:class:`pipeline.jobs.progress.Progress`);
 - ``stats.json`` (normalisation statistics of states and actions) is merged from the
@@ -41,6 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic
 
+from catalog.store.hashing import canonical_json, sha256_bytes
 from catalog.store.manifest import MANIFEST_NAME, CodeInfo, Manifest, load_manifest, write_manifest
 from catalog.store.records import ShardRecord, shard_like_files
 from catalog.store.storage import as_location, listed_sizes, where
@@ -245,11 +250,20 @@ def run_job(
     return dataclasses.replace(result, up_to_date=False)  # the URL did not hold it: it was published now
 
 
+def staging_key(job: Job[Any]) -> str:
+    """The digest a local job's tasks stage their finished episodes under (with the commit,
+    :func:`pipeline.jobs.engine.staged`): its identity (slice, settings with the dataset
+    version, extra keys, shard ranges) and the code and library versions that write its bytes."""
+    return sha256_bytes(canonical_json({"identity": job.identity(), "code": CODE_VERSION,
+                                        "versions": installed_versions()}).encode())
+
+
 def _run(job: Job[Payload], destination: Destination, store: Path | None, execution: Execution, overwrite: bool,
          on_result: Callable[[dict[str, Any]], None] | None) -> JobResult:
     """The engine's run of ``job`` into ``destination`` (``store``: where its tasks' files are,
     when not in the destination's folder: :class:`ManifestProduct`)."""
     product = ManifestProduct(job, store, execution.say)
-    outcome = run_folder_job(destination, product, job.work(), execution, overwrite=overwrite, on_result=on_result)
+    work = job.work() if store is not None else dataclasses.replace(job.work(), staging=staging_key(job))
+    outcome = run_folder_job(destination, product, work, execution, overwrite=overwrite, on_result=on_result)
     kept = () if outcome.up_to_date else tuple(product.kept.get(r, {}) for r in job.ranges)
     return JobResult(outcome.result, outcome.up_to_date, outcome.units_run, outcome.units_resumed, kept)

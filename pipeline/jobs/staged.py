@@ -6,6 +6,9 @@ file per episode index (its :class:`~pipeline.loop.rollout.RolloutResult`), and 
 is then written by `pipeline eval`'s own job (:func:`pipeline.jobs.evaluate.run_eval` with
 a :class:`Recorded`), which takes each episode's result from the staging folder instead of
 running a policy: the same shards, statistics and ``catalog.json``.
+
+:func:`staged_episode` and :func:`held_result` are the same result as `pipeline eval`'s own
+shard tasks stage it while their shard is in flight (:mod:`catalog.tables.partial`).
 """
 
 from __future__ import annotations
@@ -14,7 +17,9 @@ import os
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+from catalog.tables.partial import StagedEpisode
 from pipeline.loop.rollout import RolloutResult
 from schemas.errors import DyanaError, SpecError
 from schemas.names import shorten
@@ -68,3 +73,27 @@ def staged_result(folder: str | Path, spec: EpisodeSpec) -> RolloutResult:
     if not isinstance(result, RolloutResult) or result.spec.spec_hash != spec.spec_hash:
         raise DyanaError(f"{shorten(str(path))}: the recorded episode is not {spec.episode_id} of the run")
     return result
+
+
+def staged_episode(result: RolloutResult, audit: list[dict[str, Any]]) -> StagedEpisode:
+    """A rolled-out episode as its shard stages it: what the writer records, the counts the
+    task's statistics add and the episode's audit records."""
+    info = {"status": result.status, "error": result.error, "steps": result.steps, "calls": result.calls,
+            "localized": result.localized, "grasped": result.grasped, "policy_s": result.policy_s, "audit": audit}
+    return StagedEpisode(result.spec, result.frames, result.images, info)
+
+
+def held_result(held: StagedEpisode | None) -> tuple[RolloutResult, list[dict[str, Any]]] | None:
+    """A staged episode (:func:`staged_episode`) as its rollout's result and audit records;
+    None for none, or for one whose counts are not what :func:`staged_episode` keeps."""
+    if held is None:
+        return None
+    info = held.info
+    try:
+        result = RolloutResult(held.spec, held.frames, held.images, str(info["status"]), str(info["error"]),
+                               int(info["steps"]), int(info["calls"]), bool(info["localized"]),
+                               bool(info["grasped"]), float(info["policy_s"]))
+        records = [dict(record) for record in info["audit"]]
+    except (KeyError, TypeError, ValueError):
+        return None
+    return result, records

@@ -30,8 +30,10 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import CancelledError
 from dataclasses import dataclass, field
 from multiprocessing import resource_tracker
+from pathlib import Path
 from typing import Any, Generic, TypeVar
 
+from catalog.tables.partial import PartialShard
 from pipeline.jobs.progress import EpisodeReport, ReportingSpecs, to_stderr
 from pipeline.jobs.sink import ShardSink
 from schemas.errors import DyanaError, SpecError
@@ -93,13 +95,16 @@ def check_workers(workers: int, scheduler: str | None) -> None:
 @dataclass(frozen=True)
 class ShardTask:
     """One shard: episodes [first, end) of ``slice_name``, from the recipe or from given
-    specs; ``report`` is where it reports finished episodes (set by the runner)."""
+    specs; ``report`` is where it reports finished episodes (set by the runner);
+    ``staging`` is the job key its finished episodes are staged under while it runs
+    (:mod:`catalog.tables.partial`; set by the engine, None: not staged)."""
 
     slice_name: str
     first: int
     end: int
     specs_json: tuple[str, ...] | None = None
     report: EpisodeReport | None = field(default=None, compare=False, repr=False)
+    staging: str | None = field(default=None, compare=False, repr=False)
 
     def specs(self) -> list[EpisodeSpec]:
         """The shard's specs, as :class:`ReportingSpecs` (episode progress to :attr:`report`)."""
@@ -115,6 +120,12 @@ class ShardTask:
         """This task, reporting its episodes to ``report``."""
         return dataclasses.replace(self, report=report)
 
+    def partial(self, folder: Path) -> PartialShard | None:
+        """Where this shard's finished episodes are staged in the output ``folder`` the task
+        writes; None when they are not (the engine stages only a local folder's tasks, not
+        a sample rebuilt in a scratch folder or an object store's upload)."""
+        return None if self.staging is None else PartialShard(folder, self.first, self.end, self.staging)
+
 
 def shard_ranges(episodes: int, shard_size: int) -> list[tuple[int, int]]:
     """Fixed episode ranges [first, end) of at most ``shard_size`` episodes."""
@@ -124,6 +135,10 @@ def shard_ranges(episodes: int, shard_size: int) -> list[tuple[int, int]]:
 
 
 TaskFn = Callable[[ShardTask, Payload, ShardSink], dict[str, Any]]
+
+#: The key of a task result counting the episodes it took from its shard's staging folder
+#: (an interrupted run's, :mod:`catalog.tables.partial`) instead of computing them.
+STAGED_EPISODES = "staged_episodes"
 
 
 @contextlib.contextmanager
@@ -232,9 +247,11 @@ def connect(client_class: Callable[..., Any], scheduler: str) -> Any:
 class Work(Generic[Payload]):
     """A job's units: its ``tasks``, the worker function that runs one
     (``task_fn(task, payload, sink)``), the ``payload`` sent with each, the prefix of their
-    Dask keys, the verb progress lines use (``built``, ``evaluated``, ``exported``) and
+    Dask keys, the verb progress lines use (``built``, ``evaluated``, ``exported``),
     ``about``: how big the job is, said before its first unit starts (not when the folder is
-    already up to date)."""
+    already up to date), and ``staging``: a digest of the job's identity when its tasks stage
+    their finished episodes in the output folder (:mod:`catalog.tables.partial`; None: they
+    do not)."""
 
     tasks: tuple[ShardTask, ...]
     task_fn: TaskFn[Payload]
@@ -242,6 +259,7 @@ class Work(Generic[Payload]):
     key_prefix: str = "shard"
     verb: str = "built"
     about: str = ""
+    staging: str | None = None
 
 
 @dataclass(frozen=True)

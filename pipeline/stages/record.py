@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from catalog.store.records import ShardRecord
+from catalog.tables.partial import PartialShard, StagedEpisode
 from catalog.tables.shard import ShardWriter
 from generators.encode import encode_bgr_jpeg
 from generators.render import Renderer
@@ -53,12 +54,23 @@ def encoded_frames(
 
 
 def write_ground_truth_shard(
-    specs: Sequence[EpisodeSpec], first: int, end: int, settings, slice_dir: Path
-) -> ShardRecord:
-    """Episodes ``[first, end)`` of a slice, ground truth, as one atomic shard."""
+    specs: Sequence[EpisodeSpec], first: int, end: int, settings, slice_dir: Path, partial: PartialShard | None = None
+) -> tuple[ShardRecord, int]:
+    """Episodes ``[first, end)`` of a slice, ground truth, as one atomic shard; and how many
+    were taken from ``partial`` (an interrupted run's staged episodes, :mod:`catalog.tables.partial`),
+    where each episode computed is staged while the shard is in flight."""
+    taken = 0
     with ShardWriter(slice_dir, first, end, settings.to_dict()) as writer:
         for _index, spec in zip(range(first, end), specs):
-            frames = episode(spec)
-            images = encoded_frames(spec, frames, settings.resolution, settings.jpeg_quality, settings.renderer)
+            staged = None if partial is None else partial.load(spec)
+            if staged is None:
+                frames = episode(spec)
+                images = encoded_frames(spec, frames, settings.resolution, settings.jpeg_quality, settings.renderer)
+                if partial is not None:
+                    partial.save(spec, StagedEpisode(spec, frames, images))
+            else:
+                frames, images, taken = staged.frames, staged.images, taken + 1
             writer.add_episode(spec, frames, images)
-    return writer.result
+    if partial is not None:
+        partial.remove()
+    return writer.result, taken
