@@ -158,6 +158,10 @@ class PolicyKind:
     #: the files of a reference it must read; on a private split it runs sealed
     #: (:func:`pipeline.remote.sandbox.sealing`). None: it runs no user's code.
     sealed_files: Callable[[str], tuple[str, ...]] | None = None
+    #: Its policies carry nothing from one episode to the next (``reset`` starts afresh), so an
+    #: interrupted shard resumes between episodes with the same bytes (Dyana's built-ins); a
+    #: user's policy, a server or a model may keep state, so its shard is run again whole.
+    episodic: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -492,7 +496,7 @@ def make_openpi(ref: str, options: OpenOptions) -> Policy:
 
 
 # the two predicate kinds split what no prefix owns: a name, or module:callable (it has a colon)
-register(PolicyKind("builtin", lambda ref: ":" not in ref, make_builtin, form="oracle, still, chase, predictive",
+register(PolicyKind("builtin", lambda ref: ":" not in ref, make_builtin, episodic=True, form="oracle, still, chase, predictive",
                     servable=True, examples=("still", "oracle", "blind-centre", "nosuch")))
 register(PolicyKind("module", lambda ref: ":" in ref, make_module, configure=configure_module, manifest_key="module",
                     form="module:callable", imports_module=True, servable=True, sealed_files=lambda ref: (),

@@ -143,7 +143,8 @@ def eval_shard(task: ShardTask, settings: EvalSettings, sink: ShardSink) -> dict
     """Worker side: roll out one shard's episodes and write them where the run's output is
     (:mod:`pipeline.jobs.sink`); the record and timing."""
     with sink.writing() as run_dir:
-        return _eval_shard(task, settings, run_dir, None if settings.recorded is not None else task.partial(run_dir))
+        resumable = settings.recorded is None and settings.policy_kind.episodic
+        return _eval_shard(task, settings, run_dir, task.partial(run_dir) if resumable else None)
 
 
 def _eval_shard(task: ShardTask, settings: EvalSettings, run_dir: Path, partial: PartialShard | None) -> dict[str, Any]:

@@ -168,6 +168,36 @@ def test_an_interrupted_evaluation_resumes_mid_shard_to_the_same_bytes(tmp_path,
     assert not (tmp_path / "run" / PARTIAL_DIR).exists()
 
 
+def test_a_user_policy_s_interrupted_shard_runs_again_whole(tmp_path, monkeypatch):
+    """A user's policy may carry state from episode to episode: its episodes are not staged,
+    so a resumed shard starts from its first episode with a fresh policy, as before."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    (tmp_path / "counting.py").write_text("import numpy as np\n\nclass Counting:\n    name = 'counting'\n"
+                                          "    action_horizon = 1\n    privileged = False\n    seen = 0\n"
+                                          "    def reset(self, task):\n        Counting.seen += 1\n"
+                                          "    def act(self, obs):\n        return np.concatenate([obs['palm_pose'][:3] + "
+                                          "0.01 * Counting.seen, obs['joint_angles']]).astype(np.float32)\n")
+    settings = dict(episodes=3, resolution=RESOLUTION, shard_size=3, workers=0, progress=False, summary=False,
+                    isolate=False)
+    real, ran = evaluate_module.run_episode, []
+
+    def counted(env, policy, spec, deadline_s):
+        if spec.episode_index == stop[0]:
+            raise KeyboardInterrupt
+        ran.append(spec.episode_index)
+        return real(env, policy, spec, deadline_s)
+
+    stop = [2]
+    monkeypatch.setattr(evaluate_module, "run_episode", counted)
+    with pytest.raises(KeyboardInterrupt):
+        evaluate("counting:Counting", "test-1k", tmp_path / "run", **settings)
+    assert ran == [0, 1] and not (tmp_path / "run" / PARTIAL_DIR).exists()
+    ran.clear()
+    stop[0] = -1
+    evaluate("counting:Counting", "test-1k", tmp_path / "run", **settings)
+    assert ran == [0, 1, 2]
+
+
 @pytest.mark.slow(cover="tests/pipeline/test_partial_shard.py::test_an_interrupted_build_resumes_mid_shard_to_the_same_bytes")
 def test_a_killed_two_worker_build_resumes_its_shards_in_flight(tmp_path):
     """SIGKILL of a build on two Dask workers once each worker staged an episode of its
