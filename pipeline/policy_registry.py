@@ -124,7 +124,7 @@ class PolicyKind:
     shards, and ``replay(config, records)`` makes the policy that re-runs an episode from
     them (``summarize_audit(records)``: the run summary's line about them).
     ``names_ref`` prefixes the reference to the errors of describing the policy.
-    ``check(config)`` makes sure, in the driver before the first episode, that what every
+    ``check(config, resolution)`` makes sure, in the driver before the first episode, that what every
     episode needs is there (a VLM's endpoint accepts a connection): PolicyError if not.
 
     What the command line asks of a kind: ``form`` (how a reference is written, e.g.
@@ -146,7 +146,7 @@ class PolicyKind:
     replay: Callable[[Config, list[dict[str, Any]]], Policy] | None = None
     summarize_audit: Callable[[list[dict[str, Any]]], str] | None = None
     names_ref: bool = False
-    check: Callable[[Config | None], None] | None = None
+    check: Callable[[Config | None, int], None] | None = None
     form: str = ""
     about: str = ""
     flags: Mapping[str, Any] = field(default_factory=dict)
@@ -368,7 +368,7 @@ def replay_vlm(config: Config, records: list[dict[str, Any]]) -> Policy:
     return VLMPolicy(VLMConfig.from_dict(config), transport=RecordedTransport(records))
 
 
-def check_vlm(config: Config | None) -> None:
+def check_vlm(config: Config | None, resolution: int) -> None:
     from pipeline.policies.vlm_http import check_reachable
 
     if config is not None:
@@ -461,6 +461,14 @@ def make_sb3(ref: str, options: OpenOptions) -> Policy:
     return cast("Policy", make(ref, options.config))  # a frozen dataclass: its members are read-only
 
 
+def check_sb3(config: Config | None, resolution: int) -> None:
+    """A model trained on images of another side than the run's: one line before the run."""
+    trained = None if config is None else config.get("resolution")
+    if trained is not None and trained != resolution:
+        raise SpecError(f"--resolution {resolution}: the sb3 model {shorten(str(config and config.get('model')))} was "
+                        f"trained on {trained} px images: pass --resolution {trained}")
+
+
 def sb3_files(ref: str) -> tuple[str, ...]:
     from pipeline.loop.sb3_policy import split_ref
 
@@ -515,6 +523,6 @@ register(PolicyKind("openpi", "openpi:", make_openpi, configure=configure_openpi
                     names_ref=True, form="openpi:ws://HOST:PORT", about="an openpi policy server",
                     examples=("openpi:ws://127.0.0.1:8000?image=observation/image",)))
 register(PolicyKind("sb3", "sb3:", make_sb3, configure=configure_sb3, manifest_key="sb3", form="sb3:MODEL.zip",
-                    servable=True, sealed_files=sb3_files,
+                    servable=True, sealed_files=sb3_files, check=check_sb3,
                     about="a saved Stable-Baselines3 model (sb3:ALGO:MODEL.zip names its algorithm)",
                     examples=("sb3:ppo_dyana.zip", "sb3:SAC:models/sac.zip")))

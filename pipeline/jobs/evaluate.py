@@ -414,7 +414,7 @@ def run_eval(spec: JobSpec, report: Report | None = None, recorded: Recorded | N
     options = OpenOptions(WATCHDOG_S if choice.deadline_s is None else choice.deadline_s, choice.isolate, config, seal)
     name, privileged = describe_policy(choice.ref, options) if recorded is None else (recorded.name, recorded.privileged)
     if kind.check is not None and recorded is None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run
-        kind.check(config)
+        kind.check(config, build_settings.resolution)
     settings = EvalSettings(build_settings, slice_name, choice.ref, name, privileged, choice.deadline_s, choice.isolate,
                             config, protocol, kind.name, seal, None if recorded is None else recorded.folder)
     if storage.remote and kind.audit_dir is not None:

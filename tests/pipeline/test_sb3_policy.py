@@ -91,6 +91,15 @@ def test_the_policy_acts_as_the_model_does_in_the_env_it_was_trained_on(ppo_zip)
         policy.reset({"text": "", "fps": 20, "observe_frames": 0, "horizon": 1, "resolution": 64, "hand": "right"})
 
 
+def test_a_run_at_another_resolution_is_one_line_before_it_starts(ppo_zip, tmp_path, capsys):
+    args = eval_args(f"sb3:{ppo_zip}", tmp_path / "run")
+    args[args.index("--resolution") + 1] = "64"
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"trained on {RES} px images: pass --resolution {RES}" in err
+    assert not (tmp_path / "run").exists()
+
+
 def test_the_view_and_action_mapping_come_from_the_saved_spaces(tmp_path):
     """An untrained PPO on the state view with real actions: recorded as such."""
     path = tmp_path / "state.zip"
