@@ -126,8 +126,9 @@ def test_the_policy_and_protocol_options_are_the_registries():
     assert eval_options["policy"].help == policy_help()
     assert all(kind.form in policy_help() for kind in KINDS) and "openpi:ws://HOST:PORT" in policy_help()
     assert serve_options["policy"].help == policy_help(servable=True) == (
-        "oracle, still, chase, predictive, module:callable or lerobot:PATH (a LeRobot checkpoint folder, run with the "
-        "lerobot installed here)")
+        "oracle, still, chase, predictive, module:callable, lerobot:PATH (a LeRobot checkpoint folder, run with the "
+        "lerobot installed here) or sb3:MODEL.zip (a saved Stable-Baselines3 model (sb3:ALGO:MODEL.zip names its "
+        "algorithm))")
     assert serve_options["protocol"].choices == tuple(PROTOCOLS) == ("dyana", "openpi")
     flags = {dest for kind in KINDS for dest in kind.flags}
     assert flags and flags <= set(eval_options)  # every kind's flags are eval's options
