@@ -305,7 +305,8 @@ def test_an_edited_policy_file_is_not_up_to_date(tmp_path):
     (tmp_path / "mine.py").write_text("import numpy as np\n\ndef hold(obs):\n"
                                       "    return np.concatenate([obs['palm_pose'][:3], obs['joint_angles']])\n")
     argv = [str(BIN / "pipeline"), "eval", "--policy", "mine:hold", "--slice", "test-1k", "--episodes", "1",
-            "--resolution", "32", "--workers", "1", "--out", "run", "--quiet"]  # one Dask worker: not the subject
+            "--resolution", "32", "--workers", "1", "--out", "run", "--quiet",
+            "--in-process"]  # one shard in the pipeline process, no policy child: neither is the subject
 
     def run(*extra: str) -> subprocess.CompletedProcess:
         return subprocess.run([*argv, *extra], cwd=tmp_path, capture_output=True, text=True, timeout=300)
