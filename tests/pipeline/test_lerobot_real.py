@@ -1,18 +1,28 @@
-"""Opt-in (``-m lerobot_real``): the real LeRobot releases train ACT on a Dyana export with
-their own ``lerobot-train`` and run the checkpoint with ``pipeline eval --policy lerobot:...``.
+"""The training command lines of docs/guides/export-lerobot.md, run with the real LeRobot
+releases (opt-in, ``-m lerobot_real``): ACT and Diffusion Policy train on a Dyana export with
+each release's own ``lerobot-train``, and the checkpoint runs with ``pipeline eval --policy
+lerobot:...``.
+
+The lines are read from the guide (one ``lerobot-train`` block per release and policy, its
+``docs-test: skip lerobot X.Y.x: ...`` marker naming the release), so a change to the
+guide's flags changes what these tests run. Only the flags in :func:`shrunk` change: the
+test's own two-episode export at 96 px, its output folder and a few steps (the point is that
+the path works end to end: the checkpoint's features, its normalisation style,
+un-normalised actions; not what the policy learns). The default test run checks, without
+LeRobot, that every documented line is found and holds those flags.
 
 Each release lives in its own environment made by ``.ci/lerobot-venvs`` under
 ``$DYANA_LEROBOT_VENVS`` (default ``~/.cache/dyana/lerobot-venvs``), holding that lerobot
-and this checkout of Dyana; a release whose environment is missing is skipped. LeRobot
-0.3.x trains on the v2.1 export, later releases on v3.0. A few steps on two episodes at
-64 px: the point is that the path works end to end (the checkpoint's features, its
-normalisation style, un-normalised actions), not what the policy learns.
+and this checkout of Dyana; a release whose environment is missing is skipped, saying so.
+LeRobot 0.3.x trains on the v2.1 export, later releases on v3.0.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import shlex
 import subprocess
 from pathlib import Path
 
@@ -23,26 +33,95 @@ import catalog
 from catalog.export.lerobot import ExportSettings
 from catalog.store.manifest import load_manifest
 from pipeline.jobs.export import export
+from tests.docs.pages import load
 
 VENVS = Path(os.environ.get("DYANA_LEROBOT_VENVS", Path.home() / ".cache" / "dyana" / "lerobot-venvs"))
 RELEASES = ("0.3.2", "0.4.4", "0.6.1")
-RESOLUTION, STEPS = 64, 4
-pytestmark = pytest.mark.lerobot_real
+POLICIES = ("act", "diffusion")
+GUIDE = "docs/guides/export-lerobot.md"
+#: 96 px: at least Diffusion Policy's 84 px crop in 0.3.x, so no flag but the shrunk ones changes.
+RESOLUTION, STEPS = 96, 4
+
+
+def series(version: str) -> str:
+    """``0.4.4`` -> ``0.4``: the guide has one section per minor release."""
+    return ".".join(version.split(".")[:2])
+
+
+def documented(release: str, policy: str) -> tuple[dict[str, str], list[str]]:
+    """The environment and argv (``lerobot-train`` first) of the guide's line for LeRobot
+    ``release`` (``0.4``) and ``policy``: the one block whose skip marker names the release."""
+    found = []
+    for block in load(GUIDE).blocks:
+        if block.marker is None or not re.match(rf"lerobot {re.escape(release)}\.x:", block.marker.argument):
+            continue
+        words = shlex.split(block.code.replace("\\\n", " "), comments=True)
+        env = {}
+        while words and re.fullmatch(r"[A-Z_][A-Z0-9_]*=.*", words[0]):
+            name, _, value = words.pop(0).partition("=")
+            env[name] = value
+        if words[:1] == ["lerobot-train"] and f"--policy.type={policy}" in words:
+            found.append((env, words))
+    assert len(found) == 1, f"{GUIDE}: {len(found)} lerobot-train lines for LeRobot {release}.x and {policy}, want 1"
+    return found[0]
+
+
+def shrunk(dataset: Path, output: Path) -> dict[str, str]:
+    """What the tests change in a documented line, and to what; nothing else changes."""
+    return {"--dataset.root": str(dataset), "--output_dir": str(output), "--steps": str(STEPS),
+            "--save_freq": str(STEPS), "--log_freq": "1"}
+
+
+def shrink(argv: list[str], changes: dict[str, str]) -> list[str]:
+    """``argv`` with each ``--flag=value`` of ``changes`` given its new value; every one must be there once."""
+    out, seen = [], []
+    for word in argv:
+        flag, equals, _ = word.partition("=")
+        if equals and flag in changes:
+            seen.append(flag)
+            word = f"{flag}={changes[flag]}"
+        out.append(word)
+    assert sorted(seen) == sorted(changes), f"{GUIDE}: want each of {sorted(changes)} once in {shlex.join(argv)}"
+    return out
+
+
+@pytest.mark.parametrize("policy", POLICIES)
+@pytest.mark.parametrize("version", RELEASES)
+def test_the_guide_has_an_offline_cpu_training_line_per_release_and_policy(version, policy):
+    """Runs by default, without LeRobot: the lines the opt-in tests run are on the page."""
+    env, argv = documented(series(version), policy)
+    shrink(argv, shrunk(Path("d"), Path("o")))
+    assert env == {"HF_HUB_OFFLINE": "1"}
+    for flag in ("--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false"):
+        assert flag in argv, (version, policy, flag)
+    assert any(word.startswith("--dataset.video_backend=") for word in argv), (version, policy)
 
 
 def _venv(version: str) -> Path:
     venv = VENVS / f"lerobot-{version}"
     if not (venv / "bin" / "lerobot-train").is_file():
-        pytest.skip(f"no {venv} (make it with .ci/lerobot-venvs {version})")
+        pytest.skip(f"no LeRobot {version} environment at {venv} (make it with .ci/lerobot-venvs {version})")
     return venv
 
 
-def _run(argv: list[str], cwd: Path, timeout: float) -> subprocess.CompletedProcess:
+def _run(argv: list[str], cwd: Path, timeout: float, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_HOME": str(cwd / "hf-home"), "WANDB_MODE": "disabled",
-           "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1")}
+           "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"), **(env or {})}
     result = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+    with open(cwd / f"{Path(argv[0]).name}.log", "a", encoding="utf-8") as log:  # kept: lerobot-train's step times
+        log.write(f"$ {shlex.join(argv)}\n{result.stdout}{result.stderr}")
     assert result.returncode == 0, f"{' '.join(argv)}\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}"
     return result
+
+
+def _train(venv: Path, version: str, policy: str, source: Path, tmp_path: Path) -> Path:
+    """The guide's line for this release and policy, shrunk, on the release's export format;
+    the checkpoint's ``pretrained_model`` folder."""
+    env, argv = documented(series(version), policy)
+    dataset, train = tmp_path / "dataset", tmp_path / "train"
+    export(source, dataset, ExportSettings("lerobot-v2.1" if version.startswith("0.3.") else "lerobot"))
+    _run([str(venv / "bin" / argv[0]), *shrink(argv, shrunk(dataset, train))[1:]], tmp_path, 3600, env)
+    return train / "checkpoints" / "last" / "pretrained_model"
 
 
 @pytest.fixture(scope="module")
@@ -54,33 +133,25 @@ def source(tmp_path_factory) -> Path:
     return out / "linear-fast"
 
 
+@pytest.mark.lerobot_real
+@pytest.mark.parametrize("policy", POLICIES)
 @pytest.mark.parametrize("version", RELEASES)
-def test_lerobot_trains_act_on_the_export_and_the_checkpoint_runs_in_the_loop(source, tmp_path, version):
+def test_the_guides_training_line_trains_and_the_checkpoint_runs_in_the_loop(source, tmp_path, version, policy):
     venv = _venv(version)
     legacy = version.startswith("0.3.")
-    dataset = tmp_path / "dataset"
-    export(source, dataset, ExportSettings("lerobot-v2.1" if legacy else "lerobot"))
-    train = tmp_path / "train"
-    argv = [str(venv / "bin" / "lerobot-train"), "--dataset.repo_id=dyana/tiny", f"--dataset.root={dataset}",
-            "--policy.type=act", "--policy.device=cpu", "--policy.push_to_hub=false",
-            "--policy.pretrained_backbone_weights=null", "--policy.chunk_size=10", "--policy.n_action_steps=10",
-            "--policy.dim_model=64", "--policy.dim_feedforward=128", "--policy.n_encoder_layers=1",
-            "--policy.n_decoder_layers=1", "--batch_size=2", f"--steps={STEPS}", "--num_workers=0",
-            f"--save_freq={STEPS}", "--log_freq=1", "--wandb.enable=false", f"--output_dir={train}"]
-    if legacy:
-        argv.append("--dataset.video_backend=torchcodec")
-    _run(argv, tmp_path, 3600)
-    model = train / "checkpoints" / "last" / "pretrained_model"
+    model = _train(venv, version, policy, source, tmp_path)
     config = json.loads((model / "config.json").read_text())
+    assert config["type"] == policy
     assert set(config["input_features"]) == {"observation.images.ego", "observation.state"}, \
         "the export leaves the object's pose out, so the policy never asks for it"
     assert (model / "policy_preprocessor.json").is_file() != legacy
     run = tmp_path / "run"
-    _run([str(venv / "bin" / "pipeline"), "eval", "--policy", f"lerobot:{train}", "--slice", "test-1k",
+    _run([str(venv / "bin" / "pipeline"), "eval", "--policy", f"lerobot:{model.parents[2]}", "--slice", "test-1k",
           "--episodes", "2", "--resolution", str(RESOLUTION), "--workers", "1", "--quiet", "--out", str(run)],
-         tmp_path, 1800)
+         tmp_path, 3600)
     lerobot = load_manifest(run).extra["lerobot"]
-    assert lerobot["normalisation"] == ("model" if legacy else "processors") and lerobot["device"] == "cpu"
+    assert lerobot["type"] == policy and lerobot["device"] == "cpu"
+    assert lerobot["normalisation"] == ("model" if legacy else "processors")
     with catalog.open(source) as ds:
         trained = np.stack([ds[i]["action"] for i in range(len(ds))])
     with catalog.open(run) as ds:
@@ -99,17 +170,9 @@ def test_lerobot_trains_act_on_the_export_and_the_checkpoint_runs_in_the_loop(so
 EVAL_RELEASES = ("0.4.4", "0.6.1")
 
 
-def _checkpoint(venv: Path, source: Path, tmp_path: Path) -> Path:
-    """A few ACT steps on the v3.0 export (decoded with PyAV: torchcodec needs FFmpeg's libraries)."""
-    dataset, train = tmp_path / "dataset", tmp_path / "train"
-    export(source, dataset, ExportSettings("lerobot"))
-    _run([str(venv / "bin" / "lerobot-train"), "--dataset.repo_id=dyana/tiny", f"--dataset.root={dataset}",
-          "--dataset.video_backend=pyav", "--policy.type=act", "--policy.device=cpu", "--policy.push_to_hub=false",
-          "--policy.pretrained_backbone_weights=null", "--policy.chunk_size=10", "--policy.n_action_steps=10",
-          "--policy.dim_model=64", "--policy.dim_feedforward=128", "--policy.n_encoder_layers=1",
-          "--policy.n_decoder_layers=1", "--batch_size=2", f"--steps={STEPS}", "--num_workers=0",
-          f"--save_freq={STEPS}", "--log_freq=1", "--wandb.enable=false", f"--output_dir={train}"], tmp_path, 3600)
-    return train / "checkpoints" / "last" / "pretrained_model"
+def _checkpoint(venv: Path, version: str, source: Path, tmp_path: Path) -> Path:
+    """A few steps of the guide's ACT line for this release."""
+    return _train(venv, version, "act", source, tmp_path)
 
 
 def _serving(venv: Path, argv: list[str], cwd: Path) -> tuple[subprocess.Popen, str]:
@@ -128,6 +191,7 @@ def _serving(venv: Path, argv: list[str], cwd: Path) -> tuple[subprocess.Popen, 
     raise AssertionError(f"pipeline serve exited with {proc.wait()} before listening")
 
 
+@pytest.mark.lerobot_real
 @pytest.mark.parametrize("version", EVAL_RELEASES)
 def test_lerobot_eval_runs_dyana_and_records_what_pipeline_eval_records(source, tmp_path, version):
     """``lerobot-eval --env.type=dyana`` on 2 test-1k episodes: LeRobot's success rate is the
@@ -141,7 +205,7 @@ def test_lerobot_eval_runs_dyana_and_records_what_pipeline_eval_records(source, 
     from tests.shard_files import shard_bytes
 
     venv = _venv(version)
-    model = _checkpoint(venv, source, tmp_path)
+    model = _checkpoint(venv, version, source, tmp_path)
     recorded, evaluated = tmp_path / "lerobot-run", tmp_path / "eval-run"
     result = _run([str(venv / "bin" / "lerobot-eval"), f"--policy.path={model}", "--policy.device=cpu",
                    "--env.type=dyana", "--env.discover_packages_path=pipeline.envhub", f"--env.resolution={RESOLUTION}",
