@@ -119,6 +119,11 @@ class PartialShard:
             os.replace(temp, path)
         except OSError:
             atomic.discard(temp)
+            for folder in (path.parent, path.parent.parent):  # made for nothing (a full disk): not left behind
+                try:
+                    folder.rmdir()
+                except OSError:  # not empty (episodes staged before), or gone
+                    break
 
     def load(self, spec: EpisodeSpec) -> StagedEpisode | None:
         """The staged episode of ``spec``, or None: none staged, or the file is refused

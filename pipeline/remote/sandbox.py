@@ -53,6 +53,8 @@ MS_RDONLY, MS_NOSUID, MS_NODEV, MS_REMOUNT, MS_BIND, MS_REC = 1, 2, 4, 32, 4096,
 PR_SET_NO_NEW_PRIVS = 38
 #: Seconds the probe of :func:`check_available` may take.
 PROBE_TIMEOUT_S = 20.0
+#: The module run inside the sandbox: it serves the policy, or prints its configuration.
+INSIDE = "pipeline.sealed_main"
 #: Seconds a sealed configuration (:func:`configured`: loading a model once) may take.
 CONFIGURE_TIMEOUT_S = 300.0
 #: The most a sealed configuration may print (a manifest's key, not a data channel).
@@ -150,7 +152,7 @@ def _sealed(unshare: str, seal: Seal, argv: list[str]) -> list[str]:
 
 def command(seal: Seal, ref: str, fd: int) -> list[str]:
     """The command that serves ``ref`` sealed, on the listening socket ``fd``."""
-    return _sealed(check_available(), seal, [sys.executable, "-m", "pipeline.remote.sandbox", "serve", ref, str(fd)])
+    return _sealed(check_available(), seal, [sys.executable, "-m", INSIDE, "serve", ref, str(fd)])
 
 
 def environment() -> dict[str, str]:
@@ -232,29 +234,6 @@ def seal_here(spec: dict) -> None:
         raise OSError(err, f"cannot drop the sandbox's privileges: {os.strerror(err)}")
 
 
-def serve_sealed(ref: str, fd: int) -> None:
-    """Serve ``ref`` (dyana/1, one connection) on the inherited listening socket ``fd``, made
-    as ``pipeline serve`` makes it (its kind's configuration; in this process)."""
-    from pipeline.policy_registry import serving_factory
-    from pipeline.remote.serve import checked_factory, serve
-
-    serve(checked_factory(serving_factory(ref, {}), None, ref), max_connections=1, sock=socket.socket(fileno=fd),
-          label=ref)
-
-
-def configure_sealed(ref: str, config_json: str) -> int:
-    """Print ``ref``'s kind's configuration as JSON (in the sandbox); its refusal on stderr, exit 2."""
-    from pipeline.policy_registry import kind_of
-    from schemas.errors import DyanaError
-
-    try:
-        print(json.dumps(kind_of(ref).configure(ref, json.loads(config_json))), flush=True)
-    except DyanaError as exc:
-        print(exc, file=sys.stderr, flush=True)
-        return 2
-    return 0
-
-
 def configured(seal: Seal, ref: str, config: dict | None) -> dict | None:
     """The configuration of ``ref``'s kind made sealed: for a kind whose configuration loads
     the user's code (an SB3 zip unpickles it), never in the driver, which holds the secret.
@@ -262,7 +241,7 @@ def configured(seal: Seal, ref: str, config: dict | None) -> dict | None:
     or null; PolicyError with its one line otherwise."""
     from schemas.errors import PolicyError
 
-    argv = [sys.executable, "-m", "pipeline.remote.sandbox", "configure", ref, json.dumps(config)]
+    argv = [sys.executable, "-m", INSIDE, "configure", ref, json.dumps(config)]
     process = subprocess.Popen(_sealed(check_available(), seal, argv), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, env=environment())
     try:
@@ -317,16 +296,9 @@ def capped_output(process: subprocess.Popen[bytes], timeout_s: float, cap: int) 
 
 
 def main(argv: Sequence[str]) -> int:
-    """``SPEC -- COMMAND...`` (seal, then run COMMAND), ``serve REF FD`` or ``configure REF
-    CONFIG`` (in the sandbox)."""
-    if len(argv) == 3 and argv[0] == "serve" and argv[2].isdigit():
-        serve_sealed(argv[1], int(argv[2]))
-        return 0
-    if len(argv) == 3 and argv[0] == "configure":
-        return configure_sealed(argv[1], argv[2])
+    """``SPEC -- COMMAND...``: seal this process, then run COMMAND (:data:`INSIDE`'s)."""
     if len(argv) < 3 or argv[1] != "--":
-        print("usage: python -m pipeline.remote.sandbox SPEC -- COMMAND... | serve REF FD | configure REF CONFIG",
-              file=sys.stderr)
+        print("usage: python -m pipeline.remote.sandbox SPEC -- COMMAND...", file=sys.stderr)
         return 2
     try:
         seal_here(json.loads(argv[0]))
