@@ -62,8 +62,8 @@ class GraspDesign:
     cylinder's grasp is sized for its axis as it lies (else along X);
     ``hover_by_object``: (category, hover) pairs overriding ``hover`` for those objects;
     ``low_objects``: categories the palm grasps as low as the closing fingers allow (the
-    lowest hover from ``min_hover`` up, in 0.01 steps, whose finger capsules stay
-    ``table_clearance`` over the table); ``turn_to_axis``: whether the palm turns about
+    lowest hover from ``min_hover`` to ``max_hover``, in 0.01 steps, whose finger capsules
+    stay ``table_clearance`` over the table); ``turn_to_axis``: whether the palm turns about
     the vertical so that the fingers close across a lying cylinder's axis."""
 
     name: str
@@ -74,13 +74,14 @@ class GraspDesign:
     hover_by_object: tuple[tuple[str, float], ...] = ()
     low_objects: tuple[str, ...] = ()
     min_hover: float = 0.15
+    max_hover: float = 0.6
     table_clearance: float = 0.0
     turn_to_axis: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.hand, HandGeometry):
             raise SpecError(f"grasp design {self.name!r}: hand must be a HandGeometry, got {shorten(repr(self.hand))}")
-        for hover in (self.hover, self.min_hover, *(h for _, h in self.hover_by_object)):
+        for hover in (self.hover, self.min_hover, self.max_hover, *(h for _, h in self.hover_by_object)):
             if isinstance(hover, bool) or not isinstance(hover, numbers.Real) or not 0.0 < hover < 2.0:
                 raise SpecError(f"grasp design {self.name!r}: a hover must be a number in (0, 2), got {shorten(repr(hover))}")
         for category in (*(c for c, _ in self.hover_by_object), *self.low_objects):
@@ -94,18 +95,26 @@ class GraspDesign:
                             f"got {shorten(repr(self.synergy_end))}")
 
     def hover_for(self, category: str) -> float:
-        """The palm centre's fixed height over ``category``'s top (units); the highest
-        tried for a low object."""
+        """The palm centre's fixed height over ``category``'s top (units), unless it is one
+        of ``low_objects``."""
         return dict(self.hover_by_object).get(category, self.hover)
 
 
 #: The dataset's grasp (4.x): the splayed thumb, hovering PALM_HOVER over the top.
 SPLAYED = GraspDesign("splayed", DEFAULT_GEOMETRY, PALM_HOVER, tuple(float(a) for a in SYNERGY_END.reshape(15)), False)
-#: The opposable thumb (its synergy to its joint limits, so it reaches the object's back),
-#: lying cylinders sized as they lie, boxes grasped from 0.1-0.15 higher (at PALM_HOVER
-#: the curled fingers of the hand reach under the table beside a low box).
-OPPOSED = GraspDesign("opposed", OPPOSED_THUMB, PALM_HOVER, (1.2, 1.0, 1.3, *SYNERGY_END[1:].reshape(12).tolist()), True,
-                      hover_by_object=(("cracker_box", 0.45), ("sugar_box", 0.5), ("toy_cube", 0.45)))
+_LYING = ("soda_can", "water_bottle", "paper_roll")
+#: The opposable thumb's grasp (docs/concepts/grasp-hold.md, benchmarks/hold_grasp_design.py):
+#: the fingers' synergy leads with the proximal joint (they reach down past the object
+#: before curling under it); boxes from 0.1-0.15 higher (at PALM_HOVER the curled fingers
+#: reach under the table beside a low box); lying cylinders with the palm turned across
+#: their axis and as low as the closing fingers allow (at least 1 mm over the top, finger
+#: capsules at most 0.04 into the table: the hand body allows 0.05), so that the fingers
+#: and the thumb close under the cylinder's equator.
+OPPOSED = GraspDesign(
+    "opposed", OPPOSED_THUMB, PALM_HOVER, (1.2, 0.8, 1.0) + (1.6, 1.0, 0.5) * 4, True,
+    hover_by_object=(("cracker_box", 0.45), ("sugar_box", 0.5), ("toy_cube", 0.45)),
+    low_objects=_LYING, min_hover=0.13, max_hover=0.6, table_clearance=-0.04, turn_to_axis=True,
+)
 #: Every grasp design by name; the dataset's is :data:`DEFAULT_DESIGN`.
 DESIGNS = MappingProxyType({d.name: d for d in (SPLAYED, OPPOSED)})
 DEFAULT_DESIGN = SPLAYED
@@ -170,15 +179,15 @@ def _lowest(category: str, size: float, side: str, design: GraspDesign, yaw: flo
 
 @functools.lru_cache(maxsize=4096)
 def _hover(category: str, size: float, side: str, design: GraspDesign, yaw: float) -> float:
-    highest = design.hover_for(category)
     if category not in design.low_objects:
-        return highest
+        return design.hover_for(category)
     top = 2.0 * object_category(category).half_height(size)
-    for step in range(int(round((highest - design.min_hover) / 0.01)) + 1):
+    hover = design.min_hover
+    for step in range(int(round((design.max_hover - design.min_hover) / 0.01)) + 1):
         hover = round(design.min_hover + 0.01 * step, 6)
         if top + hover + _lowest(category, size, side, design, yaw, hover)[1] >= design.table_clearance:
-            return hover
-    return highest
+            break
+    return hover
 
 
 def _yaw(category: str, design: GraspDesign, yaw: float) -> float:

@@ -131,12 +131,13 @@ SPLAYED_THUMB = HandGeometry(
     ((-0.36, -0.04, -0.22), *_FINGER_ROOTS),
     (((-0.75, -0.20, 0.63), (0.45, -0.85, 0.30)), None, None, None, None),
 )
-#: The opposable thumb: it roots under the palm, 0.1 in from its rear edge, points back in
-#: the palm's plane (so the resting hand hides no more of the table than the palm) and
-#: flexes down and forward, onto the back of an object under the palm, opposite the fingers.
+#: The opposable thumb: it roots under the palm on its midline, 0.1 in from its rear edge,
+#: points back in the palm's plane (so the resting hand hides little more than the palm) and
+#: flexes down and forward, onto the back of an object under the palm, opposite the middle
+#: and ring fingers (off the midline, at x = -0.1, a small ball slips out sideways).
 OPPOSED_THUMB = HandGeometry(
     "opposed-thumb",
-    ((-0.10, -0.10, -0.40), *_FINGER_ROOTS),
+    ((0.0, -0.10, -0.40), *_FINGER_ROOTS),
     (((0.0, 0.0, -1.0), (0.0, -1.0, 0.0)), None, None, None, None),
 )
 #: Every hand geometry by name; the dataset's is :data:`DEFAULT_GEOMETRY`.
