@@ -76,15 +76,21 @@ def tally(rows: list[dict], key: str) -> dict:
 
 def limits(design: GraspDesign, spec: EpisodeSpec, palm_pose: np.ndarray, joints: np.ndarray) -> dict:
     """The ground truth's peak palm speed (units/s), acceleration (units/s^2), joint speed
-    (rad/s), palm turn rate (rad/s) and its finger capsules' deepest point under the table."""
+    (rad/s) and palm turn rate (rad/s); how deep its finger segments go under the table as
+    the hand body's cylinders (``table_depth``, :mod:`generators.hand_urdf`) and as the hold
+    test's capsules (``table_depth_capsule``)."""
     a = spec.observe_frames
     step = np.diff(palm_pose[a:, :3], axis=0) * FPS
     pos = chain_frames(palm_pose, joints, spec.hand, design.hand)[0]
+    start, end, radius = pos[:, :, :3], pos[:, :, 1:], FINGER_RADII[None, :, None]
+    d_y = (end - start)[..., 1] / np.linalg.norm(end - start, axis=-1)
+    cylinder = np.minimum(start[..., 1], end[..., 1]) - radius * np.sqrt(np.clip(1.0 - d_y**2, 0.0, 1.0))
     return {"palm_speed": float(np.linalg.norm(step, axis=1).max()),
             "palm_acceleration": float(np.linalg.norm(np.diff(step, axis=0), axis=1).max() * FPS),
             "joint_speed": float(np.abs(np.diff(joints, axis=0)).max() * FPS),
             "palm_turn_rate": float(np.abs(np.diff(palm_pose[:, 4])).max() * FPS),
-            "table_depth": float(max(0.0, -(pos[..., 1] - FINGER_RADII[None, :, None]).min()))}
+            "table_depth": float(max(0.0, -cylinder.min())),
+            "table_depth_capsule": float(max(0.0, -(pos[..., 1] - radius).min()))}
 
 
 def ground_truth(design: GraspDesign, specs: list[EpisodeSpec]) -> dict:

@@ -15,6 +15,7 @@ the hover height and the synergy; :data:`DEFAULT_DESIGN` is the dataset's. A des
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import numbers
@@ -32,6 +33,7 @@ from generators.hand import (
     OPPOSED_THUMB,
     REST_JOINTS,
     SIDES,
+    SPLAYED_THUMB,
     HandGeometry,
     chain_frames,
 )
@@ -101,7 +103,7 @@ class GraspDesign:
 
 
 #: The dataset's grasp (4.x): the splayed thumb, hovering PALM_HOVER over the top.
-SPLAYED = GraspDesign("splayed", DEFAULT_GEOMETRY, PALM_HOVER, tuple(float(a) for a in SYNERGY_END.reshape(15)), False)
+SPLAYED = GraspDesign("splayed", SPLAYED_THUMB, PALM_HOVER, tuple(float(a) for a in SYNERGY_END.reshape(15)), False)
 _LYING = ("soda_can", "water_bottle", "paper_roll")
 #: The opposable thumb's grasp (docs/concepts/grasp-hold.md, benchmarks/hold_grasp_design.py):
 #: the fingers' synergy leads with the proximal joint (they reach down past the object
@@ -115,13 +117,19 @@ OPPOSED = GraspDesign(
     hover_by_object=(("cracker_box", 0.45), ("sugar_box", 0.5), ("toy_cube", 0.45)),
     low_objects=_LYING, min_hover=0.13, max_hover=0.6, table_clearance=-0.04, turn_to_axis=True,
 )
-#: Every grasp design by name; the dataset's is :data:`DEFAULT_DESIGN`.
-DESIGNS = MappingProxyType({d.name: d for d in (SPLAYED, OPPOSED)})
-DEFAULT_DESIGN = SPLAYED
+#: :data:`OPPOSED` with the palm kept in the rest orientation (the action steers no turn):
+#: lying cylinders are sized as they lie, and the fingers close along the axis where it
+#: runs along Z.
+OPPOSED_FIXED = dataclasses.replace(OPPOSED, name="opposed-fixed", turn_to_axis=False)
+#: Every grasp design by name.
+DESIGNS = MappingProxyType({d.name: d for d in (SPLAYED, OPPOSED, OPPOSED_FIXED)})
+#: The dataset's grasp: the design of the dataset's hand, :data:`generators.hand.DEFAULT_GEOMETRY`
+#: (switching that one name switches the hand and its grasp together).
+DEFAULT_DESIGN = {SPLAYED_THUMB.name: SPLAYED, OPPOSED_THUMB.name: OPPOSED}[DEFAULT_GEOMETRY.name]
 
 
 def _finger_clearance(palm_pose: np.ndarray, closure: np.ndarray, category: str, size: float, side: str,
-                      design: GraspDesign = SPLAYED, yaw: float = 0.0) -> np.ndarray:
+                      design: GraspDesign = DEFAULT_DESIGN, yaw: float = 0.0) -> np.ndarray:
     """(len(closure), 5) clearance of each finger's capsules at each closure fraction."""
     cat = object_category(category)
     end = np.asarray(design.synergy_end)
@@ -207,12 +215,12 @@ def _checked(category: str, size: float, side: str, design: GraspDesign, yaw: fl
     return category, float(size), side, design, _yaw(category, design, yaw)
 
 
-def grasp_hover(category: str, size: float, side: str, design: GraspDesign = SPLAYED, yaw: float = 0.0) -> float:
+def grasp_hover(category: str, size: float, side: str, design: GraspDesign = DEFAULT_DESIGN, yaw: float = 0.0) -> float:
     """The palm centre's height over the object's top (units) the ground truth grasps from."""
     return _hover(*_checked(category, size, side, design, yaw))
 
 
-def lowest_fingertip_offset(category: str, size: float, side: str, design: GraspDesign = SPLAYED,
+def lowest_fingertip_offset(category: str, size: float, side: str, design: GraspDesign = DEFAULT_DESIGN,
                             yaw: float = 0.0) -> float:
     """Lowest fingertip height relative to the palm centre (palm down) while the fingers
     close from rest to :func:`grasp_angles` (the synergy sampled at 21 fractions)."""
@@ -239,7 +247,7 @@ def _check(category: str, size: float, side: str) -> None:
         raise SpecError(f"object size must be a finite number > 0, got {shorten(repr(size))}")
 
 
-def grasp_angles(category: str, size: float, side: str, design: GraspDesign = SPLAYED, yaw: float = 0.0) -> np.ndarray:
+def grasp_angles(category: str, size: float, side: str, design: GraspDesign = DEFAULT_DESIGN, yaw: float = 0.0) -> np.ndarray:
     """(15,) ground-truth joint angles (radians) grasping ``category`` of ``size`` with the
     ``side`` hand of ``design``; ``yaw``: a lying cylinder's axis relative to the palm
     (:func:`cylinder_yaw`), used when the design sizes it as placed."""

@@ -12,11 +12,11 @@ import numpy as np
 from generators import motion
 from generators.ballistics import elevation
 from generators.grasp import DEFAULT_DESIGN, GraspDesign, cylinder_yaw, grasp_angles
-from generators.interception import HandPlan, plan_episode
+from generators.interception import HandPlan, closure_profile, plan_episode
 from generators.visibility import first_hidden_frame
 from schemas.errors import InfeasibleError
 from schemas.objects import object_category
-from schemas.scene import GRASP_FRAMES, MIN_OBSERVE_VISIBLE
+from schemas.scene import GRASP_FRAMES, GRASP_RATIO, MIN_OBSERVE_VISIBLE
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -47,9 +47,12 @@ def check_observable(spec: EpisodeSpec, poses: np.ndarray, design: GraspDesign =
 
 
 def grasp_frame(spec: EpisodeSpec) -> int:
-    """The frame the ground truth's grasp finishes closing: the intercept frame plus
-    GRASP_FRAMES - 1 (the last frame if sooner)."""
-    return min(spec.intercept_frame + GRASP_FRAMES - 1, spec.num_frames - 1)
+    """The frame the ground truth's grasp first counts as closed (every joint at GRASP_RATIO
+    of its grasp angle, :func:`schemas.events.grasp_closed`), where the hold test starts: the
+    intercept frame plus the first step of the closing profile that reaches GRASP_RATIO
+    (the last frame if sooner)."""
+    closure = closure_profile(spec.intercept_frame + GRASP_FRAMES, spec.intercept_frame)
+    return min(int(np.argmax(closure >= GRASP_RATIO)), spec.num_frames - 1)
 
 
 def grasp_yaw(spec: EpisodeSpec, poses: np.ndarray) -> float:
@@ -61,15 +64,14 @@ def grasp_yaw(spec: EpisodeSpec, poses: np.ndarray) -> float:
 
 
 def palm_heading(spec: EpisodeSpec, poses: np.ndarray) -> np.ndarray:
-    """(n,) the palm turn about the vertical (its pitch) that lays the palm's X axis along a
-    lying cylinder's axis at every frame of ``poses``: continuous (the axis is unwrapped by
-    its half-turn symmetry) and within a quarter turn of the rest orientation at the
-    intercept frame."""
-    yaw = np.array([cylinder_yaw(q) for q in poses[:, 3:]])
-    step = (np.diff(yaw) + np.pi / 2) % np.pi - np.pi / 2
-    heading = np.concatenate([[0.0], np.cumsum(step)]) + yaw[0]
-    i = spec.intercept_frame
-    return heading - np.pi * np.round(heading[i] / np.pi)
+    """(n,) the palm's turn about the vertical (its pitch) that lays its X axis along a lying
+    cylinder's axis at :func:`grasp_frame` of ``poses``, within a quarter turn of the rest
+    orientation, at every frame: the palm turns once, on the approach, and keeps that
+    heading (a cylinder rolling on a curve turns with its path, fastest where it slows to
+    turn back, up to 25 rad/s in test-1k's harmonic paths; following it would turn the palm
+    as fast)."""
+    yaw = cylinder_yaw(poses[grasp_frame(spec), 3:])
+    return np.full(len(poses), yaw - np.pi * np.round(yaw / np.pi))
 
 
 def episode_grasp(spec: EpisodeSpec, design: GraspDesign = DEFAULT_DESIGN) -> np.ndarray:

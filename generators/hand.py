@@ -140,8 +140,10 @@ OPPOSED_THUMB = HandGeometry(
     ((0.0, -0.10, -0.40), *_FINGER_ROOTS),
     (((0.0, 0.0, -1.0), (0.0, -1.0, 0.0)), None, None, None, None),
 )
-#: Every hand geometry by name; the dataset's is :data:`DEFAULT_GEOMETRY`.
+#: Every hand geometry by name.
 GEOMETRIES = MappingProxyType({g.name: g for g in (SPLAYED_THUMB, OPPOSED_THUMB)})
+#: The dataset's hand, and (through :data:`generators.grasp.DEFAULT_DESIGN`) its grasp: every
+#: function here and in the modules that take a geometry or a design defaults to it.
 DEFAULT_GEOMETRY = SPLAYED_THUMB
 
 

@@ -20,7 +20,8 @@ Timeline (frames, ``a = spec.observe_frames``, ``i = spec.intercept_frame``):
 The palm keeps the rest orientation throughout (actions steer only its position), unless
 a design turns it across a lying cylinder's axis (``heading``): then it turns about the
 vertical along the approach (the same ramp-cruise-ramp quintic, arriving with the heading's
-rate) and follows the heading from the intercept frame on.
+rate) and follows the heading from the intercept frame on (the ground truth's heading is
+constant: :func:`generators.ground_truth.palm_heading`).
 
 Action: ``action[t] = (palm_xyz[t + 1], joint_angles[t + 1])``, the targets issued at
 frame ``t`` and reached at frame ``t + 1``; the last frame repeats its own state.
