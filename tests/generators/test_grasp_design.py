@@ -21,7 +21,7 @@ from generators.grasp import (
     grasp_hover,
     lowest_fingertip_offset,
 )
-from generators.ground_truth import episode_grasp, plan
+from generators.ground_truth import episode_grasp, grasp_frame, plan
 from generators.hand import (
     DEFAULT_GEOMETRY,
     FINGER_RADII,
@@ -136,14 +136,17 @@ def test_a_low_grasp_keeps_the_fingers_off_the_table(name, factor):
 
 
 def test_the_opposed_plan_turns_the_palm_across_a_lying_cylinder_and_its_grasp_is_reproducible():
+    """Turned once, on the approach: at rest before acting, constant from the intercept frame on."""
     spec = spec_for("test-1k", 5)  # a water bottle on a circle: its axis turns through the grasp
     assert spec.object in LYING
     hand, poses, _ = plan(spec, OPPOSED)
-    k = spec.intercept_frame + 5
+    k = grasp_frame(spec)  # where the hold test starts
+    assert k == spec.intercept_frame + 4
     palm_x = np.array([math.cos(hand.palm_pose[k, 4]), -math.sin(hand.palm_pose[k, 4])])  # its X axis in (x, z)
     yaw = cylinder_yaw(poses[k, 3:])
     assert abs(palm_x @ np.array([math.cos(yaw), -math.sin(yaw)])) == pytest.approx(1.0, abs=1e-9)
     assert np.all(hand.palm_pose[: spec.observe_frames + 1, 3:] == 0.0)
+    assert np.all(hand.palm_pose[spec.intercept_frame :, 4] == hand.palm_pose[k, 4])
     assert np.array_equal(episode_grasp(spec, OPPOSED), hand.grasp_angles)
 
 
