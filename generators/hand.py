@@ -12,7 +12,9 @@ both hands take the same joint angles for the mirrored motion.
 
 Each finger is a chain of three flexion joints rotating about the chain's local +X
 axis; a positive angle curls the finger toward the palm side (local -Y). The thumb's
-chain starts from a fixed, splayed root orientation.
+chain starts from a fixed, splayed root orientation. Where the chains root and point is a
+:class:`HandGeometry`; the kinematics here take one and default to the dataset's,
+:data:`DEFAULT_GEOMETRY`.
 
 Poses are ``(x, y, z, roll, pitch, yaw)`` with ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``,
 pybullet's ``getQuaternionFromEuler([roll, pitch, yaw])`` convention.
