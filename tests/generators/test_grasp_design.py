@@ -163,3 +163,22 @@ def test_designs_are_registered_by_name():
     assert set(DESIGNS) == {"splayed", "opposed", "opposed-fixed"} and DESIGNS["opposed"] is OPPOSED
     assert DESIGNS["opposed-fixed"].hand is OPPOSED_THUMB and not DESIGNS["opposed-fixed"].turn_to_axis
     assert all(isinstance(d, GraspDesign) and isinstance(d.hand, HandGeometry) for d in DESIGNS.values())
+
+
+@pytest.mark.parametrize("side", ["right", "left"])
+def test_the_hold_tests_body_is_the_opposed_hand(side):
+    """The hold test's multibody of the opposed hand, palm turned, matches its forward kinematics."""
+    from generators.bullet import p
+    from generators.hold import _hand_body
+
+    palm = np.array([0.3, 1.2, 0.4, 0.0, 0.7, 0.0])
+    q = np.random.default_rng(5).uniform(0.0, 1.0, 15)
+    client = p.connect(p.DIRECT)
+    try:
+        body = _hand_body(client, side, palm, q, OPPOSED_THUMB)
+        links = np.array([p.getLinkState(body, j, computeForwardKinematics=True, physicsClientId=client)[4]
+                          for j in range(15)])
+    finally:
+        p.disconnect(client)
+    expected = chain_frames(palm, q, side, OPPOSED_THUMB)[0][0, :, :3].reshape(15, 3)
+    np.testing.assert_allclose(links, expected, atol=1e-6)
