@@ -41,7 +41,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from generators.hand import FINGER_RADII, PALM_HALF_EXTENTS, WRIST_OFFSET, chain_frames
+from generators.hand import DEFAULT_GEOMETRY, FINGER_RADII, PALM_HALF_EXTENTS, WRIST_OFFSET, HandGeometry, chain_frames
 from schemas.errors import SpecError
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle
@@ -351,12 +351,13 @@ def _add_cylinder_box(rows: _Rows, cc, rc, radius: float, half_length: float, cb
 
 
 # public -------------------------------------------------------------------------------
-def hand_clearances(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str, obstacles) -> np.ndarray:
+def hand_clearances(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str, obstacles,
+                    geometry: HandGeometry = DEFAULT_GEOMETRY) -> np.ndarray:
     """(n, m) distance from the hand's surface to each obstacle at each frame (palm box,
     wrist cylinder, finger capsules); <= 0 where they touch or overlap."""
     obstacles = checked_obstacles(obstacles)
     palm = np.atleast_2d(np.asarray(palm_pose, dtype=np.float64))
-    positions, _ = chain_frames(palm, joint_angles, side)
+    positions, _ = chain_frames(palm, joint_angles, side, geometry)
     n, m = palm.shape[0], len(obstacles)
     if m == 0:
         return np.full((n, 0), np.inf)
@@ -373,10 +374,11 @@ def hand_clearances(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str, 
     return rows.minimum()
 
 
-def hand_clearance(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str, obstacles) -> np.ndarray:
+def hand_clearance(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str, obstacles,
+                   geometry: HandGeometry = DEFAULT_GEOMETRY) -> np.ndarray:
     """(n,) smallest distance from the hand's surface to any obstacle at each frame of
     palm poses (n, 6) and joint angles (n, 15); +inf without obstacles, <= 0 on contact."""
-    per = hand_clearances(palm_pose, joint_angles, side, obstacles)
+    per = hand_clearances(palm_pose, joint_angles, side, obstacles, geometry)
     return per.min(axis=1) if per.shape[1] else np.full(per.shape[0], np.inf)
 
 

@@ -29,11 +29,13 @@ import numpy as np
 
 from generators.bullet import p
 from generators.hand import (
+    DEFAULT_GEOMETRY,
     FINGER_RADII,
     JOINT_LOWER,
     JOINT_UPPER,
     PALM_HALF_EXTENTS,
     SEGMENT_LENGTHS,
+    HandGeometry,
     check_side,
     root_positions,
     root_rotations,
@@ -107,11 +109,11 @@ def palm_path(start: np.ndarray, velocity: np.ndarray, t: np.ndarray) -> np.ndar
     return out
 
 
-def _hand_body(client: int, side: str, palm_pose: np.ndarray, joint_angles: np.ndarray) -> int:
+def _hand_body(client: int, side: str, palm_pose: np.ndarray, joint_angles: np.ndarray, geometry: HandGeometry) -> int:
     """The hand as one multibody: the palm box as base, 15 capsule links (3 per finger)."""
     kw = {"physicsClientId": client}
     palm_shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(PALM_HALF_EXTENTS), **kw)
-    roots, rots = root_positions(side), root_rotations(side)
+    roots, rots = root_positions(side, geometry), root_rotations(side, geometry)
     shapes, parents, positions, orientations = [], [], [], []
     for f in range(5):
         for k in range(3):
@@ -179,13 +181,15 @@ def _relative(palm_pos, palm_quat, obj_pos) -> np.ndarray:
 
 
 def hold_test(object_name: str, object_size: float, side: str, palm_pose, palm_velocity, joint_angles,
-              object_pose, object_velocity, object_angular_velocity) -> HoldResult:
+              object_pose, object_velocity, object_angular_velocity,
+              geometry: HandGeometry = DEFAULT_GEOMETRY) -> HoldResult:
     """Run the hold test from one closing frame's state.
 
     ``palm_pose`` (6,) as :mod:`generators.hand`; ``palm_velocity`` (3,) units/s;
     ``joint_angles`` (15,) radians; ``object_pose`` (7,) x, y, z, qx, qy, qz, qw;
     ``object_velocity`` and ``object_angular_velocity`` (3,) world frame, units/s and
-    rad/s. Pure: the physics starts from nothing in every call; same inputs, same result."""
+    rad/s; ``geometry`` the hand's (:class:`generators.hand.HandGeometry`). Pure: the physics
+    starts from nothing in every call; same inputs, same result."""
     side = check_side(side)
     cat = object_category(object_name)
     lo, hi = cat.size_range
@@ -208,7 +212,7 @@ def hold_test(object_name: str, object_size: float, side: str, palm_pose, palm_v
         p.setGravity(0.0, -GRAVITY, 0.0, **kw)
         table = p.createMultiBody(0.0, p.createCollisionShape(p.GEOM_PLANE, planeNormal=[0.0, 1.0, 0.0], **kw), **kw)
         p.changeDynamics(table, -1, lateralFriction=TABLE_FRICTION, **kw)
-        hand = _hand_body(client, side, palm, joints)
+        hand = _hand_body(client, side, palm, joints, geometry)
         obj = _object_body(client, object_name, float(object_size), pose)
         for link in range(-1, 15):  # the table carries the object only
             p.setCollisionFilterPair(hand, table, link, -1, 0, **kw)

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from generators import motion
-from generators.grasp import grasp_angles
+from generators.grasp import DEFAULT_DESIGN, GraspDesign
+from generators.ground_truth import episode_grasp
 from generators.hold import HoldResult, hold_test
 from schemas.errors import SpecError
 from schemas.events import grasp_closed
@@ -33,23 +34,25 @@ def palm_velocity(palm_pose: np.ndarray, frame: int) -> np.ndarray:
     return (palm_pose[frame, :3] - palm_pose[frame - 1, :3]) * float(FPS)
 
 
-def episode_hold(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: np.ndarray) -> tuple[int, HoldResult] | None:
+def episode_hold(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: np.ndarray,
+                 design: GraspDesign = DEFAULT_DESIGN) -> tuple[int, HoldResult] | None:
     """The closing frame and the hold test's result of an episode whose hand went through
     ``palm_pose`` (n, 6) and ``joint_angles`` (n, 15) (frames 0..n-1 of ``spec``; a rollout may run past
     ``num_frames``, where the motion's closed form extrapolates); None when
-    the grasp never closes (nothing to hold)."""
+    the grasp never closes (nothing to hold). ``design``: the hand, and the ground truth's
+    grasp the closing criterion compares with (:func:`generators.ground_truth.episode_grasp`)."""
     palm = np.asarray(palm_pose, dtype=np.float64)
     joints = np.asarray(joint_angles, dtype=np.float64)
     n = palm.shape[0] if palm.ndim == 2 else -1
     if n < 1 or palm.shape != (n, 6) or joints.shape != (n, 15) or not (np.isfinite(palm).all() and np.isfinite(joints).all()):
         raise SpecError(f"episode hold: need finite palm_pose (n, 6) and joint_angles (n, 15), n >= 1, "
                         f"got {palm.shape} and {joints.shape}")
-    frame = closing_frame(joints, grasp_angles(spec.object, spec.object_size, spec.hand))
+    frame = closing_frame(joints, episode_grasp(spec, design))
     if frame is None:
         return None
     t = np.array([frame / float(FPS)])
     pose, velocity = motion.object_pose(spec.motion, spec.object, spec.object_size, t)
     spin = motion.object_angular_velocity(spec.motion, spec.object, spec.object_size, t)
     result = hold_test(spec.object, spec.object_size, spec.hand, palm[frame], palm_velocity(palm, frame),
-                       joints[frame], pose[0], velocity[0], spin[0])
+                       joints[frame], pose[0], velocity[0], spin[0], design.hand)
     return frame, result

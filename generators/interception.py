@@ -11,12 +11,17 @@ Timeline (frames, ``a = spec.observe_frames``, ``i = spec.intercept_frame``):
   arrival and joins the tracking motion with continuous velocity and acceleration;
   with obstacles in the scene the path is lifted by the smallest :func:`lift_bump` that
   keeps the hand :data:`~schemas.obstacles.OBSTACLE_MARGIN` from every one of them;
-* ``[i, n)`` the palm tracks the hover point ``(x, top + PALM_HOVER, z)`` of the
+* ``[i, n)`` the palm tracks the hover point ``(x, top + hover, z)`` (the grasp design's
+  hover, :data:`schemas.scene.PALM_HOVER` for the dataset's) of the
   moving object while the fingers close with a minimum-jerk profile from rest
   (frame ``i``) to :func:`generators.grasp.grasp_angles` (frame ``i + GRASP_FRAMES - 1``),
   then hold.
 
-The palm keeps the rest orientation throughout (actions steer only its position).
+The palm keeps the rest orientation throughout (actions steer only its position), unless
+a design turns it across a lying cylinder's axis (``heading``): then it turns about the
+vertical along the approach (the same ramp-cruise-ramp quintic, arriving with the heading's
+rate) and follows the heading from the intercept frame on (the ground truth's heading is
+constant: :func:`generators.ground_truth.palm_heading`).
 
 Action: ``action[t] = (palm_xyz[t + 1], joint_angles[t + 1])``, the targets issued at
 frame ``t`` and reached at frame ``t + 1``; the last frame repeats its own state.
@@ -30,12 +35,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from generators.camera import points_in_view
-from generators.grasp import grasp_angles, lowest_fingertip_offset
+from generators.grasp import DEFAULT_DESIGN, GraspDesign, grasp_angles, grasp_hover, lowest_fingertip_offset
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, fingertip_positions
 from schemas.errors import InfeasibleError
 from schemas.objects import object_category
 from schemas.obstacles import OBSTACLE_MARGIN
-from schemas.scene import GRASP_FRAMES, PALM_HOVER, PHASES, WORKSPACE_X, WORKSPACE_Z
+from schemas.scene import GRASP_FRAMES, PHASES, WORKSPACE_X, WORKSPACE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -144,25 +149,27 @@ def lift_bump(s: np.ndarray) -> np.ndarray:
     return 64.0 * (s * (1.0 - s)) ** 3
 
 
-def _clearing_rise(spec: EpisodeSpec, palm: np.ndarray, joints: np.ndarray, a: int, i: int, approach) -> float:
+def _clearing_rise(spec: EpisodeSpec, palm: np.ndarray, joints: np.ndarray, a: int, i: int, approach,
+                   design: GraspDesign = DEFAULT_DESIGN, turn: np.ndarray | None = None) -> float:
     """The smallest rise of :data:`LIFT_RISES` whose lifted approach keeps the hand
     :data:`OBSTACLE_MARGIN` from every obstacle at every frame; InfeasibleError if none
     does (or the margin is broken after arrival, where the palm tracks the object)."""
     from generators.clearance import hand_clearance
 
-    rest = np.repeat(REST_PALM[None, 3:], len(palm), axis=0)
-    after = hand_clearance(np.concatenate([palm[i:], rest[i:]], axis=1), joints[i:], spec.hand, spec.obstacles)
+    rest = np.repeat(REST_PALM[None, 3:], len(palm), axis=0) if turn is None else turn
+    geometry = design.hand
+    after = hand_clearance(np.concatenate([palm[i:], rest[i:]], axis=1), joints[i:], spec.hand, spec.obstacles, geometry)
     if after.min() < OBSTACLE_MARGIN:
         k = i + int(np.argmin(after))
         raise InfeasibleError(f"the hand would come within {after.min():.3f} units of an obstacle at frame {k}")
     before = hand_clearance(np.concatenate([palm[: a + 1], rest[: a + 1]], axis=1), joints[: a + 1], spec.hand,
-                            spec.obstacles)
+                            spec.obstacles, geometry)
     if before.min() < OBSTACLE_MARGIN:
         raise InfeasibleError(f"the resting hand is within {before.min():.3f} units of an obstacle")
     for rise in LIFT_RISES:
         path = approach(rise)
         clear = hand_clearance(np.concatenate([path, rest[a : i + 1]], axis=1), joints[a : i + 1], spec.hand,
-                               spec.obstacles)
+                               spec.obstacles, geometry)
         if clear.min() >= OBSTACLE_MARGIN:
             return rise
     raise InfeasibleError(f"no lift up to {LIFT_RISES[-1]} units takes the hand over the obstacles")
@@ -188,13 +195,20 @@ def plan_episode(
     object_velocity_xz: np.ndarray,
     object_acceleration_xz: np.ndarray,
     elevation: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    design: GraspDesign = DEFAULT_DESIGN,
+    yaw: float = 0.0,
+    heading: np.ndarray | None = None,
 ) -> HandPlan:
     """Solve the interception of ``spec`` and plan the hand over its ``n`` frames.
 
     The object's XZ position, velocity and acceleration are given at the frame times
     (arrays (n, 2)); ``elevation`` is its height above its resting height with the
     height's rate and acceleration (arrays (n,), :mod:`generators.ballistics`), None for
-    an object on the table. The hover point rises with the object, and the palm arrives
+    an object on the table. ``design`` is the grasp (:class:`generators.grasp.GraspDesign`),
+    ``yaw`` a lying cylinder's axis at the grasp (:func:`generators.grasp.cylinder_yaw`);
+    ``heading`` (n,) the palm's turn about the vertical (its pitch) at every frame, followed
+    from the intercept frame on, None to keep the rest orientation.
+    The hover point rises with the object, and the palm arrives
     with its 3D velocity and acceleration. Raises :class:`InfeasibleError` naming the reason when the target
     leaves the workspace or the view, the palm would have to move faster than
     :data:`MAX_PALM_SPEED` or would stall before arrival, or the fingers would hit the table.
@@ -227,11 +241,21 @@ def plan_episode(
 
     cat = object_category(spec.object)
     centre_y = cat.half_height(spec.object_size)
-    hover_y = 2.0 * centre_y + PALM_HOVER
+    turn = np.repeat(REST_PALM[None, 3:], n, axis=0)
+    if heading is not None:
+        heading = np.asarray(heading, dtype=np.float64)
+        if heading.shape != (n,) or not np.isfinite(heading).all():
+            raise InfeasibleError(f"the palm heading must be finite with shape ({n},), got {heading.shape}")
+        step = np.diff(heading[i - 1 : i + 2]) * FPS if 0 < i < n - 1 else np.zeros(2)
+        end = (np.array([step.mean()]), np.array([(step[1] - step[0]) * FPS]))
+        turn[a : i + 1, 1] = quintic(np.zeros(1), heading[i : i + 1], *end, (i - a) / FPS, (frames[a : i + 1] - a) / (i - a))[:, 0]
+        turn[i:, 1] = heading[i:]
+        yaw = yaw - float(heading[min(i + GRASP_FRAMES - 1, n - 1)])
+    hover_y = 2.0 * centre_y + grasp_hover(spec.object, spec.object_size, spec.hand, design, yaw)
     hover = np.column_stack([obj[:, 0], hover_y + lift, obj[:, 1]])
     _check_in_view("object", np.column_stack([obj[:, 0], centre_y + lift, obj[:, 1]]))
 
-    grasp = grasp_angles(spec.object, spec.object_size, spec.hand)
+    grasp = grasp_angles(spec.object, spec.object_size, spec.hand, design, yaw)
     if np.any(grasp < JOINT_LOWER) or np.any(grasp > JOINT_UPPER):
         raise InfeasibleError(f"the grasp of {spec.object} (size {spec.object_size}) breaks a joint limit")
     closure = closure_profile(n, i)
@@ -252,7 +276,7 @@ def plan_episode(
     palm[i:] = hover[i:]
     palm[a : i + 1] = approach(s, 0.0)
     if spec.obstacles:
-        rise = _clearing_rise(spec, palm, joints, a, i, lambda r: approach(s, r))
+        rise = _clearing_rise(spec, palm, joints, a, i, lambda r: approach(s, r), design, None if heading is None else turn)
         palm[a : i + 1] = approach(s, rise)
 
     steps = np.linalg.norm(np.diff(palm[a : i + 1], axis=0), axis=1)
@@ -266,9 +290,9 @@ def plan_episode(
     if speed > MAX_PALM_SPEED:
         raise InfeasibleError(f"the interception needs a palm speed of {speed:.1f} units/s (> {MAX_PALM_SPEED})")
 
-    palm_pose = np.concatenate([palm, np.repeat(REST_PALM[None, 3:], n, axis=0)], axis=1)
-    _check_hand_in_view(palm, fingertip_positions(palm_pose, joints, spec.hand))
-    lowest = hover_y + lowest_fingertip_offset(spec.object, spec.object_size, spec.hand)
+    palm_pose = np.concatenate([palm, turn], axis=1)
+    _check_hand_in_view(palm, fingertip_positions(palm_pose, joints, spec.hand, design.hand))
+    lowest = hover_y + lowest_fingertip_offset(spec.object, spec.object_size, spec.hand, design, yaw)
     if lowest < MIN_FINGERTIP_HEIGHT:
         raise InfeasibleError(f"the fingers would go through the table (fingertip height {lowest:.3f})")
 

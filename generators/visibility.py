@@ -40,12 +40,14 @@ import numpy as np
 from generators.camera import points_in_view, project
 from generators.clearance import checked_obstacles, obstacle_centre, obstacle_corners, obstacle_rotation
 from generators.hand import (
+    DEFAULT_GEOMETRY,
     FINGER_RADII,
     PALM_HALF_EXTENTS,
     REST_JOINTS,
     REST_PALM,
     SIDES,
     WRIST_OFFSET,
+    HandGeometry,
     chain_frames,
 )
 from schemas.objects import object_category
@@ -83,7 +85,8 @@ def object_surface_points(category: str, size: float, poses: np.ndarray) -> np.n
     return poses[..., None, :3] + np.einsum("...ij,kj->...ki", rot, local)
 
 
-def hand_parts(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> list[np.ndarray]:
+def hand_parts(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str,
+               geometry: HandGeometry = DEFAULT_GEOMETRY) -> list[np.ndarray]:
     """The hand's convex parts at one pose, each as (k, 3) world points whose hull contains it:
     the palm box, the wrist cylinder, and one capsule per finger segment."""
     palm = np.asarray(palm_pose, dtype=np.float64)
@@ -93,7 +96,7 @@ def hand_parts(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str) -> li
     wrist = palm[:3] + rot @ np.asarray(WRIST_OFFSET)
     radius = _OCCLUDER_GROWTH * _WRIST_RADIUS_FACTOR * PALM_HALF_EXTENTS[0]
     parts.append(np.concatenate([rim(wrist, axis, radius), rim(wrist - _WRIST_LENGTH * axis, axis, radius)]))
-    positions, _ = chain_frames(palm[None], np.asarray(joint_angles, dtype=np.float64)[None], side)
+    positions, _ = chain_frames(palm[None], np.asarray(joint_angles, dtype=np.float64)[None], side, geometry)
     for finger in range(5):
         ball = _OCCLUDER_GROWTH * FINGER_RADII[finger] * UNIT_SPHERE
         chain = positions[0, finger]
@@ -212,16 +215,16 @@ def visible_fraction(
 
 
 @cache
-def _rest_parts(side: str) -> tuple[np.ndarray, ...]:
-    return tuple(hand_parts(REST_PALM, REST_JOINTS, side))
+def _rest_parts(side: str, geometry: HandGeometry = DEFAULT_GEOMETRY) -> tuple[np.ndarray, ...]:
+    return tuple(hand_parts(REST_PALM, REST_JOINTS, side, geometry))
 
 
 @cache
-def rest_shadow_z() -> float:
+def rest_shadow_z(geometry: HandGeometry = DEFAULT_GEOMETRY) -> float:
     """The farthest table Z that any ray from the camera through the resting hand (either
     side) reaches: objects whose footprint lies wholly beyond it are never hidden by it."""
     eye = np.asarray(CAMERA_EYE, dtype=np.float64)
-    points = np.concatenate([part for side in SIDES for part in _rest_parts(side)])
+    points = np.concatenate([part for side in SIDES for part in _rest_parts(side, geometry)])
     reach = eye[1] / (eye[1] - points[:, 1])
     return float((eye[2] + reach * (points[:, 2] - eye[2])).max())
 
@@ -255,9 +258,10 @@ def observe_visibility(
     poses: np.ndarray,
     resolution: int = DEFAULT_RESOLUTION,
     obstacles: tuple[Obstacle, ...] = (),
+    geometry: HandGeometry = DEFAULT_GEOMETRY,
 ) -> np.ndarray:
-    """(n,) visible fraction of the object at each pose (n, 7) with the hand at rest
-    among ``obstacles``.
+    """(n,) visible fraction of the object at each pose (n, 7) with the hand (of ``geometry``)
+    at rest among ``obstacles``.
 
     A pose whose object is wholly in view, wholly beyond :func:`rest_shadow_z` and clear
     of every obstacle's silhouette is 1.0 without filling anything; the rest are
@@ -267,22 +271,23 @@ def observe_visibility(
     obstacles = checked_obstacles(obstacles)
     out = np.ones(len(poses))
     points = object_surface_points(category, size, poses)
-    clear = _footprint_near_z(category, size, poses) > rest_shadow_z()
+    clear = _footprint_near_z(category, size, poses) > rest_shadow_z(geometry)
     clear &= points_in_view(points).all(axis=-1)
     clear &= _clear_of_obstacles(points, obstacles, resolution)
-    occluders = list(_rest_parts(side))
+    occluders = list(_rest_parts(side, geometry))
     for k in np.flatnonzero(~clear):
         out[k] = visible_fraction(object_surface_points(category, size, poses[k]), occluders, resolution, obstacles)
     return out
 
 
 def first_hidden_frame(
-    category: str, size: float, side: str, poses: np.ndarray, obstacles: tuple[Obstacle, ...] = ()
+    category: str, size: float, side: str, poses: np.ndarray, obstacles: tuple[Obstacle, ...] = (),
+    geometry: HandGeometry = DEFAULT_GEOMETRY,
 ) -> tuple[int, float] | None:
     """The first pose whose object is less than :data:`MIN_OBSERVE_VISIBLE` visible with the
     hand at rest (and ``obstacles``), with its visible fraction, or None when every pose
     shows enough of it."""
-    fractions = observe_visibility(category, size, side, poses, obstacles=obstacles)
+    fractions = observe_visibility(category, size, side, poses, obstacles=obstacles, geometry=geometry)
     hidden = np.flatnonzero(fractions < MIN_OBSERVE_VISIBLE)
     if len(hidden) == 0:
         return None
