@@ -181,29 +181,53 @@ def with_payload(model: Path, out: Path, payload: Reader) -> Path:
     return out
 
 
-@pytest.mark.skipif(__import__("pipeline.remote.sandbox").remote.sandbox.unavailable() is not None,
-                    reason="cannot seal a policy here (tests/pipeline/test_sealed.py covers the refusal)")
-def test_a_model_runs_code_when_loaded_so_a_private_split_serves_it_sealed(ppo_zip, tmp_path):
-    """SB3's ``load`` unpickles what a zip's data holds: a model is code. Here its payload
-    copies a file out. On a public run it copies a canary (the payload runs, in the driver);
-    on a private split the model is served sealed, so the secret file it names reads as
-    nothing and the copy lands in the sandbox's scratch, never here; the run still scores."""
-    secret = "0f9e8d7c6b5a49382716a5b4c3d2e1f0"
+from pipeline.remote import sandbox  # noqa: E402
+
+#: Where the machine cannot seal, tests/pipeline/test_sealed.py covers the refusal.
+needs_unshare = pytest.mark.skipif(sandbox.unavailable() is not None, reason="cannot seal a policy here")
+SECRET = "0f9e8d7c6b5a49382716a5b4c3d2e1f0"
+
+
+def _secret_folder(tmp_path: Path) -> Path:
     keep = tmp_path / "keep"
     keep.mkdir()
-    (keep / "seed.txt").write_text(secret + "\n")
+    (keep / "seed.txt").write_text(SECRET + "\n")
     (keep / "canary.txt").write_text("canary\n")
-    leak = tmp_path / "leak.txt"
+    return keep
+
+
+@needs_unshare
+def test_a_model_runs_code_when_loaded_so_a_private_split_configures_it_sealed(ppo_zip, tmp_path):
+    """SB3's ``load`` unpickles what a zip's data holds: a model is code. Here its payload
+    copies a file out. Configured in this process it copies the canary (the payload runs);
+    configured for a private split (sealed: the secret file reads as nothing, the copy lands
+    in the sandbox's scratch) nothing reaches this side, and the configuration is the same."""
+    keep, leak = _secret_folder(tmp_path), tmp_path / "leak.txt"
     public = with_payload(ppo_zip, tmp_path / "public.zip", Reader(keep / "canary.txt", leak))
-    assert main([*eval_args(f"sb3:{public}", tmp_path / "open"), "--episodes", "1", "--quiet"]) == 0
-    assert leak.read_text() == "canary\n"  # the payload ran
+    here = configure(f"sb3:{public}", None)
+    assert leak.read_text() == "canary\n"
     leak.unlink()
+    private = with_payload(ppo_zip, tmp_path / "private.zip", Reader(keep / "seed.txt", leak))
+    seal = sandbox.sealing(kind_of(f"sb3:{private}").sealed_files(f"sb3:{private}"), object(), True,
+                           str(keep / "seed.txt"), str(tmp_path / "run"))
+    assert seal is not None and seal.shown == (str(private),)
+    sealed = sandbox.configured(seal, f"sb3:{private}", None)
+    assert not leak.exists()
+    assert sealed == {**here, "model": "private.zip", "sha256": hashlib.sha256(private.read_bytes()).hexdigest()}
+
+
+@needs_unshare
+@pytest.mark.slow(cover="tests/pipeline/test_sb3_policy.py::test_a_model_runs_code_when_loaded_so_a_private_split_configures_it_sealed")
+def test_a_private_split_plays_a_model_sealed(ppo_zip, tmp_path):
+    """End to end: ``pipeline eval --test-seed-file`` of a model whose payload copies the
+    secret file out runs and scores, and nothing is copied."""
+    keep, leak = _secret_folder(tmp_path), tmp_path / "leak.txt"
     private = with_payload(ppo_zip, tmp_path / "private.zip", Reader(keep / "seed.txt", leak))
     done = subprocess.run([sys.executable, "-m", "pipeline.cli", *eval_args(f"sb3:{private}", tmp_path / "sealed"),
                            "--episodes", "1", "--test-seed-file", str(keep / "seed.txt"), "--quiet"],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert not leak.exists() and secret not in done.stdout + done.stderr
+    assert not leak.exists() and SECRET not in done.stdout + done.stderr
     manifest = json.loads((tmp_path / "sealed" / "catalog.json").read_text())
     assert manifest["episodes"] == 1 and manifest["sb3"]["sha256"] == hashlib.sha256(private.read_bytes()).hexdigest()
 
