@@ -6,12 +6,14 @@ gets a copy of that build's ``OUT/S`` folder and its output, instead of building
 (``--quiet`` aside: it changes only the progress lines, and a cached build replays them
 unless asked to be quiet).
 Anything else (another command, ``--specs``, ``--scheduler``, an object-store ``--out``,
-an existing ``OUT/S``) runs the real ``pipeline``. The cache lives for one pytest session
-(``DYANA_DOCS_BUILD_CACHE``).
+an existing ``OUT/S``) runs the real ``pipeline``. Two pages asking for the same build at
+once (the xdist processes share the cache) build it once: the second waits on a lock.
+The cache lives for one pytest session (``DYANA_DOCS_BUILD_CACHE``).
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
@@ -62,7 +64,15 @@ def main(argv: list[str]) -> int:
     if found is None or cache is None or target.exists():
         # Become the real command (same process id): `pipeline serve ... & kill $!` must reach it.
         os.execv(real, [real, *argv])
-    entry = Path(cache) / key
+    # One build per command at a time: a page that asks while another builds it waits for the copy.
+    with open(Path(cache) / f".{key}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return _cached_build(real, argv, Path(cache) / key, target)
+
+
+def _cached_build(real: str, argv: list[str], entry: Path, target: Path) -> int:
+    """A copy of the cache ``entry`` into ``target``, or the real build, stored as ``entry``."""
+    cache = entry.parent
     if entry.exists():
         shutil.copytree(entry / "folder", target)
         sys.stdout.write((entry / "stdout").read_text())
