@@ -143,10 +143,10 @@ def test_a_damaged_staged_episode_is_computed_again_and_overwrite_clears_them(tm
     assert not (tmp_path / "again" / SLICE / PARTIAL_DIR).exists()
 
 
-def test_an_interrupted_evaluation_resumes_mid_shard_to_the_same_bytes(tmp_path, monkeypatch):
-    settings = dict(episodes=3, resolution=RESOLUTION, shard_size=3, workers=0, progress=False, summary=False)
-    reference = evaluate("oracle", "test-1k", tmp_path / "fresh", **settings)
-    real, ran = evaluate_module.run_episode, []
+def _interrupted_at(monkeypatch, index: int) -> tuple[list[int], list[int]]:
+    """The eval's episodes rolled out from now on (``ran``), and a Ctrl-C at episode
+    ``stop[0]`` (set it to -1 to let a rerun finish)."""
+    real, ran, stop = evaluate_module.run_episode, [], [index]
 
     def counted(env, policy, spec, deadline_s):
         if spec.episode_index == stop[0]:
@@ -154,8 +154,14 @@ def test_an_interrupted_evaluation_resumes_mid_shard_to_the_same_bytes(tmp_path,
         ran.append(spec.episode_index)
         return real(env, policy, spec, deadline_s)
 
-    stop = [2]
     monkeypatch.setattr(evaluate_module, "run_episode", counted)
+    return ran, stop
+
+
+def test_an_interrupted_evaluation_resumes_mid_shard_to_the_same_bytes(tmp_path, monkeypatch):
+    settings = dict(episodes=3, resolution=RESOLUTION, shard_size=3, workers=0, progress=False, summary=False)
+    reference = evaluate("oracle", "test-1k", tmp_path / "fresh", **settings)
+    ran, stop = _interrupted_at(monkeypatch, 2)
     with pytest.raises(KeyboardInterrupt):
         evaluate("oracle", "test-1k", tmp_path / "run", **settings)
     assert ran == [0, 1]
@@ -179,16 +185,7 @@ def test_a_user_policy_s_interrupted_shard_runs_again_whole(tmp_path, monkeypatc
                                           "0.01 * Counting.seen, obs['joint_angles']]).astype(np.float32)\n")
     settings = dict(episodes=3, resolution=RESOLUTION, shard_size=3, workers=0, progress=False, summary=False,
                     isolate=False)
-    real, ran = evaluate_module.run_episode, []
-
-    def counted(env, policy, spec, deadline_s):
-        if spec.episode_index == stop[0]:
-            raise KeyboardInterrupt
-        ran.append(spec.episode_index)
-        return real(env, policy, spec, deadline_s)
-
-    stop = [2]
-    monkeypatch.setattr(evaluate_module, "run_episode", counted)
+    ran, stop = _interrupted_at(monkeypatch, 2)
     with pytest.raises(KeyboardInterrupt):
         evaluate("counting:Counting", "test-1k", tmp_path / "run", **settings)
     assert ran == [0, 1] and not (tmp_path / "run" / PARTIAL_DIR).exists()
