@@ -24,7 +24,8 @@ MARKER_KINDS = ("slow", "needs", "skip")
 
 @dataclass(frozen=True)
 class Marker:
-    """``slow``, ``needs MODULE`` or ``skip REASON`` (``argument`` is the module or reason)."""
+    """``slow``, ``needs MODULE`` or ``skip REASON`` (``argument`` is the module or reason);
+    a slow block that needs a module says so first: ``slow needs MODULE (covered by ...)``."""
 
     kind: str
     argument: str = ""
@@ -33,6 +34,20 @@ class Marker:
     def parse(cls, body: str) -> Marker:
         kind, _, argument = body.strip().partition(" ")
         return cls(kind, argument.strip())
+
+    @property
+    def module(self) -> str | None:
+        """The module the block needs (skipped where it is not importable), if any."""
+        if self.kind == "needs":
+            return self.argument or None
+        if self.kind == "slow" and self.argument.startswith("needs "):
+            return self.argument.split()[1]
+        return None
+
+    @property
+    def cover(self) -> str:
+        """A slow marker's ``(covered by ...)``, after its module if it names one."""
+        return self.argument.split(None, 2)[2] if self.kind == "slow" and self.module else self.argument
 
 
 @dataclass(frozen=True)

@@ -52,8 +52,8 @@ def runnable(block: Block, with_slow: bool) -> str | None:
         return f"skip: {marker.argument}"
     if marker.kind == "slow" and not with_slow:
         return "slow (runs under -m slow)"
-    if marker.kind == "needs" and importlib.util.find_spec(marker.argument) is None:
-        return f"needs {marker.argument}, not installed"
+    if marker.module is not None and importlib.util.find_spec(marker.module) is None:
+        return f"needs {marker.module}, not installed"
     return None
 
 

@@ -71,6 +71,19 @@ def test_blocks_markers_and_setup_are_parsed() -> None:
     assert page.has_slow
 
 
+def test_a_slow_block_may_need_a_module_too() -> None:
+    from tests.docs.pages import Block
+    from tests.docs.runner import runnable
+
+    marker = Marker.parse("slow needs a_module_that_is_not_installed (covered by tests/docs/test_runner.py)")
+    assert (marker.kind, marker.module, marker.cover) == ("slow", "a_module_that_is_not_installed",
+                                                         "(covered by tests/docs/test_runner.py)")
+    block = Block("p.md", 1, "python", "pass", marker)
+    assert runnable(block, with_slow=False) == "slow (runs under -m slow)"
+    assert runnable(block, with_slow=True) == "needs a_module_that_is_not_installed, not installed"
+    assert Marker.parse("slow (covered by tests/x.py)").module is None
+
+
 def test_blocks_share_folder_environment_and_namespace_in_page_order(tmp_path: Path) -> None:
     folder, skipped = _run(PAGE, tmp_path)
     assert (folder / "sub" / "done.txt").read_text() == "hello\n"

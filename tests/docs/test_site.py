@@ -83,9 +83,9 @@ def test_markers_are_well_formed() -> None:
             wrong.append(f"{where}: unknown marker {marker.kind!r} (known: {', '.join(MARKER_KINDS)})")
         elif marker.kind in ("needs", "skip") and not marker.argument:
             wrong.append(f"{where}: `{marker.kind}` needs a {'module' if marker.kind == 'needs' else 'reason'}")
-        elif marker.kind == "slow" and marker.argument and not _names_a_cover(marker.argument):
-            wrong.append(f"{where}: `slow` takes nothing or '(covered by tests/FILE.py...)' naming a test file "
-                         f"that exists, got {marker.argument!r}")
+        elif marker.kind == "slow" and marker.cover and not _names_a_cover(marker.cover):
+            wrong.append(f"{where}: `slow` takes nothing or '[needs MODULE] (covered by tests/FILE.py...)' naming a "
+                         f"test file that exists, got {marker.argument!r}")
         if not before_block:
             wrong.append(f"{where}: a docs-test marker must be on the line right before a ```bash or ```python fence")
     assert not wrong, "\n".join(wrong)

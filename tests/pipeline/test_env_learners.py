@@ -171,9 +171,9 @@ def test_ppo_learns_on_the_plain_registered_env():
 
 @pytest.mark.torch
 def test_stable_baselines3_checks_every_view_with_no_wrapper():
-    """SB3's check_env takes every view as it is (silently). PPO learning on the image and
-    state view, end to end, is docs/guides/your-policy.md's Stable-Baselines3 block (run by
-    tests/docs/test_pages.py, which fails if it does not learn and predict)."""
+    """SB3's check_env takes every view as it is (silently). PPO learning on the default
+    view is test_ppo_learns_on_the_registered_env_with_only_a_resolution (and, under -m slow,
+    docs/guides/your-policy.md's Stable-Baselines3 block)."""
     pytest.importorskip("torch")
     pytest.importorskip("stable_baselines3")
     from stable_baselines3.common.env_checker import check_env
