@@ -48,6 +48,9 @@ from schemas.spec import EpisodeSpec
 PARTIAL_DIR = ".partial"
 MAGIC = b"DYANA-PARTIAL-EPISODE-1\n"
 SUFFIX = ".episode"
+#: The largest staged file read back (an episode of 224 px frames is a few MB): a bigger one,
+#: planted or damaged, is deleted unread rather than allocated.
+MAX_STAGED_BYTES = 256 << 20
 _DIGEST = 32
 _FRAME_FIELDS = tuple(f.name for f in dataclasses.fields(EpisodeFrames))
 _SCHEMA = pa.schema([("name", pa.string()), ("dtype", pa.string()), ("shape", pa.string()), ("data", pa.large_binary())])
@@ -130,6 +133,9 @@ class PartialShard:
         (damaged, another job's or another spec's: then deleted)."""
         path = self.path(spec.episode_index)
         try:
+            if path.stat().st_size > MAX_STAGED_BYTES:
+                atomic.discard(path)
+                return None
             data = path.read_bytes()
         except OSError:
             return None

@@ -18,7 +18,7 @@ import pipeline.jobs.evaluate as evaluate_module
 import pipeline.stages.record as record_module
 from catalog.store.manifest import load_manifest
 from catalog.tables.integrity import verify_files
-from catalog.tables.partial import PARTIAL_DIR, PartialShard, StagedEpisode
+from catalog.tables.partial import MAX_STAGED_BYTES, PARTIAL_DIR, PartialShard, StagedEpisode
 from generators.recipe import spec_for
 from pipeline.jobs.build import build
 from pipeline.jobs.evaluate import evaluate
@@ -82,6 +82,9 @@ def test_a_damaged_or_foreign_staged_file_is_refused_and_removed(tmp_path):
     os.replace(shard.path(1), path)
     assert refused()  # another episode's file under this index
     path.write_bytes(b"not an episode")
+    assert refused()
+    with open(path, "wb") as handle:  # a planted huge file (sparse): deleted unread, nothing allocated
+        handle.truncate(MAX_STAGED_BYTES + 1)
     assert refused()
 
 
