@@ -247,9 +247,10 @@ def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
     nothing in its bytes (they once turned slow calls into deadline errors). The runs are
     fresh processes with one BLAS/OpenMP thread each: in this long-lived test process,
     spinning thread pools left by earlier tests (torch) would otherwise make the loaded run
-    crawl for minutes, which tests nothing more. The burners stop after 6 s (the loaded
+    crawl for minutes, which tests nothing more. The burners stop after 3 s (the loaded
     run's start-up and first acts, where deadlines once bit, run beside them; in a full
-    suite run the loaded run otherwise took two minutes)."""
+    suite run the loaded run otherwise took two minutes; each burning second is a second
+    of both cores taken from the rest of the suite)."""
     import multiprocessing
     import os
 
@@ -264,7 +265,7 @@ def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
         return json.loads((tmp_path / name / "catalog.json").read_text())
 
     idle = run("idle")
-    burners = [multiprocessing.get_context("spawn").Process(target=_burn, args=(6.0,), daemon=True) for _ in range(2)]
+    burners = [multiprocessing.get_context("spawn").Process(target=_burn, args=(3.0,), daemon=True) for _ in range(2)]
     for burner in burners:
         burner.start()
     try:
