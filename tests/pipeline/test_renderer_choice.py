@@ -44,7 +44,6 @@ def full_build(tmp_path_factory):
     return _build(out, workers=0, renderer="full"), out / SLICE
 
 
-@pytest.mark.slow(cover="tests/pipeline/test_build.py::test_two_workers_give_the_same_bytes")  # the default renderer
 def test_a_window_build_is_the_same_in_process_and_with_two_workers(window_build, tmp_path):
     manifest, folder = window_build
     assert manifest.settings["dataset_version"] == "4.0.0"
