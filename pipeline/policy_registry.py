@@ -350,14 +350,17 @@ def make_remote(ref: str, options: OpenOptions) -> Policy:
     return RemotePolicy(ref, timeout_s=options.timeout_s + REMOTE_SLACK_S)
 
 
-def make_module(ref: str, options: OpenOptions) -> Policy:
-    from pipeline.policies.base import make_policy
-
-    if not options.isolate:
-        return make_policy(ref)
+def isolated(ref: str, options: OpenOptions) -> Policy:
+    """``ref`` served by a child ``pipeline serve`` (sealed when ``options`` carry a seal)."""
     from pipeline.remote.isolated import IsolatedPolicy  # lazy: the child-process runner
 
     return IsolatedPolicy(ref, timeout_s=options.timeout_s + REMOTE_SLACK_S, seal=options.seal)
+
+
+def make_module(ref: str, options: OpenOptions) -> Policy:
+    from pipeline.policies.base import make_policy
+
+    return isolated(ref, options) if options.isolate else make_policy(ref)
 
 
 def make_builtin(ref: str, options: OpenOptions) -> Policy:
@@ -397,9 +400,7 @@ def lerobot_from_flags(ref: str, values: Mapping[str, Any]) -> Config:
 def make_sb3(ref: str, options: OpenOptions) -> Policy:
     """In this process; sealed in a child on a private split (SB3's ``load`` unpickles code)."""
     if options.seal is not None:
-        from pipeline.remote.isolated import IsolatedPolicy
-
-        return IsolatedPolicy(ref, timeout_s=options.timeout_s + REMOTE_SLACK_S, seal=options.seal)
+        return isolated(ref, options)
     from pipeline.loop.sb3_policy import make  # lazy: torch and stable_baselines3
 
     return cast("Policy", make(ref, options.config))  # a frozen dataclass: its members are read-only

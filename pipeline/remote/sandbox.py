@@ -40,7 +40,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 
-from schemas.errors import SpecError
+from schemas.errors import PolicyError, SpecError
 from schemas.names import printable
 
 #: Folders every sealed policy loses (besides the run folder and the secret file's folder).
@@ -239,8 +239,6 @@ def configured(seal: Seal, ref: str, config: dict | None) -> dict | None:
     the user's code (an SB3 zip unpickles it), never in the driver, which holds the secret.
     What comes back is the policy's word: at most :data:`MAX_CONFIG_BYTES` of JSON, an object
     or null; PolicyError with its one line otherwise."""
-    from schemas.errors import PolicyError
-
     argv = [sys.executable, "-m", INSIDE, "configure", ref, json.dumps(config)]
     process = subprocess.Popen(_sealed(check_available(), seal, argv), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, env=environment())
