@@ -41,6 +41,7 @@ from schemas.errors import SpecError
 from schemas.names import shorten
 from schemas.objects import object_category
 from schemas.scene import PALM_HOVER
+from schemas.versions import DATASET_VERSION
 
 #: Joint angles at the end of each finger's synergy (thumb, index, middle, ring, little).
 SYNERGY_END = np.array(
@@ -253,3 +254,20 @@ def grasp_angles(category: str, size: float, side: str, design: GraspDesign = DE
     (:func:`cylinder_yaw`), used when the design sizes it as placed."""
     args = _checked(category, size, side, design, yaw)
     return np.array(_grasp_angles(*args, _hover(*args)))
+
+
+#: The ground truth's grasp of each readable dataset version (what its folders' grasp
+#: angles and hands are): the splayed thumb up to 4.x.
+VERSION_DESIGNS = MappingProxyType({"2.0.0": SPLAYED, "3.0.0": SPLAYED, "4.0.0": SPLAYED})
+
+
+def design_of(dataset_version: object) -> GraspDesign:
+    """The grasp design of folders of ``dataset_version`` (:data:`VERSION_DESIGNS`); the
+    dataset's (:data:`DEFAULT_DESIGN`) for the current version or None (in-memory episodes)."""
+    if dataset_version is None or dataset_version == DATASET_VERSION:
+        return DEFAULT_DESIGN
+    found = VERSION_DESIGNS.get(dataset_version) if isinstance(dataset_version, str) else None
+    if found is None:
+        raise SpecError(f"no grasp design known for dataset version {shorten(repr(dataset_version))} "
+                        f"(known: {sorted(VERSION_DESIGNS)})")
+    return found

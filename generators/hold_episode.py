@@ -50,9 +50,16 @@ def episode_hold(spec: EpisodeSpec, palm_pose: np.ndarray, joint_angles: np.ndar
     frame = closing_frame(joints, episode_grasp(spec, design))
     if frame is None:
         return None
+    return frame, hold_at(spec, frame, palm[frame], palm_velocity(palm, frame), joints[frame], design)
+
+
+def hold_at(spec: EpisodeSpec, frame: int, palm_pose: np.ndarray, palm_vel: np.ndarray,
+            joint_angles: np.ndarray, design: GraspDesign = DEFAULT_DESIGN) -> HoldResult:
+    """The hold test of ``spec`` from ``frame`` (where its grasp closed), the hand there at
+    ``palm_pose`` (6,) moving at ``palm_vel`` (3,), units/s, with ``joint_angles`` (15,), the
+    object in its scripted state at that frame's time."""
     t = np.array([frame / float(FPS)])
     pose, velocity = motion.object_pose(spec.motion, spec.object, spec.object_size, t)
     spin = motion.object_angular_velocity(spec.motion, spec.object, spec.object_size, t)
-    result = hold_test(spec.object, spec.object_size, spec.hand, palm[frame], palm_velocity(palm, frame),
-                       joints[frame], pose[0], velocity[0], spin[0], design.hand)
-    return frame, result
+    return hold_test(spec.object, spec.object_size, spec.hand, palm_pose, palm_vel, joint_angles,
+                     pose[0], velocity[0], spin[0], design.hand)

@@ -34,7 +34,7 @@ from schemas.versions import FPS
 FRAME_COLUMNS = ("episode_index", "frame_index", "phase", "palm_pose", "object_pose", "joint_angles", "fingertip_distance")
 EPISODE_COLUMNS = (
     "episode_index", "episode_id", "motion_type", "intercept_setting", "object", "hand", "rollout_format",
-    "grasp_angles", "num_frames", "observe_frames", "object_size", "tokens",
+    "grasp_angles", "num_frames", "observe_frames", "object_size", "tokens", "spec",
 )
 ROLLOUT_COLUMNS = ("policy", "privileged", "status", "error")
 #: Phases in which the hand acts; every other frame is observation only.
@@ -87,6 +87,15 @@ class RunData:
     #: (n,) when each episode's motion was disturbed (s; the start of its last base token)
     #: under ``pipeline eval --disturb``; None otherwise.
     disturbance_time_s: np.ndarray | None = None
+    #: (n,) each episode's spec (as recorded: a disturbed run's disturbed motion), for the
+    #: hold test (:mod:`scoring.hold`); None where not read.
+    specs: tuple[EpisodeSpec, ...] | None = None
+    #: (m, 3) the palm's orientation at the acting frames, and (n, 3) its position at the
+    #: frame before each episode's first acting frame (the hold test's palm velocity).
+    palm_rotation: np.ndarray | None = None
+    palm_before: np.ndarray | None = None
+    #: The folder's ``settings.dataset_version`` (which hand and grasp it has), None if unknown.
+    dataset_version: str | None = None
 
     @property
     def episodes(self) -> int:
@@ -117,7 +126,7 @@ def read_shards(root: Path, shards: Sequence[ShardReader], slice_name: str, sett
     manifest names ``slice_name`` and ``settings``: a task scores the shard it just wrote."""
     protocol = settings.get("protocol")
     disturb = bool(protocol and protocol.get("disturb"))
-    columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if rollout else ()) + (("spec",) if disturb else ())
+    columns = EPISODE_COLUMNS + (ROLLOUT_COLUMNS if rollout else ())
     frame_columns = FRAME_COLUMNS + ((OBSTACLE_CLEARANCE,) if settings.get(OBSTACLE_CLEARANCE) else ())
     episode_tables, frame_tables = [], []
     for shard in shards:
@@ -126,6 +135,7 @@ def read_shards(root: Path, shards: Sequence[ShardReader], slice_name: str, sett
         frame_tables.append(shard.frames(frame_columns, episodes))
     episodes = pa.concat_tables(episode_tables)
     data = _assemble(root, slice_name, episodes, pa.concat_tables(frame_tables), rollout)
+    data = dataclasses.replace(data, dataset_version=settings.get("dataset_version"))
     if protocol is None:
         return data
     disturbed = None
@@ -212,6 +222,10 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
             raise ShardError(f"{where}: NaN obstacle_clearance in an acting frame of episode {episode}")
         min_clearance = episode_minimum(values, offsets)
 
+    palm = frame_array("palm_pose")
+    first_acting = pick[offsets[:-1][counts > 0]]
+    before = np.full((len(index), 3), np.nan)
+    before[counts > 0] = column_to_numpy(frames.column("palm_pose"))[np.maximum(first_acting - 1, 0), :3]
     grasp_angles = column_to_numpy(episodes.column("grasp_angles"))
     if not np.isfinite(grasp_angles).all():
         episode = index[np.flatnonzero(~np.isfinite(grasp_angles).all(axis=1))[0]]
@@ -236,7 +250,10 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
                 counts.astype(np.int64),
             )
         ),
-        palm_xyz=frame_array("palm_pose")[:, :3],
+        palm_xyz=palm[:, :3],
+        palm_rotation=palm[:, 3:6],
+        palm_before=before,
+        specs=tuple(EpisodeSpec.from_json(text) for text in episodes.column("spec").to_pylist()),
         object_xyz=frame_array("object_pose")[:, :3],
         joint_angles=frame_array("joint_angles"),
         fingertip_distance=frame_array("fingertip_distance"),
@@ -340,6 +357,10 @@ def from_recordings(
             )
         ),
         palm_xyz=stacked("palm_pose", slice(0, 3)),
+        palm_rotation=stacked("palm_pose", slice(3, 6)),
+        palm_before=np.array([f.palm_pose[max(int(np.argmax(p)) - 1, 0), :3] if p.any() else np.full(3, np.nan)
+                              for f, p in zip(recordings, picks)]).reshape(len(specs), 3),
+        specs=tuple(specs),
         object_xyz=stacked("object_pose", slice(0, 3)),
         joint_angles=stacked("joint_angles"),
         fingertip_distance=stacked("fingertip_distance"),

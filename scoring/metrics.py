@@ -200,7 +200,8 @@ class EpisodeMetrics:
     never happens; ``e_loc``/``e_gra``/``q_smooth``/``q_line`` are NaN for an episode
     without acting frames (Q over the whole acting palm trajectory); ``r_time`` is 0
     unless both events happened; ``quality`` is the reading's rule for Q
-    (:data:`QUALITY_RULES`). Statuses are not applied here (see :func:`aggregate`).
+    (:data:`QUALITY_RULES`); ``t_hold`` needs pybullet, so :func:`scoring.hold.run_metrics`
+    adds it. Statuses are not applied here (see :func:`aggregate`).
     """
 
     acting_frames: np.ndarray
@@ -213,6 +214,9 @@ class EpisodeMetrics:
     r_time: np.ndarray
     t_contact: np.ndarray
     quality: str = DYANA.quality
+    #: (n,) ``t_gra`` where the hold test held from there, else -1 (:mod:`scoring.hold`);
+    #: None until it has run (:func:`scoring.hold.run_metrics`).
+    t_hold: np.ndarray | None = None
 
     @property
     def contact_grasped(self) -> np.ndarray:

@@ -201,5 +201,16 @@ register(Metric("Q_line", "mean", "", value=_quality_value("q_line"), counted=_q
 # An episode in error scores 0.
 register(Metric("R_time", "mean", "", value=lambda per, ok: np.where(ok, per.r_time, 0.0), counted=_all,
                 in_paper=True))
+
+
+def _held(per: Any) -> np.ndarray:
+    if per.t_hold is None:
+        raise SpecError("S_hold needs the hold test: score with scoring.hold.run_metrics")
+    return per.t_hold
+
+
 register(Metric("S_grasp_contact", "rate", "%", event=lambda per: per.t_contact, event_column="t_grasp_contact",
                 flag_column="grasp_contact", consistency="grasp_contact", on_radar=False, headline=True))
+# The grasp that holds (docs/reference/metrics.md, S_hold): the hold test from the closing frame.
+register(Metric("S_hold", "rate", "%", event=_held, event_column="t_hold", flag_column="held", consistency="hold",
+                on_radar=False))

@@ -21,13 +21,13 @@ from schemas.names import shorten
 from schemas.objects import OBJECTS
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES
 from scoring.chance import CHANCE_LABEL, ChanceRow
+from scoring.hold import run_metrics
 from scoring.io import RunData
 from scoring.metrics import (
     DEFAULT_READING,
     EpisodeMetrics,
     Summary,
     aggregate,
-    episode_metrics,
     reading_named,
     wilson_interval,
 )
@@ -100,10 +100,7 @@ def score_run(
         raise SpecError(f"obstacle_contact must be one of {CONTACT_MODES}, got {shorten(repr(obstacle_contact))}")
     rules = reading_named(reading)
     fails = obstacle_contact == "fail"
-    per: EpisodeMetrics = episode_metrics(
-        data.offsets, data.palm_xyz, data.object_xyz, data.joint_angles, data.fingertip_distance, data.grasp_angles,
-        data.acting_budget, data.hover_offset, data.top_offset, rules,
-    )
+    per: EpisodeMetrics = run_metrics(data, rules)
     breakdowns: dict[str, dict[str, Summary]] = {}
     for key, attribute, canonical, _ in BREAKDOWNS:
         values = getattr(data, attribute)

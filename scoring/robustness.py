@@ -34,8 +34,9 @@ from catalog.tables.parquet_io import column_to_numpy
 from catalog.tables.reader import open_folder
 from schemas.errors import ShardError
 from schemas.scene import LOC_TOLERANCE
+from scoring.hold import run_metrics
 from scoring.io import RunData, load_run
-from scoring.metrics import DEFAULT_READING, EpisodeMetrics, episode_metrics, failed, reading_named
+from scoring.metrics import DEFAULT_READING, EpisodeMetrics, failed, reading_named
 from scoring.registry import registered
 
 REPEATS_FILE = "repeats.json"
@@ -97,8 +98,7 @@ def load_repeats(folder: str | os.PathLike[str]) -> RepeatSet:
 
 
 def _per_episode(run: RunData, reading: str) -> EpisodeMetrics:
-    return episode_metrics(run.offsets, run.palm_xyz, run.object_xyz, run.joint_angles, run.fingertip_distance,
-                           run.grasp_angles, run.acting_budget, run.hover_offset, run.top_offset, reading_named(reading))
+    return run_metrics(run, reading_named(reading))
 
 
 def _consistency(success: np.ndarray) -> dict[str, int]:

@@ -3,6 +3,8 @@ hand-made per-frame arrays, so scoring can be tested without the simulator."""
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,6 +16,7 @@ from catalog.store.hashing import sha256_file
 from catalog.store.manifest import CodeInfo, Manifest, write_manifest
 from catalog.store.records import FileRecord, ShardRecord, shard_paths
 from catalog.tables.parquet_io import write_table
+from generators.recipe import spec_for
 from schemas.tables import (
     ARRAY_WIDTHS,
     EPISODES_SCHEMA,
@@ -79,6 +82,13 @@ def frames_table(first_index: int, episodes: list[Ep]) -> pa.Table:
     return pa.Table.from_arrays(columns, schema=FRAMES_SCHEMA)
 
 
+@functools.cache
+def _spec_json(object_name: str) -> str:
+    """A real spec (test-1k's episode 0) with the episode's object at size 1 and the right
+    hand, which the hold test (S_hold) reads."""
+    return dataclasses.replace(spec_for("test-1k", 0), object=object_name, object_size=1.0, hand="right").to_json()
+
+
 def episodes_table(first_index: int, episodes: list[Ep], policy: str | None) -> pa.Table:
     schema = EPISODES_SCHEMA if policy is None else ROLLOUT_EPISODES_SCHEMA
     rows = []
@@ -90,7 +100,7 @@ def episodes_table(first_index: int, episodes: list[Ep], policy: str | None) -> 
             "rollout_format": "observe-before-act", "intercept_setting": ep.intercept_setting,
             "intercept_time_s": 0.5, "observe_frames": ep.phases.count("observe"), "intercept_frame": 0,
             "num_frames": len(ep.phases), "grasp_angles": np.asarray(ep.grasp, np.float32), "seed": 1,
-            "spec_hash": "0" * 64, "text": "", "spec": "{}",
+            "spec_hash": "0" * 64, "text": "", "spec": _spec_json(ep.object),
             "policy": policy, "privileged": False, "status": ep.status, "error": "boom" if ep.status == "error" else "",
         })
     columns = []

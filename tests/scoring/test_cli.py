@@ -65,7 +65,7 @@ def test_json_keys_and_values(capsys, run):
     assert result["episodes"] == 3 and result["errors"] == 1
     assert result["label"] == "oracle" and result["policy"] == "oracle" and not result["ground_truth"]
     m = result["metrics"]
-    assert list(m) == ["S_grasp_contact", "S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time"]  # headline first
+    assert list(m) == ["S_grasp_contact", "S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time", "S_hold"]  # headline first
     # the error episode is a failure although its frames equal GOOD's
     assert m["S_loc"] == pytest.approx(100 / 3)
     assert m["S_gra"] == pytest.approx(100 / 3)

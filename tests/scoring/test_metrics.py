@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -28,6 +29,11 @@ OPEN = np.zeros(15)
 CLOSED = np.ones(15)
 
 
+def no_hold(per):
+    """``per`` with no hold test run (these hand-made hands hold nothing: S_hold is 0)."""
+    return dataclasses.replace(per, t_hold=np.full(len(per), -1, dtype=np.int64))
+
+
 def episode(palm, obj=None, joints=None, tips=None):
     """One episode's acting frames: palm (k, 3), object (k, 3) default at the origin."""
     palm = np.asarray(palm, dtype=np.float64).reshape(-1, 3)
@@ -47,8 +53,8 @@ def score(*episodes, grasp=None, reading=LENIENT, top=None):
     offsets = np.concatenate([[0], np.cumsum([len(e[0]) for e in episodes])])
     cat = [np.concatenate([e[i] for e in episodes]) if episodes else np.zeros((0, 3)) for i in range(4)]
     grasp = np.tile(CLOSED, (len(episodes), 1)) if grasp is None else np.asarray(grasp)
-    return episode_metrics(offsets, cat[0], cat[1], cat[2].reshape(-1, 15), cat[3].reshape(-1), grasp,
-                           top_offset=top, reading=reading)
+    return no_hold(episode_metrics(offsets, cat[0], cat[1], cat[2].reshape(-1, 15), cat[3].reshape(-1), grasp,
+                                   top_offset=top, reading=reading))
 
 
 def xs(*values, y=2.0):
@@ -392,7 +398,7 @@ def _one_episode(palm_x, tips, closed_mask):
     grasp = np.full((1, 15), 1.0)
     joints = np.where(np.asarray(closed_mask)[:, None], 1.0, 0.0) * np.ones((m, 15))
     palm = np.column_stack([palm_x, np.full(m, 0.5), np.zeros(m)])
-    return episode_metrics(np.array([0, m]), palm, np.zeros((m, 3)), joints, np.asarray(tips, float), grasp)
+    return no_hold(episode_metrics(np.array([0, m]), palm, np.zeros((m, 3)), joints, np.asarray(tips, float), grasp))
 
 
 def test_contact_grasp_needs_the_fist_over_the_object_and_touching_at_the_same_frame():
@@ -443,8 +449,8 @@ def test_the_ground_truth_grasps_with_contact_and_a_blind_fist_does_not():
 def test_dyana_reading_is_the_default():
     assert DEFAULT_READING == "dyana" and (DYANA.s_loc, DYANA.quality) == ("top", "weighted")
     assert (PAPER.s_loc, PAPER.quality) == ("xz", "successful")  # A.5's XZ test; "for successful trajectories"
-    per = episode_metrics(np.array([0, 2]), np.array(xs(1.0, 0.2, y=0.3)), np.zeros((2, 3)), np.zeros((2, 15)),
-                          np.array([0.1, 0.5]), np.ones((1, 15)))
+    per = no_hold(episode_metrics(np.array([0, 2]), np.array(xs(1.0, 0.2, y=0.3)), np.zeros((2, 3)),
+                                  np.zeros((2, 15)), np.array([0.1, 0.5]), np.ones((1, 15))))
     assert per.e_loc[0] == pytest.approx(0.2) and per.e_gra[0] == pytest.approx(0.5)  # the last frame's
 
 

@@ -78,8 +78,8 @@ def test_a_toy_metric_is_listed_wherever_metrics_are(tmp_path, capsys, run, toys
     assert "toy_frames ↓" in md.read_text() and png.read_bytes()[:4] == b"\x89PNG"
     episodes = pq.read_table(rows)
     names = episodes.column_names
-    assert names.index("t_early") == names.index("t_grasp_contact") + 1
-    assert names.index("early") == names.index("grasp_contact") + 1 and names.index("toy_frames") == names.index("R_time") + 1
+    assert names.index("t_early") == names.index("t_hold") + 1
+    assert names.index("early") == names.index("held") + 1 and names.index("toy_frames") == names.index("R_time") + 1
     assert episodes.column("toy_frames").to_pylist() == [4.0, 3.0, None, 4.0]
     assert episodes.column("early").to_pylist() == [True, False, False, True]
     # robustness: the toy mean's spread and the toy rate's consistency
