@@ -374,6 +374,38 @@ def hand_clearances(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str, 
     return rows.minimum()
 
 
+def hand_table_depth(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str,
+                     geometry: HandGeometry = DEFAULT_GEOMETRY) -> np.ndarray:
+    """(n,) how deep the hand's lowest point is under the table top (the plane Y = 0) at each
+    frame, 0 when above: the palm box's lowest corner, the wrist cylinder's lowest point and
+    the finger segments as capsules (a bound at least as deep as the hand body's cylinders)."""
+    palm = np.atleast_2d(np.asarray(palm_pose, dtype=np.float64))
+    positions, _ = chain_frames(palm, joint_angles, side, geometry)
+    start, end = positions[:, :, :3], positions[:, :, 1:]
+    fingers = (np.minimum(start[..., 1], end[..., 1]) - FINGER_RADII[None, :, None]).min(axis=(1, 2))
+    rot = euler_to_matrix(palm[:, 3:])
+    box = palm[:, 1] - np.abs(rot[:, 1, :]) @ np.asarray(PALM_HALF_EXTENTS)
+    axis = rot[:, 1, 2]  # the wrist cylinder's axis is the palm's Z
+    centre = palm[:, 1] + rot[:, 1, :] @ (np.asarray(WRIST_OFFSET) - [0.0, 0.0, WRIST_LENGTH / 2.0])
+    wrist = centre - np.abs(axis) * WRIST_LENGTH / 2.0 - WRIST_RADIUS * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
+    return np.maximum(0.0, -np.minimum(np.minimum(fingers, box), wrist))
+
+
+def palm_sphere_depth(palm_pose: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
+    """(n,) how deep a sphere of ``radius`` at ``centres`` (n, 3) is in the palm box or the
+    wrist cylinder at each frame of ``palm_pose`` (n, 6); 0 when apart (the hand body's
+    object rule: the fingers may close into the object, the palm and wrist may not enter it)."""
+    palm = np.atleast_2d(np.asarray(palm_pose, dtype=np.float64))
+    rot = euler_to_matrix(palm[:, 3:])
+    local = np.einsum("nji,nj->ni", rot, np.asarray(centres, dtype=np.float64) - palm[:, :3])
+    half = np.asarray(PALM_HALF_EXTENTS)
+    box = np.linalg.norm(local - np.clip(local, -half, half), axis=1)
+    wrist = local - (np.asarray(WRIST_OFFSET) - [0.0, 0.0, WRIST_LENGTH / 2.0])
+    axial = np.maximum(np.abs(wrist[:, 2]) - WRIST_LENGTH / 2.0, 0.0)
+    radial = np.maximum(np.hypot(wrist[:, 0], wrist[:, 1]) - WRIST_RADIUS, 0.0)
+    return np.maximum(0.0, radius - np.minimum(box, np.hypot(axial, radial)))
+
+
 def hand_clearance(palm_pose: np.ndarray, joint_angles: np.ndarray, side: str, obstacles,
                    geometry: HandGeometry = DEFAULT_GEOMETRY) -> np.ndarray:
     """(n,) smallest distance from the hand's surface to any obstacle at each frame of

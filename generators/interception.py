@@ -40,7 +40,7 @@ from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, fi
 from schemas.errors import InfeasibleError
 from schemas.objects import object_category
 from schemas.obstacles import OBSTACLE_MARGIN
-from schemas.scene import GRASP_FRAMES, PHASES, WORKSPACE_X, WORKSPACE_Z
+from schemas.scene import GRASP_FRAMES, PALM_BOX, PHASES, WORKSPACE_X, WORKSPACE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -50,6 +50,18 @@ MAX_PALM_SPEED = 35.0
 MIN_APPROACH_STEP = 1e-4
 #: Lowest a fingertip may go (the table top is Y = 0).
 MIN_FINGERTIP_HEIGHT = 0.0
+#: How deep the planned hand may go under the table top, and the palm and wrist into a
+#: flying object (units): less than the hand body's ``TOUCH`` (0.05,
+#: :mod:`generators.hand_body`), so the body passes the plan unchanged.
+MAX_DEPTH = 0.04
+#: For a flying object: the fractions of its vertical velocity and acceleration at the
+#: intercept that the palm's approach arrives with, tried in order (for each rise of
+#: :data:`LIFT_RISES`) until the approach keeps the hand out of the table and the palm out of
+#: the ball. Matching a ball that rises (or falls under gravity's -98.1 units/s^2) fully can
+#: take the palm units under the table on the way (test-complex: down to Y = -4.6) or
+#: through the ball; the palm then joins the hover point with a velocity change the hand
+#: body allows in one frame.
+VERTICAL_MATCH = (1.0, 0.75, 0.5, 0.25, 0.0)
 _PHASE = {name: i for i, name in enumerate(PHASES)}
 
 
@@ -175,6 +187,35 @@ def _clearing_rise(spec: EpisodeSpec, palm: np.ndarray, joints: np.ndarray, a: i
     raise InfeasibleError(f"no lift up to {LIFT_RISES[-1]} units takes the hand over the obstacles")
 
 
+def _airborne_approach(spec: EpisodeSpec, palm: np.ndarray, turn: np.ndarray, joints: np.ndarray, a: int, i: int,
+                       approach, centres: np.ndarray, radius: float,
+                       design: GraspDesign = DEFAULT_DESIGN) -> tuple[float, float]:
+    """The smallest rise of :data:`LIFT_RISES`, then the first of :data:`VERTICAL_MATCH`, whose
+    approach toward a flying ball (``centres`` (n, 3), ``radius``) keeps the palm in
+    :data:`schemas.scene.PALM_BOX`, the hand at most :data:`MAX_DEPTH` under the table and
+    the palm and wrist at most that deep in the ball at every acting frame; InfeasibleError
+    naming the first candidate's worst frame if none does."""
+    from generators.clearance import hand_table_depth, palm_sphere_depth
+
+    path = palm.copy()
+    low, high = (np.array([r[k] for r in PALM_BOX]) for k in (0, 1))
+    worst: tuple[str, float, int] | None = None
+    for rise in LIFT_RISES:
+        for match in VERTICAL_MATCH:
+            path[a : i + 1] = approach(rise, match)
+            pose = np.concatenate([path[a:], turn[a:]], axis=1)
+            table = hand_table_depth(pose, joints[a:], spec.hand, design.hand)
+            ball = palm_sphere_depth(pose, centres[a:], radius)
+            inside = np.all((path[a:] >= low) & (path[a:] <= high))
+            if inside and max(table.max(), ball.max()) <= MAX_DEPTH:
+                return rise, match
+            if worst is None:
+                into = ("under the table", table) if table.max() >= ball.max() else ("into the ball", ball)
+                worst = (into[0], float(into[1].max()), a + int(np.argmax(into[1])))
+    assert worst is not None
+    raise InfeasibleError(f"the approach would take the hand {worst[1]:.2f} units {worst[0]} at frame {worst[2]}")
+
+
 def _check_in_view(name: str, points: np.ndarray) -> None:
     inside = points_in_view(points)
     if not inside.all():
@@ -266,18 +307,25 @@ def plan_episode(
     end_vel = np.array([vel[i, 0], lift_v[i], vel[i, 1]])
     end_acc = np.array([acc[i, 0], lift_a[i], acc[i, 1]])
 
-    def approach(at: np.ndarray, rise: float) -> np.ndarray:
-        path = quintic(REST_PALM[:3], hover[i], end_vel, end_acc, duration, at)
+    def approach(at: np.ndarray, rise: float, match: float = 1.0) -> np.ndarray:
+        scale = np.array([1.0, match, 1.0])
+        path = quintic(REST_PALM[:3], hover[i], end_vel * scale, end_acc * scale, duration, at)
         path[:, 1] += rise * lift_bump(at)
         return path
 
-    rise = 0.0
+    rise, match = 0.0, 1.0
     palm = np.repeat(REST_PALM[None, :3], n, axis=0)
     palm[i:] = hover[i:]
     palm[a : i + 1] = approach(s, 0.0)
+    if elevation is not None:  # on the table the approach's height is monotone: it cannot dip
+        centres = np.column_stack([obj[:, 0], centre_y + lift, obj[:, 1]])
+        rise, match = _airborne_approach(spec, palm, turn, joints, a, i, lambda r, m: approach(s, r, m), centres,
+                                         centre_y, design)
+        palm[a : i + 1] = approach(s, rise, match)
     if spec.obstacles:
-        rise = _clearing_rise(spec, palm, joints, a, i, lambda r: approach(s, r), design, None if heading is None else turn)
-        palm[a : i + 1] = approach(s, rise)
+        rise = _clearing_rise(spec, palm, joints, a, i, lambda r: approach(s, r, match), design,
+                              None if heading is None else turn)
+        palm[a : i + 1] = approach(s, rise, match)
 
     steps = np.linalg.norm(np.diff(palm[a : i + 1], axis=0), axis=1)
     if steps.min() <= MIN_APPROACH_STEP:
@@ -285,7 +333,7 @@ def plan_episode(
         raise InfeasibleError(f"the palm would stall before arrival at frame {k} (step {steps.min():.2e})")
     # Peak speed of the analytic approach, sampled finely between frames.
     fine = np.linspace(0.0, 1.0, 8 * (i - a) + 1)
-    path = approach(fine, rise)
+    path = approach(fine, rise, match)
     speed = np.linalg.norm(np.diff(path, axis=0), axis=1).max() / (duration / (len(fine) - 1))
     if speed > MAX_PALM_SPEED:
         raise InfeasibleError(f"the interception needs a palm speed of {speed:.1f} units/s (> {MAX_PALM_SPEED})")

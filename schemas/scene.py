@@ -30,6 +30,10 @@ TABLE_Z = (-1.0, 10.0)
 #: hides the target while the model observes it (generators.visibility); its height is
 #: the highest hover point of any recipe object, so approaches only ever descend.
 PALM_REST = (0.0, 1.65, -1.8, 0.0, 0.0, 0.0)
+#: Where the palm may go (x, y, z ranges): above the table, up to 6 units high, from
+#: behind the rest pose (at the view's bottom edge) to the table's far edge. The closed
+#: loop clamps every action into it; the ground truth's approach to a flying ball stays in it.
+PALM_BOX = (TABLE_X, (0.0, 6.0), (min(TABLE_Z[0], PALM_REST[2] - 1.0), TABLE_Z[1]))
 #: Share of the object's silhouette that must be in the image and unhidden in every
 #: observe frame (the observe-before-act protocol shows the model the motion).
 MIN_OBSERVE_VISIBLE = 0.5

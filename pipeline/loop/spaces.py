@@ -26,7 +26,7 @@ from generators.hand import (
     root_positions,
 )
 from pipeline.policies.base import Observation
-from schemas.scene import PALM_REST, TABLE_X, TABLE_Z
+from schemas.scene import PALM_BOX
 from schemas.spec import MAX_TEXT
 from schemas.versions import FPS
 
@@ -36,9 +36,6 @@ __all__ = [
     "observation_space",
 ]
 
-#: Where the palm may go (x, y, z ranges): above the table, up to 6 units high, from
-#: behind the rest pose (at the view's bottom edge) to the table's far edge.
-PALM_BOX = (TABLE_X, (0.0, 6.0), (min(TABLE_Z[0], PALM_REST[2] - 1.0), TABLE_Z[1]))
 PALM_LOW = np.array([r[0] for r in PALM_BOX])
 PALM_HIGH = np.array([r[1] for r in PALM_BOX])
 ACTION_WIDTH = 18
