@@ -41,9 +41,9 @@ from schemas.scene import LOC_TOLERANCE
 from schemas.versions import FPS
 
 #: Fraction of the way from rest to the fist (the design's synergy end) that some joint
-#: must pass for the hand to count as closing (3%: the fingers' first flexion; the ground
-#: truth's closing passes it on its first closing frame, where its most-closed joint is at
-#: 5.8% of its grasp, which is 35-75% of the fist; a resting or hovering hand is at 0).
+#: must pass for the hand to count as closing (3%: the fingers' first flexion; a resting or
+#: hovering hand is at 0; on the ground truth's first closing frame, 5.8% of its grasp, the
+#: most-closed joint is at 3.6-5.0% of the fist over lying cylinders, so it turns from there).
 CLOSING_FRACTION = 0.03
 #: How far (units, horizontal) the palm centre may be from a lying cylinder's centre for the
 #: reflex: the localisation tolerance (schemas.scene.LOC_TOLERANCE, 3 cm), i.e. only a hand
