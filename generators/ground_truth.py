@@ -79,7 +79,9 @@ def palm_heading(spec: EpisodeSpec, poses: np.ndarray) -> np.ndarray:
 
 def episode_grasp(spec: EpisodeSpec, design: GraspDesign = DEFAULT_DESIGN) -> np.ndarray:
     """(15,) the ground truth's grasp angles of ``spec`` as ``design`` grasps (what
-    :func:`plan` puts in :attr:`HandPlan.grasp_angles`), without planning."""
+    :func:`plan` puts in :attr:`HandPlan.grasp_angles`), without planning, except for a
+    lying cylinder under a wrist-reflex design (its grasp depends on the heading the
+    reflex reaches: the plan's own)."""
     if not object_category(spec.object).lying or not (design.as_placed or design.turn_to_axis or design.wrist_reflex):
         return grasp_angles(spec.object, spec.object_size, spec.hand, design)
     if design.wrist_reflex:  # sized for the heading the reflex reaches: the plan's own
