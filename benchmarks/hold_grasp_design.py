@@ -17,7 +17,14 @@ with :func:`generators.ground_truth.plan` and tested from its first closed frame
 - ``blind``: the four blind policies played in a kinematic stand-in (as
   ``benchmarks/hold.py``), closing to the design's fist (its synergy's end) and
   judged closed against the design's ground-truth grasp, on the first
-  ``--blind-episodes`` episodes;
+  ``--blind-episodes`` episodes; with a wrist-reflex design the stand-in turns the palm by
+  the reflex (:mod:`generators.wrist`) every frame, and ``turned`` counts the episodes
+  it turned in;
+- ``reflex_exact`` (wrist-reflex designs): the lying-cylinder plans whose recorded
+  (float32) headings the reflex recomputes bit for bit from the recorded states;
+  ``body_exact``: the plans whose actions, stepped through the hand body built for the
+  design (:class:`generators.hand_body.HandBody`, its reflex on), reach every recorded
+  state (palm, joints, heading) bit for bit, what the oracle reaches in the closed loop;
 - ``at_rest``: each object at rest at 0.85, 1 and 1.15 of its nominal size, in the
   canonical placement, grasped as the design grasps it.
 
@@ -46,10 +53,12 @@ from generators import motion
 from generators.grasp import DESIGNS, GraspDesign, grasp_angles, grasp_hover
 from generators.ground_truth import episode_grasp, plan
 from generators.hand import FINGER_RADII, REST_JOINTS, chain_frames
+from generators.hand_body import HandBody
 from generators.hold import hold_test
 from generators.hold_episode import episode_hold, palm_velocity
 from generators.hold_grasp import resting_pose
 from generators.recipe import spec_for
+from generators.wrist import wrist_headings, wrist_step
 from pipeline.loop.rollout import task_for
 from pipeline.loop.spaces import PALM_HIGH, PALM_LOW
 from pipeline.policies.blind import FIST, CentrePolicy, FittedPolicy, SweepPolicy
@@ -93,8 +102,24 @@ def limits(design: GraspDesign, spec: EpisodeSpec, palm_pose: np.ndarray, joints
             "table_depth_capsule": float(max(0.0, -(pos[..., 1] - radius).min()))}
 
 
+def through_body(body: HandBody, spec: EpisodeSpec, hp, poses: np.ndarray) -> int | None:
+    """The first frame at which the plan's actions, stepped through ``body``, miss the
+    plan's recorded state (None: every frame reached bit for bit)."""
+    body.reset(spec.hand, spec.object, spec.object_size, spec.obstacles)
+    action, state, joints, obj = (np.asarray(x, np.float32).astype(np.float64)
+                                  for x in (hp.action, hp.palm_pose, hp.joint_angles, poses))
+    for t in range(spec.observe_frames, spec.num_frames - 1):
+        palm, q = body.step(action[t, :3], action[t, 3:], obj[t + 1])
+        if not (np.array_equal(palm, state[t + 1, :3]) and np.array_equal(q, joints[t + 1])
+                and body.heading == state[t + 1, 4]):
+            return t + 1
+    return None
+
+
 def ground_truth(design: GraspDesign, specs: list[EpisodeSpec]) -> dict:
     rows, oracle, open_, beside, peaks, cpu = [], [], [], [], collections.defaultdict(float), []
+    exact, body_exact, body_off = [0, 0], 0, []
+    body = HandBody((PALM_LOW, PALM_HIGH), design) if design.wrist_reflex else None
     for spec in specs:
         row = {"index": spec.episode_index, **{k: getattr(spec, "intercept_setting" if k == "setting" else k)
                                                 for k in KEYS}, "refused": None, "held": False}
@@ -104,6 +129,16 @@ def ground_truth(design: GraspDesign, specs: list[EpisodeSpec]) -> dict:
         except InfeasibleError as exc:
             row["refused"] = str(exc)
             continue
+        if design.wrist_reflex and object_category(spec.object).lying:
+            f32 = [np.asarray(x, np.float32).astype(np.float64) for x in (hp.palm_pose, hp.joint_angles, poses)]
+            turned = wrist_headings(f32[0][:, :3], f32[1], f32[2], spec.object, np.asarray(design.synergy_end))
+            exact[0] += bool(np.array_equal(turned, f32[0][:, 4]))
+            exact[1] += 1
+        if body is not None:
+            off = through_body(body, spec, hp, poses)
+            body_exact += off is None
+            if off is not None:
+                body_off.append({"index": spec.episode_index, "object": spec.object, "frame": off})
         for name, value in limits(design, spec, hp.palm_pose, hp.joint_angles).items():
             peaks[name] = max(peaks[name], value)
         t0 = time.process_time()
@@ -134,6 +169,8 @@ def ground_truth(design: GraspDesign, specs: list[EpisodeSpec]) -> dict:
         **{f"by_{k}": tally(rows, k) for k in KEYS},
         "oracle": {"n": n, "held": int(sum(oracle)), "rate": round(sum(oracle) / n, 4)},
         "controls": {"open": int(sum(open_)), "beside": int(sum(beside)), "of": len(open_)},
+        **({"reflex_exact": {"exact": exact[0], "of": exact[1]},
+            "body_exact": {"exact": body_exact, "of": n - refused, "off": body_off}} if design.wrist_reflex else {}),
         "limits": {k: round(v, 4) for k, v in peaks.items()},
         "hold_test_cpu_ms": round(1000 * float(np.mean(cpu)), 1) if cpu else None,
         "failures": [r for r in rows if not r["held"]],
@@ -148,12 +185,19 @@ def play(policy, spec: EpisodeSpec, design: GraspDesign) -> tuple[np.ndarray, np
     palm, joints = [rest.copy()] * (spec.observe_frames + 1), [REST_JOINTS.astype(np.float32)] * (spec.observe_frames + 1)
     grasp = episode_grasp(spec, design)
     end = np.asarray(design.synergy_end)
-    while len(palm) - 1 < spec.observe_frames + spec.acting_horizon:
+    last = spec.observe_frames + spec.acting_horizon
+    poses = motion.object_pose(spec.motion, spec.object, spec.object_size, np.arange(last + 1) / float(FPS))[0]
+    poses = poses.astype(np.float32).astype(np.float64)
+    while len(palm) - 1 < last:
         obs = {"palm_pose": palm[-1], "joint_angles": joints[-1], "frame_index": len(palm) - 1}
         act = np.asarray(policy.act(obs), dtype=np.float32).astype(np.float64)
-        palm.append(np.concatenate([np.clip(act[:3], PALM_LOW, PALM_HIGH).astype(np.float32), rest[3:]]))
         fraction = float(np.max(act[3:] / FIST, where=FIST > 0, initial=0.0))
         joints.append((fraction * end).astype(np.float32))
+        new = np.concatenate([np.clip(act[:3], PALM_LOW, PALM_HIGH).astype(np.float32), rest[3:]])
+        if design.wrist_reflex:
+            new[4] = wrist_step(float(palm[-1][4]), new[:3].astype(np.float64), joints[-1].astype(np.float64),
+                                poses[len(palm)], spec.object, end)
+        palm.append(new)
         if grasp_closed(joints[-1], grasp):
             break
     return np.array(palm, dtype=np.float64), np.array(joints, dtype=np.float64)
@@ -165,12 +209,14 @@ def blind(design: GraspDesign, specs: list[EpisodeSpec]) -> dict:
               "blind-first-seen": lambda s: FirstSeenExact(tuple(plan(s)[1][0, [0, 2]]))}
     out = {}
     for name, make in makers.items():
-        closed = held = 0
+        closed = held = turned = 0
         for spec in specs:
-            res = episode_hold(spec, *play(make(spec), spec, design), design)
+            palm, joints = play(make(spec), spec, design)
+            res = episode_hold(spec, palm, joints, design)
             closed += res is not None
             held += bool(res is not None and res[1].held)
-        out[name] = {"n": len(specs), "closed": closed, "held": held}
+            turned += bool(np.any(palm[:, 4] != 0.0))
+        out[name] = {"n": len(specs), "closed": closed, "held": held, "turned": turned}
     return out
 
 

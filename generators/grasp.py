@@ -67,7 +67,9 @@ class GraspDesign:
     ``low_objects``: categories the palm grasps as low as the closing fingers allow (the
     lowest hover from ``min_hover`` to ``max_hover``, in 0.01 steps, whose finger capsules
     stay ``table_clearance`` over the table); ``turn_to_axis``: whether the palm turns about
-    the vertical so that the fingers close across a lying cylinder's axis."""
+    the vertical so that the fingers close across a lying cylinder's axis (once, on the
+    approach); ``wrist_reflex``: whether it turns by the hand's own rule instead, as the
+    fingers close (:mod:`generators.wrist`)."""
 
     name: str
     hand: HandGeometry
@@ -80,6 +82,7 @@ class GraspDesign:
     max_hover: float = 0.6
     table_clearance: float = 0.0
     turn_to_axis: bool = False
+    wrist_reflex: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.hand, HandGeometry):
@@ -92,6 +95,8 @@ class GraspDesign:
         if not isinstance(self.table_clearance, numbers.Real) or not -0.05 <= self.table_clearance <= 0.5:
             raise SpecError(f"grasp design {self.name!r}: table_clearance must be in [-0.05, 0.5], "
                             f"got {shorten(repr(self.table_clearance))}")
+        if self.turn_to_axis and self.wrist_reflex:
+            raise SpecError(f"grasp design {self.name!r}: the palm turns on the approach or by the wrist reflex, not both")
         end = np.asarray(self.synergy_end, dtype=np.float64)
         if end.shape != (15,) or np.any(end < JOINT_LOWER) or np.any(end > JOINT_UPPER):
             raise SpecError(f"grasp design {self.name!r}: synergy_end must be 15 angles within the joint limits, "
@@ -122,8 +127,12 @@ OPPOSED = GraspDesign(
 #: lying cylinders are sized as they lie, and the fingers close along the axis where it
 #: runs along Z.
 OPPOSED_FIXED = dataclasses.replace(OPPOSED, name="opposed-fixed", turn_to_axis=False)
+#: :data:`OPPOSED` with the palm turned by the wrist reflex (:mod:`generators.wrist`), part
+#: of the hand, not of the 18-number action: as the fingers start closing over a lying
+#: cylinder, the palm turns toward its axis at most 10 rad/s.
+OPPOSED_WRIST = dataclasses.replace(OPPOSED, name="opposed-wrist", turn_to_axis=False, wrist_reflex=True)
 #: Every grasp design by name.
-DESIGNS = MappingProxyType({d.name: d for d in (SPLAYED, OPPOSED, OPPOSED_FIXED)})
+DESIGNS = MappingProxyType({d.name: d for d in (SPLAYED, OPPOSED, OPPOSED_FIXED, OPPOSED_WRIST)})
 #: The dataset's grasp: the design of the dataset's hand, :data:`generators.hand.DEFAULT_GEOMETRY`
 #: (switching that one name switches the hand and its grasp together).
 DEFAULT_DESIGN = {SPLAYED_THUMB.name: SPLAYED, OPPOSED_THUMB.name: OPPOSED}[DEFAULT_GEOMETRY.name]

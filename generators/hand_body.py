@@ -25,6 +25,12 @@ a pure function of the state, the target and the object's pose. Each :meth:`Hand
    previous state toward it, as far as :data:`BISECTIONS` halvings find allowed (no
    sliding along the surface it meets).
 
+Constructed for a grasp design with the wrist reflex (``HandBody(design=OPPOSED_WRIST)``;
+by default the dataset's hand, no reflex), the palm's heading then follows
+:func:`generators.wrist.wrist_step` of the new state (as float32, as recorded): the turned
+palm and wrist are checked as above, and a turn that breaks a rule stops where
+:data:`BISECTIONS` halvings find allowed.
+
 Docs: docs/concepts/hand-body.md (the limits, their sources and the ground truth's needs).
 """
 
@@ -34,8 +40,10 @@ import numpy as np
 
 from generators.bullet import p
 from generators.clearance import WRIST_LENGTH, WRIST_RADIUS
-from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, WRIST_OFFSET
+from generators.grasp import GraspDesign
+from generators.hand import DEFAULT_GEOMETRY, JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, WRIST_OFFSET
 from generators.scene import load_hand, set_hand_pose
+from generators.wrist import wrist_step
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle
 from schemas.versions import FPS
@@ -102,8 +110,11 @@ class HandBody:
     :meth:`reset` starts an episode at the rest state; :meth:`step` moves toward a
     target; :meth:`close` frees the pybullet client."""
 
-    def __init__(self, palm_box: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        """``palm_box``: (low, high) xyz the palm's centre must stay in (a wall like the others)."""
+    def __init__(self, palm_box: tuple[np.ndarray, np.ndarray] | None = None, design: GraspDesign | None = None) -> None:
+        """``palm_box``: (low, high) xyz the palm's centre must stay in (a wall like the others);
+        ``design``: its hand and, if it has one, its wrist reflex (None: the dataset's hand, no reflex)."""
+        self._geometry = DEFAULT_GEOMETRY if design is None else design.hand
+        self._fist = np.asarray(design.synergy_end) if design is not None and design.wrist_reflex else None
         self._box = None if palm_box is None else (np.asarray(palm_box[0], np.float64), np.asarray(palm_box[1], np.float64))
         self._client = p.connect(p.DIRECT)
         p.setPhysicsEngineParameter(fixedTimeStep=1.0 / FPS, deterministicOverlappingPairs=1, physicsClientId=self._client)
@@ -116,15 +127,17 @@ class HandBody:
         self._scene: tuple[object, ...] | None = None
         self._static: tuple[int, ...] = ()
         self._object = -1
+        self._category = ""
         self.palm = REST_PALM[:3].copy()
         self.joints = REST_JOINTS.astype(np.float64)
         self.velocity = np.zeros(3)
+        self.heading = 0.0
 
     def reset(self, side: str, category: str, size: float, obstacles: tuple[Obstacle, ...]) -> None:
         """Start an episode: the hand at rest, not moving, in this scene."""
         client = self._client
         if side not in self._hands:
-            self._hands[side] = load_hand(client, side)
+            self._hands[side] = load_hand(client, side, self._geometry)
         self._hand, self._indices = self._hands[side]
         scene = (category, size, obstacles)
         if scene != self._scene:
@@ -135,9 +148,11 @@ class HandBody:
             self._static = (self._table, *boxes)
             self._object = self._build_object(category, size)
             self._scene = scene
+        self._category = category
         self.palm = REST_PALM[:3].copy()
         self.joints = REST_JOINTS.astype(np.float64)
         self.velocity = np.zeros(3)
+        self.heading = 0.0
 
     def _build_object(self, category: str, size: float) -> int:
         cat = object_category(category)
@@ -153,14 +168,23 @@ class HandBody:
         return p.createMultiBody(0.0, shape, -1, [0.0, -50.0, 0.0], [0, 0, 0, 1], physicsClientId=self._client)
 
     def depths(self, palm: np.ndarray, joints: np.ndarray, object_pose: np.ndarray,
-               stop: float = np.inf) -> tuple[float, float]:
-        """How deep the hand in this state is in the table or an obstacle, and how deep its
-        palm or wrist is in the object at ``object_pose`` (x, y, z, qx, qy, qz, qw): 0 when
-        clear. Once the first passes ``stop`` it is returned at once, the second as inf."""
+               stop: float = np.inf, heading: float = 0.0) -> tuple[float, float]:
+        """How deep the hand in this state (the palm turned ``heading`` about the vertical) is
+        in the table or an obstacle, and how deep its palm or wrist is in the object at
+        ``object_pose`` (x, y, z, qx, qy, qz, qw): 0 when clear. Once the first passes
+        ``stop`` it is returned at once, the second as inf."""
         client = self._client
-        set_hand_pose(client, self._hand, self._indices, np.concatenate([palm, REST_PALM[3:]]), joints)
-        wrist = [float(v) for v in palm + _WRIST_CENTRE]
-        p.resetBasePositionAndOrientation(self._wrist, wrist, _ORIENTATION, physicsClientId=client)
+        turn = REST_PALM[3:] + np.array([0.0, heading, 0.0])
+        set_hand_pose(client, self._hand, self._indices, np.concatenate([palm, turn]), joints)
+        if heading:
+            c, s = np.cos(heading), np.sin(heading)
+            centre = np.array([c * _WRIST_CENTRE[0] + s * _WRIST_CENTRE[2], _WRIST_CENTRE[1],
+                               -s * _WRIST_CENTRE[0] + c * _WRIST_CENTRE[2]])
+            orientation = p.getQuaternionFromEuler([float(a) for a in turn])
+        else:
+            centre, orientation = _WRIST_CENTRE, _ORIENTATION
+        wrist = [float(v) for v in palm + centre]
+        p.resetBasePositionAndOrientation(self._wrist, wrist, orientation, physicsClientId=client)
         fixed = 0.0
         for body in self._static:
             for part in (self._hand, self._wrist):
@@ -188,13 +212,13 @@ class HandBody:
             at = self.palm + fraction * (palm - self.palm)
             if self._box is not None and (np.any(at < self._box[0]) or np.any(at > self._box[1])):
                 return False
-            fixed, inside = self.depths(at, self.joints + fraction * (joints - self.joints), object_pose, TOUCH)
+            fixed, inside = self.depths(at, self.joints + fraction * (joints - self.joints), object_pose, TOUCH, self.heading)
             if fixed > TOUCH:
                 return False
             if inside <= TOUCH:
                 return True
             if not before:
-                before.append(self.depths(self.palm, self.joints, object_pose)[1])
+                before.append(self.depths(self.palm, self.joints, object_pose, heading=self.heading)[1])
             return inside <= before[0]
 
         if not allowed(1.0):
@@ -205,9 +229,31 @@ class HandBody:
             palm, joints = self.palm + low * (palm - self.palm), self.joints + low * (joints - self.joints)
         # the state is kept as recorded (float32), so a replay of recorded actions meets the same state
         palm, joints = palm.astype(np.float32).astype(np.float64), joints.astype(np.float32).astype(np.float64)
+        if self._fist is not None:
+            self.heading = self._turn(palm, joints, object_pose)
         self.velocity = palm - self.palm
         self.palm, self.joints = palm, joints
         return palm, joints
+
+    def _turn(self, palm: np.ndarray, joints: np.ndarray, object_pose: np.ndarray) -> float:
+        """The wrist reflex's heading at the new state, as far toward it as the rules allow."""
+        assert self._fist is not None
+        heading = wrist_step(self.heading, palm, joints, object_pose, self._category, self._fist)
+        if heading == self.heading:
+            return heading
+        before = self.depths(palm, joints, object_pose, heading=self.heading)[1]
+
+        def allowed(fraction: float) -> bool:
+            fixed, inside = self.depths(palm, joints, object_pose, TOUCH, self.heading + fraction * (heading - self.heading))
+            return fixed <= TOUCH and inside <= max(TOUCH, before)
+
+        if allowed(1.0):
+            return heading
+        low, high = 0.0, 1.0
+        for _ in range(BISECTIONS):
+            mid = 0.5 * (low + high)
+            low, high = (mid, high) if allowed(mid) else (low, mid)
+        return float(np.float32(self.heading + low * (heading - self.heading)))
 
     def close(self) -> None:
         """Disconnect the pybullet client (the body cannot step afterwards)."""

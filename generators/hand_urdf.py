@@ -25,6 +25,7 @@ import tempfile
 import numpy as np
 
 from generators.hand import (
+    DEFAULT_GEOMETRY,
     FINGER_RADII,
     FINGERS,
     JOINT_LOWER,
@@ -34,6 +35,7 @@ from generators.hand import (
     PALM_HALF_EXTENTS,
     SEGMENT_LENGTHS,
     WRIST_OFFSET,
+    HandGeometry,
     check_side,
     matrix_to_euler,
     root_positions,
@@ -70,11 +72,11 @@ def _segment_link(name: str, length: float, radius: float, material: str) -> str
     )
 
 
-def hand_urdf(side: str) -> str:
-    """URDF text of the ``side`` hand ("right" or "left"); deterministic."""
+def hand_urdf(side: str, geometry: HandGeometry = DEFAULT_GEOMETRY) -> str:
+    """URDF text of the ``side`` hand ("right" or "left") of ``geometry``; deterministic."""
     side = check_side(side)
     hx, hy, hz = PALM_HALF_EXTENTS
-    roots, rots = root_positions(side), root_rotations(side)
+    roots, rots = root_positions(side, geometry), root_rotations(side, geometry)
     parts = [
         '<?xml version="1.0"?>',
         f'<robot name="dyana_hand_{side}">',
@@ -120,10 +122,12 @@ def hand_urdf(side: str) -> str:
     return "\n".join(parts) + "\n"
 
 
-def write_hand_urdf(side: str, directory: str) -> str:
-    """Write ``dyana_hand_<side>.urdf`` into ``directory`` (atomically) and return its path."""
-    text = hand_urdf(side)
-    path = os.path.join(directory, f"dyana_hand_{side}.urdf")
+def write_hand_urdf(side: str, directory: str, geometry: HandGeometry = DEFAULT_GEOMETRY) -> str:
+    """Write ``dyana_hand_<side>.urdf`` (``dyana_hand_<side>_<geometry>.urdf`` for another
+    geometry than the dataset's) into ``directory`` (atomically) and return its path."""
+    text = hand_urdf(side, geometry)
+    name = side if geometry == DEFAULT_GEOMETRY else f"{side}_{geometry.name}"
+    path = os.path.join(directory, f"dyana_hand_{name}.urdf")
     fd, tmp = tempfile.mkstemp(prefix=f".dyana_hand_{side}.", suffix=".urdf", dir=directory)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:

@@ -21,7 +21,8 @@ The palm keeps the rest orientation throughout (actions steer only its position)
 a design turns it across a lying cylinder's axis (``heading``): then it turns about the
 vertical along the approach (the same ramp-cruise-ramp quintic, arriving with the heading's
 rate) and follows the heading from the intercept frame on (the ground truth's heading is
-constant: :func:`generators.ground_truth.palm_heading`).
+constant: :func:`generators.ground_truth.palm_heading`), or turns it by the wrist reflex
+(:mod:`generators.wrist`: from the first closing frame, as the hand's own rule).
 
 Action: ``action[t] = (palm_xyz[t + 1], joint_angles[t + 1])``, the targets issued at
 frame ``t`` and reached at frame ``t + 1``; the last frame repeats its own state.
@@ -239,6 +240,7 @@ def plan_episode(
     design: GraspDesign = DEFAULT_DESIGN,
     yaw: float = 0.0,
     heading: np.ndarray | None = None,
+    approach_turn: bool = True,
 ) -> HandPlan:
     """Solve the interception of ``spec`` and plan the hand over its ``n`` frames.
 
@@ -248,7 +250,9 @@ def plan_episode(
     an object on the table. ``design`` is the grasp (:class:`generators.grasp.GraspDesign`),
     ``yaw`` a lying cylinder's axis at the grasp (:func:`generators.grasp.cylinder_yaw`);
     ``heading`` (n,) the palm's turn about the vertical (its pitch) at every frame, followed
-    from the intercept frame on, None to keep the rest orientation.
+    from the intercept frame on, None to keep the rest orientation; with ``approach_turn``
+    False it is the turn at every frame as given (the wrist reflex's, :mod:`generators.wrist`)
+    and ``yaw`` is already relative to the palm.
     The hover point rises with the object, and the palm arrives
     with its 3D velocity and acceleration. Raises :class:`InfeasibleError` naming the reason when the target
     leaves the workspace or the view, the palm would have to move faster than
@@ -287,11 +291,15 @@ def plan_episode(
         heading = np.asarray(heading, dtype=np.float64)
         if heading.shape != (n,) or not np.isfinite(heading).all():
             raise InfeasibleError(f"the palm heading must be finite with shape ({n},), got {heading.shape}")
-        step = np.diff(heading[i - 1 : i + 2]) * FPS if 0 < i < n - 1 else np.zeros(2)
-        end = (np.array([step.mean()]), np.array([(step[1] - step[0]) * FPS]))
-        turn[a : i + 1, 1] = quintic(np.zeros(1), heading[i : i + 1], *end, (i - a) / FPS, (frames[a : i + 1] - a) / (i - a))[:, 0]
-        turn[i:, 1] = heading[i:]
-        yaw = yaw - float(heading[min(i + GRASP_FRAMES - 1, n - 1)])
+        if approach_turn:
+            step = np.diff(heading[i - 1 : i + 2]) * FPS if 0 < i < n - 1 else np.zeros(2)
+            end = (np.array([step.mean()]), np.array([(step[1] - step[0]) * FPS]))
+            turn[a : i + 1, 1] = quintic(np.zeros(1), heading[i : i + 1], *end, (i - a) / FPS,
+                                         (frames[a : i + 1] - a) / (i - a))[:, 0]
+            turn[i:, 1] = heading[i:]
+            yaw = yaw - float(heading[min(i + GRASP_FRAMES - 1, n - 1)])
+        else:
+            turn[:, 1] = heading
     hover_y = 2.0 * centre_y + grasp_hover(spec.object, spec.object_size, spec.hand, design, yaw)
     hover = np.column_stack([obj[:, 0], hover_y + lift, obj[:, 1]])
     _check_in_view("object", np.column_stack([obj[:, 0], centre_y + lift, obj[:, 1]]))

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from generators.bullet import p
+from generators.hand import DEFAULT_GEOMETRY, HandGeometry
 from generators.hand_urdf import joint_indices, set_hand_state, write_hand_urdf
 from schemas.objects import object_category
 from schemas.obstacles import Obstacle
@@ -201,7 +202,7 @@ def build_obstacles(client: int, obstacles: tuple[Obstacle, ...]) -> tuple[int, 
     )
 
 
-_HAND_FILES: dict[tuple[int, str], str] = {}
+_HAND_FILES: dict[tuple[int, str, str], str] = {}
 
 
 def _remove_hand_files(pid: int, directory: str) -> None:
@@ -209,22 +210,22 @@ def _remove_hand_files(pid: int, directory: str) -> None:
         shutil.rmtree(directory, ignore_errors=True)
 
 
-def hand_urdf_file(side: str) -> str:
-    """This process's URDF file of the ``side`` hand: written once into a temporary
+def hand_urdf_file(side: str, geometry: HandGeometry = DEFAULT_GEOMETRY) -> str:
+    """This process's URDF file of the ``side`` hand of ``geometry``: written once into a temporary
     directory that is removed when the process exits (written again if it went missing).
-    One path per side lets pybullet recognise a hand it loaded before."""
-    key = (os.getpid(), side)
+    One path per side and geometry lets pybullet recognise a hand it loaded before."""
+    key = (os.getpid(), side, geometry.name)
     path = _HAND_FILES.get(key)
     if path is None or not os.path.exists(path):
         directory = tempfile.mkdtemp(prefix="dyana_hand_")
         atexit.register(_remove_hand_files, key[0], directory)
-        path = write_hand_urdf(side, directory)
+        path = write_hand_urdf(side, directory, geometry)
         _HAND_FILES[key] = path
     return path
 
 
-def load_hand(client: int, side: str) -> tuple[int, np.ndarray]:
-    """Load the ``side`` hand from its URDF with a fixed base; returns the body id and its
+def load_hand(client: int, side: str, geometry: HandGeometry = DEFAULT_GEOMETRY) -> tuple[int, np.ndarray]:
+    """Load the ``side`` hand (of ``geometry``) from its URDF with a fixed base; returns the body id and its
     (15,) joint indices in ``joint_angles`` order.
 
     With ``URDF_ENABLE_CACHED_GRAPHICS_SHAPES`` a client that loaded the same file before
@@ -232,7 +233,7 @@ def load_hand(client: int, side: str) -> tuple[int, np.ndarray]:
     its GUI graphics (unused in DIRECT mode): 10.5 instead of 18 ms a hand. TinyRenderer's
     own shapes are built afresh on every load either way."""
     body = p.loadURDF(
-        hand_urdf_file(side), useFixedBase=True, flags=p.URDF_ENABLE_CACHED_GRAPHICS_SHAPES, physicsClientId=client
+        hand_urdf_file(side, geometry), useFixedBase=True, flags=p.URDF_ENABLE_CACHED_GRAPHICS_SHAPES, physicsClientId=client
     )
     return body, joint_indices(body, client)
 

@@ -25,7 +25,7 @@ import numpy as np
 from pipeline.policies.base import Observation, Task
 from pipeline.remote import protocol
 from schemas.errors import PolicyError, SpecError
-from schemas.names import redact_credentials, shorten
+from schemas.names import shorten
 
 if TYPE_CHECKING:  # websockets is imported when a connection is made
     from websockets.sync.client import ClientConnection
@@ -79,7 +79,7 @@ class RemotePolicy:
                 )
             )
         except Exception as exc:  # OSError, InvalidURI, InvalidHandshake, TimeoutError, ...
-            raise PolicyError(f"cannot connect to the policy server: {_describe(exc)}") from None
+            raise PolicyError(f"cannot connect to the policy server: {protocol.describe_error(exc)}") from None
         hello = self._receive(("metadata",), open_timeout_s)
         self.name: str = hello["policy"]
         self.action_horizon: int = hello["action_horizon"]
@@ -153,9 +153,9 @@ class RemotePolicy:
         try:
             ws.send(data)
         except ConnectionClosed as exc:
-            raise self._fail(f"remote policy: connection closed ({_closed(exc)})") from None
+            raise self._fail(f"remote policy: connection closed ({protocol.close_reason(exc)})") from None
         except OSError as exc:
-            raise self._fail(f"remote policy: cannot send ({_describe(exc)})") from None
+            raise self._fail(f"remote policy: cannot send ({protocol.describe_error(exc)})") from None
 
     def _spare_reply(self) -> str | None:
         """The type of a message already waiting (and read) when no request is pending, else None."""
@@ -167,9 +167,9 @@ class RemotePolicy:
         except TimeoutError:
             return None
         except ConnectionClosed as exc:
-            raise self._fail(f"remote policy: connection closed ({_closed(exc)})") from None
+            raise self._fail(f"remote policy: connection closed ({protocol.close_reason(exc)})") from None
         except OSError as exc:
-            raise self._fail(f"remote policy: connection failed ({_describe(exc)})") from None
+            raise self._fail(f"remote policy: connection failed ({protocol.describe_error(exc)})") from None
         try:
             kind = protocol.decode(data).get("type")
         except protocol.ProtocolError:
@@ -185,9 +185,9 @@ class RemotePolicy:
         except TimeoutError:
             raise self._fail(f"remote policy: no {' or '.join(expected)} reply within {timeout:g} s") from None
         except ConnectionClosed as exc:
-            raise self._fail(f"remote policy: connection closed ({_closed(exc)})") from None
+            raise self._fail(f"remote policy: connection closed ({protocol.close_reason(exc)})") from None
         except OSError as exc:
-            raise self._fail(f"remote policy: connection failed ({_describe(exc)})") from None
+            raise self._fail(f"remote policy: connection failed ({protocol.describe_error(exc)})") from None
         try:
             message = protocol.parse(data, expected)
         except protocol.ProtocolError as exc:
@@ -196,18 +196,3 @@ class RemotePolicy:
             self._fail(message["message"])
             raise ServerError(f"remote policy: server error: {message['message']}", message["message"])
         return message
-
-
-def _describe(exc: BaseException) -> str:
-    text = redact_credentials(str(exc))
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
-def _closed(exc: Exception) -> str:
-    sent, rcvd = getattr(exc, "sent", None), getattr(exc, "rcvd", None)
-    if sent is not None and sent.code == 1009:  # websockets closes when a reply exceeds max_size
-        return f"code 1009, a reply over {protocol.MAX_REPLY_BYTES >> 20} MiB"
-    if rcvd is None:
-        return "no close frame received"
-    reason = f", {rcvd.reason}" if rcvd.reason else ""
-    return f"code {rcvd.code}{reason}"

@@ -23,9 +23,9 @@ import numpy as np
 from pipeline.policies.base import Observation, Task
 from pipeline.remote import openpi_wire
 from pipeline.remote.openpi_keys import OpenpiConfig, chunk_from, request_for
-from pipeline.remote.protocol import MAX_REPLY_BYTES, ProtocolError
+from pipeline.remote.protocol import MAX_REPLY_BYTES, ProtocolError, close_reason, describe_error
 from schemas.errors import PolicyError, SpecError
-from schemas.names import redact_credentials, shorten
+from schemas.names import shorten
 
 if TYPE_CHECKING:  # websockets is imported when a connection is made
     from websockets.sync.client import ClientConnection
@@ -78,7 +78,7 @@ class OpenpiPolicy:
                 proxy=None if host in _LOOPBACK else True,
             ))
         except Exception as exc:  # OSError, InvalidURI, InvalidHandshake, TimeoutError, ...
-            raise PolicyError(f"cannot connect to the openpi server: {_describe(exc)}") from None
+            raise PolicyError(f"cannot connect to the openpi server: {describe_error(exc)}") from None
         self.metadata = self._receive("metadata", open_timeout_s)
         served = self.metadata.get("policy")
         self.name: str = config.name or (served if isinstance(served, str) and served else "openpi")
@@ -101,19 +101,19 @@ class OpenpiPolicy:
         except TimeoutError:
             spare = None
         except Exception as exc:
-            raise self._fail(f"openpi policy: connection lost ({_describe(exc)})") from None
+            raise self._fail(f"openpi policy: connection lost ({describe_error(exc)})") from None
         if spare is not None:
             what = "an error frame: " + openpi_wire.error_line(spare) if isinstance(spare, str) else "a reply"
             raise self._fail(f"openpi policy: protocol error: {what} that answers no request")
         try:
             data = openpi_wire.encode(request_for(obs, self._task, self.config))
         except (KeyError, TypeError, ValueError) as exc:
-            raise self._fail(f"openpi policy: cannot build the request: {_describe(exc)}") from None
+            raise self._fail(f"openpi policy: cannot build the request: {describe_error(exc)}") from None
         start = time.perf_counter()
         try:
             ws.send(data)
         except Exception as exc:  # ConnectionClosed, OSError
-            raise self._fail(f"openpi policy: cannot send ({_describe(exc)})") from None
+            raise self._fail(f"openpi policy: cannot send ({describe_error(exc)})") from None
         self._task = None
         reply = self._receive("reply", self.timeout_s)
         elapsed = (time.perf_counter() - start) * 1000.0
@@ -164,26 +164,12 @@ class OpenpiPolicy:
         except TimeoutError:
             raise self._fail(f"openpi policy: no {what} within {timeout:g} s") from None
         except ConnectionClosed as exc:
-            raise self._fail(f"openpi policy: {_closed(exc)}") from None
+            raise self._fail(f"openpi policy: connection closed ({close_reason(exc)})") from None
         except OSError as exc:
-            raise self._fail(f"openpi policy: connection failed ({_describe(exc)})") from None
+            raise self._fail(f"openpi policy: connection failed ({describe_error(exc)})") from None
         if isinstance(data, str):  # openpi's server reports a failure as a text frame, then closes
             raise self._fail(f"openpi policy: server error: {openpi_wire.error_line(data)}")
         try:
             return openpi_wire.decode(data)
         except ProtocolError as exc:
             raise self._fail(f"openpi policy: protocol error in the {what}: {exc}") from None
-
-
-def _describe(exc: BaseException) -> str:
-    text = redact_credentials(str(exc))
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
-def _closed(exc: Exception) -> str:
-    sent, rcvd = getattr(exc, "sent", None), getattr(exc, "rcvd", None)
-    if sent is not None and sent.code == 1009:  # websockets closes when a reply exceeds max_size
-        return f"connection closed (code 1009, a reply over {MAX_REPLY_BYTES >> 20} MiB)"
-    if rcvd is None:
-        return "connection closed (no close frame received)"
-    return f"connection closed (code {rcvd.code}" + (f", {rcvd.reason})" if rcvd.reason else ")")

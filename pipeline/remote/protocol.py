@@ -27,6 +27,7 @@ import numpy as np
 from pipeline.loop.actions import float32_copy
 from pipeline.remote.limits import LimitError, check_shape, scan
 from schemas.errors import PolicyError
+from schemas.names import redact_credentials
 
 PROTOCOL = "dyana/1"
 ARRAY_KEY = "__ndarray__"
@@ -249,3 +250,22 @@ def action_message(action: Any, server_time_ms: float) -> dict[str, Any]:
 
 def error_message(message: str) -> dict[str, Any]:
     return {"type": "error", "message": str(message)}
+
+
+def describe_error(exc: BaseException) -> str:
+    """``exc`` as one line for a client's error message: its type and its text with any
+    credentials in it redacted (a URL's user:password never reaches a log)."""
+    text = redact_credentials(str(exc))
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def close_reason(exc: Exception) -> str:
+    """Why a WebSocket connection closed (``websockets``' ConnectionClosed ``exc``): the close
+    code and reason, or that the client closed it for a reply over :data:`MAX_REPLY_BYTES`."""
+    sent, rcvd = getattr(exc, "sent", None), getattr(exc, "rcvd", None)
+    if sent is not None and sent.code == 1009:  # websockets closes when a reply exceeds max_size
+        return f"code 1009, a reply over {MAX_REPLY_BYTES >> 20} MiB"
+    if rcvd is None:
+        return "no close frame received"
+    reason = f", {rcvd.reason}" if rcvd.reason else ""
+    return f"code {rcvd.code}{reason}"

@@ -160,7 +160,7 @@ def test_the_opposed_ground_truth_holds_where_the_splayed_one_does_not(index):
 
 
 def test_designs_are_registered_by_name():
-    assert set(DESIGNS) == {"splayed", "opposed", "opposed-fixed"} and DESIGNS["opposed"] is OPPOSED
+    assert set(DESIGNS) == {"splayed", "opposed", "opposed-fixed", "opposed-wrist"} and DESIGNS["opposed"] is OPPOSED
     assert DESIGNS["opposed-fixed"].hand is OPPOSED_THUMB and not DESIGNS["opposed-fixed"].turn_to_axis
     assert all(isinstance(d, GraspDesign) and isinstance(d.hand, HandGeometry) for d in DESIGNS.values())
 
