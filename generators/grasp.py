@@ -108,7 +108,7 @@ class GraspDesign:
         return dict(self.hover_by_object).get(category, self.hover)
 
 
-#: The dataset's grasp (4.x): the splayed thumb, hovering PALM_HOVER over the top.
+#: The dataset's grasp up to 4.x: the splayed thumb, hovering PALM_HOVER over the top.
 SPLAYED = GraspDesign("splayed", SPLAYED_THUMB, PALM_HOVER, tuple(float(a) for a in SYNERGY_END.reshape(15)), False)
 _LYING = ("soda_can", "water_bottle", "paper_roll")
 #: The opposable thumb's grasp (docs/concepts/grasp-hold.md, benchmarks/hold_grasp_design.py):
@@ -134,8 +134,9 @@ OPPOSED_WRIST = dataclasses.replace(OPPOSED, name="opposed-wrist", turn_to_axis=
 #: Every grasp design by name.
 DESIGNS = MappingProxyType({d.name: d for d in (SPLAYED, OPPOSED, OPPOSED_FIXED, OPPOSED_WRIST)})
 #: The dataset's grasp: the design of the dataset's hand, :data:`generators.hand.DEFAULT_GEOMETRY`
-#: (switching that one name switches the hand and its grasp together).
-DEFAULT_DESIGN = {SPLAYED_THUMB.name: SPLAYED, OPPOSED_THUMB.name: OPPOSED}[DEFAULT_GEOMETRY.name]
+#: (switching that one name switches the hand and its grasp together): the opposed thumb
+#: with the wrist reflex (5.x), the splayed thumb up to 4.x (:data:`VERSION_DESIGNS`).
+DEFAULT_DESIGN = {SPLAYED_THUMB.name: SPLAYED, OPPOSED_THUMB.name: OPPOSED_WRIST}[DEFAULT_GEOMETRY.name]
 
 
 def _finger_clearance(palm_pose: np.ndarray, closure: np.ndarray, category: str, size: float, side: str,

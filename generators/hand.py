@@ -144,9 +144,10 @@ OPPOSED_THUMB = HandGeometry(
 )
 #: Every hand geometry by name.
 GEOMETRIES = MappingProxyType({g.name: g for g in (SPLAYED_THUMB, OPPOSED_THUMB)})
-#: The dataset's hand, and (through :data:`generators.grasp.DEFAULT_DESIGN`) its grasp: every
-#: function here and in the modules that take a geometry or a design defaults to it.
-DEFAULT_GEOMETRY = SPLAYED_THUMB
+#: The dataset's hand (5.x; SPLAYED_THUMB up to 4.x), and (through
+#: :data:`generators.grasp.DEFAULT_DESIGN`) its grasp: every function here and in the
+#: modules that take a geometry or a design defaults to it.
+DEFAULT_GEOMETRY = OPPOSED_THUMB
 
 
 def hand_geometry(name: str) -> HandGeometry:

@@ -25,8 +25,8 @@ a pure function of the state, the target and the object's pose. Each :meth:`Hand
    previous state toward it, as far as :data:`BISECTIONS` halvings find allowed (no
    sliding along the surface it meets).
 
-Constructed for a grasp design with the wrist reflex (``HandBody(design=OPPOSED_WRIST)``;
-by default the dataset's hand, no reflex), the palm's heading then follows
+Constructed for a grasp design with the wrist reflex (by default the dataset's,
+:data:`generators.grasp.DEFAULT_DESIGN` = ``OPPOSED_WRIST``), the palm's heading follows
 :func:`generators.wrist.wrist_step` of the new state (as float32, as recorded): the turned
 palm and wrist are checked as above, and a turn that breaks a rule stops where
 :data:`BISECTIONS` halvings find allowed.
@@ -40,8 +40,8 @@ import numpy as np
 
 from generators.bullet import p
 from generators.clearance import WRIST_LENGTH, WRIST_RADIUS
-from generators.grasp import GraspDesign
-from generators.hand import DEFAULT_GEOMETRY, JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, WRIST_OFFSET
+from generators.grasp import DEFAULT_DESIGN, GraspDesign
+from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, WRIST_OFFSET
 from generators.scene import load_hand, set_hand_pose
 from generators.wrist import wrist_step
 from schemas.objects import object_category
@@ -110,11 +110,12 @@ class HandBody:
     :meth:`reset` starts an episode at the rest state; :meth:`step` moves toward a
     target; :meth:`close` frees the pybullet client."""
 
-    def __init__(self, palm_box: tuple[np.ndarray, np.ndarray] | None = None, design: GraspDesign | None = None) -> None:
+    def __init__(self, palm_box: tuple[np.ndarray, np.ndarray] | None = None,
+                 design: GraspDesign = DEFAULT_DESIGN) -> None:
         """``palm_box``: (low, high) xyz the palm's centre must stay in (a wall like the others);
-        ``design``: its hand and, if it has one, its wrist reflex (None: the dataset's hand, no reflex)."""
-        self._geometry = DEFAULT_GEOMETRY if design is None else design.hand
-        self._fist = np.asarray(design.synergy_end) if design is not None and design.wrist_reflex else None
+        ``design``: its hand and, if it has one, its wrist reflex (by default the dataset's)."""
+        self._geometry = design.hand
+        self._fist = np.asarray(design.synergy_end) if design.wrist_reflex else None
         self._box = None if palm_box is None else (np.asarray(palm_box[0], np.float64), np.asarray(palm_box[1], np.float64))
         self._client = p.connect(p.DIRECT)
         p.setPhysicsEngineParameter(fixedTimeStep=1.0 / FPS, deterministicOverlappingPairs=1, physicsClientId=self._client)

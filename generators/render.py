@@ -84,7 +84,7 @@ from schemas.frames import EpisodeFrames
 from schemas.limits import MAX_RESOLUTION, MIN_RESOLUTION
 from schemas.names import shorten
 from schemas.objects import object_category
-from schemas.renderers import DEFAULT_RENDERER, check_renderer
+from schemas.renderers import DEFAULT_RENDERER, check_draw_kind
 from schemas.scene import DEFAULT_RESOLUTION, HANDS
 
 #: Light settings passed to every ``getCameraImage`` call (no defaults relied on).
@@ -139,14 +139,14 @@ def _floats(values) -> np.ndarray | None:
 class Renderer:
     """Owns a pybullet DIRECT client holding the scene of one episode at a time (the
     static bodies, its hand, its object) and the static plate; renders (H, W, 3) uint8
-    RGB frames. Use as a context manager or call :meth:`close`. ``kind`` is the renderer
-    (:data:`schemas.renderers.RENDERERS`)."""
+    RGB frames. Use as a context manager or call :meth:`close`. ``kind`` is how it draws
+    (:data:`schemas.renderers.DRAW_KINDS`)."""
 
     def __init__(
         self, resolution: int = DEFAULT_RESOLUTION, width: int | None = None, backend: str = "tiny",
         kind: str = DEFAULT_RENDERER,
     ):
-        self.kind = check_renderer(kind, "kind")
+        self.kind = check_draw_kind(kind, "kind")
         check_resolution("resolution", resolution)
         self.height = int(resolution)
         if width is not None:

@@ -38,7 +38,7 @@ from typing import Any
 from schemas.errors import AllEpisodesFailed, DyanaError, ReplayMismatch, SpecError
 from schemas.names import printable, redact_credentials, shorten
 from schemas.regular_files import file_kind, open_regular
-from schemas.renderers import DEFAULT_RENDERER, RENDERER_VERSIONS, RENDERERS
+from schemas.renderers import DEFAULT_RENDERER, RENDERER_VERSIONS, RENDERERS, SPLAYED_HAND_COMMIT
 from schemas.storage_faults import describe_storage_fault, is_storage_fault
 from schemas.versions import CODE_VERSION, DATASET_VERSION
 
@@ -154,8 +154,8 @@ def add_renderer(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--renderer", choices=RENDERERS, default=DEFAULT_RENDERER,
         help=f"window: draw only the window around the hand and object (default; dataset "
-        f"{RENDERER_VERSIONS['window']}); full: the whole viewport (dataset {RENDERER_VERSIONS['full']}, "
-        "its bytes exactly)",
+        f"{RENDERER_VERSIONS['window']}); full: refused (dataset 3.0.0's hand is gone: commit "
+        f"{SPLAYED_HAND_COMMIT} builds it)",
     )
 
 

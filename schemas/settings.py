@@ -59,9 +59,9 @@ class BuildSettings:
         "frames per second of the recording", derived="fixed at 20 (schemas.versions.FPS)"))
     image_format: str = field(default="jpeg", metadata=_setting(
         "how the frames' images are stored", derived="fixed: jpeg"))
-    #: Names the renderer too (:mod:`schemas.renderers`): 4.0.0 ``window``, 3.0.0 ``full``.
+    #: Names the renderer too (:mod:`schemas.renderers`): 5.0.0 ``window``.
     dataset_version: str = field(default=DATASET_VERSION, metadata=_setting(
-        "the dataset version, which names the renderer that draws the frames (4.0.0 window, 3.0.0 full)",
+        "the dataset version, which names the renderer that draws the frames (5.0.0: window)",
         "--renderer"))
     #: The frames table carries the hand's obstacle clearance (scenes may hold obstacles).
     obstacle_clearance: bool = field(default=False, metadata=_setting(

@@ -91,7 +91,9 @@ READINGS = {r.name: r for r in (DYANA, PAPER, LENIENT)}
 DEFAULT_READING = DYANA.name
 #: The ``top`` rule: the palm centre's height above the object's top surface lies in
 #: [0, TOP_BAND]: above it, and within the localization tolerance of the ground truth's
-#: hover height (the ground truth hovers at PALM_HOVER = 0.35 over the top).
+#: hover height (the ground truth hovers at PALM_HOVER = 0.35 over the top; with the
+#: opposed hand of 5.x, 0.45-0.5 over boxes and 0.13-0.48 over lying cylinders, all
+#: within the band's 0.65).
 TOP_BAND = PALM_HOVER + LOC_TOLERANCE
 
 

@@ -44,8 +44,8 @@ def hand_mismatch(manifest: Manifest) -> str | None:
 
 
 def rebuild_verdict(manifest: Manifest, installed: Mapping[str, str | None] | None = None) -> Rebuild:
-    """Only the dataset versions this code writes are rebuilt byte for byte (4.0.0 with the
-    ``window`` renderer, 3.0.0 with ``full``: :mod:`schemas.renderers`; an older one is
+    """Only the dataset versions this code writes are rebuilt byte for byte (5.0.0 with the
+    ``window`` renderer: :mod:`schemas.renderers`; an older one is
     read, scored and exported); a real-time run depends on the machine's timing; and the
     bytes are the same only with the library versions the folder records
     (:func:`catalog.store.versions.version_differences` against ``installed``, default this

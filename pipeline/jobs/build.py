@@ -51,7 +51,7 @@ def build_job(slice_name: str | None, out: str | Path, **options: Any) -> JobRes
 
     The keyword options are the CLI's flags (:func:`pipeline.jobs.spec.job_spec`):
     ``episodes``, ``shard_size`` (default 128), ``specs_path`` (``--specs``),
-    ``resolution`` (224), ``renderer`` (``window``: dataset 4.0.0; ``full``: 3.0.0),
+    ``resolution`` (224), ``renderer`` (``window``: dataset 5.0.0; ``full`` is refused),
     ``formats``, ``workers`` (default one per core; 0: in this process, no Dask),
     ``scheduler``, ``progress`` (True) and ``overwrite`` (a folder holding another build
     is refused without it). :func:`run_build` takes the :class:`~pipeline.jobs.spec.JobSpec`."""

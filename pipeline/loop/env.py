@@ -18,7 +18,7 @@ import numpy as np
 from gymnasium import spaces
 
 from generators.encode import JPEG_QUALITY, decode_jpeg, encode_bgr_jpeg
-from generators.grasp import grasp_angles
+from generators.ground_truth import episode_grasp
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_PALM, forward_kinematics
 from generators.hand_body import HandBody
 from generators.motion import object_pose
@@ -220,7 +220,8 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         poses, velocity = object_pose(spec.motion, object_category(spec.object), spec.object_size, times)
         self.object_pose = poses.astype(np.float32)
         self.object_velocity = velocity.astype(np.float32)
-        self.grasp_angles = grasp_angles(spec.object, spec.object_size, spec.hand).astype(np.float32)
+        # the ground truth's grasp (a lying cylinder's depends on the heading the wrist reflex reaches)
+        self.grasp_angles = episode_grasp(spec).astype(np.float32)
         self._loc_frame = self._gra_frame = None
         self._frame = -1
         if self._body is None:
@@ -262,7 +263,7 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
         completed_before = self._gra_frame is not None
         assert self._body is not None  # reset makes it
         reached = self._body.step(palm, joints, self.object_pose[frame + 1])
-        made = self._simulate(frame + 1, reached[0].astype(np.float32), reached[1].astype(np.float32))
+        made = self._simulate(frame + 1, reached[0].astype(np.float32), reached[1].astype(np.float32), self._body.heading)
         self.new_frames = (made,)
         terminated = self._gra_frame is not None and not completed_before
         truncated = not terminated and frame + 2 >= self._limit
@@ -302,11 +303,13 @@ class DyanaEnv(gymnasium.Env[Observation, np.ndarray]):
             self._renderer = None
 
     # internals ---------------------------------------------------------------
-    def _simulate(self, k: int, palm_xyz: np.ndarray, joints: np.ndarray) -> SimFrame:
-        """Frame ``k`` with this hand state: its measures, events, phase and JPEG."""
+    def _simulate(self, k: int, palm_xyz: np.ndarray, joints: np.ndarray, heading: float = 0.0) -> SimFrame:
+        """Frame ``k`` with this hand state (``heading``: the palm's turn about the vertical,
+        the wrist reflex's, recorded as ``palm_pose[4]``): its measures, events, phase and JPEG."""
         spec = self.episode_spec
         assert spec is not None  # reset sets it before any frame
-        palm_pose = np.concatenate([palm_xyz, REST_PALM[3:].astype(np.float32)]).astype(np.float32)
+        turn = REST_PALM[3:] + np.array([0.0, heading, 0.0])
+        palm_pose = np.concatenate([palm_xyz, turn.astype(np.float32)]).astype(np.float32)
         joints = joints.astype(np.float32)
         obj = self.object_pose[k]
         # The hand's kinematics depend on its state alone: kept while the state repeats

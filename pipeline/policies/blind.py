@@ -9,10 +9,10 @@ only ``observe_images[0]``, in its first call). Their scores are chance levels: 
 metric a blind policy reaches does not show that a model sees (``scoring eval
 --chance RUN ...``).
 
-All four hover the palm at the named object's nominal top plus
-:data:`~schemas.scene.PALM_HOVER`, move it at most :data:`MAX_STEP` per frame toward
+All four hover the palm at the named object's nominal top plus the grasp design's
+hover height (:func:`~pipeline.policies.grip.hover_over_top`), move it at most :data:`MAX_STEP` per frame toward
 their target, and start closing the hand fully (minimum jerk over ``GRASP_FRAMES``
-frames, to the end of each finger's synergy) at the interception time, when the
+frames, to the end of each finger's synergy: :data:`~pipeline.policies.grip.FIST`) at the interception time, when the
 ground truth arrives, so they all "grasp" (S_gra) whatever they touch:
 
 =====================  =================================================================
@@ -37,14 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
-from generators.grasp import SYNERGY_END
-from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS
+from generators.hand import REST_JOINTS
 from pipeline.policies.base import DEFAULT_INTERCEPT_TIME_S, Observation, Task
-from pipeline.policies.grip import closing_joints
+from pipeline.policies.grip import FIST, closing_joints, hover_over_top
 from pipeline.policies.perception import ObjectLocator, object_from_text
 from schemas.errors import PolicyError
 from schemas.objects import OBJECTS
-from schemas.scene import INTERCEPT_SECONDS, PALM_HOVER, PALM_REST, WORKSPACE_X, WORKSPACE_Z
+from schemas.scene import INTERCEPT_SECONDS, PALM_REST, WORKSPACE_X, WORKSPACE_Z
 
 #: Longest palm step per frame (units): the fitted path is followed at most this fast.
 MAX_STEP = 1.0
@@ -58,17 +57,16 @@ SWEEP_SPEED = 0.25
 DEFAULT_HOVER_Y = PALM_REST[1]
 #: The fitted paths (:mod:`pipeline.policies.blind_fit` writes them).
 PATH_FILE = Path(__file__).with_name("blind_path.json")
-#: The hand fully closed: every finger at the end of its synergy (passes S_gra's 80% for any object).
-FIST = np.clip(SYNERGY_END.reshape(15), JOINT_LOWER, JOINT_UPPER)
 
 
-def hover_height(text: str) -> float:
-    """The palm height over the instruction's object at its nominal size (top + hover)."""
+def hover_height(text: str, hand: str = "right") -> float:
+    """The palm height over the instruction's object at its nominal size (top + the
+    design's hover for ``hand``, :func:`~pipeline.policies.grip.hover_over_top`)."""
     name = object_from_text(text)
     if name is None:
         return DEFAULT_HOVER_Y
     category = OBJECTS[name]
-    return 2.0 * category.half_height(category.nominal_size) + PALM_HOVER
+    return 2.0 * category.half_height(category.nominal_size) + hover_over_top(name, category.nominal_size, hand)
 
 
 def setting_of(intercept_time_s: float) -> str:
@@ -103,7 +101,7 @@ class BlindPolicy:
     def reset(self, task: Task) -> None:
         fps = int(task["fps"])
         self._first = int(task["observe_frames"])
-        self._hover = hover_height(str(task["text"]))
+        self._hover = hover_height(str(task["text"]), str(task["hand"]))
         self._intercept_s = float(task.get("intercept_time_s", DEFAULT_INTERCEPT_TIME_S))
         self._close_at = self._first + self.close_frame(round(self._intercept_s * fps))
         self._text = str(task["text"])

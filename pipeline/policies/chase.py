@@ -1,8 +1,8 @@
 """``chase``: moves toward where it sees the object now, from pixels only.
 
 Each step it localises the object in the current frame (:mod:`.perception`) and
-moves the palm toward the hover point over it (the object's estimated top plus
-:data:`~schemas.scene.PALM_HOVER`) by a fixed fraction :data:`GAIN` of the remaining
+moves the palm toward the hover point over it (the object's estimated top plus the
+grasp design's hover, :func:`~pipeline.policies.grip.hover_over_top`) by a fixed fraction :data:`GAIN` of the remaining
 distance, at most :data:`MAX_STEP` per frame: a proportional visual servo. When the
 hand hides the object the last sighting stays the target. Once the palm is within
 :data:`CLOSE_DISTANCE` of the target in the XZ plane it closes the hand (minimum
@@ -19,10 +19,9 @@ import numpy as np
 
 from generators.hand import REST_JOINTS
 from pipeline.policies.base import Observation, Task
-from pipeline.policies.grip import closing_joints, grip_angles
+from pipeline.policies.grip import closing_joints, grip_angles, hover_over_top
 from pipeline.policies.perception import ObjectLocator
 from schemas.errors import PolicyError
-from schemas.scene import PALM_HOVER
 
 #: Fraction of the remaining distance covered per frame.
 GAIN = 0.3
@@ -62,7 +61,9 @@ class ChasePolicy:
         if self._target is None:
             goal = palm
         else:
-            goal = np.array([self._target[0], self._locator.top_height + PALM_HOVER, self._target[1]])
+            category = self._locator.category.name if self._locator.category else None
+            hover = hover_over_top(category, self._locator.size, self._hand)
+            goal = np.array([self._target[0], self._locator.top_height + hover, self._target[1]])
         step = GAIN * (goal - palm)
         length = float(np.linalg.norm(step))
         if length > MAX_STEP:

@@ -15,7 +15,7 @@ a smooth approach there and closes the hand.
   fps)``, the public interception setting of the task. Each frame the palm's path is
   re-planned as a quintic from its current position, velocity and acceleration to
   the hover point over the predicted position (estimated object top plus
-  :data:`~schemas.scene.PALM_HOVER`), arriving with the predicted velocity and
+  :func:`~pipeline.policies.grip.hover_over_top`), arriving with the predicted velocity and
   acceleration, so the path stays smooth as the prediction improves.
 * **Grasp.** From the interception frame the palm follows the prediction and the
   fingers close over ``GRASP_FRAMES`` frames (minimum jerk) to the grasp of the object
@@ -34,10 +34,10 @@ import numpy as np
 from generators.hand import REST_JOINTS
 from pipeline.policies.base import DEFAULT_INTERCEPT_TIME_S, Observation, Task
 from pipeline.policies.fitting import KINDS, MIN_SAMPLES, MotionFit, fit_motion
-from pipeline.policies.grip import closing_joints, grip_angles
+from pipeline.policies.grip import closing_joints, grip_angles, hover_over_top
 from pipeline.policies.perception import Detection, ObjectLocator
 from schemas.errors import PolicyError
-from schemas.scene import PALM_HOVER, WORKSPACE_X, WORKSPACE_Z
+from schemas.scene import WORKSPACE_X, WORKSPACE_Z
 
 #: A sighting is fitted when it shows this share of the object, and matches its
 #: silhouette this well (mismatched pixels over the silhouette's area).
@@ -153,7 +153,9 @@ class PredictivePolicy:
             self._fit = fit
 
     def _hover(self, xz: np.ndarray) -> np.ndarray:
-        return np.array([xz[0], self.locator.top_height + PALM_HOVER, xz[1]])
+        category = self.locator.category.name if self.locator.category else None
+        hover = hover_over_top(category, self.locator.size, self._hand)
+        return np.array([xz[0], self.locator.top_height + hover, xz[1]])
 
     # acting ------------------------------------------------------------------
     def act(self, obs: Observation) -> np.ndarray:

@@ -163,14 +163,15 @@ def test_a_body_without_the_reflex_keeps_the_rest_orientation():
 @pytest.mark.parametrize("side", ["right", "left"])
 def test_the_opposed_hands_urdf_matches_its_kinematics(tmp_path, side):
     """The body built for the design loads the opposed hand: its URDF's link frames are the
-    opposed geometry's forward kinematics, and the dataset's URDF is unchanged."""
+    opposed geometry's forward kinematics; it is the dataset's (5.x), the splayed hand's (4.x) differs."""
     from generators.bullet import p
-    from generators.hand import DEFAULT_GEOMETRY, OPPOSED_THUMB, chain_frames
+    from generators.hand import DEFAULT_GEOMETRY, OPPOSED_THUMB, SPLAYED_THUMB, chain_frames
     from generators.hand_urdf import hand_urdf, joint_indices, set_hand_state, write_hand_urdf
 
-    assert hand_urdf(side) == hand_urdf(side, DEFAULT_GEOMETRY) != hand_urdf(side, OPPOSED_THUMB)
+    assert hand_urdf(side) == hand_urdf(side, DEFAULT_GEOMETRY) == hand_urdf(side, OPPOSED_THUMB) != hand_urdf(side, SPLAYED_THUMB)
     path = write_hand_urdf(side, str(tmp_path), OPPOSED_THUMB)
-    assert path.endswith(f"dyana_hand_{side}_opposed-thumb.urdf")
+    assert path.endswith(f"dyana_hand_{side}.urdf")
+    assert write_hand_urdf(side, str(tmp_path), SPLAYED_THUMB).endswith(f"dyana_hand_{side}_splayed-thumb.urdf")
     client = p.connect(p.DIRECT)
     try:
         body = p.loadURDF(path, useFixedBase=True, physicsClientId=client)

@@ -139,7 +139,7 @@ def states_digest(played) -> str:
 
 #: The adversary's recorded states on the host that wrote this test: another host, worker
 #: count or load must give these bytes (the body is single-threaded and steps no time).
-ADVERSARY_STATES = "0f2e922ef871accceab7d854186cf98bf67ed494f00c4919091eb8338a8e1762"
+ADVERSARY_STATES = "496ac3360394286f341b5c8f897949f9b694535bae7016041dd508e9ebc07c25"
 
 
 def test_the_same_actions_give_the_same_bytes_twice_after_other_episodes_and_in_a_fresh_interpreter(played):
@@ -181,4 +181,6 @@ def test_the_ground_truth_passes_through_the_body_unchanged(slice_name, indices)
             palm, joints = body.step(gt.action[k, :3], gt.action[k, 3:], gt.object_pose[k + 1])
             np.testing.assert_array_equal(palm.astype(np.float32), gt.palm_pose[k + 1, :3], err_msg=f"{index} {k}")
             np.testing.assert_array_equal(joints.astype(np.float32), gt.joint_angles[k + 1], err_msg=f"{index} {k}")
+            # the wrist reflex's heading, as the ground truth records it
+            assert np.float32(body.heading) == gt.palm_pose[k + 1, 4], f"{index} {k}"
     body.close()
