@@ -111,7 +111,7 @@ def test_an_older_dataset_version_is_readable_but_not_rebuilt(tmp_path, capsys):
     assert code == 0
     assert f"dataset   2.0.0 (this code writes {DATASET_VERSION})\n" in out
     assert out.splitlines()[-1] == (
-        "rebuild   no: written by dataset 2.0.0; this code writes 3.0.0 and 4.0.0: readable, not re-executable; "
+        "rebuild   no: written by dataset 2.0.0; this code writes 5.0.0: readable, not re-executable; "
         f"check out commit {CODE.commit} to rebuild it"
     )
 

@@ -1,12 +1,12 @@
-"""The renderer choice (schemas.renderers): ``window`` (default, dataset 4.0.0) builds the
-same bytes with 1 and 2 workers; ``full`` writes dataset 3.0.0 with 3.0.0's settings keys
-and README command 1's hash; replay, verify and ``catalog info`` re-execute a folder with
-the renderer its version names; a folder of one version is never resumed as the other;
-bad values are refused before anything is made."""
+"""The renderer choice (schemas.renderers): ``window`` (default, dataset 5.0.0) builds the
+same bytes with 1 and 2 workers and README command 1's hash; replay, verify and ``catalog
+info`` re-execute a folder with the renderer its version names; ``full`` (dataset 3.0.0's,
+whose hand 5.0.0 changed) is refused in one line naming the commit that still builds it,
+while the env and benchmarks may still draw the full viewport; bad values are refused
+before anything is made."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -15,17 +15,19 @@ import numpy as np
 import pytest
 
 from catalog.store.info import folder_info
+from generators.render import Renderer
 from pipeline.jobs.build import build
 from pipeline.jobs.evaluate import evaluate
 from pipeline.jobs.replay import replay
 from pipeline.loop.env import DyanaEnv
 from schemas.errors import SpecError
+from schemas.renderers import SPLAYED_HAND_COMMIT
 from tests.shard_files import shard_bytes
 
 SLICE = "linear-fast"
 BIN = Path(sys.executable).parent
-#: README command 1 (pipeline build --slice linear-fast --episodes 32 --shard-size 16) per renderer.
-README_HASHES = {"full": "61dcba003de64bcb", "window": "39cdd7ed90baccf8"}
+#: README command 1 (pipeline build --slice linear-fast --episodes 32 --shard-size 16).
+README_HASHES = {"window": "134fbe33f926f0d0"}
 
 
 def _build(out: Path, **options):
@@ -38,61 +40,43 @@ def window_build(tmp_path_factory):
     return _build(out, workers=0), out / SLICE
 
 
-@pytest.fixture(scope="module")
-def full_build(tmp_path_factory):
-    out = tmp_path_factory.mktemp("full")
-    return _build(out, workers=0, renderer="full"), out / SLICE
-
-
 def test_a_window_build_is_the_same_in_process_and_with_two_workers(window_build, tmp_path):
     manifest, folder = window_build
-    assert manifest.settings["dataset_version"] == "4.0.0"
+    assert manifest.settings["dataset_version"] == "5.0.0"
     other = _build(tmp_path, workers=2, renderer="window")
     assert other.hash == manifest.hash
     assert shard_bytes(tmp_path / SLICE) == shard_bytes(folder)
 
 
-def test_full_writes_dataset_3_with_the_same_settings_keys_and_other_bytes(window_build, full_build):
-    window, _ = window_build
-    full, folder = full_build
-    assert full.settings["dataset_version"] == "3.0.0"
-    assert set(full.settings) == set(window.settings)
-    assert {k: v for k, v in full.settings.items() if k != "dataset_version"} == \
-        {k: v for k, v in window.settings.items() if k != "dataset_version"}
-    stored = json.loads((folder / "catalog.json").read_text())
-    assert "renderer" not in json.dumps(stored)
-    assert full.hash != window.hash
+def test_replay_and_info_use_the_renderer_the_folder_records(window_build):
+    manifest, folder = window_build
+    report = replay(folder)
+    assert report.frames == manifest.frames
+    verdict = folder_info(folder).rebuild
+    assert verdict.possible, verdict.reason
+    assert "dataset 5.0.0 (--renderer window)" in verdict.reason
 
 
-def test_replay_and_info_use_the_renderer_the_folder_records(window_build, full_build):
-    for manifest, folder in (window_build, full_build):
-        report = replay(folder)
-        assert report.frames == manifest.frames
-        verdict = folder_info(folder).rebuild
-        assert verdict.possible, verdict.reason
-        version = manifest.settings["dataset_version"]
-        kind = "window" if version == "4.0.0" else "full"
-        assert f"dataset {version} (--renderer {kind})" in verdict.reason
-
-
-def test_a_folder_is_never_resumed_with_the_other_renderer(full_build, tmp_path):
-    manifest, folder = full_build
-    named = r"settings.dataset_version \"3.0.0\" -> \"4.0.0\" \(3.0.0 is --renderer full, 4.0.0 is --renderer window\)"
+def test_full_is_refused_naming_the_commit_that_builds_3_0_0(tmp_path):
+    named = rf"renderer 'full' wrote dataset 3\.0\.0, .* commit {SPLAYED_HAND_COMMIT} "
     with pytest.raises(SpecError, match=named):
-        _build(folder.parent, workers=0)
-    again = _build(folder.parent, workers=0, renderer="full")
-    assert again.hash == manifest.hash
+        build(SLICE, tmp_path / "out", episodes=1, renderer="full", progress=False)
+    with pytest.raises(SpecError, match=named):
+        evaluate("still", "test-1k", tmp_path / "run", episodes=1, renderer="full", progress=False, summary=False)
+    with pytest.raises(SpecError, match=named):
+        DyanaEnv(16, renderer="full")
+    assert not any(tmp_path.iterdir())
+    result = subprocess.run([str(BIN / "pipeline"), "build", "--slice", SLICE, "--out", str(tmp_path / "o"),
+                             "--renderer", "full"], capture_output=True, text=True, timeout=120)
+    assert result.returncode != 0 and result.stderr.count("\n") == 1 and SPLAYED_HAND_COMMIT in result.stderr
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_rollout_run_records_and_replays_its_renderer(tmp_path):
-    runs = {}
-    for kind in ("full", "window"):
-        out = tmp_path / kind
-        runs[kind] = evaluate("predictive", "test-1k", out, episodes=1, workers=0, resolution=64, shard_size=1,
-                              progress=False, summary=False, renderer=kind)
-        assert replay(out).episodes == 1
-    assert runs["full"].settings["dataset_version"] == "3.0.0"
-    assert runs["window"].settings["dataset_version"] == "4.0.0"
+    run = evaluate("predictive", "test-1k", tmp_path / "w", episodes=1, workers=0, resolution=64, shard_size=1,
+                   progress=False, summary=False, renderer="window")
+    assert replay(tmp_path / "w").episodes == 1
+    assert run.settings["dataset_version"] == "5.0.0"
 
 
 @pytest.mark.parametrize("bad", ["Full", "", None, 1, "window,full"])
@@ -121,13 +105,15 @@ def test_the_env_draws_with_the_renderer_it_is_told():
 
     spec = spec_for("test-1k", 0)
     images = {}
-    for kind in ("window", "full", None):
+    full = Renderer(64, kind="full")  # the full-viewport draw stays, for benchmarks
+    for kind in ("window", full, None):
         env = DyanaEnv(64, renderer=kind)
         try:
             obs, _ = env.reset(options={"spec": spec})
-            images[kind] = obs["image"]
+            images["full" if kind is full else kind] = obs["image"]
         finally:
             env.close()
+    full.close()
     assert np.array_equal(images[None], images["window"])
     assert images["full"].shape == images["window"].shape
 

@@ -8,12 +8,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from generators.grasp import OPPOSED, SPLAYED, design_of
+from generators.grasp import OPPOSED, OPPOSED_WRIST, SPLAYED, design_of
 from generators.ground_truth import plan
 from generators.hold_episode import episode_hold
 from generators.recipe import spec_for
 from pipeline.stages.episode import episode
 from schemas.errors import SpecError
+from schemas.versions import DATASET_VERSION
 from scoring.hold import run_metrics
 from scoring.io import from_recordings
 from scoring.metrics import DYANA, aggregate
@@ -63,6 +64,7 @@ def test_a_closed_hand_away_from_the_object_holds_nothing():
 
 
 def test_a_folder_of_an_unknown_dataset_version_names_it():
-    assert design_of("4.0.0") is SPLAYED and design_of(None).name == design_of("4.0.0").name
+    assert design_of("3.0.0") is design_of("4.0.0") is SPLAYED  # the splayed hand up to 4.x
+    assert design_of(None) is design_of(DATASET_VERSION) is OPPOSED_WRIST
     with pytest.raises(SpecError, match=r"dataset version '9\.9\.9'"):
         design_of("9.9.9")
