@@ -2,7 +2,7 @@
 for ``scoring eval --paper``: shown beside a run's rows, never mixed into its numbers.
 
 Values are transcribed from the paper's tables (test-1k on the authors' Unity suite);
-S_grasp_contact is Dyana's own metric, so the paper has no value for it.
+S_hold and S_grasp_contact are Dyana's own metrics, so the paper has no value for them.
 """
 
 from __future__ import annotations

@@ -157,10 +157,10 @@ def _measured(per: Any, ok: np.ndarray) -> np.ndarray:
     return per.acting_frames > 0
 
 
-#: Dyana's success, the headline (S_grasp_contact today): an episode's trajectory quality
-#: counts under the ``dyana`` reading only if it succeeded. One name, so that a stricter
-#: success registered later can take its place.
-SUCCESS = "S_grasp_contact"
+#: Dyana's success, the headline (S_hold since dataset 5.0.0, whose hand holds: a grasp
+#: that holds the object through the hold test; S_grasp_contact before): an episode's
+#: trajectory quality counts under the ``dyana`` reading only if it succeeded.
+SUCCESS = "S_hold"
 
 
 def success(per: Any, ok: np.ndarray) -> np.ndarray:
@@ -210,7 +210,7 @@ def _held(per: Any) -> np.ndarray:
 
 
 register(Metric("S_grasp_contact", "rate", "%", event=lambda per: per.t_contact, event_column="t_grasp_contact",
-                flag_column="grasp_contact", consistency="grasp_contact", on_radar=False, headline=True))
-# The grasp that holds (docs/reference/metrics.md, S_hold): the hold test from the closing frame.
+                flag_column="grasp_contact", consistency="grasp_contact", on_radar=False))
+# The grasp that holds (docs/reference/metrics.md, S_hold), the headline: the hold test from the closing frame.
 register(Metric("S_hold", "rate", "%", event=_held, event_column="t_hold", flag_column="held", consistency="hold",
-                on_radar=False))
+                on_radar=False, headline=True))

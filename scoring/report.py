@@ -1,8 +1,8 @@
 """Score loaded runs and present the results: JSON dict, terminal table, Markdown, CSV.
 
 The JSON keys follow the data contract (``docs/concepts/data-contract.md``): ``episodes``, ``errors``, the
-registered metrics (:mod:`scoring.registry`: the paper's seven of Table 3 and
-``S_grasp_contact``), ``by_motion``, ``by_speed``; plus ``intervals``, ``by_object`` and counts.
+registered metrics (:mod:`scoring.registry`: the headline ``S_hold``, the paper's seven of
+Table 3 and ``S_grasp_contact``), ``by_motion``, ``by_speed``; plus ``intervals``, ``by_object`` and counts.
 Success rates are percentages; a metric with nothing to average over is ``null``.
 """
 
@@ -246,8 +246,8 @@ def _arrow(metric: Metric) -> str:
 
 
 def main_headers() -> tuple[str, ...]:
-    """The main table's columns: the headline (S_grasp_contact) first, then the paper's
-    seven (:func:`scoring.registry.table_metrics`); a rate has its unit and a CI column."""
+    """The main table's columns: the headline (S_hold) first, then the paper's seven and
+    S_grasp_contact (:func:`scoring.registry.table_metrics`); a rate has its unit and a CI column."""
     return ("Run", "Episodes", "Errors") + tuple(
         header
         for m in table_metrics()
@@ -268,7 +268,7 @@ def group_headers() -> tuple[str, ...]:
         header for m in table_metrics() for header in (f"{m.name} ({m.unit})" if m.is_rate else m.name,) + _coverage(m)
     )
 HEADLINE_NOTE = (
-    "S_grasp_contact, the contact-grounded grasp, is the headline: blind play cannot win it. "
+    "S_hold, the grasp that holds the object (the hold test), is the headline: blind play cannot win it. "
     "n_Q: the episodes Q_smooth and Q_line average (reading dyana: every episode, Q x success; "
     "paper, lenient: the successful trajectories only)."
 )
@@ -280,7 +280,7 @@ LEGEND = (
 
 PAPER_NOTE = (
     " paper T3/T4: the paper's published rows (Tables 3 and 4, its Unity suite), for reference; "
-    "the paper has no S_grasp_contact."
+    "the paper has no S_hold or S_grasp_contact."
 )
 CHANCE_NOTE = (
     " chance (best blind): per metric, the best score of the --chance runs (blind policies on the same "

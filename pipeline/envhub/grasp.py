@@ -14,7 +14,7 @@ export's, :mod:`catalog.loader.lerobot_names`): ``pixels/ego`` is ``observation.
   (default test-1k); lerobot-eval seeds its resets from ``--seed`` (default 1000): episodes
   0, 1, ... of test-1k. An unseeded reset (a vector env's automatic one) runs the next.
 * **is_success**: on an episode's last step, whether it reached Dyana's headline success
-  (S_grasp_contact, scored as ``scoring eval`` scores it); False before.
+  (S_hold, scored as ``scoring eval`` scores it); False before.
 * **Recording** (``record``, a folder; "" for none): every episode started by a seeded reset
   is staged when it ends (:mod:`pipeline.jobs.staged`); when the last environment of the
   process closes, `pipeline eval`'s job writes them (:func:`pipeline.jobs.evaluate.evaluate`)

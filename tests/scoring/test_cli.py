@@ -65,7 +65,7 @@ def test_json_keys_and_values(capsys, run):
     assert result["episodes"] == 3 and result["errors"] == 1
     assert result["label"] == "oracle" and result["policy"] == "oracle" and not result["ground_truth"]
     m = result["metrics"]
-    assert list(m) == ["S_grasp_contact", "S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time", "S_hold"]  # headline first
+    assert list(m) == ["S_hold", "S_loc", "E_loc", "S_gra", "E_gra", "Q_smooth", "Q_line", "R_time", "S_grasp_contact"]  # headline first
     # the error episode is a failure although its frames equal GOOD's
     assert m["S_loc"] == pytest.approx(100 / 3)
     assert m["S_gra"] == pytest.approx(100 / 3)
@@ -73,11 +73,11 @@ def test_json_keys_and_values(capsys, run):
     # E_gra at completion (the dyana and paper readings): GOOD completes at its 0.05 frame; MISS
     # never completes, so its last acting frame's 0.7 counts (the lenient reading's minimum is 0.6)
     assert m["E_gra"] == pytest.approx((0.05 + 0.7 + 0.05) / 3, rel=1e-6)
-    # Q over the whole acting palm path, weighted by the contact grasp: GOOD's (palm
-    # 2 -> 1 -> 0.2 -> 0.1), 0 for MISS and for the failed (error) episode, over all three
-    steps = np.array([1.0, 0.8, 0.1])
-    assert m["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()) / 3, rel=1e-6)
-    assert m["Q_line"] == pytest.approx(1 / 3)
+    # GOOD grasps with contact, but the hand-made hand holds nothing (the hold test), so Q,
+    # weighted by the headline success S_hold, is 0 for all three (the reading test checks
+    # GOOD's unweighted Q)
+    assert m["S_grasp_contact"] == pytest.approx(100 / 3) and m["S_hold"] == 0.0
+    assert m["Q_smooth"] == m["Q_line"] == 0.0
     assert result["averaged_over"] == {"E_loc": 3, "E_gra": 3, "Q_smooth": 3, "Q_line": 3, "R_time": 3}
     # A rollout's N is its acting horizon ceil(1.2 x 4) = 5 (it stops at grasp completion):
     # T = max(2, 3) + 1 = 4 of N = 5; the other two episodes score 0.
@@ -125,7 +125,7 @@ def test_several_runs_give_a_list_and_one_table_row_each(tmp_path, capsys, run):
     code, out, _ = run_main(capsys, "eval", str(gt), str(run))
     assert code == 0
     lines = out.splitlines()
-    assert lines[0].startswith("Run") and "S_grasp_contact (%)" in lines[0]
+    assert lines[0].startswith("Run") and "S_hold (%)" in lines[0]
     assert lines[2].startswith("GT (gt)") and "100.00" in lines[2]
     assert lines[3].startswith("oracle") and "33.33" in lines[3]
     # the wide table is packed into tables that fit 100 columns, the run labels repeated in each
@@ -148,7 +148,7 @@ def test_plot_markdown_and_csv(tmp_path, capsys, run):
     assert code == 0, err
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
     text = md.read_text()
-    assert "| oracle | 3 | 1 | 33.33 |" in text and "### By object" in text
+    assert "| oracle | 3 | 1 | 0.00 |" in text and "### By object" in text  # S_hold: the hand-made hands hold nothing
     rows = list(csv.DictReader(io.StringIO(table.read_text())))
     overall = rows[0]
     assert (overall["breakdown"], overall["group"], overall["episodes"]) == ("all", "all", "3")
@@ -434,7 +434,8 @@ def test_reading_flag_switches_the_ambiguous_rules(capsys, run):
     steps = np.array([1.0, 0.8, 0.1])
     assert paper["metrics"]["Q_smooth"] == pytest.approx(1 / (1 + steps.std() / steps.mean()), rel=1e-6)
     assert paper["metrics"]["Q_line"] == pytest.approx(1.0)
-    assert paper["metrics"]["Q_smooth"] == pytest.approx(3 * dyana["metrics"]["Q_smooth"])
+    # dyana: Q weighted by the headline success, S_hold, which the hand-made hands never reach
+    assert dyana["metrics"]["S_hold"] == dyana["metrics"]["Q_smooth"] == dyana["metrics"]["Q_line"] == 0.0
     assert (paper["averaged_over"]["Q_smooth"], dyana["averaged_over"]["Q_smooth"]) == (1, 3)
     with pytest.raises(SystemExit) as exit_info:
         main(["eval", str(run), "--reading", "median"])
@@ -444,10 +445,10 @@ def test_reading_flag_switches_the_ambiguous_rules(capsys, run):
 def test_headline_is_the_first_metric_column_everywhere(tmp_path, capsys, run):
     md, table = tmp_path / "t.md", tmp_path / "t.csv"
     _, out, _ = run_main(capsys, "eval", str(run), "--markdown", str(md), "--csv", str(table))
-    assert out.splitlines()[0].split()[3] == "S_grasp_contact"
-    assert md.read_text().split("| Errors | ", 1)[1].startswith("S_grasp_contact (%)")
+    assert out.splitlines()[0].split()[3] == "S_hold"
+    assert md.read_text().split("| Errors | ", 1)[1].startswith("S_hold (%)")
     header = table.read_text().splitlines()[0].split(",")
-    assert header[header.index("grasped") + 1] == "S_grasp_contact"
+    assert header[header.index("grasped") + 1] == "S_hold"
 
 
 def test_chance_row_is_the_best_blind_value_per_metric(tmp_path, capsys, run):
