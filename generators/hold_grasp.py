@@ -4,7 +4,9 @@
 touches the object with the palm :data:`schemas.scene.PALM_HOVER` over the object's top,
 centred. :func:`closing_angles` does the same with the palm anywhere (an offset from
 that placement), so that ``benchmarks/hold.py`` can ask which placements of this hand
-hold which objects.
+hold which objects. "This hand" is the splayed thumb of datasets up to 4.x
+(:data:`generators.hand.SPLAYED_THUMB`, :data:`generators.grasp.SYNERGY_END`): pass
+``geometry=SPLAYED_THUMB`` to :func:`generators.hold.hold_test` with these grasps.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import numpy as np
 
 from generators.contact import signed_distance_local
 from generators.grasp import SYNERGY_END
-from generators.hand import FINGER_RADII, JOINT_LOWER, JOINT_UPPER, REST_JOINTS, chain_frames
+from generators.hand import FINGER_RADII, JOINT_LOWER, JOINT_UPPER, REST_JOINTS, SPLAYED_THUMB, chain_frames
 from schemas.objects import object_category
 from schemas.scene import PALM_HOVER
 
@@ -31,12 +33,12 @@ def hover_palm(category: str, size: float, offset=(0.0, 0.0, 0.0)) -> np.ndarray
 
 
 def closing_angles(category: str, size: float, side: str, palm_pose: np.ndarray) -> np.ndarray:
-    """(15,) each finger closed along its synergy to the last sampled fraction before it
-    touches the object (resting at the origin, canonical placement), or fully."""
+    """(15,) each finger of the splayed hand closed along its synergy to the last sampled
+    fraction before it touches the object (resting at the origin, canonical placement), or fully."""
     cat = object_category(category)
     grid = np.linspace(0.0, 1.0, GRID)
     q = REST_JOINTS + grid[:, None] * (SYNERGY_END.reshape(15) - REST_JOINTS)
-    pos, _ = chain_frames(np.repeat(np.asarray(palm_pose, dtype=np.float64)[None], GRID, axis=0), q, side)
+    pos, _ = chain_frames(np.repeat(np.asarray(palm_pose, dtype=np.float64)[None], GRID, axis=0), q, side, SPLAYED_THUMB)
     w = np.linspace(0.0, 1.0, SAMPLES_PER_SEGMENT, endpoint=False)
     starts, ends = pos[:, :, :3], pos[:, :, 1:]
     points = starts[:, :, :, None] + w[:, None] * (ends - starts)[:, :, :, None]

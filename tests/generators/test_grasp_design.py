@@ -14,6 +14,7 @@ from generators.grasp import (
     DEFAULT_DESIGN,
     DESIGNS,
     OPPOSED,
+    OPPOSED_WRIST,
     SPLAYED,
     GraspDesign,
     cylinder_yaw,
@@ -44,16 +45,17 @@ LYING = sorted(n for n, c in OBJECTS.items() if c.lying)
 
 
 def test_the_defaults_are_the_datasets_hand_and_grasp():
-    assert DEFAULT_GEOMETRY is SPLAYED_THUMB and DEFAULT_DESIGN is SPLAYED and SPLAYED.hand is SPLAYED_THUMB
+    assert DEFAULT_GEOMETRY is OPPOSED_THUMB and DEFAULT_DESIGN is OPPOSED_WRIST and OPPOSED_WRIST.hand is OPPOSED_THUMB
+    assert SPLAYED.hand is SPLAYED_THUMB  # the hand of datasets up to 4.x
     assert hand_geometry("opposed-thumb") is OPPOSED_THUMB and set(GEOMETRIES) == {"splayed-thumb", "opposed-thumb"}
     rng = np.random.default_rng(3)
     palm, q = rng.normal(size=(4, 6)), rng.uniform(0.0, 1.0, size=(4, 15))
     for side in ("right", "left"):
-        for a, b in zip(forward_kinematics(palm, q, side), forward_kinematics(palm, q, side, SPLAYED_THUMB)):
+        for a, b in zip(forward_kinematics(palm, q, side), forward_kinematics(palm, q, side, OPPOSED_THUMB)):
             assert np.array_equal(a, b)
     for name in OBJECTS:
         size = OBJECTS[name].nominal_size
-        assert np.array_equal(grasp_angles(name, size, "right"), grasp_angles(name, size, "right", SPLAYED, 1.0))
+        assert np.array_equal(grasp_angles(name, size, "right"), grasp_angles(name, size, "right", OPPOSED_WRIST, 0.0))
 
 
 def test_the_opposable_thumb_points_back_and_curls_down_and_forward():

@@ -16,6 +16,7 @@ from generators.hand import (
     REST_JOINTS,
     REST_PALM,
     SIDES,
+    SPLAYED_THUMB,
     chain_frames,
     euler_to_matrix,
     fingertip_positions,
@@ -133,15 +134,16 @@ def test_left_hand_is_the_mirror_of_the_right():
 
 
 def test_rest_pose_conventions():
-    """Palm down, fingers forward; right thumb toward -X, left thumb toward +X."""
+    """Palm down, fingers forward; the splayed hand's (4.x) right thumb toward -X, left thumb
+    toward +X (the opposed thumb points back: tests/generators/test_grasp_design.py)."""
     rest = REST_PALM[None]
     for side, sign in (("right", -1.0), ("left", 1.0)):
-        tips = fingertip_positions(rest, REST_JOINTS[None], side)[0]
+        tips = fingertip_positions(rest, REST_JOINTS[None], side, SPLAYED_THUMB)[0]
         assert sign * (tips[0, 0] - rest[0, 0]) > 0.5
         assert np.all(tips[1:, 2] > rest[0, 2] + 1.0)  # fingers point +Z
         lateral = tips[1:, 0] * -sign  # index .. little run away from the thumb side
         assert np.all(np.diff(lateral) > 0)
-        curled = fingertip_positions(rest, np.tile([0.8, 0.8, 0.8], 5)[None], side)[0]
+        curled = fingertip_positions(rest, np.tile([0.8, 0.8, 0.8], 5)[None], side, SPLAYED_THUMB)[0]
         assert np.all(curled[:, 1] < rest[0, 1] - 0.2)  # flexion curls toward the palm (-Y)
     _, key = forward_kinematics(rest, REST_JOINTS[None], "right")
     wrist = key.reshape(6, 6)[5]

@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from generators import hold
 from generators.ground_truth import plan
-from generators.hand import REST_JOINTS, mirror_palm_pose
-from generators.hold import HoldResult, hold_test, palm_path
+from generators.hand import REST_JOINTS, SPLAYED_THUMB, mirror_palm_pose
+from generators.hold import HoldResult, palm_path
 from generators.hold_episode import closing_frame, episode_hold
 from generators.hold_grasp import closing_angles, hover_palm, resting_pose
 from generators.hold_params import (
@@ -31,6 +32,12 @@ from schemas.scene import PALM_HOVER
 
 STILL = np.zeros(3)
 ROOT = Path(__file__).resolve().parents[2]
+
+
+def hold_test(*args, **kwargs):
+    """:func:`generators.hold.hold_test` of the splayed hand, whose grasps
+    :mod:`generators.hold_grasp` makes (the hand-made grips below)."""
+    return hold.hold_test(*args, geometry=SPLAYED_THUMB, **kwargs)
 
 
 def _grip(name: str, side: str = "right", offset=(0.2, -0.23, -0.3)):
@@ -73,7 +80,7 @@ def test_same_inputs_same_bytes_whatever_ran_before():
 
 def test_another_process_gives_the_same_bytes():
     code = ("import sys; sys.path.insert(0, 'tests/generators'); from test_hold import _grip; "
-            "from generators.hold import hold_test; r = hold_test(*_grip('baseball')); print(r.slip.hex(), r.rise.hex())")
+            "from test_hold import hold_test; r = hold_test(*_grip('baseball')); print(r.slip.hex(), r.rise.hex())")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True, cwd=ROOT).stdout.split()
     here = hold_test(*_grip("baseball"))
     assert out == [here.slip.hex(), here.rise.hex()]
