@@ -1,5 +1,5 @@
 """The blind reference policies: pure, deterministic, reading no frame beyond what they say,
-unable to win the headline success (S_grasp_contact) that the oracle always wins, and beating
+unable to win the headline success (S_hold, a grasp that holds) that the oracle always wins, and beating
 the oracle on no metric of the default reading (trajectory quality included)."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pipeline.policies.base import BLIND, BUILTIN, make_policy
 from schemas.slices import ATOMIC_SLICES
 from scoring.io import from_recordings
 from scoring.metrics import wilson_interval
-from scoring.registry import table_metrics
+from scoring.registry import SUCCESS, table_metrics
 from scoring.report import score_run
 
 #: The headline's bound for blind play (percent of episodes).
@@ -124,8 +124,8 @@ def summaries(names, episodes, resolution):
 
 
 def headline_counts(scored):
-    """(contact grasps, episodes) of each summary."""
-    return {name: (round(s.metrics["S_grasp_contact"] * s.episodes / 100), s.episodes) for name, s in scored.items()}
+    """(headline successes, episodes) of each summary: grasps that hold (S_hold)."""
+    return {name: (round(s.metrics[SUCCESS] * s.episodes / 100), s.episodes) for name, s in scored.items()}
 
 
 def beaten(scored):
