@@ -45,7 +45,7 @@ def test_no_function_of_the_job_layer_takes_more_than_8_parameters():
     (lambda: Execution.of(1, progress=1), "progress must be True or False, got 1"),
     (lambda: PolicyChoice("still", deadline_s=-1.0), "--deadline"),
     (lambda: PolicyChoice("still", protocol="x"), "protocol must be a pipeline.loop.conditions.EvalProtocol"),
-    (lambda: byte_settings(renderer="fast"), r"renderer must be one of \['window', 'full'\], got 'fast'"),
+    (lambda: byte_settings(renderer="fast"), r"renderer must be one of \['window'\], got 'fast'"),
     (lambda: byte_settings(resolution=8), r"resolution must be an integer in \[16, 1024\], got 8"),
     (lambda: JobSpec(Selection("x"), "settings", Execution(0), Storage("out")), "settings must be a BuildSettings"),
 ])
@@ -68,15 +68,15 @@ def test_the_flags_and_the_python_options_give_the_same_spec(tmp_path):
     parser = make_parser("pipeline", "", pipeline_cli.COMMANDS)
     out = str(tmp_path / "run")
     args = parser.parse_args(["eval", "--policy", "still", "--slice", "linear-fast", "--episodes", "3", "--out", out,
-                              "--workers", "1", "--resolution", "64", "--renderer", "full", "--formats", "parquet",
+                              "--workers", "1", "--resolution", "64", "--renderer", "window", "--formats", "parquet",
                               "--latency-frames", "2", "--quiet", "--overwrite"])
     protocol = job_flags.protocol_of(args)
     from_flags = job_flags.job_spec_of(args, args.slice, PolicyChoice("still", protocol=protocol))
     from_options = job_spec("linear-fast", out, {
-        "episodes": 3, "workers": 1, "resolution": 64, "renderer": "full", "formats": "parquet", "progress": False,
+        "episodes": 3, "workers": 1, "resolution": 64, "renderer": "window", "formats": "parquet", "progress": False,
         "overwrite": True, "protocol": EvalProtocol(latency_frames=2)}, shard_size=32, policy_ref="still")
     assert from_flags == from_options
-    assert from_flags.settings.dataset_version == "3.0.0" and from_flags.settings.formats == ("parquet",)
+    assert from_flags.settings.dataset_version == "5.0.0" and from_flags.settings.formats == ("parquet",)
 
 
 def test_an_option_a_call_does_not_take_is_a_type_error(tmp_path):
