@@ -6,6 +6,8 @@ errors, the tops) and applies, per episode, the frame test of the ``dyana`` read
 3D to the hover point and no band for a flying object, as :func:`scoring.metrics.episode_metrics`)
 and then one of the rules of :data:`RULES`. An episode in error never counts (as scoring).
 Nothing here changes :mod:`scoring`; it is a measurement for choosing a rule (issue 38).
+``python benchmarks/loc_rules.py RUN [RUN ...]`` prints every rule's S_loc per run;
+``benchmarks/blind_adversaries.py`` tabulates them with intervals.
 """
 
 from __future__ import annotations
@@ -13,6 +15,11 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+
+try:
+    import bench_setup  # noqa: F401  (run as a script: puts the repository first on sys.path)
+except ModuleNotFoundError:  # imported as benchmarks.loc_rules
+    pass
 
 from generators.ground_truth import episode_grasp
 from generators.recipe import spec_for
@@ -124,3 +131,21 @@ def score(episodes: list[Episode]) -> dict[str, dict]:
         out[name] = {"S_loc": round(100 * hits / n, 1), "ci95": [round(100 * lo, 1), round(100 * hi, 1)],
                      "count": hits, "episodes": n}
     return out
+
+
+def main() -> None:
+    """Print each rule's S_loc for the runs named on the command line (one JSON line per run)."""
+    import argparse
+    import json
+
+    from scoring.io import load_run
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", help="run or built slice folders (catalog.json + shards)")
+    for folder in parser.parse_args().runs:
+        table = score(episodes_of(load_run(folder)))
+        print(json.dumps({"run": folder, **{rule: row["S_loc"] for rule, row in table.items()}}))
+
+
+if __name__ == "__main__":
+    main()
