@@ -19,8 +19,8 @@ through :func:`generators.hand_body.limit_palm`, so the body reaches it exactly.
                    counting as covered once the planned palm was within 0.3 of it on
                    ``dwell`` consecutive frames; never closes the hand
 ``Dwell4Policy``   the same cover, a path covered only by 4 consecutive frames within 0.3
-``ModePolicy``     follows the training path whose position at the closing frame has the
-                   most others within 0.3, and closes the hand to arrive closed there
+``ModePolicy``     follows the training path that, at some frame c (its choice), has the
+                   most others within 0.3 on frames c-1..c+1, and closes the hand there
 =================  ====================================================================
 
 **The run** (``main``): each adversary and the built-ins (oracle, predictive, chase, still,
@@ -29,9 +29,11 @@ worker) on test-1k's first ``--episodes`` at ``--resolution``; each run is score
 ``python -m scoring.cli eval --json`` and read back with :func:`scoring.io.load_run`;
 :mod:`loc_rules` computes every candidate S_loc rule with a 95% Wilson interval. Writes
 ``benchmarks/results/blind_adversaries.json`` (commit, dataset version, load averages).
-CPU-heavy (about 10 min for 12 runs of 60 episodes at 64 px): run it alone,
-``nice python benchmarks/blind_adversaries.py``; ``--reuse`` rescores runs already in
-``--runs``.
+CPU-heavy: 60 episodes at 64 px took 485-1114 s per adversary (the cover plans for up to
+10 s an episode) and 22-310 s per built-in, on 2 cores shared at load 5-9. Run it alone,
+``nice python benchmarks/blind_adversaries.py``; ``--reuse`` scores the runs already in
+``--runs`` (recorded with the same commands) without recording them again, and the JSON's
+``seconds`` then lists only the runs recorded by that call.
 """
 
 from __future__ import annotations
@@ -239,24 +241,24 @@ class Dwell4Policy(CoverPolicy):
 
 
 class ModePolicy(PoolPolicy):
-    """Follows the pool's densest path around the closing frame and closes there (module docstring)."""
+    """Follows the pool's densest path and closes at its densest frame (module docstring)."""
 
     name = "adv-mode"
     #: Acting frames from the start of closing to a closed grasp (closing_joints' 80% point).
     CLOSING = 4
-
-    def reset(self, task: dict) -> None:
-        super().reset(task)
-        self._close = min(self._intercept + self.CLOSING, self._horizon - 1)
 
     def joints(self, t: int) -> np.ndarray:
         start = self._close - self.CLOSING
         return REST_JOINTS if t < start else closing_joints(FIST, t - start)
 
     def plan(self, start: np.ndarray) -> np.ndarray:
-        around = self._pool[:, max(self._close - 1, 0): self._close + 2]
-        near = np.linalg.norm(around[:, None] - around[None], axis=3) <= LOC_TOLERANCE
-        j = int(np.argmax(near.all(axis=2).sum(axis=1)))
+        best = (-1, 0, self.CLOSING + 1)  # (paths near, path, closing frame)
+        for close in range(self.CLOSING + 1, self._horizon):
+            around = self._pool[:, close - 1: close + 2]
+            near = (np.linalg.norm(around[:, None] - around[None], axis=3) <= LOC_TOLERANCE).all(axis=2).sum(axis=1)
+            if int(near.max()) > best[0]:
+                best = (int(near.max()), int(np.argmax(near)), close)
+        _, j, self._close = best
         xz = self._pool[j, 1:]
         targets = np.column_stack([xz[:, 0], np.full(len(xz), self._hover), xz[:, 1]])
         return np.vstack([start, follow(start, targets)])
@@ -349,7 +351,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=60)
     parser.add_argument("--resolution", type=int, default=64)
-    parser.add_argument("--runs", default="/tmp/blind_adversaries", help="folder of the recorded runs")
+    parser.add_argument("--runs", default=os.path.join(ROOT, "out", "blind_adversaries"), help="folder of the runs")
     parser.add_argument("--reuse", action="store_true", help="score runs already in --runs instead of recording them")
     parser.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "results", "blind_adversaries.json"))
     args = parser.parse_args()
