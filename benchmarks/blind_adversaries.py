@@ -56,7 +56,8 @@ except ModuleNotFoundError:  # imported by the closed loop as benchmarks.blind_a
 from generators.hand import REST_JOINTS
 from generators.hand_body import limit_palm
 from generators.motion import object_pose
-from generators.recipe import MOTION_PHRASES, spec_for
+from generators.recipe import MOTION_PHRASES, SETTINGS, spec_for
+from pipeline.loop.env import horizon
 from pipeline.policies.blind import FIST, hover_height, setting_of
 from pipeline.policies.grip import closing_joints
 from pipeline.policies.perception import object_from_text
@@ -64,6 +65,7 @@ from schemas.objects import object_category
 from schemas.scene import LOC_TOLERANCE, MOTION_TYPES
 from schemas.versions import DATASET_VERSION, FPS
 from scoring.io import load_run
+from scoring.metrics import wilson_interval
 
 #: The repository's root (the runs and the scoring are run from it).
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -332,6 +334,28 @@ def verdicts(table: dict[str, dict]) -> dict[str, dict]:
     return out
 
 
+def single_frame_ceiling(episodes: int = 60, first: int = 10_000) -> dict:
+    """What a pixel-free policy can reach under a one-frame rule (at-grasp, endpoint): its
+    palm at the chosen frame is a function of the task, so it hits at most as often as the
+    densest point of its pool at the densest frame. Measured on held-out *training* episodes
+    ``first..`` (never test-1k): the pool's densest (frame, point) hits their object how often."""
+    hits = []
+    for k in range(episodes):
+        setting, kind = SETTINGS[k % 3], MOTION_TYPES[(k // 3) % 3]
+        spec = spec_for(f"{kind}-{setting}", first + k)
+        h = horizon(spec)
+        pool = training_pool(spec.object, setting, motion_named(spec.text), h + 1)
+        times = (spec.observe_frames + np.arange(h + 1, dtype=np.float64)) / FPS
+        own = object_pose(spec.motion, object_category(spec.object), spec.object_size, times)[0][:, [0, 2]]
+        near = [(np.linalg.norm(pool[:, None, t] - pool[None, :, t], axis=2) <= LOC_TOLERANCE).sum(axis=1)
+                for t in range(1, h + 1)]
+        t = int(np.argmax([n.max() for n in near]))
+        hits.append(bool(np.linalg.norm(own[t + 1] - pool[int(np.argmax(near[t])), t + 1]) <= LOC_TOLERANCE))
+    lo, hi = wilson_interval(sum(hits), len(hits))
+    return {"episodes": len(hits), "first_index": first, "S_loc": round(100 * sum(hits) / len(hits), 1),
+            "ci95": [round(100 * lo, 1), round(100 * hi, 1)]}
+
+
 def write_table(result: dict, json_path: str) -> None:
     """Every rule's S_loc per run as Markdown, beside the JSON (``.md``)."""
     table, names = result["table"], list(result["table"])
@@ -373,7 +397,9 @@ def main() -> None:
               "slice": "test-1k", "episodes": args.episodes, "resolution": args.resolution,
               "adversaries": {name: (globals()[cls].__doc__ or "").strip() for name, cls in ADVERSARY_CLASSES.items()},
               "pool": POOL, "rules": {name: text for name, (_, text) in loc_rules.RULES.items()},
-              "scoring_eval": scores, "table": table, "verdicts": verdicts(table), "seconds": seconds,
+              "scoring_eval": scores, "table": table, "verdicts": verdicts(table),
+              "single_frame_ceiling": single_frame_ceiling(), "seconds": seconds,
+              "reused_runs": [name for name in names if name not in seconds],
               "load_average_start": load_start, "load_average_end": [round(v, 2) for v in os.getloadavg()]}
     with open(args.out, "w") as handle:
         json.dump(result, handle, indent=1)
