@@ -46,6 +46,7 @@ E_LOC_RULES = ("endpoint", "minimum")
 E_GRA_RULES = ("completion", "minimum")
 STEP_RULES = ("keep", "drop")
 S_LOC_RULES = ("top", "xz")
+LOC_FRAME_RULES = ("endpoint", "any")
 QUALITY_RULES = ("weighted", "successful")
 
 
@@ -61,8 +62,10 @@ class Reading:
     also needs the palm above the object's top by at most :data:`TOP_BAND` (``top``), or
     the XZ distance only (``xz``); ``quality``: Q_smooth/Q_line of every episode, times its
     success (:data:`scoring.registry.SUCCESS`; ``weighted``, 0 for a failure), or
-    unweighted over the successful trajectories only (``successful``: localized and grasped).
-    Q is always measured over the whole acting palm trajectory.
+    unweighted over the successful trajectories only (``successful``: localized and grasped);
+    ``loc_frame``: where localization is judged: at the last acting frame, the palm held
+    over the object from ``t_loc`` to the end (``endpoint``), or at any acting frame
+    (``any``, A.5's "exists"). Q is always measured over the whole acting palm trajectory.
     """
 
     name: str
@@ -71,23 +74,27 @@ class Reading:
     steps: str = "keep"
     s_loc: str = "top"
     quality: str = "weighted"
+    loc_frame: str = "endpoint"
 
     def __post_init__(self) -> None:
         for rule, choices in (("e_loc", E_LOC_RULES), ("e_gra", E_GRA_RULES), ("steps", STEP_RULES),
-                              ("s_loc", S_LOC_RULES), ("quality", QUALITY_RULES)):
+                              ("s_loc", S_LOC_RULES), ("quality", QUALITY_RULES), ("loc_frame", LOC_FRAME_RULES)):
             if getattr(self, rule) not in choices:
                 raise ValueError(f"Reading.{rule} must be one of {choices}, got {getattr(self, rule)!r}")
 
 
 #: Dyana's reading, the default: the paper's rules where its text is clear, the height band
-#: for "above", and trajectory quality weighted by success (as SPL weights path length).
+#: for "above", localization judged where the hand ends (a palm that sweeps past the object
+#: is not localized: benchmarks/results/blind_adversaries.md), and trajectory quality
+#: weighted by success (as SPL weights path length).
 DYANA = Reading("dyana")
-#: The paper's text only: A.5's XZ localization test, Q unweighted over the successful
-#: trajectories ("for successful trajectories"), the captions' endpoint errors.
-PAPER = Reading("paper", s_loc="xz", quality="successful")
+#: The paper's text only: A.5's XZ localization test at any frame, Q unweighted over the
+#: successful trajectories ("for successful trajectories"), the captions' endpoint errors.
+PAPER = Reading("paper", s_loc="xz", quality="successful", loc_frame="any")
 #: The paper's text read the other way where it is ambiguous ("shortest" distances; zero
 #: steps dropped): kinder to a policy that games it.
-LENIENT = Reading("lenient", e_loc="minimum", e_gra="minimum", steps="drop", s_loc="xz", quality="successful")
+LENIENT = Reading("lenient", e_loc="minimum", e_gra="minimum", steps="drop", s_loc="xz", quality="successful",
+                  loc_frame="any")
 READINGS = {r.name: r for r in (DYANA, PAPER, LENIENT)}
 DEFAULT_READING = DYANA.name
 #: The ``top`` rule: the palm centre's height above the object's top surface lies in
@@ -129,6 +136,15 @@ def _segment_min(values: np.ndarray, offsets: np.ndarray, empty: float) -> np.nd
     nonempty = counts > 0
     if nonempty.any():
         out[nonempty] = np.minimum.reduceat(values, offsets[:-1][nonempty])
+    return out
+
+
+def _segment_max(values: np.ndarray, offsets: np.ndarray, empty: int) -> np.ndarray:
+    """Per-episode maximum of integer ``values`` (``empty`` for an episode without rows)."""
+    out = np.full(len(offsets) - 1, empty, dtype=np.int64)
+    nonempty = np.diff(offsets) > 0
+    if nonempty.any():
+        out[nonempty] = np.maximum.reduceat(values, offsets[:-1][nonempty])
     return out
 
 
@@ -300,7 +316,13 @@ def episode_metrics(
     over = events.within_tolerance(d_xz)
     if reading.s_loc == "top":  # a flying object's 3D distance to its hover point already bounds the height
         over = over & (airborne[owner] | above_top(palm, obj, top[owner]))
-    first_loc = _segment_min(np.where(over, local, never), offsets, never)
+    if reading.loc_frame == "endpoint":  # the first frame of the run of over-object frames that ends the episode
+        last_miss = _segment_max(np.where(over, -1, local), offsets, -1)
+        ends_over = np.zeros(n, dtype=bool)
+        ends_over[counts > 0] = over[(offsets[1:] - 1)[counts > 0]]
+        first_loc = np.where(ends_over, last_miss + 1, never)
+    else:
+        first_loc = _segment_min(np.where(over, local, never), offsets, never)
     closed = events.grasp_closed(joints, grasp[owner])
     first_gra = _segment_min(np.where(closed, local, never), offsets, never)
     t_loc = np.where(first_loc == never, -1, first_loc)

@@ -245,7 +245,14 @@ def naive(palm, obj, joints, tips, grasp, reading=LENIENT, top=0.0):
         height = palm[t][1] - obj[t][1] - top
         return d[t] <= 0.3 and (reading.s_loc == "xz" or 0.0 <= height <= TOP_BAND)  # 0.35 + 0.3, as computed
 
-    t_loc = next((t for t in range(n) if over(t)), -1)
+    if reading.loc_frame == "any":
+        t_loc = next((t for t in range(n) if over(t)), -1)
+    else:  # endpoint: over the object at the last frame, held since t_loc
+        t_loc = -1
+        for t in reversed(range(n)):
+            if not over(t):
+                break
+            t_loc = t
     t_gra = next((t for t in range(n) if all(joints[t][j] >= 0.8 * grasp[j] for j in range(15))), -1)
     q_smooth = q_line = float("nan")
     if n:
@@ -543,3 +550,17 @@ def test_blind_play_cannot_win_quality_under_the_default_reading():
     assert success(per, np.ones(1, bool))[0]
     assert per.q_smooth[0] > 0.0 and model.metrics["Q_smooth"] == pytest.approx(per.q_smooth[0])
     assert model.metrics["Q_line"] == pytest.approx(1.0)
+
+
+def test_a_palm_that_sweeps_past_the_object_is_localized_only_in_the_papers_reading():
+    """The dyana reading judges localization where the hand ends (the palm held over the object
+    from t_loc to the last frame); the paper's, at any frame. A hand that passes over the object
+    and goes on is localized only in the paper's."""
+    top = 0.5  # the object's top over its centre; the palm at 0.8 is 0.3 over it
+    sweep = [[-1.0, 0.8, 0.0], [0.0, 0.8, 0.0], [1.0, 0.8, 0.0], [2.0, 0.8, 0.0]]
+    arrive = [[-1.0, 0.8, 0.0], [0.1, 0.8, 0.0], [1.0, 0.8, 0.0], [0.2, 0.8, 0.0], [0.0, 0.8, 0.0]]
+    eps = [episode(np.asarray(p), obj=np.zeros((len(p), 3))) for p in (sweep, arrive)]
+    dyana = score(*eps, reading=DYANA, top=np.full(2, top))
+    paper = score(*eps, reading=PAPER, top=np.full(2, top))
+    assert dyana.t_loc.tolist() == [-1, 3]  # the arrival: over from frame 3 to the end (frame 1 was a pass)
+    assert paper.t_loc.tolist() == [1, 1]
