@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, assume, given, settings
 
 import generators.interception as interception
 from generators.camera import points_in_view, project
+from generators.grasp import grasp_hover
 from generators.hand import REST_JOINTS, REST_PALM
 from generators.interception import (
     HandPlan,
@@ -28,7 +29,6 @@ from schemas.scene import (
     GRASP_FRAMES,
     GRASP_RATIO,
     LOC_TOLERANCE,
-    PALM_HOVER,
     PHASES,
 )
 from schemas.versions import FPS
@@ -59,7 +59,9 @@ def arrival_frame(plan: HandPlan, object_xz: np.ndarray, hover_y: float) -> int:
 def check_invariants(spec, plan: HandPlan, pos: np.ndarray) -> None:
     """The issue's Done-when list for one planned episode."""
     a, i, n = spec.observe_frames, spec.intercept_frame, spec.num_frames
-    hover_y = 2.0 * object_category(spec.object).half_height(spec.object_size) + PALM_HOVER
+    # the dataset's grasp design's hover (PALM_HOVER over most objects; boxes and lying cylinders differ)
+    hover_y = 2.0 * object_category(spec.object).half_height(spec.object_size) + grasp_hover(spec.object, spec.object_size,
+                                                                                             spec.hand)
     # Arrival: intercept frame - observe frames = interception time x 20, within one frame.
     assert abs((arrival_frame(plan, pos, hover_y) - a) - spec.intercept_time_s * FPS) <= 1
     assert i - a == round(spec.intercept_time_s * FPS)

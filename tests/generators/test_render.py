@@ -444,13 +444,14 @@ def test_a_frame_does_not_depend_on_what_the_renderer_drew_before():
 def test_a_scene_starts_from_fresh_bodies_whatever_was_drawn_before():
     """TinyRenderer normalises every stored vertex normal in place on each draw, so a
     body's first draw can shade a pixel a level differently from its later draws (here
-    circular-slow episode 17611, frame 73). A renderer that drew other episodes with the
+    circular-slow episode 18143, frame 51, a toy cube under the opposed hand of 5.0.0; 4.x's
+    splayed hand showed it at episode 17611, frame 73). A renderer that drew other episodes with the
     same hand before must still draw an episode's first frame with fresh bodies."""
     from generators.recipe import spec_for
     from pipeline.stages.episode import episode
 
-    spec = spec_for("circular-slow", 17611)
-    state = (lambda f: (f.object_pose[73], f.palm_pose[73], f.joint_angles[73]))(episode(spec))
+    spec = spec_for("circular-slow", 18143)
+    state = (lambda f: (f.object_pose[51], f.palm_pose[51], f.joint_angles[51]))(episode(spec))
     with Renderer(224, kind="full") as fresh:
         fresh.set_scene(spec.object, spec.object_size, spec.hand)
         first, second = fresh.render(*state), fresh.render(*state)

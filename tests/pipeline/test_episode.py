@@ -10,14 +10,13 @@ from hypothesis import HealthCheck, assume, given, settings
 import pipeline
 from generators import motion
 from generators.contact import fingertip_distance
-from generators.ground_truth import frame_times
+from generators.ground_truth import frame_times, plan
 from generators.hand import REST_JOINTS, REST_PALM
 from generators.recipe import spec_for
 from pipeline.stages.episode import assemble_frames, episode
 from schemas.errors import InfeasibleError
 from schemas.frames import FRAME_ARRAYS
-from schemas.objects import object_category
-from schemas.scene import GRASP_FRAMES, GRASP_RATIO, LOC_TOLERANCE, PALM_HOVER, PHASES
+from schemas.scene import GRASP_FRAMES, GRASP_RATIO, LOC_TOLERANCE, PHASES
 from schemas.versions import FPS
 from tests.generators.spec_strategies import closed_form, in_workspace, make_spec, specs
 
@@ -33,9 +32,13 @@ def check_frames(spec, frames) -> None:
     assert frames.phase.dtype == np.int8
     palm = frames.palm_pose[:, :3].astype(np.float64)
     obj = frames.object_pose[:, :3].astype(np.float64)
-    hover_y = 2.0 * object_category(spec.object).half_height(spec.object_size) + PALM_HOVER
-    hover = np.column_stack([obj[:, 0], np.full(n, hover_y), obj[:, 2]])
-    arrived = np.flatnonzero((np.linalg.norm(palm - hover, axis=1) <= 1e-4) & (frames.phase != OBSERVE))
+    # the ground truth's hover point (the design's height over the top: PALM_HOVER over most
+    # objects, higher over boxes, lower over lying cylinders); arrived: over it in XZ, at its
+    # height or above (over a lying cylinder the palm stays raised until the wrist has turned
+    # across it: generators.wrist.wrist_clear_heights)
+    hover = plan(spec)[0].hover
+    over = np.hypot(palm[:, 0] - hover[:, 0], palm[:, 2] - hover[:, 2]) <= 1e-4
+    arrived = np.flatnonzero(over & (palm[:, 1] >= hover[:, 1] - 1e-4) & (frames.phase != OBSERVE))
     # intercept frame - observe frames = interception time x 20, within one frame
     assert abs(arrived[0] - a - spec.intercept_time_s * FPS) <= 1
     assert frames.palm_distance[i] <= LOC_TOLERANCE
@@ -122,8 +125,11 @@ def test_both_formats_and_hands():
     right = episode(make_spec("A", token, hand="right"))
     left = episode(make_spec("A", token, hand="left"))
     np.testing.assert_array_equal(right.palm_pose, left.palm_pose)
+    # the index fingertip (keypoint 1) is on the right hand's -X side and the left's +X side;
+    # the opposed thumb (keypoint 0, 5.0.0's hand) lies on the palm's midline in both
+    index_x = lambda f: f.keypoints[0, 6] - f.palm_pose[0, 0]  # noqa: E731
     thumb_x = lambda f: f.keypoints[0, 0] - f.palm_pose[0, 0]  # noqa: E731
-    assert thumb_x(right) < 0 < thumb_x(left)
+    assert index_x(right) < 0 < index_x(left) and thumb_x(right) == thumb_x(left) == 0.0
 
 
 def test_object_states_come_from_the_motion():
