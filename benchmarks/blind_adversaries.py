@@ -38,6 +38,7 @@ CPU-heavy: 60 episodes at 64 px took 485-1114 s per adversary (the cover plans f
 
 from __future__ import annotations
 
+import abc
 import argparse
 import json
 import os
@@ -105,7 +106,7 @@ def training_pool(obj: str | None, setting: str, motion: str | None, horizon: in
     return np.stack(paths[:count])
 
 
-class PoolPolicy:
+class PoolPolicy(abc.ABC):
     """Shared: the pool and hover height from the task, the palm's velocity from its own states."""
 
     name = "adv"
@@ -133,9 +134,10 @@ class PoolPolicy:
         goal = self._plan[min(t + 1, len(self._plan) - 1)]
         return np.concatenate([goal, self.joints(t + 1)]).astype(np.float32)
 
+    @abc.abstractmethod
     def plan(self, start: np.ndarray) -> np.ndarray:
-        """(horizon + 1, 3) the palm at acting frames 0..horizon (row 0 = ``start``)."""
-        raise NotImplementedError
+        """(horizon + 1, 3) the palm at acting frames 0..horizon (row 0 = ``start``); each
+        adversary plans its own."""
 
 
 def follow(start: np.ndarray, targets: np.ndarray) -> np.ndarray:

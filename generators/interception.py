@@ -41,7 +41,7 @@ from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, fi
 from schemas.errors import InfeasibleError
 from schemas.objects import object_category
 from schemas.obstacles import OBSTACLE_MARGIN
-from schemas.scene import GRASP_FRAMES, PALM_BOX, PHASES, WORKSPACE_X, WORKSPACE_Z
+from schemas.scene import GRASP_FRAMES, PALM_HIGH, PALM_LOW, PHASES, WORKSPACE_X, WORKSPACE_Z
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
 
@@ -199,7 +199,7 @@ def _airborne_approach(spec: EpisodeSpec, palm: np.ndarray, turn: np.ndarray, jo
     from generators.clearance import hand_table_depth, palm_sphere_depth
 
     path = palm.copy()
-    low, high = (np.array([r[k] for r in PALM_BOX]) for k in (0, 1))
+    low, high = np.asarray(PALM_LOW), np.asarray(PALM_HIGH)
     worst: tuple[str, float, int] | None = None
     for rise in LIFT_RISES:
         for match in VERTICAL_MATCH:

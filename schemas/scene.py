@@ -34,6 +34,9 @@ PALM_REST = (0.0, 1.65, -1.8, 0.0, 0.0, 0.0)
 #: behind the rest pose (at the view's bottom edge) to the table's far edge. The closed
 #: loop clamps every action into it; the ground truth's approach to a flying ball stays in it.
 PALM_BOX = (TABLE_X, (0.0, 6.0), (min(TABLE_Z[0], PALM_REST[2] - 1.0), TABLE_Z[1]))
+#: The box's lower and upper corners (x, y, z).
+PALM_LOW = tuple(r[0] for r in PALM_BOX)
+PALM_HIGH = tuple(r[1] for r in PALM_BOX)
 #: Share of the object's silhouette that must be in the image and unhidden in every
 #: observe frame (the observe-before-act protocol shows the model the motion).
 MIN_OBSERVE_VISIBLE = 0.5

@@ -205,7 +205,9 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
     def frame_array(name: str) -> np.ndarray:
-        values = column_to_numpy(frames.column(name))[pick]
+        return check_finite(name, column_to_numpy(frames.column(name))[pick])
+
+    def check_finite(name: str, values: np.ndarray) -> np.ndarray:
         bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
         if bad.any():
             at = np.flatnonzero(bad)[0]
@@ -222,10 +224,11 @@ def _assemble(root: Path, slice_name: str, episodes: pa.Table, frames: pa.Table,
             raise ShardError(f"{where}: NaN obstacle_clearance in an acting frame of episode {episode}")
         min_clearance = episode_minimum(values, offsets)
 
-    palm = frame_array("palm_pose")
+    every_palm = column_to_numpy(frames.column("palm_pose"))
+    palm = check_finite("palm_pose", every_palm[pick])
     first_acting = pick[offsets[:-1][counts > 0]]
     before = np.full((len(index), 3), np.nan)
-    before[counts > 0] = column_to_numpy(frames.column("palm_pose"))[np.maximum(first_acting - 1, 0), :3]
+    before[counts > 0] = every_palm[np.maximum(first_acting - 1, 0), :3]
     grasp_angles = column_to_numpy(episodes.column("grasp_angles"))
     if not np.isfinite(grasp_angles).all():
         episode = index[np.flatnonzero(~np.isfinite(grasp_angles).all(axis=1))[0]]

@@ -26,6 +26,7 @@ from generators.hand import (
     root_positions,
 )
 from pipeline.policies.base import Observation
+from schemas import scene
 from schemas.scene import PALM_BOX
 from schemas.spec import MAX_TEXT
 from schemas.versions import FPS
@@ -36,8 +37,8 @@ __all__ = [
     "observation_space",
 ]
 
-PALM_LOW = np.array([r[0] for r in PALM_BOX])
-PALM_HIGH = np.array([r[1] for r in PALM_BOX])
+PALM_LOW = np.array(scene.PALM_LOW)
+PALM_HIGH = np.array(scene.PALM_HIGH)
 ACTION_WIDTH = 18
 #: The hand's rest state as an action (palm xyz + 15 joints, float32).
 REST_STATE = np.concatenate([REST_PALM[:3], REST_JOINTS]).astype(np.float32)
