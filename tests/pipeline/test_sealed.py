@@ -41,11 +41,35 @@ def _secret_file(tmp_path: Path) -> Path:
     return path
 
 
+def _parent(proc: Path) -> int:
+    """The parent pid in ``proc``'s stat (after the command name, which may hold spaces), or 0."""
+    try:
+        return int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+def _descends_from_us(proc: Path) -> bool:
+    """Whether ``proc`` is a descendant of this test process (the run's workers and policy
+    processes are; another test's, in the other xdist worker, are not)."""
+    me, pid = os.getpid(), int(proc.name)
+    for _ in range(64):
+        pid = _parent(Path("/proc") / str(pid))
+        if pid == me:
+            return True
+        if pid <= 1:
+            return False
+    return False
+
+
 def _holders(stop: threading.Event, seen: list[str]) -> None:
-    """Every process whose command line or environment holds the secret, while the run lasts."""
+    """Every process of this run (a descendant of this test process) whose command line or
+    environment holds the secret, while the run lasts."""
     needle = SECRET.encode()
     while not stop.is_set():
         for proc in Path("/proc").glob("[0-9]*"):
+            if not _descends_from_us(proc):
+                continue
             for name in ("cmdline", "environ"):
                 try:
                     if needle in (proc / name).read_bytes():
