@@ -23,3 +23,19 @@ def pin_one_core() -> str:
         os.sched_setaffinity(0, {core})
         return f"pinned to core {core}"
     return "not pinned (no sched_setaffinity)"
+
+
+def provenance() -> dict:
+    """What a result file records about where its numbers come from: the commit (and whether
+    the working tree differed from it), the dataset version, the date, the cores and the load."""
+    import subprocess
+    import time
+
+    from schemas.versions import DATASET_VERSION
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+
+    return {"commit": git("rev-parse", "HEAD"), "tree_changed": bool(git("status", "--porcelain", "--untracked-files=no")),
+            "dataset_version": DATASET_VERSION, "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
+            "cores": os.cpu_count(), "load_average": [round(x, 2) for x in os.getloadavg()]}

@@ -7,11 +7,13 @@ on test-1k episodes ``0..--episodes-1``, scores the recordings as ``scoring eval
 (``scoring.metrics.READINGS``), builds the chance row (best blind value per metric), and writes
 ``benchmarks/results/blind_chance.json``: per policy and reading the eight metrics, the
 episodes each mean averages and the headline's count, the chance row per reading, whether
-the headline check holds (each blind policy <= 5% S_grasp_contact, the oracle 100%) and
+the headline check holds (each blind policy <= 1% on the headline, the oracle >= 95%) and
 where a blind policy beats the oracle under the default reading (``beats_oracle``); and
 beside it ``blind_chance.md``, the table of the default reading with its chance row (the
 results page shows it;
-``--table-only`` rewrites it from the JSON). CPU-heavy (about 1 episode/s): run it alone,
+``--table-only`` rewrites it from the JSON). ``--runs FOLDER`` scores the runs that
+``closed_loop_results.py --runs FOLDER`` kept (``FOLDER/oracle``, ``FOLDER/blind-...``: the
+same episodes as the results table) instead of running the policies again. CPU-heavy (about 1 episode/s): run it alone,
 e.g. ``nice python benchmarks/blind_chance.py``; tiny check:
 ``python benchmarks/blind_chance.py --episodes 3 --out /tmp/chance.json``.
 """
@@ -30,14 +32,15 @@ from pipeline.loop.rollout import run_episode  # noqa: E402
 from pipeline.loop.wrappers import loop_env  # noqa: E402
 from pipeline.policies.base import BLIND, make_policy  # noqa: E402
 from scoring.chance import CHANCE_LABEL, chance_row  # noqa: E402
-from scoring.io import from_recordings  # noqa: E402
+from scoring.io import from_recordings, load_run  # noqa: E402
 from scoring.metrics import DEFAULT_READING, HEADLINE, READINGS  # noqa: E402
 from scoring.registry import table_metrics  # noqa: E402
 from scoring.report import score_run  # noqa: E402
 
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "blind_chance.json")
-#: The headline's bound for blind play (percent).
-BLIND_BOUND = 5.0
+#: The headline's bound for blind play, and the oracle's floor (percent; issue 38).
+BLIND_BOUND = 1.0
+ORACLE_FLOOR = 95.0
 
 
 def _cell(value: float | None) -> str:
@@ -60,7 +63,7 @@ def write_table(result: dict, json_path: str) -> None:
     lines += [f"| {name} | " + " | ".join(_cell(m[k]) for k in names) + " |" for name, m in rows]
     holds = "holds" if result["headline"]["holds"] else "FAILS"
     lines += ["", f"Headline check ({result['headline']['metric']} <= {result['headline']['blind_bound_percent']:g}% "
-              f"for every blind policy, 100% for the oracle): {holds}.", ""]
+              f"for every blind policy, >= {result['headline']['oracle_floor_percent']:g}% for the oracle): {holds}.", ""]
     with open(os.path.splitext(json_path)[0] + ".md", "w") as handle:
         handle.write("\n".join(lines))
 
@@ -71,6 +74,7 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=224)
     parser.add_argument("--out", default=OUT)
     parser.add_argument("--table-only", action="store_true", help="rewrite the .md table from the --out JSON")
+    parser.add_argument("--runs", help="score closed_loop_results.py's kept runs in this folder instead of running")
     args = parser.parse_args()
     if args.table_only:
         with open(args.out) as handle:
@@ -78,11 +82,17 @@ def main() -> None:
         return
     start = time.perf_counter()
     load_start = [round(v, 2) for v in os.getloadavg()]
-    specs = [spec_for("test-1k", i) for i in range(args.episodes)]
-    env = loop_env(args.resolution)
     data = {}
-    try:
+    if args.runs:
         for name in BLIND + ("oracle",):
+            data[name] = load_run(os.path.join(args.runs, name))
+        args.episodes = len(data["oracle"].episode_id)
+        with open(os.path.join(args.runs, "oracle", "catalog.json")) as handle:
+            args.resolution = json.load(handle)["settings"]["resolution"]
+    specs = [spec_for("test-1k", i) for i in range(0 if args.runs else args.episodes)]
+    env = loop_env(args.resolution)
+    try:
+        for name in () if args.runs else BLIND + ("oracle",):
             policy = make_policy(name)
             results = [run_episode(env, policy, spec) for spec in specs]
             errors = [r.error or None if not r.ok else None for r in results]
@@ -101,7 +111,7 @@ def main() -> None:
                                                     f"{HEADLINE}_count": round(s.metrics[HEADLINE] * s.episodes / 100)}
         chance[reading] = chance_row([(name, reports[name].overall) for name in BLIND]).as_dict()
     default = {name: scores[name][DEFAULT_READING]["metrics"] for name in scores}
-    holds = all(default[name][HEADLINE] <= BLIND_BOUND for name in BLIND) and default["oracle"][HEADLINE] == 100.0
+    holds = all(default[name][HEADLINE] <= BLIND_BOUND for name in BLIND) and default["oracle"][HEADLINE] >= ORACLE_FLOOR
     beats = [[name, m.name] for name in BLIND for m in table_metrics()
              if default[name][m.name] is not None and default["oracle"][m.name] is not None
              and (default[name][m.name] < default["oracle"][m.name] if m.lower_is_better
@@ -110,7 +120,9 @@ def main() -> None:
         "benchmark": "blind_chance", "slice": "test-1k", "episodes": args.episodes, "resolution": args.resolution,
         "policies": list(BLIND) + ["oracle"], "default_reading": DEFAULT_READING, "scores": scores, "chance": chance,
         "beats_oracle": beats,
-        "headline": {"metric": HEADLINE, "blind_bound_percent": BLIND_BOUND, "holds": holds},
+        "headline": {"metric": HEADLINE, "blind_bound_percent": BLIND_BOUND, "oracle_floor_percent": ORACLE_FLOOR,
+                     "holds": holds},
+        "runs": args.runs, **{k: v for k, v in bench_setup.provenance().items() if k != "load_average"},
         "seconds": round(time.perf_counter() - start, 1), "load_average_start": load_start,
         "load_average_end": [round(v, 2) for v in os.getloadavg()],
     }

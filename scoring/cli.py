@@ -1,6 +1,6 @@
 """The ``scoring`` command: ``scoring eval RUN [RUN ...] [--json] [--plot FILE.png]
 [--markdown FILE.md] [--csv FILE.csv] [--episodes FILE.parquet|.csv] [--paper]
-[--reading NAME] [--chance RUN [RUN ...]]``.
+[--reading NAME] [--chance RUN [RUN ...]] [--family NAME RUN [RUN ...]]``.
 
 Reads recorded shards only (never the simulator). Bad input (not a run folder, a
 missing column, an empty run, a run missing some of its episodes 0..N-1) prints one line
@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 from collections.abc import Sequence
 
@@ -69,6 +70,11 @@ def _eval_arguments(p: argparse.ArgumentParser) -> None:
         "--chance", nargs="+", metavar="RUN",
         help="runs of blind reference policies on the same episodes (pipeline eval --policy blind-...): "
         "add a 'chance' row, the best blind score per metric",
+    )
+    p.add_argument(
+        "--family", nargs="+", action="append", default=[], metavar="NAME RUN",
+        help="with --plot: draw these RUNs (given above) as one series on the radar, NAME, a band from the "
+        "worst to the best of them per metric (e.g. --family scripted runs/predictive runs/chase); repeatable",
     )
     p.add_argument("--latency-plot", type=cli.output_path, metavar="FILE.png",
                    help="write S_loc and E_loc against the runs' --latency-frames, one line per policy")
@@ -147,9 +153,38 @@ def check_outputs(args: argparse.Namespace) -> None:
         check_episodes_path(args.episodes)
 
 
+def check_families(specs: Sequence[Sequence[str]], runs: Sequence[str], plot: str | None) -> list[tuple[str, list[int]]]:
+    """``--family NAME RUN...`` as (name, indices into ``runs``), refused in one line unless
+    each RUN is one of ``runs``, in one family only, and --plot is given."""
+    if specs and plot is None:
+        raise DyanaError("--family groups runs on the radar of --plot: give --plot FILE.png too")
+    where = {os.path.normpath(run): k for k, run in enumerate(runs)}
+    taken: dict[int, str] = {}
+    out = []
+    for name, *members in specs:
+        if not members:
+            raise DyanaError(f"--family {shorten(name)}: name the runs it holds after the name")
+        indices = []
+        for run in members:
+            k = where.get(os.path.normpath(run))
+            if k is None:
+                raise DyanaError(f"--family {shorten(name)}: {shorten(run)} is not one of the runs scored")
+            if k in taken:
+                raise DyanaError(f"--family {shorten(name)}: {shorten(run)} is already in family {shorten(taken[k])}")
+            taken[k] = name
+            indices.append(k)
+        out.append((name, indices))
+    return out
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     check_outputs(args)
-    data = load_runs(args.runs)
+    family_specs = check_families(args.family, args.runs, args.plot)
+    data, origin = [], []
+    for k, run in enumerate(args.runs):
+        loaded = load_runs([run])
+        data += loaded
+        origin += [k] * len(loaded)
     note = episodes_note(data)
     if note is not None:
         print(note, file=sys.stderr)
@@ -192,10 +227,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise DyanaError(f"{args.latency_plot}: cannot write: {exc.strerror or exc}") from None
     if args.plot is not None:
-        from scoring.plot import plot_runs
+        from scoring.plot import Family, plot_runs
 
         try:
-            plot_runs(reports, args.plot, paper=args.paper, chance=chance)
+            families = [Family(name, tuple(i for i, k in enumerate(origin) if k in runs)) for name, runs in family_specs]
+        except ValueError as exc:
+            raise DyanaError(f"--family: {exc}") from None
+        try:
+            plot_runs(reports, args.plot, paper=args.paper, chance=chance, families=families)
         except OSError as exc:
             raise DyanaError(f"{args.plot}: cannot write: {exc.strerror or exc}") from None
     return 0

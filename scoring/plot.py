@@ -3,8 +3,11 @@
 * a radar over the paper's seven Table 3 metrics in the style of its Figure 1 (every
   axis normalised to [0, 1], outward is better), each run with its own colour
   (Okabe-Ito, colour-blind safe), line style and marker so that runs lying on top of
-  each other stay distinguishable; with ``paper=True`` the published rows of the
-  paper's Tables 3 and 4 are drawn too, thin and grey-toned;
+  each other stay distinguishable. A *family* (``scoring eval --family``: the scripted
+  baselines, the learned models) is one series: a band from its worst to its best
+  member on each axis and a line at the best, so a radar of many runs stays a few
+  shapes at a column's width; with ``paper=True`` a second radar holds the paper's
+  published rows the same way (its GT, its Table 3 VLAs, its Table 4 VLMs);
 * bars of the three success rates per motion type with their Wilson intervals and a
   legend; a rate of 0 is drawn as a visible stub labelled 0, a group without
   episodes in one run is labelled n/a, a group no run holds is left out.
@@ -29,7 +32,7 @@ import numpy as np  # noqa: E402
 
 from catalog.store.outputs import open_output  # noqa: E402
 from scoring.chance import CHANCE_LABEL, ChanceRow  # noqa: E402
-from scoring.paper import PAPER_ROWS, paper_label  # noqa: E402
+from scoring.paper import PAPER_ROWS  # noqa: E402
 from scoring.registry import Metric, registered, table_metrics  # noqa: E402
 from scoring.report import RunReport  # noqa: E402
 
@@ -48,12 +51,29 @@ FONT_PT = 7
 
 @dataclass(frozen=True)
 class _Series:
+    """One radar series: a run, or a family (``low`` holds its worst member per axis)."""
+
     label: str
     metrics: dict[str, float | None]
     colour: str
     style: str
     marker: str
     width: float
+    low: dict[str, float | None] | None = None
+
+
+@dataclass(frozen=True)
+class Family:
+    """Runs drawn on the radar as one series: ``members`` are indices into the reports."""
+
+    name: str
+    members: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        if not self.name.strip() or len(self.name) > 60:
+            raise ValueError(f"a family's name is 1-60 characters, got {self.name[:80]!r}")
+        if not self.members or len(set(self.members)) != len(self.members):
+            raise ValueError(f"family {self.name!r} needs distinct members, got {self.members!r}")
 
 
 def radar_metrics() -> tuple[Metric, ...]:
@@ -66,22 +86,55 @@ def radar_values(metrics: dict[str, float | None]) -> list[float]:
     return [m.radar_value(metrics.get(m.name)) for m in radar_metrics()]
 
 
-def _series(reports: Sequence[RunReport]) -> list[_Series]:
-    return [
-        _Series(r.label, r.overall.metrics, COLOURS[i % len(COLOURS)], STYLES[i % len(STYLES)],
-                MARKERS[i % len(MARKERS)], 1.6 if i == 0 else 1.1)
-        for i, r in enumerate(reports)
-    ]
+def envelope(members: Sequence[dict[str, float | None]]) -> tuple[dict[str, float | None], dict[str, float | None]]:
+    """A family's (best, worst) per metric, best meaning outward on the radar; a metric no
+    member has stays None (a gap, never a 0)."""
+    best: dict[str, float | None] = {}
+    worst: dict[str, float | None] = {}
+    for metric in radar_metrics():
+        values = [v for m in members if (v := m.get(metric.name)) is not None]
+        if not values:
+            best[metric.name] = worst[metric.name] = None
+            continue
+        ranked = sorted(values, key=lambda v: metric.radar_value(v))
+        worst[metric.name], best[metric.name] = ranked[0], ranked[-1]
+    return best, worst
+
+
+def _family_series(label: str, members: Sequence[dict[str, float | None]], k: int, width: float) -> _Series:
+    best, worst = envelope(members)
+    return _Series(label, best, COLOURS[k % len(COLOURS)], STYLES[k % len(STYLES)], MARKERS[k % len(MARKERS)],
+                   width, low=worst if len(members) > 1 else None)
+
+
+def _series(reports: Sequence[RunReport], families: Sequence[Family] = ()) -> list[_Series]:
+    """One series per family (at its first member's place) and per run in no family."""
+    owner = {i: f for f in families for i in f.members}
+    out: list[_Series] = []
+    for i, report in enumerate(reports):
+        family = owner.get(i)
+        if family is None:
+            out.append(_family_series(report.label, [report.overall.metrics], len(out), 1.6 if i == 0 else 1.1))
+        elif family.members[0] == i:
+            names = ", ".join(reports[j].label for j in family.members)
+            out.append(_family_series(f"{family.name}: {names}", [reports[j].overall.metrics for j in family.members],
+                                      len(out), 1.1))
+    return out
 
 
 def _paper_series() -> list[_Series]:
-    """The paper's published rows, drawn on a radar of their own (beside the runs they would
-    bury: 8 more lines on one radar could not be told apart)."""
-    return [
-        _Series(paper_label(row), row.metrics, PAPER_COLOURS[i % len(PAPER_COLOURS)],
-                STYLES[(i // len(PAPER_COLOURS) + 1) % len(STYLES)], MARKERS[i % len(MARKERS)], 0.9)
-        for i, row in enumerate(PAPER_ROWS)
-    ]
+    """The paper's published rows on a radar of their own (beside the runs they would bury),
+    as three series: its GT, its Table 3 policy models, its Table 4 VLMs."""
+    groups = [("paper GT", [r for r in PAPER_ROWS if r.label == "GT"]),
+              ("paper T3 VLAs", [r for r in PAPER_ROWS if r.table == 3 and r.label != "GT"]),
+              ("paper T4 VLMs", [r for r in PAPER_ROWS if r.table == 4])]
+    out = []
+    for k, (name, rows) in enumerate(groups):
+        label = name if len(rows) == 1 else f"{name} ({len(rows)}: best line, range shaded)"
+        best, worst = envelope([r.metrics for r in rows])
+        out.append(_Series(label, best, PAPER_COLOURS[k % len(PAPER_COLOURS)], STYLES[k % len(STYLES)],
+                           MARKERS[k % len(MARKERS)], 1.0, low=worst if len(rows) > 1 else None))
+    return out
 
 
 def _radar(ax, series: Sequence[_Series], chance: ChanceRow | None = None) -> None:
@@ -93,6 +146,9 @@ def _radar(ax, series: Sequence[_Series], chance: ChanceRow | None = None) -> No
         ax.fill(closed, values + values[:1], color=CHANCE_COLOUR, alpha=0.35, linewidth=0.0, label=CHANCE_LABEL)
     for s in series:
         values = radar_values(s.metrics)
+        if s.low is not None:
+            low = radar_values(s.low)
+            ax.fill_between(closed, low + low[:1], values + values[:1], color=s.colour, alpha=0.18, linewidth=0.0)
         ax.plot(closed, values + values[:1], color=s.colour, linestyle=s.style, linewidth=s.width,
                 marker=s.marker, markersize=3.0, label=s.label)
     ax.set_theta_offset(np.pi / 2.0)
@@ -163,18 +219,29 @@ def _bars(ax, reports: Sequence[RunReport], metric: str, show_groups: bool, chan
     ax.set_axisbelow(True)
 
 
+def _legend_columns(series: Sequence[_Series]) -> int:
+    """Two legend columns, or one when a label (a family lists its members) would not fit half
+    a column's width."""
+    return 1 if max((len(s.label) for s in series), default=0) > 30 else 2
+
+
 def plot_runs(
-    reports: Sequence[RunReport], path: str | os.PathLike[str], paper: bool = False, chance: ChanceRow | None = None
+    reports: Sequence[RunReport], path: str | os.PathLike[str], paper: bool = False, chance: ChanceRow | None = None,
+    families: Sequence[Family] = (),
 ) -> None:
     """Write the radar and the per-motion success bars of ``reports`` to a PNG (atomically),
-    with ``chance`` shaded on the radar and marked on the bars."""
+    with ``chance`` shaded on the radar and marked on the bars and each of ``families`` one
+    series on the radar."""
     if not reports:
         raise ValueError("nothing to plot: no runs")
-    series = _series(reports)
+    if any(i >= len(reports) or i < 0 for f in families for i in f.members):
+        raise ValueError(f"a family's member is not one of the {len(reports)} runs")
+    series = _series(reports, families)
     radars = [(series, chance, "All metrics, outward is better")]
     if paper:
         radars.append((_paper_series(), None, "The paper's published rows (its Unity suite), for scale"))
-    legend_rows = [(len(entries) + (shade is not None) + 1) // 2 for entries, shade, _ in radars]
+    columns = [_legend_columns(entries) for entries, _, _ in radars]
+    legend_rows = [-(-(len(entries) + (shade is not None)) // n) for (entries, shade, _), n in zip(radars, columns)]
     bar_entries = len(reports) + (chance is not None and bool(chance.by_motion))
     bar_rows = -(-bar_entries // min(bar_entries, 3))
     # each radar with its legend under it; under the last, room for the bars' title and legend
@@ -194,7 +261,7 @@ def plot_runs(
             legend_ax = figure.add_subplot(grid[2 * k + 1, 0])
             legend_ax.axis("off")
             handles, labels = radar.get_legend_handles_labels()
-            legend_ax.legend(handles, labels, loc="center", ncol=2, fontsize=FONT_PT - 0.5, frameon=False,
+            legend_ax.legend(handles, labels, loc="center", ncol=columns[k], fontsize=FONT_PT - 0.5, frameon=False,
                              handlelength=2.6, columnspacing=1.0)
         first_bar = 2 * len(radars)
         for k, metric in enumerate(rates):

@@ -368,8 +368,9 @@ def _obstacle_rows(reports: Sequence[RunReport]) -> list[list[str]]:
 
 FAILURE_HEADERS = ("Run", "Group", "Episodes") + FAILURE_CLASSES
 FAILURE_NOTE = (
-    "Failures: one class per episode, the first that holds: success (contact grasp), policy_error, "
-    "obstacle_contact (unless --obstacle-contact report), no_motion (palm moved <= 0.1), grasp_only (localized), "
+    "Failures: one class per episode, the first that holds: success (the grasp held), policy_error, "
+    "obstacle_contact (unless --obstacle-contact report), not_held (a contact grasp the hold test dropped), "
+    "no_motion (palm moved <= 0.1), grasp_only (localized), "
     "timing (within 0.3 of the object's path 1-10 frames early or late), near_miss (within 0.6), "
     "perception_prediction (elsewhere). docs/reference/metrics.md, \"Why did it fail?\"."
 )

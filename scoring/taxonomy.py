@@ -1,30 +1,30 @@
 """Why did it fail? One class per episode, read off its recorded states alone.
 
-An episode succeeds when it grasps with contact (S_grasp_contact: the joint criterion,
-the palm localized and a fingertip on the surface at one frame), the strictest of the
-three successes; every other episode gets exactly one failure class. The first rule
-that holds, in this order, names it (:data:`FAILURE_CLASSES`):
+An episode succeeds when its grasp holds the object (S_hold, the headline: the hold test
+of :mod:`scoring.hold`); every other episode gets exactly one failure class. The first
+rule that holds, in this order, names it (:data:`FAILURE_CLASSES`):
 
-1. ``success``: a contact grasp, status ``ok``, no obstacle touched (unless
+1. ``success``: the grasp held, status ``ok``, no obstacle touched (unless
    ``--obstacle-contact report``).
 2. ``policy_error``: status ``error`` (the policy raised, hung, dropped its connection
    or returned a bad action); the recorded message says which.
-3. ``obstacle_contact``: the hand touched an obstacle (smallest clearance <= 0). The
-   hand is posed kinematically and would pass through boxes, so a touch fails the
-   episode rather than letting it go on as if nothing were there. With
+3. ``obstacle_contact``: the hand touched an obstacle (smallest clearance <= 0). With
    ``--obstacle-contact report`` contact is only a flag (the collision rate, the
    per-episode ``obstacle_contact`` column), not a class.
-4. ``no_motion``: the palm never moved more than :data:`NO_MOTION_DISPLACEMENT` (0.1
+4. ``not_held``: a contact grasp (S_grasp_contact: joints closed, palm localized, a
+   fingertip on the surface at one frame) that the hold test dropped: the hand closed on
+   the object but not around it.
+5. ``no_motion``: the palm never moved more than :data:`NO_MOTION_DISPLACEMENT` (0.1
    units, 1 cm) from its position at the first acting frame (or there is no acting frame).
-5. ``grasp_only``: the palm was localized (S_loc) but no frame had the contact grasp:
+6. ``grasp_only``: the palm was localized (S_loc) but no frame had the contact grasp:
    the hand never closed, or closed away from the object or without touching it.
-6. ``timing``: never localized, but the palm was within the localization tolerance of
+7. ``timing``: never localized, but the palm was within the localization tolerance of
    where the object was (or would be) up to :data:`CROSSING_WINDOW` (10) frames earlier or
    later: the right place at the wrong time (``crossing_offset`` says how early or late).
-7. ``near_miss``: neither, but the palm came within :data:`NEAR_MISS_DISTANCE` (twice the
+8. ``near_miss``: neither, but the palm came within :data:`NEAR_MISS_DISTANCE` (twice the
    tolerance, 0.6) of the object at the same frame: a small aiming error, whether from
    control or prediction (the states cannot tell them apart).
-8. ``perception_prediction``: the palm went where the object never was within the window
+9. ``perception_prediction``: the palm went where the object never was within the window
    (same-frame distance always > 0.6, no crossing within 10 frames): it was aimed at the
    wrong place.
 
@@ -51,7 +51,7 @@ from scoring.metrics import EpisodeMetrics
 
 #: Classes in order of precedence; every episode gets exactly one.
 FAILURE_CLASSES = (
-    "success", "policy_error", "obstacle_contact", "no_motion", "grasp_only", "timing", "near_miss",
+    "success", "policy_error", "obstacle_contact", "not_held", "no_motion", "grasp_only", "timing", "near_miss",
     "perception_prediction",
 )
 #: A palm that never moves farther than this (units) from its first acting position did not move.
@@ -184,10 +184,12 @@ def classify(
     with np.errstate(invalid="ignore"):
         still = ~(np.asarray(displacement, dtype=np.float64) > NO_MOTION_DISPLACEMENT)
         near = per.e_loc <= NEAR_MISS_DISTANCE
+    held = per.contact_grasped if per.t_hold is None else per.t_hold >= 0
     rules = (
         ("policy_error", error),
         ("obstacle_contact", touched),
-        ("success", per.contact_grasped),
+        ("success", held),
+        ("not_held", per.contact_grasped),
         ("no_motion", still),
         ("grasp_only", per.localized),
         ("timing", np.asarray(crossed, dtype=bool)),

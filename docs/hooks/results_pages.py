@@ -35,12 +35,14 @@ class Source:
 TEST_1K = (
     Source("table.md", "closed_loop_results.py", "Scores"),
     Source("radar.png", "closed_loop_results.py", "Radar and per-motion success rates"),
-    Source("latency.png", "scoring eval RUN ... --latency-plot", "S_loc and E_loc against latency (predictive)"),
-    Source("blind_chance.md", "blind_chance.py", "Chance levels: blind reference policies"),
+    Source("record.json", "closed_loop_results.py", "Where the scores come from: commits, dataset version, load"),
+    Source("latency.png", "latency.py", "S_loc and E_loc against latency"),
+    Source("latency.json", "latency.py", "Where the latency figure comes from"),
 )
 TEST_COMPLEX = (
     Source("test_complex_table.md", "closed_loop_results.py", "Scores"),
     Source("test_complex_radar.png", "closed_loop_results.py", "Radar and success by scene"),
+    Source("test_complex_record.json", "closed_loop_results.py", "Where the scores come from: commits, dataset version, load"),
     Source("projectile_strip.png", "frame_strip.py", "projectile-medium episode 1"),
     Source("obstacle_strip.png", "frame_strip.py", "obstacle-medium episode 2"),
     Source("irregular_strip.png", "frame_strip.py", "irregular-medium episode 4"),
@@ -153,25 +155,37 @@ def _flatten(record: object, path: str = "") -> Iterator[tuple[str, object]]:
         yield path, record
 
 
-#: The committed closed-loop runs predate dataset 4.0.0 (benchmarks/closed_loop_results.py --renderer).
-RENDERER_NOTE = (
-    "The runs behind these files were made with dataset 3.0.0's frames (`--renderer full`: they predate "
-    "the window renderer, whose frames differ by 0.09 px a frame); `python benchmarks/closed_loop_results.py "
-    "... --renderer full` reproduces them exactly."
-)
+def provenance_note(root: Path, name: str) -> str:
+    """One sentence on what the runs behind a scores file were made with, from its record
+    (``closed_loop_results.py``'s ``record.json``): dataset versions, commits, resolutions."""
+    path = root / RESULTS / name
+    if not path.exists():
+        return f"`benchmarks/results/{name}` is not written yet: the runs' provenance is unknown."
+    record = json.loads(path.read_text(encoding="utf-8"))
+    runs = record["runs"].values()
+    versions = ", ".join(sorted({str(r["dataset_version"]) for r in runs}))
+    commits = ", ".join(sorted({str(r["commit"])[:7] for r in runs}))
+    pixels = ", ".join(f"{p} px" for p in sorted({int(r["resolution"]) for r in runs}))
+    scored = record["scored"]
+    return (f"Every run behind these scores holds dataset {versions} frames ({pixels}), made at commit(s) {commits}; "
+            f"the table was scored at commit {str(scored['commit'])[:7]} on {scored['date_utc']} UTC "
+            f"(`{name}`, below, has each run's hash, wall time and load).")
+
+
 #: Only test-1k has the LeRobot row.
 LEROBOT_NOTE = (
-    "The LeRobot ACT row (`lerobot-act-...`) is the exception: `benchmarks/lerobot_act.py` trained it and ran it "
-    "in LeRobot's own environment at 96 px with dataset 4.0.0's frames (its record below), on the same episodes; "
+    "The LeRobot ACT row (`lerobot-act-...`) was trained by `benchmarks/lerobot_act.py` with LeRobot's own "
+    "`lerobot-train` and run in LeRobot's environment at 96 px (its training record below), on the same episodes; "
     "`closed_loop_results.py --add-run` scored it with the others."
 )
-#: Why 450 of test-1k's 1,000 episodes, and why the chance table below has another row.
+#: Why 450 of test-1k's 1,000 episodes, and what the chance row is.
 EPISODES_NOTE = (
     "The scores use test-1k's first 450 episodes: 50 in each of its 9 motion x interception cells "
     "(episode i is in cell i mod 9), so every cell weighs the same, and every row is run on those same 450 "
-    "(`closed_loop_results.py --episodes 450`). The chance row in the scores is the best "
-    "blind value on those 450; the chance-levels table further down is `benchmarks/blind_chance.py`'s own "
-    "measurement on episodes 0-199 (the test that no blind policy beats the ground truth), so its numbers differ."
+    "(`closed_loop_results.py --episodes 450`). The one chance row is, per metric, the best of the four blind "
+    "policies (`blind-centre`, `blind-sweep`, `blind-first-seen`, `blind-fitted`) on those 450 episodes. The "
+    "radar draws families, not runs: each family is a band from its worst to its best member, with a line at "
+    "the best; the table has every run."
 )
 
 
@@ -185,7 +199,7 @@ def test_1k_page(root: Path) -> str:
         "`benchmarks/results/` when the site is built; see [metrics](../reference/metrics.md) for "
         "the definitions.",
         "",
-        RENDERER_NOTE + " " + LEROBOT_NOTE,
+        provenance_note(root, "record.json") + " " + LEROBOT_NOTE,
         "",
         EPISODES_NOTE,
         "",
@@ -203,7 +217,7 @@ def test_complex_page(root: Path) -> str:
         "frame strip of each. Generated from the files in `benchmarks/results/` when the site is built; "
         "see [harder scenes](../guides/harder-scenes.md).",
         "",
-        RENDERER_NOTE,
+        provenance_note(root, "test_complex_record.json"),
         "",
     ]
     for source in TEST_COMPLEX:
