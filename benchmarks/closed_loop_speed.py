@@ -23,9 +23,14 @@
   recorded frame), plus the loop's own stages: per-step hand measures (forward kinematics
   and distances), JPEG decoding of what the policy sees, the observation, the policy call
   (the hand-off to its thread), and the rest of each layer: the simulator's reset and step,
-  the recorder, the rollout loop. ``eval_over_build`` = the evaluation's frames per CPU
+  the recorder, the rollout loop; and the physics of dataset 5.0.0: the hand body's
+  pybullet steps (limits, collisions, the wrist reflex) and the hold test the shard's
+  counts run on each closed episode. ``eval_over_build`` = the evaluation's frames per CPU
   second over the build's (``frames_per_cpu_s_vs_build`` of ``still``, without process
-  and cluster start-up).
+  and cluster start-up). ``still`` never closes its hand, so the same episodes are also
+  evaluated with ``oracle`` (``eval_oracle``: every episode closes and is hold-tested);
+  ``physics_share`` is hand body plus hold test over each evaluation's CPU per frame,
+  against ``physics_target`` (0.25).
 
 Prints a summary on stderr and, as the last line, one JSON object. The load average
 (``os.getloadavg``) is recorded before and after: the machine may be shared.
@@ -59,7 +64,11 @@ import numpy as np  # noqa: E402
 SLICE = "test-1k"
 POLICIES = ("still", "predictive")
 #: The closed loop's own stages (beyond a build's) and the functions they time, as the loop calls them.
-LOOP_STAGES = ("hand measures", "JPEG decode", "observation", "policy call", "env step", "recorder", "rollout")
+LOOP_STAGES = ("hand measures", "JPEG decode", "observation", "policy call", "hand body", "hold test", "env step",
+               "recorder", "rollout")
+#: The physics the hand body and the hold test add (issue 38: together <= 25% of a frame's CPU).
+PHYSICS = ("hand body", "hold test")
+PHYSICS_TARGET = 0.25
 LOOP_HOOKS = (
     ("episode stage", "pipeline.loop.wrappers", "assemble_frames"),  # the recording's frames
     ("episode stage", "pipeline.loop.env", "object_pose"),  # the object's motion, at reset
@@ -70,6 +79,10 @@ LOOP_HOOKS = (
     ("JPEG decode", "pipeline.loop.env", "decode_jpeg"),
     ("observation", "pipeline.loop.env:DyanaEnv", "_observation"),
     ("policy call", "pipeline.loop.rollout", "call_policy"),
+    ("hand body", "generators.hand_body:HandBody", "__init__"),  # pybullet: limits, collisions, the wrist
+    ("hand body", "generators.hand_body:HandBody", "reset"),
+    ("hand body", "generators.hand_body:HandBody", "step"),
+    ("hold test", "scoring.hold", "hold_frames"),  # the shard's counts score S_hold in the worker
     # the rest of each layer, exclusive of the stages above: the simulator's reset/step/frame,
     # the recorder and the protocol wrappers, the rollout loop
     ("env step", "pipeline.loop.env:DyanaEnv", "reset"),
@@ -208,7 +221,7 @@ def stage_profile(episodes: int, resolution: int, tmp: Path) -> dict:
              summary=False)
     close_renderers()
     result: dict = {}
-    for name in ("build", "eval"):
+    for name in ("build", "eval", "eval_oracle"):
         clock = StageClock(stages)
         with hooked(clock, hooks):
             cpu = time.process_time()
@@ -216,7 +229,8 @@ def stage_profile(episodes: int, resolution: int, tmp: Path) -> dict:
                 manifest = build(None, tmp / "profile-build", specs_path=str(specs), workers=0, resolution=resolution,
                                  progress=False)
             else:
-                manifest = evaluate("still", SLICE, tmp / "profile-eval", episodes=episodes, workers=0,
+                policy = "oracle" if name == "eval_oracle" else "still"
+                manifest = evaluate(policy, SLICE, tmp / f"profile-{name}", episodes=episodes, workers=0,
                                     resolution=resolution, progress=False, summary=False)
             cpu = time.process_time() - cpu
         ms = {stage: 1000.0 * clock.totals[stage] / manifest.frames for stage in stages}
@@ -225,18 +239,27 @@ def stage_profile(episodes: int, resolution: int, tmp: Path) -> dict:
                         "frames_per_cpu_s": round(manifest.frames / cpu, 1),
                         "ms_per_frame": {stage: round(v, 3) for stage, v in ms.items()}, "hash": manifest.hash}
     result["eval_over_build"] = round(result["eval"]["frames_per_cpu_s"] / result["build"]["frames_per_cpu_s"], 3)
+    result["physics_share"] = {name: round(sum(result[name]["ms_per_frame"][s] for s in PHYSICS)
+                                           / sum(result[name]["ms_per_frame"].values()), 3)
+                               for name in ("eval", "eval_oracle")}
+    result["physics_target"] = PHYSICS_TARGET
     return result
 
 
 def profile_lines(profile: dict) -> list[str]:
     build, ev = profile["build"]["ms_per_frame"], profile["eval"]["ms_per_frame"]
+    oracle = profile["eval_oracle"]["ms_per_frame"]
     lines = [f"stage profile, in process, CPU ms per recorded frame ({profile['build']['frames']} built, "
-             f"{profile['eval']['frames']} evaluated frames):", f"{'stage':<16} {'build':>8} {'eval':>8} {'eval-build':>11}"]
+             f"{profile['eval']['frames']} evaluated by still, {profile['eval_oracle']['frames']} by oracle):",
+             f"{'stage':<16} {'build':>8} {'still':>8} {'still-build':>11} {'oracle':>8}"]
     for stage in build:
-        lines.append(f"{stage:<16} {build[stage]:8.3f} {ev[stage]:8.3f} {ev[stage] - build[stage]:+11.3f}")
-    total_b, total_e = sum(build.values()), sum(ev.values())
-    lines.append(f"{'total':<16} {total_b:8.3f} {total_e:8.3f} {total_e - total_b:+11.3f}")
-    lines.append(f"eval still / build, frames per CPU second: {profile['eval_over_build']:.3f} (target >= 0.9)")
+        lines.append(f"{stage:<16} {build[stage]:8.3f} {ev[stage]:8.3f} {ev[stage] - build[stage]:+11.3f} {oracle[stage]:8.3f}")
+    total_b, total_e, total_o = sum(build.values()), sum(ev.values()), sum(oracle.values())
+    lines.append(f"{'total':<16} {total_b:8.3f} {total_e:8.3f} {total_e - total_b:+11.3f} {total_o:8.3f}")
+    lines.append(f"eval still / build, frames per CPU second: {profile['eval_over_build']:.3f}")
+    shares = profile["physics_share"]
+    lines.append(f"hand body + hold test, share of a frame's CPU: still {shares['eval']:.3f}, oracle "
+                 f"{shares['eval_oracle']:.3f} (target <= {profile['physics_target']})")
     return lines
 
 

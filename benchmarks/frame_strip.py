@@ -3,6 +3,8 @@ ground truth (the start, the middle and end of the observe window, halfway to ar
 arrival, the last frame), each labelled with its frame index and phase, and the
 object's path so far drawn over it; for a flying object also its ground track (the path
 dropped onto the table, dotted grey), so its height reads as the gap between the two.
+Beside the PNG, ``<out>.json`` records the episode, the frames drawn, the commit, the
+dataset version and the load (the results pages quote it).
 
     python benchmarks/frame_strip.py --slice irregular-medium --episode 4 --out benchmarks/results/irregular_strip.png
 """
@@ -10,6 +12,8 @@ dropped onto the table, dotted grey), so its height reads as the gap between the
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
 
 import bench_setup  # noqa: F401  (first: fixes sys.path)
@@ -59,6 +63,10 @@ def main(argv: list[str] | None = None) -> int:
                     fontsize=6.5, y=0.99)
     figure.subplots_adjust(left=0.01, right=0.99, top=0.8, bottom=0.01, wspace=0.04)
     figure.savefig(args.out, metadata={"Software": None})
+    record = {"benchmark": "frame_strip", "slice": args.slice, "episode": args.episode, "episode_id": spec.episode_id,
+              "resolution": args.resolution, "frames": picks, **bench_setup.provenance()}
+    with open(os.path.splitext(args.out)[0] + ".json", "w") as handle:
+        handle.write(json.dumps(record, indent=1) + "\n")
     print(f"{args.out}: frames {picks} of {spec.episode_id}")
     return 0
 

@@ -43,18 +43,17 @@ def _build_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
-    from pipeline.jobs.build import run_build
-
     if args.slice is None and args.specs is None:
         raise DyanaError("pipeline build needs --slice NAME or --specs FILE.jsonl")
     names = [args.slice]
     if args.specs is None:
         from schemas.slices import get_slice
 
-        definition = get_slice(args.slice)
+        definition = get_slice(args.slice)  # a bad name is refused before the build's imports
         if definition.union:
             names = list(definition.parts)
             print(f"{args.slice} is built as its {len(names)} parts: {', '.join(names)}", file=sys.stderr)
+    from pipeline.jobs.build import run_build
     for name in names:
         result = run_build(job_flags.job_spec_of(args, name))
         manifest = result.manifest
@@ -124,11 +123,14 @@ def _policy_config(args: argparse.Namespace) -> dict | None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from schemas.slices import get_slice
+
+    config = _policy_config(args)
+    get_slice(args.slice)  # a bad name is refused before the loop's imports
     from pipeline.jobs.evaluate import Report, run_eval
     from pipeline.jobs.repeats import run_repeats
     from pipeline.jobs.spec import PolicyChoice
 
-    config = _policy_config(args)
     _importable_cwd(args.policy)
     policy = PolicyChoice(args.policy, config, not args.in_process, args.deadline, job_flags.protocol_of(args))
     spec = job_flags.job_spec_of(args, args.slice, policy)

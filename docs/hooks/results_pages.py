@@ -30,22 +30,24 @@ class Source:
     name: str
     script: str
     title: str
+    #: For a figure: the JSON file beside it that records its commit, dataset version and load.
+    record: str | None = None
 
 
 TEST_1K = (
     Source("table.md", "closed_loop_results.py", "Scores"),
-    Source("radar.png", "closed_loop_results.py", "Radar and per-motion success rates"),
+    Source("radar.png", "closed_loop_results.py", "Radar and per-motion success rates", "record.json"),
     Source("record.json", "closed_loop_results.py", "Where the scores come from: commits, dataset version, load"),
-    Source("latency.png", "latency.py", "S_loc and E_loc against latency"),
+    Source("latency.png", "latency.py", "S_loc and E_loc against latency", "latency.json"),
     Source("latency.json", "latency.py", "Where the latency figure comes from"),
 )
 TEST_COMPLEX = (
     Source("test_complex_table.md", "closed_loop_results.py", "Scores"),
-    Source("test_complex_radar.png", "closed_loop_results.py", "Radar and success by scene"),
+    Source("test_complex_radar.png", "closed_loop_results.py", "Radar and success by scene", "test_complex_record.json"),
     Source("test_complex_record.json", "closed_loop_results.py", "Where the scores come from: commits, dataset version, load"),
-    Source("projectile_strip.png", "frame_strip.py", "projectile-medium episode 1"),
-    Source("obstacle_strip.png", "frame_strip.py", "obstacle-medium episode 2"),
-    Source("irregular_strip.png", "frame_strip.py", "irregular-medium episode 4"),
+    Source("projectile_strip.png", "frame_strip.py", "projectile-medium episode 1", "projectile_strip.json"),
+    Source("obstacle_strip.png", "frame_strip.py", "obstacle-medium episode 2", "obstacle_strip.json"),
+    Source("irregular_strip.png", "frame_strip.py", "irregular-medium episode 4", "irregular_strip.json"),
 )
 BASELINE = Source("chunk_cnn/config.json", "train_chunk_cnn.py", "Training record of chunk_cnn")
 LEROBOT = Source("lerobot_act/record.json", "lerobot_act.py", "Training record of the LeRobot ACT")
@@ -128,7 +130,7 @@ def _section(root: Path, source: Source, files: str) -> list[str]:
                         f"`benchmarks/results/{source.name}`.", ""]
     lines += [_source_line(root, source, files), ""]
     if path.suffix == ".png":
-        return lines + [f"![{source.title}]({files}/{source.name})", ""]
+        return lines + [figure_provenance(root, source), "", f"![{source.title}]({files}/{source.name})", ""]
     text = path.read_text(encoding="utf-8")
     if path.suffix == ".md":  # its first heading is this section's
         return lines + [_demote(re.sub(r"\A## [^\n]*\n", "", text.lstrip())).strip(), ""]
@@ -138,6 +140,30 @@ def _section(root: Path, source: Source, files: str) -> list[str]:
     records = len(json_records(text))
     also = f" Its {records} JSON record(s), every figure at full precision, are in the file." if records else ""
     return lines + [load_note(text) + also, "", "```text", shown, "```", ""]
+
+
+def _provenance(record: object) -> dict | None:
+    """The first object in a result record that names a commit and a dataset version."""
+    if isinstance(record, dict):
+        if "commit" in record and "dataset_version" in record:
+            return record
+        for value in record.values():
+            found = _provenance(value)
+            if found is not None:
+                return found
+    return None
+
+
+def figure_provenance(root: Path, source: Source) -> str:
+    """One sentence on where a figure comes from: its record's commit, dataset version and load."""
+    path = None if source.record is None else root / RESULTS / source.record
+    if path is None or not path.exists():
+        return "No record of this figure's commit, dataset version or load is kept beside it."
+    record = json.loads(path.read_text(encoding="utf-8"))
+    found = _provenance(record) or {}
+    loads = [f"{value}" for _, value in load_values(record)]
+    return (f"Made at commit {str(found.get('commit'))[:7]}, dataset {found.get('dataset_version')} "
+            f"(`benchmarks/results/{source.record}`; load average {'; '.join(loads) or 'not recorded'}).")
 
 
 def _json_section(text: str) -> list[str]:
