@@ -53,6 +53,14 @@ ACT_OPTIONS = (
 LOSS = re.compile(r"step:\S+ .*?loss:([\d.]+)")
 
 
+def eval_record(run: Path, command: list[str], episodes: int) -> dict:
+    """The evaluation's part of the record: its command, and from the run's catalog its hash,
+    the commit that made it and its dataset version."""
+    manifest = json.loads((run / "catalog.json").read_text())
+    return {"command": command, "episodes": episodes, "hash": manifest["hash"], "commit": manifest["code"]["commit"],
+            "dataset_version": manifest["settings"]["dataset_version"]}
+
+
 def logged_losses(log: Path) -> list[tuple[int, float]]:
     """(step, loss) of every log line of a lerobot-train run: one line every LOG_FREQ steps."""
     return [(LOG_FREQ * (i + 1), float(loss)) for i, loss in enumerate(LOSS.findall(log.read_text()))]
@@ -130,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
                  "resolution": args.resolution,
                  "frames": sum(load_manifest(work / "train9" / n).frames for n in ATOMIC_SLICES)},
         "training": training | {"logged_losses": logged_losses(work / "train.log")},
-        "eval": {"command": evaluate[1:], "episodes": args.eval_episodes, "hash": load_manifest(runs).hash},
+        "eval": eval_record(runs, evaluate[1:], args.eval_episodes),
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -249,7 +249,7 @@ def plot_runs(
     heights: list[float] = []
     for k, rows in enumerate(legend_rows):
         heights += [3.0, 0.2 * rows + 0.15 + (0.45 if k < len(legend_rows) - 1 else 0.0)]  # room for the next title
-    heights[-1] += 0.12 * bar_rows
+    heights[-1] += 0.12 * bar_rows + 0.3  # the bars' title and legend sit above their first axes
     heights += [1.05] * len(rates)
     figure = plt.figure(figsize=(COLUMN_WIDTH_IN, sum(heights) + 0.5), dpi=300)
     try:
