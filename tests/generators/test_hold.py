@@ -71,11 +71,22 @@ def test_a_hand_that_starts_inside_the_object_holds_nothing():
 
 
 def test_same_inputs_same_bytes_whatever_ran_before():
+    hold.MEMO.clear()
     a = hold_test(*_grip("baseball"))
     b = hold_test(*_grip("soda_can", offset=(0.0, 0.0, 0.0)))
+    hold.MEMO.clear()  # simulated again, after another object's test, not remembered
     again = hold_test(*_grip("baseball"))
-    assert a == again and a != b
+    assert a == again and a != b and again is not a
     assert np.float64(a.slip).tobytes() == np.float64(again.slip).tobytes()
+
+
+def test_a_test_run_again_on_the_same_inputs_is_remembered_not_simulated(monkeypatch):
+    """Scoring a run again (another reading, a chance row) must not pay the physics twice."""
+    first = hold_test(*_grip("orange"))
+    monkeypatch.setattr(hold.p, "stepSimulation", lambda **kw: (_ for _ in ()).throw(AssertionError("simulated")))
+    assert hold_test(*_grip("orange")) is first
+    with pytest.raises(AssertionError, match="simulated"):
+        hold_test(*_grip("orange", offset=(0.21, -0.23, -0.3)))  # another input is simulated
 
 
 def test_another_process_gives_the_same_bytes():
