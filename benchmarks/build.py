@@ -47,6 +47,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
 import cv2
 import numpy as np
 import pyarrow.parquet as pq
@@ -365,6 +366,7 @@ def main(argv: list[str] | None = None) -> int:
         "resolution": args.resolution,
         "slice": args.slice,
         "load_average_end": [round(v, 2) for v in os.getloadavg()],
+        **{k: v for k, v in bench_setup.provenance().items() if k != "load_average"},
     })
     if profile.missing:
         print(f"stages not found (not timed): {', '.join(profile.missing)}", file=sys.stderr, flush=True)

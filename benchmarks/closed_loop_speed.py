@@ -205,7 +205,6 @@ def stage_profile(episodes: int, resolution: int, tmp: Path) -> dict:
     """CPU ms per recorded frame by stage of an in-process build of the first ``episodes``
     test-1k specs and of ``still``'s evaluation of them (see the module docstring)."""
     from build import HOOKS, STAGES, Hook, StageClock, close_renderers, hooked
-
     from generators.recipe import spec_for
     from pipeline.jobs.build import build
     from pipeline.jobs.evaluate import evaluate
@@ -305,6 +304,7 @@ def main(argv: list[str] | None = None) -> dict:
                   f"the build's frames per CPU second)", file=sys.stderr)
         result.update(rates, workers=args.workers)
     result["load_average_end"] = load_average()
+    result.update({k: v for k, v in bench_setup.provenance().items() if k != "load_average"})
     print(json.dumps(result))
     return result
 

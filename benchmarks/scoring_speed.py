@@ -9,7 +9,8 @@ times, best of ``--repeats``:
 - baseline: pyarrow reading the very columns scoring needs from every shard, at the
   paths the manifest records (no checks);
 - scoring: ``load_run`` (the reader's checks included) + ``score_run`` + ``report_dict``
-  in this process: everything ``scoring eval RUN --json`` does but start and print;
+  in this process: everything ``scoring eval RUN --json`` does but start and print, the
+  hold test of every closed episode included (its memory of earlier calls cleared);
 - command: ``scoring eval RUN --json`` as a fresh process, start-up and imports included.
 
 Prints a summary, then one JSON line ``{"episodes", "frames", "shards", "seconds",
@@ -37,7 +38,8 @@ from catalog.store.hashing import sha256_file  # noqa: E402
 from catalog.store.manifest import CodeInfo, Manifest, load_manifest, write_manifest  # noqa: E402
 from catalog.store.records import FileRecord, ShardRecord, shard_paths  # noqa: E402
 from catalog.tables.parquet_io import write_table  # noqa: E402
-from schemas.objects import OBJECTS  # noqa: E402
+from generators import hold  # noqa: E402
+from generators.recipe import spec_for  # noqa: E402
 from schemas.scene import INTERCEPT_SECONDS, MOTION_TYPES  # noqa: E402
 from schemas.tables import ARRAY_WIDTHS, FRAMES_SCHEMA, ROLLOUT_EPISODES_SCHEMA  # noqa: E402
 from schemas.versions import DATASET_VERSION  # noqa: E402
@@ -96,6 +98,7 @@ def _shard_tables(rng: np.random.Generator, first: int, end: int, frames: int, i
     frames_table = pa.Table.from_arrays([columns[f.name] for f in FRAMES_SCHEMA], schema=FRAMES_SCHEMA)
 
     index = np.arange(first, end)
+    specs = [spec_for("test-1k", int(i)) for i in index]  # real specs: S_hold's hold test reads them
     status = np.where(rng.random(n) < 0.02, "error", "ok")
     values = {
         "episode_index": index,
@@ -103,10 +106,10 @@ def _shard_tables(rng: np.random.Generator, first: int, end: int, frames: int, i
         "slice": ["test-1k"] * n,
         "motion_type": [MOTION_TYPES[i % 3] for i in index],
         "tokens": ["[]"] * n,
-        "object": [list(OBJECTS)[i % len(OBJECTS)] for i in index],
-        "object_size": np.ones(n, np.float32),
+        "object": [spec.object for spec in specs],
+        "object_size": np.array([spec.object_size for spec in specs], np.float32),
         "rolling": [False] * n,
-        "hand": ["right"] * n,
+        "hand": [spec.hand for spec in specs],
         "rollout_format": ["observe-before-act"] * n,
         "intercept_setting": [list(INTERCEPT_SECONDS)[(i // 3) % 3] for i in index],
         "intercept_time_s": np.full(n, 1.0, np.float32),
@@ -116,7 +119,7 @@ def _shard_tables(rng: np.random.Generator, first: int, end: int, frames: int, i
         "seed": np.full(n, 1),
         "spec_hash": ["0" * 64] * n,
         "text": [""] * n,
-        "spec": ["{}"] * n,
+        "spec": [spec.to_json() for spec in specs],
         "policy": ["synthetic"] * n,
         "privileged": [False] * n,
         "status": status.tolist(),
@@ -159,6 +162,9 @@ def read_baseline(folder: Path) -> int:
 
 
 def score(folder: Path) -> dict:
+    """Score a run as a fresh ``scoring eval`` would: the hold tests this process remembers
+    (:data:`generators.hold.MEMO`) are forgotten first, so each call pays its physics."""
+    hold.MEMO.clear()
     return report_dict(score_run(load_run(folder)))
 
 

@@ -135,6 +135,7 @@ def main(argv: list[str] | None = None) -> dict:
           f"p95 {c['cpu_p95_s']:.3f} s; wall median {c['wall_median_s']:.3f} s, p95 {c['wall_p95_s']:.3f} s "
           f"(limit {FIRST_ACT_LIMIT_S:g} s)", file=sys.stderr)
     result["load_average_end"] = closed_loop_speed.load_average()
+    result.update({k: v for k, v in bench_setup.provenance().items() if k != "load_average"})
     print(json.dumps(result))
     return result
 
