@@ -138,15 +138,20 @@ def wrist_clear_heights(palm: np.ndarray, heading: np.ndarray, category: str, si
                        np.broadcast_to(local[:, 1], (len(c), len(local))),
                        -s[:, None] * local[:, 0] + c[:, None] * local[:, 2]], axis=-1)  # (n, k, 3)
 
-    def clear(y: np.ndarray) -> np.ndarray:
-        centre = np.column_stack([palm[:, 0], y, palm[:, 2]])
-        return signed_distance(centre[:, None] + offset, category, size, object_poses).min(axis=1) >= WRIST_MARGIN
+    poses = np.asarray(object_poses, dtype=np.float64)
+
+    def clear(y: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        centre = np.column_stack([palm[rows, 0], y, palm[rows, 2]])
+        return signed_distance(centre[:, None] + offset[rows], category, size, poses[rows]).min(axis=1) >= WRIST_MARGIN
 
     floor = palm[:, 1]
-    ok = clear(floor)
-    low, high = floor.copy(), floor + WRIST_MAX_LIFT
-    for _ in range(12):
+    every = np.arange(len(floor))
+    out = floor.copy()
+    rows = every[~clear(floor, every)]  # only the frames whose wrist enters the object are raised
+    low, high = floor[rows].copy(), floor[rows] + WRIST_MAX_LIFT
+    for _ in range(12 if len(rows) else 0):
         mid = 0.5 * (low + high)
-        fine = clear(mid)
+        fine = clear(mid, rows)
         high, low = np.where(fine, mid, high), np.where(fine, low, mid)
-    return np.where(ok, floor, high)
+    out[rows] = high
+    return out
