@@ -4,7 +4,9 @@
   for every frame of the same episodes at the same resolution, in this process (one core).
 - ``build_fps``: ``pipeline build`` end to end (episode stage, render, JPEG, Parquet +
   MCAP, manifest) with one worker, frames over wall time including cluster start-up.
-- ``ratio`` = build_fps / naive_render_fps; ``workers_2_speedup`` = the 2-worker build's
+- ``ratio`` = build_fps / naive_render_fps (wall, cluster start-up included);
+  ``ratio_per_cpu_s`` = the profiled build's frames per CPU second / naive_render_fps
+  (issue 38's measure, robust to other load); ``workers_2_speedup`` = the 2-worker build's
   frames/s over the 1-worker build's.
 - ``profile_ms_per_frame``: one more real build of the same episodes, in this process
   (``workers=0``: the same shard task a worker runs, then the driver's statistics and
@@ -347,6 +349,9 @@ def main(argv: list[str] | None = None) -> int:
             "naive_render_fps": round(naive, 1),
             "build_fps": round(one, 1),
             "ratio": round(one / naive, 3),
+            # issue 38's measure: the build's frames per CPU second (the profiled build) over the
+            # naive render's (in process, one core: its wall time is its CPU time)
+            "ratio_per_cpu_s": round(per_cpu_s / naive, 3),
             "workers_2_speedup": round(two / one, 3),
             "build_fps_2_workers": round(two, 1),
             "build_fraction_of_jpeg": round(one / profile.jpeg_only_fps, 3),
