@@ -205,6 +205,7 @@ def stage_profile(episodes: int, resolution: int, tmp: Path) -> dict:
     """CPU ms per recorded frame by stage of an in-process build of the first ``episodes``
     test-1k specs and of ``still``'s evaluation of them (see the module docstring)."""
     from build import HOOKS, STAGES, Hook, StageClock, close_renderers, hooked
+
     from generators.recipe import spec_for
     from pipeline.jobs.build import build
     from pipeline.jobs.evaluate import evaluate
