@@ -222,7 +222,11 @@ class HandBody:
                 before.append(self.depths(self.palm, self.joints, object_pose, heading=self.heading)[1])
             return inside <= before[0]
 
-        if not allowed(1.0):
+        # A hand that stays where it is moves into nothing: a refused move would keep the state
+        # too (x + 0.0 is x bit for bit but for x = -0.0, so a state holding -0.0 is checked).
+        still = (palm.tobytes() == self.palm.tobytes() and joints.tobytes() == self.joints.tobytes()
+                 and not np.signbit(palm[palm == 0.0]).any() and not np.signbit(joints[joints == 0.0]).any())
+        if not still and not allowed(1.0):
             low, high = 0.0, 1.0
             for _ in range(BISECTIONS):
                 mid = 0.5 * (low + high)
