@@ -68,6 +68,23 @@ def write_table(result: dict, json_path: str) -> None:
         handle.write("\n".join(lines))
 
 
+def run_policies(episodes: int, resolution: int, start: float) -> dict:
+    """The blind policies' and the oracle's rollouts of test-1k episodes ``0..episodes-1``."""
+    specs = [spec_for("test-1k", i) for i in range(episodes)]
+    env = loop_env(resolution)
+    data = {}
+    try:
+        for name in BLIND + ("oracle",):
+            policy = make_policy(name)
+            results = [run_episode(env, policy, spec) for spec in specs]
+            errors = [r.error or None if not r.ok else None for r in results]
+            data[name] = from_recordings(name, "test-1k", specs, [r.frames for r in results], policy=name, errors=errors)
+            print(f"{name}: {time.perf_counter() - start:.0f} s", flush=True)
+    finally:
+        env.close()
+    return data
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=200)
@@ -89,17 +106,8 @@ def main() -> None:
         args.episodes = len(data["oracle"].episode_id)
         with open(os.path.join(args.runs, "oracle", "catalog.json")) as handle:
             args.resolution = json.load(handle)["settings"]["resolution"]
-    specs = [spec_for("test-1k", i) for i in range(0 if args.runs else args.episodes)]
-    env = loop_env(args.resolution)
-    try:
-        for name in () if args.runs else BLIND + ("oracle",):
-            policy = make_policy(name)
-            results = [run_episode(env, policy, spec) for spec in specs]
-            errors = [r.error or None if not r.ok else None for r in results]
-            data[name] = from_recordings(name, "test-1k", specs, [r.frames for r in results], policy=name, errors=errors)
-            print(f"{name}: {time.perf_counter() - start:.0f} s", flush=True)
-    finally:
-        env.close()
+    else:
+        data = run_policies(args.episodes, args.resolution, start)
     scores: dict = {}
     chance: dict = {}
     for reading in READINGS:

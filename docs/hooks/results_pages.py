@@ -130,7 +130,7 @@ def _section(root: Path, source: Source, files: str) -> list[str]:
                         f"`benchmarks/results/{source.name}`.", ""]
     lines += [_source_line(root, source, files), ""]
     if path.suffix == ".png":
-        return lines + [figure_provenance(root, source), "", f"![{source.title}]({files}/{source.name})", ""]
+        return lines + [figurerecord_provenance(root, source), "", f"![{source.title}]({files}/{source.name})", ""]
     text = path.read_text(encoding="utf-8")
     if path.suffix == ".md":  # its first heading is this section's
         return lines + [_demote(re.sub(r"\A## [^\n]*\n", "", text.lstrip())).strip(), ""]
@@ -142,25 +142,25 @@ def _section(root: Path, source: Source, files: str) -> list[str]:
     return lines + [load_note(text) + also, "", "```text", shown, "```", ""]
 
 
-def _provenance(record: object) -> dict | None:
+def record_provenance(record: object) -> dict | None:
     """The first object in a result record that names a commit and a dataset version."""
     if isinstance(record, dict):
         if "commit" in record and "dataset_version" in record:
             return record
         for value in record.values():
-            found = _provenance(value)
+            found = record_provenance(value)
             if found is not None:
                 return found
     return None
 
 
-def figure_provenance(root: Path, source: Source) -> str:
+def figurerecord_provenance(root: Path, source: Source) -> str:
     """One sentence on where a figure comes from: its record's commit, dataset version and load."""
     path = None if source.record is None else root / RESULTS / source.record
     if path is None or not path.exists():
         return "No record of this figure's commit, dataset version or load is kept beside it."
     record = json.loads(path.read_text(encoding="utf-8"))
-    found = _provenance(record) or {}
+    found = record_provenance(record) or {}
     loads = [f"{value}" for _, value in load_values(record)]
     return (f"Made at commit {str(found.get('commit'))[:7]}, dataset {found.get('dataset_version')} "
             f"(`benchmarks/results/{source.record}`; load average {'; '.join(loads) or 'not recorded'}).")

@@ -33,7 +33,7 @@ def test_every_figure_on_the_results_pages_names_a_record_of_todays_version() ->
         if source.name.endswith(".png"):
             assert source.record is not None, f"{source.name}: a figure needs the record of its commit and load"
             record = json.loads((RESULTS / source.record).read_text(encoding="utf-8"))
-            found = results_pages._provenance(record)
+            found = results_pages.record_provenance(record)
             assert found is not None and found["dataset_version"] == DATASET_VERSION, source.record
             assert list(results_pages.load_values(record)), f"{source.record} records no load"
 

@@ -147,3 +147,12 @@ def write_run(
     manifest = Manifest.create("test", 1, settings, shards, code=CodeInfo("0.1.0", None), extra=extra)
     write_manifest(folder, manifest)
     return folder
+
+
+def png_size(path) -> tuple[int, int]:
+    """(width, height) of a PNG file, from its header."""
+    import struct
+
+    header = path.read_bytes()[:24]
+    assert header[:8] == b"\x89PNG\r\n\x1a\n"
+    return struct.unpack(">II", header[16:24])

@@ -12,7 +12,7 @@ import pytest
 from scoring.cli import main
 from scoring.io import load_run
 from tests.pipeline.tamper import rehash
-from tests.scoring.rollouts import CLOSED, Ep, write_run
+from tests.scoring.rollouts import CLOSED, Ep, png_size, write_run
 
 OPEN = np.zeros(15, np.float32)
 
@@ -273,12 +273,6 @@ def test_plot_of_runs_at_100_and_0_percent(tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def _png_size(path) -> tuple[int, int]:
-    import struct
-
-    header = path.read_bytes()[:24]
-    assert header[:8] == b"\x89PNG\r\n\x1a\n"
-    return struct.unpack(">II", header[16:24])
 
 
 def test_the_plot_is_a_column_wide_figure_with_the_papers_rows_on_request(tmp_path, capsys, run):
@@ -287,10 +281,10 @@ def test_the_plot_is_a_column_wide_figure_with_the_papers_rows_on_request(tmp_pa
     code, out, err = run_main(capsys, "eval", str(run), "--plot", str(with_paper), "--paper")
     assert code == 0, err
     for path in (plain, with_paper):
-        width, height = _png_size(path)
+        width, height = png_size(path)
         assert 900 <= width <= 1200, "3.5 in at 300 dpi: a paper's column"
         assert height > width
-    assert _png_size(with_paper)[1] > _png_size(plain)[1], "the paper's rows add legend entries"
+    assert png_size(with_paper)[1] > png_size(plain)[1], "the paper's rows add legend entries"
     assert "paper T3: GR00T-N1.5 (2.7B)" in out and "22.04" in out and "paper T4: GPT-4o" in out
     assert "paper T3" not in run_main(capsys, "eval", str(run))[1]
 

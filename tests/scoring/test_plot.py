@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from scoring.cli import main
 from scoring.plot import envelope
-from tests.scoring.rollouts import Ep, write_run
-from tests.scoring.test_cli import GOOD, MISS, _png_size
+from tests.scoring.rollouts import Ep, png_size, write_run
+from tests.scoring.test_cli import GOOD, MISS
 
 
 def test_a_familys_envelope_is_its_best_and_worst_member_per_axis_outward_better():
@@ -21,7 +21,7 @@ def test_families_shorten_the_legend_and_bad_ones_are_refused_in_one_line(tmp_pa
     assert main(["eval", *map(str, runs), "--plot", str(plain)]) == 0
     assert main(["eval", *map(str, runs), "--plot", str(grouped), "--family", "scripted", str(runs[0]), str(runs[1])]) == 0
     capsys.readouterr()
-    assert all(900 <= _png_size(path)[0] <= 1200 for path in (plain, grouped)), "3.5 in at 300 dpi"
+    assert all(900 <= png_size(path)[0] <= 1200 for path in (plain, grouped)), "3.5 in at 300 dpi"
     assert grouped.read_bytes() != plain.read_bytes()
 
     bad = [
