@@ -30,7 +30,11 @@
   and cluster start-up). ``still`` never closes its hand, so the same episodes are also
   evaluated with ``oracle`` (``eval_oracle``: every episode closes and is hold-tested);
   ``physics_share`` is hand body plus hold test over each evaluation's CPU per frame,
-  against ``physics_target`` (0.25).
+  against ``physics_target`` (0.25). The profile runs ``--profile-repeats`` times (default
+  3), each in a fresh process so that no cache of an earlier run (the hold test's memory,
+  the ground truth's) carries over: each stage is the median over the repeats,
+  ``physics_share`` the median of the repeats' shares (each in ``physics_share_repeats``),
+  and the repeats must write the same bytes.
 
 Prints a summary on stderr and, as the last line, one JSON object. The load average
 (``os.getloadavg``) is recorded before and after: the machine may be shared.
@@ -68,6 +72,8 @@ LOOP_STAGES = ("hand measures", "JPEG decode", "observation", "policy call", "ha
                "recorder", "rollout")
 #: The physics the hand body and the hold test add (issue 38: together <= 25% of a frame's CPU).
 PHYSICS = ("hand body", "hold test")
+#: What the profile runs: the build, then still's and oracle's evaluations of the same episodes.
+PROFILED = ("build", "eval", "eval_oracle")
 PHYSICS_TARGET = 0.25
 LOOP_HOOKS = (
     ("episode stage", "pipeline.loop.wrappers", "assemble_frames"),  # the recording's frames
@@ -203,7 +209,7 @@ def throughput(episodes: int, resolution: int, workers: int, tmp: Path) -> dict:
 
 def stage_profile(episodes: int, resolution: int, tmp: Path) -> dict:
     """CPU ms per recorded frame by stage of an in-process build of the first ``episodes``
-    test-1k specs and of ``still``'s evaluation of them (see the module docstring)."""
+    test-1k specs and of ``still``'s and ``oracle``'s evaluations of them (module docstring)."""
     from build import HOOKS, STAGES, Hook, StageClock, close_renderers, hooked
 
     from generators.recipe import spec_for
@@ -235,13 +241,37 @@ def stage_profile(episodes: int, resolution: int, tmp: Path) -> dict:
             cpu = time.process_time() - cpu
         ms = {stage: 1000.0 * clock.totals[stage] / manifest.frames for stage in stages}
         ms["other"] = 1000.0 * (cpu - sum(clock.totals.values())) / manifest.frames
-        result[name] = {"frames": manifest.frames, "cpu_seconds": round(cpu, 3),
-                        "frames_per_cpu_s": round(manifest.frames / cpu, 1),
-                        "ms_per_frame": {stage: round(v, 3) for stage, v in ms.items()}, "hash": manifest.hash}
+        result[name] = {"frames": manifest.frames, "cpu_seconds": cpu, "ms_per_frame": ms, "hash": manifest.hash}
+    return result
+
+
+def profile_median(episodes: int, resolution: int, repeats: int) -> dict:
+    """:func:`stage_profile` run ``repeats`` times, each in a fresh process (no cache of an
+    earlier repeat, such as the hold test's memory, carries over): each stage's median CPU ms
+    per frame, each repeat's physics share and their median. The repeats must write the same bytes."""
+    runs = []
+    for repeat in range(repeats):
+        out = subprocess.run([sys.executable, __file__, "--profile-once", "--episodes", str(episodes),
+                              "--resolution", str(resolution)], check=True, capture_output=True, text=True)
+        runs.append(json.loads(out.stdout.splitlines()[-1]))
+        print(f"profile {repeat + 1}/{repeats}: " + ", ".join(
+            f"{name} {runs[-1][name]['cpu_seconds']:.1f} CPU s" for name in PROFILED), file=sys.stderr)
+    result: dict = {"repeats": repeats}
+    for name in PROFILED:
+        hashes = {run[name]["hash"] for run in runs}
+        if len(hashes) != 1:
+            raise SystemExit(f"profile: the repeats of {name} wrote different bytes: {sorted(hashes)}")
+        ms = {stage: float(np.median([run[name]["ms_per_frame"][stage] for run in runs]))
+              for stage in runs[0][name]["ms_per_frame"]}
+        cpu = float(np.median([run[name]["cpu_seconds"] for run in runs]))
+        frames = runs[0][name]["frames"]
+        result[name] = {"frames": frames, "cpu_seconds": round(cpu, 3), "frames_per_cpu_s": round(frames / cpu, 1),
+                        "ms_per_frame": {stage: round(v, 3) for stage, v in ms.items()}, "hash": hashes.pop()}
     result["eval_over_build"] = round(result["eval"]["frames_per_cpu_s"] / result["build"]["frames_per_cpu_s"], 3)
-    result["physics_share"] = {name: round(sum(result[name]["ms_per_frame"][s] for s in PHYSICS)
-                                           / sum(result[name]["ms_per_frame"].values()), 3)
-                               for name in ("eval", "eval_oracle")}
+    shares = {name: [sum(run[name]["ms_per_frame"][s] for s in PHYSICS) / sum(run[name]["ms_per_frame"].values())
+                     for run in runs] for name in ("eval", "eval_oracle")}
+    result["physics_share"] = {name: round(float(np.median(v)), 3) for name, v in shares.items()}
+    result["physics_share_repeats"] = {name: [round(x, 3) for x in v] for name, v in shares.items()}
     result["physics_target"] = PHYSICS_TARGET
     return result
 
@@ -258,8 +288,10 @@ def profile_lines(profile: dict) -> list[str]:
     lines.append(f"{'total':<16} {total_b:8.3f} {total_e:8.3f} {total_e - total_b:+11.3f} {total_o:8.3f}")
     lines.append(f"eval still / build, frames per CPU second: {profile['eval_over_build']:.3f}")
     shares = profile["physics_share"]
-    lines.append(f"hand body + hold test, share of a frame's CPU: still {shares['eval']:.3f}, oracle "
-                 f"{shares['eval_oracle']:.3f} (target <= {profile['physics_target']})")
+    each = profile["physics_share_repeats"]["eval_oracle"]
+    lines.append(f"hand body + hold test, share of a frame's CPU (median of {profile['repeats']}): still "
+                 f"{shares['eval']:.3f}, oracle {shares['eval_oracle']:.3f} (each: {', '.join(f'{x:.3f}' for x in each)}; "
+                 f"target <= {profile['physics_target']})")
     return lines
 
 
@@ -272,15 +304,21 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--no-throughput", action="store_true", help="time the first act only")
     parser.add_argument("--profile", action="store_true",
                         help="also profile an in-process build and still evaluation by stage")
+    parser.add_argument("--profile-repeats", type=int, default=3,
+                        help="profile runs, each a fresh process; each stage's median is reported (default 3)")
+    parser.add_argument("--profile-once", action="store_true", help=argparse.SUPPRESS)  # one run, as JSON
     parser.add_argument("--no-first-act", action="store_true", help="skip the first-act timing")
     args = parser.parse_args(argv)
-    if args.episodes < 1 or args.repeats < 1 or args.workers < 1:
-        parser.error("--episodes, --repeats and --workers must be >= 1")
+    if args.episodes < 1 or args.repeats < 1 or args.workers < 1 or args.profile_repeats < 1:
+        parser.error("--episodes, --repeats, --workers and --profile-repeats must be >= 1")
 
     result: dict = {"benchmark": "closed_loop_speed", "slice": SLICE, "load_average_start": load_average()}
-    if args.profile:
+    if args.profile_once:
         with tempfile.TemporaryDirectory(prefix="dyana-closed-loop-profile-") as tmp:
-            result["profile"] = stage_profile(args.episodes, args.resolution, Path(tmp))
+            print(json.dumps(stage_profile(args.episodes, args.resolution, Path(tmp))))
+        return {}
+    if args.profile:
+        result["profile"] = profile_median(args.episodes, args.resolution, args.profile_repeats)
         print("\n".join(profile_lines(result["profile"])), file=sys.stderr)
     if args.no_first_act:
         act = None

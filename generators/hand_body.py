@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from generators.bullet import p
+from generators.bullet import p, physics_client
 from generators.clearance import WRIST_LENGTH, WRIST_RADIUS
 from generators.grasp import DEFAULT_DESIGN, GraspDesign
 from generators.hand import JOINT_LOWER, JOINT_UPPER, REST_JOINTS, REST_PALM, WRIST_OFFSET
@@ -117,7 +117,7 @@ class HandBody:
         self._geometry = design.hand
         self._fist = np.asarray(design.synergy_end) if design.wrist_reflex else None
         self._box = None if palm_box is None else (np.asarray(palm_box[0], np.float64), np.asarray(palm_box[1], np.float64))
-        self._client = p.connect(p.DIRECT)
+        self._client = physics_client()
         p.setPhysicsEngineParameter(fixedTimeStep=1.0 / FPS, deterministicOverlappingPairs=1, physicsClientId=self._client)
         self._table = _collision_body(self._client, p.GEOM_BOX, TABLE_CENTRE, (0, 0, 0, 1), halfExtents=TABLE_HALF)
         # the wrist (visual only in the URDF): its own body, posed with the palm (the palm

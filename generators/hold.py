@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generators.bullet import p
+from generators.bullet import p, physics_client
 from generators.hand import (
     DEFAULT_GEOMETRY,
     FINGER_RADII,
@@ -170,11 +170,12 @@ MEMO_SIZE = 8192
 
 
 def _client() -> int:
-    """This thread's DIRECT client, made once (connecting costs more than a test's set-up);
-    every test starts with ``resetSimulation``, so no state carries over (tested)."""
+    """This thread's physics-only client (:func:`generators.bullet.physics_client`), made once
+    (connecting costs more than a test's set-up); every test starts with ``resetSimulation``,
+    so no state carries over (tested)."""
     client = getattr(_LOCAL, "client", None)
     if client is None or not p.isConnected(client):
-        client = _LOCAL.client = p.connect(p.DIRECT)
+        client = _LOCAL.client = physics_client()
     return client
 
 
@@ -223,35 +224,32 @@ def _simulate(object_name: str, object_size: float, side: str, palm: np.ndarray,
     """The hold test's physics on checked inputs (:func:`hold_test`)."""
     client = _client()
     kw = {"physicsClientId": client}
-    try:
-        p.resetSimulation(**kw)
-        p.setPhysicsEngineParameter(fixedTimeStep=1.0 / STEPS_PER_SECOND, numSubSteps=0,
-                                    numSolverIterations=SOLVER_ITERATIONS, deterministicOverlappingPairs=1, **kw)
-        p.setGravity(0.0, -GRAVITY, 0.0, **kw)
-        table = p.createMultiBody(0.0, p.createCollisionShape(p.GEOM_PLANE, planeNormal=[0.0, 1.0, 0.0], **kw), **kw)
-        p.changeDynamics(table, -1, lateralFriction=TABLE_FRICTION, **kw)
-        hand = _hand_body(client, side, palm, joints, geometry)
-        obj = _object_body(client, object_name, object_size, pose)
-        for link in range(-1, 15):  # the table carries the object only
-            p.setCollisionFilterPair(hand, table, link, -1, 0, **kw)
-        p.resetBaseVelocity(hand, palm_v.tolist(), [0.0, 0.0, 0.0], **kw)
-        p.resetBaseVelocity(obj, obj_v.tolist(), obj_w.tolist(), **kw)
-        quat = euler_to_quaternion(palm[3:]).tolist()
-        drive = p.createConstraint(hand, -1, -1, -1, p.JOINT_FIXED, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
-                                   palm[:3].tolist(), childFrameOrientation=quat, **kw)
-        start = _relative(palm[:3], quat, pose[:3])
-        p.performCollisionDetection(**kw)
-        depth = max([0.0] + [-c[8] for c in p.getClosestPoints(hand, obj, 0.0, **kw)])
-        steps = int(round((LIFT_SECONDS + HOLD_SECONDS) * STEPS_PER_SECOND))
-        path = palm_path(palm[:3], palm_v, np.arange(1, steps + 1, dtype=np.float64) / STEPS_PER_SECOND)
-        for target in path:
-            p.changeConstraint(drive, target.tolist(), quat, maxForce=HAND_FORCE, **kw)
-            p.stepSimulation(**kw)
-        palm_pos, palm_quat = p.getBasePositionAndOrientation(hand, **kw)
-        obj_pos, _ = p.getBasePositionAndOrientation(obj, **kw)
-        contacts = len({c[3] for c in p.getContactPoints(hand, obj, **kw)})
-    finally:
-        p.resetSimulation(**kw)
+    p.resetSimulation(**kw)  # the previous test's bodies stay until here: freeing them is the same cost
+    p.setPhysicsEngineParameter(fixedTimeStep=1.0 / STEPS_PER_SECOND, numSubSteps=0,
+                                numSolverIterations=SOLVER_ITERATIONS, deterministicOverlappingPairs=1, **kw)
+    p.setGravity(0.0, -GRAVITY, 0.0, **kw)
+    table = p.createMultiBody(0.0, p.createCollisionShape(p.GEOM_PLANE, planeNormal=[0.0, 1.0, 0.0], **kw), **kw)
+    p.changeDynamics(table, -1, lateralFriction=TABLE_FRICTION, **kw)
+    hand = _hand_body(client, side, palm, joints, geometry)
+    obj = _object_body(client, object_name, object_size, pose)
+    for link in range(-1, 15):  # the table carries the object only
+        p.setCollisionFilterPair(hand, table, link, -1, 0, **kw)
+    p.resetBaseVelocity(hand, palm_v.tolist(), [0.0, 0.0, 0.0], **kw)
+    p.resetBaseVelocity(obj, obj_v.tolist(), obj_w.tolist(), **kw)
+    quat = euler_to_quaternion(palm[3:]).tolist()
+    drive = p.createConstraint(hand, -1, -1, -1, p.JOINT_FIXED, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
+                               palm[:3].tolist(), childFrameOrientation=quat, **kw)
+    start = _relative(palm[:3], quat, pose[:3])
+    p.performCollisionDetection(**kw)
+    depth = max([0.0] + [-c[8] for c in p.getClosestPoints(hand, obj, 0.0, **kw)])
+    steps = int(round((LIFT_SECONDS + HOLD_SECONDS) * STEPS_PER_SECOND))
+    path = palm_path(palm[:3], palm_v, np.arange(1, steps + 1, dtype=np.float64) / STEPS_PER_SECOND)
+    for target in path:
+        p.changeConstraint(drive, target.tolist(), quat, maxForce=HAND_FORCE, **kw)
+        p.stepSimulation(**kw)
+    palm_pos, palm_quat = p.getBasePositionAndOrientation(hand, **kw)
+    obj_pos, _ = p.getBasePositionAndOrientation(obj, **kw)
+    contacts = len({c[3] for c in p.getContactPoints(hand, obj, **kw)})
     end = _relative(palm_pos, palm_quat, obj_pos)
     slip = float(np.linalg.norm(end - start))
     held = slip <= SLIP_TOLERANCE and depth <= PENETRATION_TOLERANCE

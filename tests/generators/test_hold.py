@@ -97,6 +97,22 @@ def test_another_process_gives_the_same_bytes():
     assert out == [here.slip.hex(), here.rise.hex()]
 
 
+def test_the_physics_client_without_its_renderer_gives_the_same_bytes(monkeypatch):
+    """The hold test's client unloads pybullet's TinyRenderer (no visual shapes made for its
+    bodies, most of a test's set-up); a client that keeps it must give the same result."""
+    lean = hold.hold_test(*_grip("soda_can", offset=(0.0, 0.0, 0.0)))
+    full = hold.p.connect(hold.p.DIRECT)
+    try:
+        assert hold.p.getNumBodies(physicsClientId=full) == 0
+        monkeypatch.setattr(hold, "_client", lambda: full)
+        hold.MEMO.clear()
+        kept = hold.hold_test(*_grip("soda_can", offset=(0.0, 0.0, 0.0)))
+    finally:
+        hold.p.disconnect(physicsClientId=full)
+    assert kept == lean and kept is not lean
+    assert np.float64(kept.slip).tobytes() == np.float64(lean.slip).tobytes()
+
+
 def test_the_left_hand_mirrors_the_right():
     right = hold_test(*_grip("orange", "right"))
     left = hold_test(*_grip("orange", "left"))
