@@ -394,8 +394,10 @@ def main() -> None:
             raise SystemExit(f"{name}: the offline 'today' rule gives {table[name]['today']['S_loc']}, "
                              f"scoring eval {scores[name]['S_loc']}")
         print(f"{name}: S_loc {scores[name]['S_loc']} {scores[name]['ci95']}", flush=True)
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    result = {"benchmark": "blind_adversaries", "commit": commit, "dataset_version": DATASET_VERSION,
+    import bench_setup  # run as a script (above): the repository's own
+
+    where = {k: v for k, v in bench_setup.provenance().items() if k != "load_average"}
+    result = {"benchmark": "blind_adversaries", **where,
               "slice": "test-1k", "episodes": args.episodes, "resolution": args.resolution,
               "adversaries": {name: (globals()[cls].__doc__ or "").strip() for name, cls in ADVERSARY_CLASSES.items()},
               "pool": POOL, "rules": {name: text for name, (_, text) in loc_rules.RULES.items()},
@@ -403,6 +405,8 @@ def main() -> None:
               "single_frame_ceiling": single_frame_ceiling(), "seconds": seconds,
               "reused_runs": [name for name in names if name not in seconds],
               "load_average_start": load_start, "load_average_end": [round(v, 2) for v in os.getloadavg()]}
+    if result["dataset_version"] != DATASET_VERSION:
+        raise SystemExit(f"dataset version {result['dataset_version']} != {DATASET_VERSION}")
     with open(args.out, "w") as handle:
         json.dump(result, handle, indent=1)
         handle.write("\n")

@@ -27,12 +27,9 @@ import subprocess
 import sys
 import tempfile
 import time
-from datetime import UTC, datetime
 from pathlib import Path
 
 import bench_setup  # noqa: F401  (first: fixes sys.path, see bench_setup)
-
-from schemas.versions import DATASET_VERSION  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: What a host without AVX-512 lacks, in numpy 2.x's names.
@@ -86,10 +83,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--hidden", default=HIDDEN, help=f"the features hidden from numpy (default: {HIDDEN!r})")
     args = parser.parse_args()
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    record: dict = {"benchmark": "cpu_dispatch", "commit": commit, "dataset_version": DATASET_VERSION,
-                    "date_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "hidden": args.hidden,
-                    "load_average_start": [round(v, 2) for v in os.getloadavg()]}
+    where = bench_setup.provenance()
+    record: dict = {"benchmark": "cpu_dispatch", **{k: v for k, v in where.items() if k != "load_average"},
+                    "hidden": args.hidden, "load_average_start": where["load_average"]}
     print(f"{len(JOBS)} jobs and a probe, each with numpy's CPU features as found and with {args.hidden!r} hidden",
           flush=True)
     start = time.monotonic()

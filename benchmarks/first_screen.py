@@ -63,11 +63,13 @@ def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[st
 
 
 def measure(python: str) -> dict:
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                            check=True).stdout.strip()
+    import bench_setup  # the script's folder is first on sys.path
+
+    where = bench_setup.provenance()  # the clone below is of this commit: a changed tree is not in it
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     env["PATH"] = f"{Path(python).parent}{os.pathsep}{env.get('PATH', '')}"
-    record: dict = {"benchmark": "first_screen", "commit": commit,
+    record: dict = {"benchmark": "first_screen", "commit": where["commit"], "tree_changed": where["tree_changed"],
+                    "dataset_version": where["dataset_version"],
                     "date_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
                     "cores": len(os.sched_getaffinity(0)), "pip_cache": "as found on this machine",
                     "load_average_start": [round(x, 2) for x in os.getloadavg()], "uptime_start": _uptime()}

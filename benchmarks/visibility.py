@@ -23,7 +23,6 @@ import argparse
 import json
 import multiprocessing
 import os
-import subprocess
 import time
 
 import bench_setup  # noqa: F401  (puts the repository first on sys.path)
@@ -36,7 +35,6 @@ from generators.visibility import object_surface_points, observe_visibility  # n
 from pipeline import episode  # noqa: E402
 from schemas.scene import MIN_OBSERVE_VISIBLE  # noqa: E402
 from schemas.slices import ATOMIC_SLICES, SLICES  # noqa: E402
-from schemas.versions import DATASET_VERSION  # noqa: E402
 
 SOURCES = ATOMIC_SLICES + ("test-1k",)
 
@@ -130,9 +128,7 @@ def main() -> None:
         )
     result["resolution"] = args.resolution
     result["seconds"] = round(time.perf_counter() - start, 1)
-    result["commit"] = subprocess.run(["git", "rev-parse", "HEAD"], cwd=bench_setup.ROOT, capture_output=True,
-                                      text=True).stdout.strip()
-    result["dataset_version"] = DATASET_VERSION
+    result.update({k: v for k, v in bench_setup.provenance().items() if k != "load_average"})
     result["load_average_start"], result["load_average_end"] = load_start, [round(v, 2) for v in os.getloadavg()]
     print(json.dumps(result, sort_keys=True))
 
