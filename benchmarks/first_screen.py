@@ -28,8 +28,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Variables of this shell that a newcomer's does not have: another checkout on the path, an
-#: active venv, and Python told not to write bytecode (every process of the tests would
-#: compile Dyana's modules again: 0.12 of a command's 0.8 CPU s here).
+#: active venv, and Python told not to write bytecode (command 1's build and every process
+#: of ``.ci/run`` outside the tests would compile Dyana's modules at each start).
 NOT_A_NEWCOMERS = ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONDONTWRITEBYTECODE")
 COMMAND_1 = ("python3 -m venv .venv && .venv/bin/pip install -c .ci/constraints.txt -e . && "
              ".venv/bin/pipeline build --slice linear-fast --episodes 32 --shard-size 16 --out out")
