@@ -232,9 +232,9 @@ def test_a_malformed_scheduler_address_is_one_line_and_exit_2_before_the_folder_
 
 
 def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path):
-    """The command in a process of its own, waiting 2 s for the scheduler instead of 30
+    """The command in a process of its own, waiting 0.5 s for the scheduler instead of 30
     (a refused connection is retried until the timeout: 30 s of an idle test process)."""
-    command = ("import sys; import pipeline.jobs.tasks as t; t.CONNECT_TIMEOUT_S = 2.0; "
+    command = ("import sys; import pipeline.jobs.tasks as t; t.CONNECT_TIMEOUT_S = 0.5; "
                "from pipeline.cli import main; sys.exit(main())")
     result = subprocess.run(
         [sys.executable, "-c", command, "build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path),
@@ -272,24 +272,32 @@ def test_a_spec_slice_name_is_never_a_path(reference, tmp_path, name):
     assert _files(victim) == before and not (tmp_path / "work" / "out").exists()
 
 
-def test_custom_specs_never_replace_a_recipe_build_unasked_and_a_rebuild_is_up_to_date(reference, tmp_path):
+def test_custom_specs_never_replace_a_recipe_build_unasked_and_a_rebuild_is_up_to_date(reference, tmp_path, capsys):
+    """The commands run in this process (``pipeline.cli.main``, which the console script
+    calls): a process each cost its start for nothing this checks; the tests above run the
+    command in processes of its own, and test_specs_file_builds_the_same_episodes builds
+    from what ``catalog specs`` prints."""
     import shutil
+
+    from generators.recipe import spec_for
+    from pipeline.cli import main
 
     manifest, slice_dir = reference
     shutil.copytree(slice_dir, tmp_path / SLICE)
     common = ["--out", str(tmp_path), "--resolution", str(RESOLUTION), "--shard-size", str(SHARD), "--workers", "1"]
-    again = _cli("build", "--slice", SLICE, "--episodes", str(EPISODES), *common)
-    assert again.returncode == 0, again.stderr
-    assert again.stdout.startswith(f"up to date {SLICE}: {EPISODES} episodes")
+    code = main(["build", "--slice", SLICE, "--episodes", str(EPISODES), *common])
+    again = capsys.readouterr()
+    assert code == 0, again.err
+    assert again.out.startswith(f"up to date {SLICE}: {EPISODES} episodes")
     specs = tmp_path / "mine.jsonl"
-    listed = subprocess.run([str(BIN / "catalog"), "specs", SLICE, "--episodes", "2"], capture_output=True, text=True)
-    specs.write_text(listed.stdout)
-    refused = _cli("build", "--specs", str(specs), *common)
-    assert refused.returncode == 2 and "holds another job" in refused.stderr and "specs_sha256" in refused.stderr
-    assert "--overwrite" in refused.stderr
+    specs.write_text("".join(spec_for(SLICE, i).to_json() + "\n" for i in range(2)))
+    code = main(["build", "--specs", str(specs), *common])
+    refused = capsys.readouterr()
+    assert code == 2 and "holds another job" in refused.err and "specs_sha256" in refused.err
+    assert "--overwrite" in refused.err and refused.err.count("\n") == 1 and "Traceback" not in refused.err
     assert load_manifest(tmp_path / SLICE).hash == manifest.hash and _files(tmp_path / SLICE) == _files(slice_dir)
-    replaced = _cli("build", "--specs", str(specs), "--overwrite", *common)
-    assert replaced.returncode == 0, replaced.stderr
+    code = main(["build", "--specs", str(specs), "--overwrite", *common])
+    assert code == 0, capsys.readouterr().err
     assert load_manifest(tmp_path / SLICE).episodes == 2
 
 
@@ -358,9 +366,12 @@ def test_a_spec_whose_object_the_resting_hand_hides_is_refused_with_the_frame(tm
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*.parquet"))
 
 
+@pytest.mark.slow(cover="tests/pipeline/test_runner.py::test_a_dask_build_reports_episodes_before_its_shard_finishes_and_quiet_is_silent")
 def test_a_dask_build_prints_only_dyana_lines_even_beside_another_dashboard(tmp_path):
     """No dashboard is bound to 8787 (so no 'Port 8787 is already in use' warning), and no
-    Dask log line (heartbeats, comm closing) reaches the user."""
+    Dask log line (heartbeats, comm closing) reaches the user. The default run checks both
+    on a one-worker build in tests/pipeline/test_runner.py (8787 taken, every line a
+    progress line, --quiet silent); this one repeats it with two worker processes (7 CPU s)."""
     with socket.socket() as taken:
         try:
             taken.bind(("127.0.0.1", 8787))
