@@ -101,7 +101,7 @@ def test_an_unreachable_scheduler_leaves_no_folder_behind(tmp_path, capsys, monk
     import pipeline.jobs.tasks
     from pipeline.cli import main
 
-    monkeypatch.setattr(pipeline.jobs.tasks, "CONNECT_TIMEOUT_S", 2.0)  # not Dask's 30 s of retries
+    monkeypatch.setattr(pipeline.jobs.tasks, "CONNECT_TIMEOUT_S", 0.5)  # not Dask's 30 s of retries
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]  # nothing listens there once the block ends
@@ -113,6 +113,11 @@ def test_an_unreachable_scheduler_leaves_no_folder_behind(tmp_path, capsys, monk
 
 
 def test_an_endpoint_that_trickles_its_reply_is_cut_by_the_request_deadline(no_aws, monkeypatch, capsys):  # noqa: F811
-    """Before: a reply of a byte a second passed every per-read timeout and never ended."""
+    """Before: a reply of a byte a second passed every per-read timeout and never ended.
+    One attempt: s3fs retries a timed-out request 5 times (6 s of an idle test), which tests
+    nothing more than the first attempt's deadline."""
+    import s3fs
+
     monkeypatch.setattr(catalog.store.s3_session, "REQUEST_TOTAL_S", 1.0)
+    monkeypatch.setattr(s3fs.S3FileSystem, "retries", 1)
     assert _info_against(_trickle, "trickle", monkeypatch, capsys) < 60
