@@ -59,7 +59,9 @@ class Lingering:
 
 
 class Signalling(Lingering):
-    """Like Lingering, quickly; at its third act of the run it sends its parent process SIG."""
+    """Like Lingering, quickly; at the third act of an episode it sends its parent process the
+    first signal of DYANA_TEST_SIGNALS (names, comma-separated) not yet sent in the run: the
+    first episode the first signal, and so on."""
 
     name = "signalling"
 
@@ -68,9 +70,12 @@ class Signalling(Lingering):
 
     def act(self, obs):
         self.calls += 1
-        if self.calls == 3 and not os.path.exists(MARK):
-            open(MARK, "w").close()
-            os.kill(os.getppid(), getattr(signal, os.environ["DYANA_TEST_SIGNAL"]))
+        if self.calls == 3:
+            for name in os.environ["DYANA_TEST_SIGNALS"].split(","):
+                if not os.path.exists(f"{{MARK}}-{{name}}"):
+                    open(f"{{MARK}}-{{name}}", "w").close()
+                    os.kill(os.getppid(), getattr(signal, name))
+                    break
         return state_action(obs)
 '''
 
@@ -204,9 +209,17 @@ def test_a_killed_eval_leaves_no_process_behind(policies, sig, workers):
         _stop(proc)
 
 
-@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM", "SIGINT"])
-def test_a_policy_that_signals_its_parent_fails_only_its_episode(policies, sig):
-    proc = _eval(policies, "Signalling", 0, episodes=2, DYANA_TEST_SIGNAL=sig)
+#: The signals a policy sends its parent, one per episode of one run (a run each cost a
+#: process start and a policy's for nothing more: each episode's policy process is new).
+SIGNALS = ("SIGKILL", "SIGTERM", "SIGINT")
+
+
+def test_a_policy_that_signals_its_parent_fails_only_its_episode(policies):
+    """Episode i's policy sends its parent SIGNALS[i]: each fails that episode alone, named,
+    and the run goes on (the episode after the last signal ends ok)."""
+    from generators.recipe import spec_for
+
+    proc = _eval(policies, "Signalling", 0, episodes=len(SIGNALS) + 1, DYANA_TEST_SIGNALS=",".join(SIGNALS))
     try:
         out, err = proc.communicate(timeout=120)
     finally:
@@ -214,10 +227,12 @@ def test_a_policy_that_signals_its_parent_fails_only_its_episode(policies, sig):
     assert proc.returncode == 0, err[-2000:]
     run = policies.folder / "run"
     manifest = load_manifest(run)
-    rows = read_episodes(run / manifest.shards[0].files["episodes"].path, ["status", "error"]).to_pylist()
-    assert [row["status"] for row in rows] == ["error", "ok"], rows
-    assert rows[0]["error"].startswith("frame 2: policy process "), rows[0]["error"]
-    assert sig in rows[0]["error"] and "its parent" in rows[0]["error"]
+    rows = read_episodes(run / manifest.shards[0].files["episodes"].path, ["episode_index", "status", "error"]).to_pylist()
+    assert [(row["episode_index"], row["status"]) for row in rows] == [(0, "error"), (1, "error"), (2, "error"), (3, "ok")], rows
+    for index, sig in enumerate(SIGNALS):
+        error = rows[index]["error"]
+        assert error.startswith(f"frame {spec_for('test-1k', index).observe_frames + 2}: policy process "), error
+        assert sig in error and "its parent" in error, error
     assert policies.wait_gone() == []
 
 
@@ -225,7 +240,7 @@ def test_a_policy_that_signals_its_parent_fails_only_its_episode(policies, sig):
 def test_a_policy_that_signals_a_dask_worker_reaches_only_its_launcher(policies):
     """With ``--workers``, the parent a policy sees is not the Dask worker: the run keeps its
     workers, records the episode's fault and exits 0."""
-    proc = _eval(policies, "Signalling", 1, episodes=2, DYANA_TEST_SIGNAL="SIGINT")
+    proc = _eval(policies, "Signalling", 1, episodes=2, DYANA_TEST_SIGNALS="SIGINT")
     try:
         out, err = proc.communicate(timeout=120)
     finally:
