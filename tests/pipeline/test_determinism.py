@@ -52,11 +52,17 @@ def reference() -> dict[str, str]:
 def test_episode_alone_equals_episode_among_many(slice_name):
     batch = list(slice_specs(slice_name, max(INDICES) + 1))
     for i in INDICES:
-        assert batch[i] == spec_for(slice_name, i)
-        assert batch[i].to_json() == spec_for(slice_name, i).to_json()
+        alone = spec_for(slice_name, i)  # drawn once: a second draw cost as much and compared the same
+        assert batch[i] == alone
+        assert batch[i].to_json() == alone.to_json()
 
 
+@pytest.mark.slow(cover="tests/pipeline/test_determinism.py::test_every_slice_is_the_same_in_a_fresh_interpreter")
 def test_every_slice_is_the_same_twice_and_in_another_renderer(reference):
+    """A second pass in this process (4 CPU s). The default run compares this process's pass
+    with a fresh interpreter's (another renderer, another process, after whatever this one
+    ran before), and re-executes folders in the process that built them (test_replay.py,
+    test_renderer_choice.py's replay)."""
     assert fingerprints() == reference
 
 

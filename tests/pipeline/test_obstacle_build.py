@@ -30,10 +30,13 @@ def run(*args: str) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory) -> Path:
+    """``pipeline build`` through its entry point in this process (what the console script
+    calls; a process of its own cost its start)."""
+    from pipeline.cli import main
+
     out = tmp_path_factory.mktemp("obstacles")
-    result = run("pipeline", "build", "--slice", "obstacle-fast", "--episodes", "3", "--resolution", "48",
-                 "--workers", "1", "--out", str(out))
-    assert result.returncode == 0, result.stderr
+    assert main(["build", "--slice", "obstacle-fast", "--episodes", "3", "--resolution", "48", "--workers", "1",
+                 "--quiet", "--out", str(out)]) == 0
     return out / "obstacle-fast"
 
 
@@ -63,34 +66,47 @@ def test_the_mcap_draws_each_episodes_obstacles(built):
     assert seen == {k: len(v) for k, v in obstacles.items()}
 
 
-def test_verify_replay_view_and_score(built, tmp_path):
-    assert run("catalog", "verify", str(built)).returncode == 0
-    assert run("pipeline", "replay", str(built)).returncode == 0
+def test_verify_replay_view_and_score(built, tmp_path, capsys):
+    """The commands' own entry points (what their console scripts call) in this process, but
+    ``view`` (rerun's SDK stays out of the test process): a process each cost its start, and
+    the commands' processes are tested on other folders (test_replay.py, test_view_verify.py,
+    tests/scoring)."""
+    from pipeline.cli import main as pipeline_main
+    from pipeline.cli_catalog import main as catalog_main
+    from scoring.cli import main as scoring_main
+
+    assert catalog_main(["verify", str(built)]) == 0, capsys.readouterr().err
+    assert pipeline_main(["replay", str(built)]) == 0, capsys.readouterr().err
+    assert capsys.readouterr().out.endswith(": identical\n")
     view = run("pipeline", "view", str(built), "--episode", "1", "--out", str(tmp_path / "e1.rrd"))
     assert view.returncode == 0, view.stderr
-    scored = run("scoring", "eval", str(built), "--json")
-    assert scored.returncode == 0, scored.stderr
-    assert json.loads(scored.stdout)["obstacles"] == {"episodes": 3, "collisions": 0, "collision_rate": 0.0,
-                                                     "contact": "fail"}
+    assert scoring_main(["eval", str(built), "--json"]) == 0, capsys.readouterr().err
+    assert json.loads(capsys.readouterr().out)["obstacles"] == {"episodes": 3, "collisions": 0, "collision_rate": 0.0,
+                                                               "contact": "fail"}
 
 
-def test_a_closed_loop_run_on_test_complex_records_clearance_and_scores_contacts(tmp_path):
-    result = run("pipeline", "eval", "--policy", "chase", "--slice", "test-complex", "--episodes", "3",
-                 "--resolution", "48", "--workers", "1", "--out", str(tmp_path / "run"))
-    assert result.returncode == 0, result.stderr
+def test_a_closed_loop_run_on_test_complex_records_clearance_and_scores_contacts(tmp_path, capsys):
+    from pipeline.cli import main
+
+    code = main(["eval", "--policy", "chase", "--slice", "test-complex", "--episodes", "3", "--resolution", "48",
+                 "--workers", "1", "--quiet", "--out", str(tmp_path / "run")])
+    assert code == 0, capsys.readouterr().err
     frames_file = next(p for p in (tmp_path / "run").rglob("*.parquet") if p.parent.name == "frames")
     table = pq.read_table(frames_file, columns=["episode_index", "obstacle_clearance"])
     clearance = table.column("obstacle_clearance").to_numpy()
     episode = table.column("episode_index").to_numpy()
     assert np.isinf(clearance[episode != 1]).all() and np.isfinite(clearance[episode == 1]).all()
-    scored = json.loads(run("scoring", "eval", str(tmp_path / "run"), "--json").stdout)
-    assert scored["obstacles"]["episodes"] == 1
+    from scoring.cli import main as scoring_main
+
+    capsys.readouterr()
+    assert scoring_main(["eval", str(tmp_path / "run"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["obstacles"]["episodes"] == 1
 
 
 def test_a_slice_without_obstacles_keeps_its_tables(tmp_path):
-    result = run("pipeline", "build", "--slice", "linear-fast", "--episodes", "1", "--resolution", "32",
-                 "--workers", "1", "--out", str(tmp_path))
-    assert result.returncode == 0, result.stderr
+    from pipeline.jobs.build import build
+
+    build("linear-fast", tmp_path, episodes=1, resolution=32, workers=0, progress=False)
     folder = tmp_path / "linear-fast"
     assert "obstacle_clearance" not in json.loads((folder / "catalog.json").read_text())["settings"]
     frames_file = next(p for p in folder.rglob("*.parquet") if p.parent.name == "frames")

@@ -102,8 +102,15 @@ def _hooked_episode(monkeypatch, stop_at: int | None) -> list[int]:
     return computed
 
 
-def test_an_interrupted_build_resumes_mid_shard_to_the_same_bytes(tmp_path, monkeypatch, capsys):
-    reference = build(SLICE, tmp_path / "fresh", progress=False, **BUILD)
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory):
+    """The uninterrupted build the resumed ones must equal (read only): its manifest and folder."""
+    out = tmp_path_factory.mktemp("fresh")
+    return build(SLICE, out, progress=False, **BUILD), out / SLICE
+
+
+def test_an_interrupted_build_resumes_mid_shard_to_the_same_bytes(tmp_path, monkeypatch, capsys, fresh):
+    reference, fresh_dir = fresh
     computed = _hooked_episode(monkeypatch, stop_at=2)
     with pytest.raises(KeyboardInterrupt):
         build(SLICE, tmp_path / "out", progress=False, **BUILD)
@@ -117,13 +124,13 @@ def test_an_interrupted_build_resumes_mid_shard_to_the_same_bytes(tmp_path, monk
     assert computed == [2, 3, 4, 5]  # episodes 0 and 1 were taken from the interrupted shard
     assert "shard 0-3: 2 of its 4 episodes taken from the interrupted run" in capsys.readouterr().err
     assert resumed.hash == reference.hash
-    assert _folder_bytes(slice_dir) == _folder_bytes(tmp_path / "fresh" / SLICE)
+    assert _folder_bytes(slice_dir) == _folder_bytes(fresh_dir)
     assert not (slice_dir / PARTIAL_DIR).exists()
     verify_files(slice_dir)
 
 
-def test_a_damaged_staged_episode_is_computed_again_and_overwrite_clears_them(tmp_path, monkeypatch):
-    reference = build(SLICE, tmp_path / "fresh", progress=False, **BUILD)
+def test_a_damaged_staged_episode_is_computed_again_and_overwrite_clears_them(tmp_path, monkeypatch, fresh):
+    reference, fresh_dir = fresh
     _hooked_episode(monkeypatch, stop_at=3)
     with pytest.raises(KeyboardInterrupt):
         build(SLICE, tmp_path / "out", progress=False, **BUILD)
@@ -135,7 +142,7 @@ def test_a_damaged_staged_episode_is_computed_again_and_overwrite_clears_them(tm
     computed = _hooked_episode(monkeypatch, stop_at=None)
     assert build(SLICE, tmp_path / "out", progress=False, **BUILD).hash == reference.hash
     assert computed == [1, 3, 4, 5]  # 0 and 2 taken, the damaged 1 computed again
-    assert _folder_bytes(tmp_path / "out" / SLICE) == _folder_bytes(tmp_path / "fresh" / SLICE)
+    assert _folder_bytes(tmp_path / "out" / SLICE) == _folder_bytes(fresh_dir)
 
     _hooked_episode(monkeypatch, stop_at=2)
     with pytest.raises(KeyboardInterrupt):
