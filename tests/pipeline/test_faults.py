@@ -137,11 +137,13 @@ def test_a_hung_call_does_not_hold_the_run(env):
 
 
 def test_a_faulty_run_records_every_episode_and_counts_the_errors(tmp_path):
-    """Through the CLI with Dask: one policy with a different fault in six of eight episodes."""
+    """Through the CLI with Dask: one policy with a different fault in six of eight episodes.
+    Both shards on one Dask worker (a second worker process cost its start, ~3 CPU s, for no
+    other check: tests/pipeline/test_build.py builds on two)."""
     run = tmp_path / "run"
     result = subprocess.run(
         [str(BIN / "pipeline"), "eval", "--policy", "tests.pipeline.faulty_policies:Mixed", "--episodes", "8",
-         "--shard-size", "4", "--workers", "2", "--deadline", str(DEADLINE_S), "--resolution", str(RESOLUTION),
+         "--shard-size", "4", "--workers", "1", "--deadline", str(DEADLINE_S), "--resolution", str(RESOLUTION),
          "--out", str(run), "--quiet", "--in-process"],
         capture_output=True, text=True, timeout=300, cwd=ROOT,
     )
@@ -256,22 +258,23 @@ def test_dropped_connections_and_bad_replies_fail_only_their_episode(flaky_serve
     assert "error in episode 1: frame" in printed.getvalue()
 
 
-def test_a_policy_that_kills_its_own_process_fails_only_its_episode(tmp_path):
+def test_a_policy_that_kills_its_own_process_fails_only_its_episode(tmp_path, monkeypatch, capfd):
     """By default a module:callable runs in a child process: os._exit, sys.exit and
     KeyboardInterrupt end that process only, each episode records how, the run completes,
-    and megabytes the policy prints never reach eval's output."""
-    import os
+    and megabytes the policy prints never reach eval's output (this process's file
+    descriptors 1 and 2, which the command's entry point writes to here: a process of
+    its own cost its start)."""
+    from pipeline.cli import main
 
     run = tmp_path / "run"
-    env = {**os.environ, "DYANA_TEST_COUNTER": str(tmp_path / "counter")}
-    result = subprocess.run(
-        [str(BIN / "pipeline"), "eval", "--policy", "tests.pipeline.faulty_policies:Dying", "--episodes", "5",
-         "--shard-size", "5", "--workers", "1", "--resolution", str(RESOLUTION), "--out", str(run), "--quiet"],
-        capture_output=True, text=True, timeout=300, cwd=ROOT, env=env,
-    )
-    assert result.returncode == 0, result.stderr[-2000:]
-    assert "noise" not in result.stdout and "noise" not in result.stderr and len(result.stdout) < 5000
-    assert "evaluated dying on test-1k: 5 episodes" in result.stdout and "3 error(s)" in result.stdout
+    monkeypatch.setenv("DYANA_TEST_COUNTER", str(tmp_path / "counter"))
+    monkeypatch.chdir(ROOT)
+    code = main(["eval", "--policy", "tests.pipeline.faulty_policies:Dying", "--episodes", "5", "--shard-size", "5",
+                 "--workers", "1", "--resolution", str(RESOLUTION), "--out", str(run), "--quiet"])
+    result = capfd.readouterr()
+    assert code == 0, result.err[-2000:]
+    assert "noise" not in result.out and "noise" not in result.err and len(result.out) < 5000
+    assert "evaluated dying on test-1k: 5 episodes" in result.out and "3 error(s)" in result.out
     manifest = load_manifest(run)
     rows = read_episodes(run / manifest.shards[0].files["episodes"].path, ["episode_index", "status", "error"]).to_pylist()
     assert [r["status"] for r in rows] == ["ok", "error", "error", "error", "ok"]
@@ -281,18 +284,19 @@ def test_a_policy_that_kills_its_own_process_fails_only_its_episode(tmp_path):
     assert [p.name for p in run.rglob("*") if p.name.startswith(".")] == [".lock"]  # no temporary; the lock stays
 
 
-def test_an_eval_where_every_episode_failed_is_written_then_exits_3(tmp_path):
+def test_an_eval_where_every_episode_failed_is_written_then_exits_3(tmp_path, capsys):
+    """The command's entry point (what the console script calls) in this process: a process
+    of its own cost its start (the CLI runs above run the command as a process)."""
+    from pipeline.cli import main
+
     out = tmp_path / "run"
-    result = subprocess.run(
-        [str(Path(sys.executable).parent / "pipeline"), "eval", "--policy", "tests.pipeline.faulty_policies:RaiseFault",
-         "--slice", "test-1k", "--episodes", "2", "--workers", "1", "--resolution", str(RESOLUTION), "--quiet",
-         "--out", str(out)],
-        capture_output=True, text=True, timeout=300,
-    )
-    assert result.returncode == 3, result.stderr
-    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+    code = main(["eval", "--policy", "tests.pipeline.faulty_policies:RaiseFault", "--slice", "test-1k", "--episodes", "2",
+                 "--workers", "1", "--resolution", str(RESOLUTION), "--quiet", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 3, err
+    assert err.count("\n") == 1 and "Traceback" not in err
     assert re.search(r"error: every episode failed \(2 of 2\); the first, episode 0: frame \d+: policy act raised "
-                     r"ValueError: the model diverged", result.stderr), result.stderr
+                     r"ValueError: the model diverged", err), err
     assert (out / "catalog.json").is_file()
 
 
