@@ -220,14 +220,16 @@ def test_rebuilding_with_another_shard_size_leaves_no_stale_shards(reference, tm
 
 
 @pytest.mark.parametrize("address", ["not-an-address::", "tcp://127.0.0.1:notaport", "nope", "tcp://h:99999", ""])
-def test_a_malformed_scheduler_address_is_one_line_and_exit_2_before_the_folder_is_made(tmp_path, address):
-    result = subprocess.run(
-        [str(BIN / "pipeline"), "build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path / "out"),
-         "--scheduler", address],
-        capture_output=True, text=True, timeout=120,
-    )
-    assert result.returncode == 2, result.stderr
-    assert f"--scheduler {address!r}: not a Dask scheduler address" in result.stderr and "Traceback" not in result.stderr
+def test_a_malformed_scheduler_address_is_one_line_and_exit_2_before_the_folder_is_made(tmp_path, address, capsys):
+    """Through the command's entry point in this process (what the console script calls; a
+    process each cost its start: the bad-input tests above run the command as a process)."""
+    from pipeline.cli import main
+
+    code = main(["build", "--slice", SLICE, "--episodes", "1", "--out", str(tmp_path / "out"), "--scheduler", address])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert f"--scheduler {address!r}: not a Dask scheduler address" in err and "Traceback" not in err
+    assert err.count("\n") == 1, err
     assert not (tmp_path / "out").exists()  # no folder, no lock left behind
 
 
@@ -250,12 +252,14 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize("name", ["../../victim/linear-slow", "/abs/path", "a/b", ".", "..", "x\u0000y"])
-def test_a_spec_slice_name_is_never_a_path(reference, tmp_path, name):
-    """A spec's slice name cannot point the build at (and delete) another folder."""
+def test_a_spec_slice_name_is_never_a_path(reference, tmp_path, name, capsys):
+    """A spec's slice name cannot point the build at (and delete) another folder. Through
+    the command's entry point in this process (a process each cost its start)."""
     import json as _json
     import shutil
 
     from generators.recipe import spec_for
+    from pipeline.cli import main
 
     _, slice_dir = reference
     victim = tmp_path / "victim" / "linear-slow"
@@ -266,9 +270,10 @@ def test_a_spec_slice_name_is_never_a_path(reference, tmp_path, name):
     path = tmp_path / "work" / "specs.jsonl"
     path.parent.mkdir()
     path.write_text(_json.dumps(spec) + "\n")
-    result = _cli("build", "--specs", str(path), "--out", str(tmp_path / "work" / "out"), "--resolution", "32")
-    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
-    assert f"{path}:1" in result.stderr and "never a path" in result.stderr and "Traceback" not in result.stderr
+    code = main(["build", "--specs", str(path), "--out", str(tmp_path / "work" / "out"), "--resolution", "32"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"{path}:1" in err and "never a path" in err and "Traceback" not in err
     assert _files(victim) == before and not (tmp_path / "work" / "out").exists()
 
 

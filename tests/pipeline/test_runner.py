@@ -162,10 +162,13 @@ def _where(task, payload, sink):
     return {"pid": os.getpid(), "first": task.first}
 
 
-@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow(
+    cover="tests/pipeline/test_runner.py::test_a_job_of_one_shard_runs_in_this_process_and_more_shards_in_workers"))])
 def test_a_job_of_one_shard_runs_in_this_process_and_more_shards_in_workers(tmp_path, workers):
     """One shard occupies one core wherever it runs: no cluster is started for it (its
-    start-up costs more CPU than a small job's work); two shards go to worker processes."""
+    start-up costs more CPU than a small job's work); two shards go to worker processes.
+    The rule does not depend on the worker count: workers=2 repeats workers=1's check with
+    a second worker process to start (2.8 CPU s), under -m slow."""
     for ranges, here in (([(0, 4)], True), ([(0, 2), (2, 4)], False)):
         seen: list[dict] = []
         task_module.run_tasks([ShardTask("linear-fast", a, b) for a, b in ranges], _where, None,
