@@ -166,12 +166,21 @@ def test_rollout_shards_take_up_to_observe_plus_horizon_frames(tmp_path):
         (["--policy", "no_such_module:fn", "--episodes", "1"], "cannot import module 'no_such_module'"),
     ],
 )
-def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path):
-    result = subprocess.run(
-        [str(BIN / "pipeline"), "eval", "--out", str(tmp_path / "run"), *args], capture_output=True, text=True, timeout=120
-    )
-    assert result.returncode == 2
-    assert message in result.stderr and "Traceback" not in result.stderr
+def test_bad_input_is_one_line_and_exit_2(args, message, tmp_path, capsys, monkeypatch):
+    """Through the command's entry point in this process (what the console script calls; a
+    process each cost its start: test_an_edited_policy_file_is_not_up_to_date's refusal and
+    test_build.py's bad input run the command as a process). The command may put the
+    current folder on sys.path for a module policy: restored after."""
+    from pipeline.cli import main
+
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    try:
+        code = main(["eval", "--out", str(tmp_path / "run"), *args])
+    except SystemExit as exited:  # argparse's own refusal (its usage, then one error line)
+        code = exited.code
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert message in err and "Traceback" not in err, err
     assert not (tmp_path / "run" / "catalog.json").exists()
 
 
@@ -305,27 +314,35 @@ def test_a_slow_policy_fails_only_with_an_explicit_deadline(tmp_path, monkeypatc
     assert status == "error" and "exceeded its deadline of 0.05 s" in error
 
 
-def test_an_edited_policy_file_is_not_up_to_date(tmp_path):
+def test_an_edited_policy_file_is_not_up_to_date(tmp_path, monkeypatch, capsys):
     """The run records its module:callable policy's source sha256: after an edit, a re-run
     into the same folder is refused in one line naming it (not "up to date" with the old
-    policy's episodes), and --overwrite runs the new one."""
+    policy's episodes), and --overwrite runs the new one. The refused re-run is a command
+    of its own; the others go through its entry point in this process (a process each cost
+    its start; the module and sys.path entry they add are removed after)."""
+    from pipeline.cli import main
+
     (tmp_path / "mine.py").write_text("import numpy as np\n\ndef hold(obs):\n"
                                       "    return np.concatenate([obs['palm_pose'][:3], obs['joint_angles']])\n")
-    argv = [str(BIN / "pipeline"), "eval", "--policy", "mine:hold", "--slice", "test-1k", "--episodes", "1",
-            "--resolution", "32", "--workers", "1", "--out", "run", "--quiet",
+    argv = ["eval", "--policy", "mine:hold", "--slice", "test-1k", "--episodes", "1", "--resolution", "32",
+            "--workers", "1", "--out", "run", "--quiet",
             "--in-process"]  # one shard in the pipeline process, no policy child: neither is the subject
-
-    def run(*extra: str) -> subprocess.CompletedProcess:
-        return subprocess.run([*argv, *extra], cwd=tmp_path, capture_output=True, text=True, timeout=300)
-
-    assert run().returncode == 0
-    again = run()
-    assert again.returncode == 0 and "up to date" in again.stdout + again.stderr
-    with open(tmp_path / "mine.py", "a") as handle:
-        handle.write("# tuned\n")
-    edited = run()
-    assert edited.returncode == 2 and edited.stderr.count("\n") == 1 and "Traceback" not in edited.stderr
-    assert "holds another job (extra.module" in edited.stderr and "--overwrite" in edited.stderr
-    assert run("--overwrite").returncode == 0
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    try:
+        assert main(argv) == 0, capsys.readouterr().err
+        capsys.readouterr()
+        assert main(argv) == 0
+        again = capsys.readouterr()
+        assert "up to date" in again.out + again.err
+        with open(tmp_path / "mine.py", "a") as handle:
+            handle.write("# tuned\n")
+        edited = subprocess.run([str(BIN / "pipeline"), *argv], cwd=tmp_path, capture_output=True, text=True,
+                                timeout=300)
+        assert edited.returncode == 2 and edited.stderr.count("\n") == 1 and "Traceback" not in edited.stderr
+        assert "holds another job (extra.module" in edited.stderr and "--overwrite" in edited.stderr
+        assert main([*argv, "--overwrite"]) == 0, capsys.readouterr().err
+    finally:
+        sys.modules.pop("mine", None)
     assert load_manifest(tmp_path / "run").extra["module"]["source_sha256"] == hashlib.sha256(
         (tmp_path / "mine.py").read_bytes()).hexdigest()
