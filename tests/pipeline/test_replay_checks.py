@@ -7,9 +7,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
@@ -22,7 +19,6 @@ from scoring.io import load_run
 
 from .tamper import copy_of, reseal, rewrite_episodes, set_column
 
-BIN = Path(sys.executable).parent
 RESOLUTION = 32
 
 
@@ -39,13 +35,23 @@ def copy(run, tmp_path):
     return copy_of(run, tmp_path)
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, timeout=120)
+def _command(capsys, *args: str) -> tuple[int, str]:
+    """``pipeline ...``, ``catalog ...`` or ``scoring ...`` through its entry point in this
+    process (what the console script calls; a process each cost its start, and
+    test_replay.py runs these commands' refusals as processes): its exit status and what it
+    wrote to stderr."""
+    from pipeline.cli import main as pipeline_main
+    from pipeline.cli_catalog import main as catalog_main
+    from scoring.cli import main as scoring_main
+
+    capsys.readouterr()
+    code = {"pipeline": pipeline_main, "catalog": catalog_main, "scoring": scoring_main}[args[0]](list(args[1:]))
+    return code, capsys.readouterr().err
 
 
 @pytest.mark.parametrize("key, value", [("policy", "predictive"), ("privileged", False), ("deadline_s", 30.0),
                                         ("code", {"version": "0.1.0", "commit": "f" * 40})])
-def test_a_hand_edited_manifest_key_fails_replay_and_verify_naming_it(copy, key, value):
+def test_a_hand_edited_manifest_key_fails_replay_and_verify_naming_it(copy, key, value, capsys):
     path = copy / "catalog.json"
     data = json.loads(path.read_text())
     data[key] = value
@@ -57,8 +63,8 @@ def test_a_hand_edited_manifest_key_fails_replay_and_verify_naming_it(copy, key,
         assert str(info.value).startswith(message)
     if key == "policy":
         for command in (("pipeline", "replay", str(copy)), ("catalog", "verify", str(copy), "--quiet")):
-            result = _cli(*command)
-            assert result.returncode != 0 and result.stderr.count("\n") == 1 and message in result.stderr
+            code, err = _command(capsys, *command)
+            assert code != 0 and err.count("\n") == 1 and message in err, err
 
 
 @pytest.mark.parametrize("column, value", [("status", "error"), ("policy", "predictive"), ("privileged", False)])
@@ -109,19 +115,19 @@ def test_a_run_re_sealed_as_non_privileged_is_refused_by_replay(copy):
 
 
 @pytest.mark.parametrize("name", ["000099-000099.parquet", ".hidden", "notes.txt"])
-def test_a_stray_file_in_a_data_folder_is_named_by_replay_and_verify(copy, name):
+def test_a_stray_file_in_a_data_folder_is_named_by_replay_and_verify(copy, name, capsys):
     stray = copy / "frames" / name
     shutil.copy(copy / "frames" / "000002-000002.parquet", stray)
     for check in (replay, verify):
         with pytest.raises(ShardError, match=f"{stray}: not listed in catalog.json"):
             check(copy)
     if name == "notes.txt":
-        result = _cli("catalog", "verify", str(copy), "--quiet")
-        assert result.returncode == 2 and result.stderr.count("\n") == 1
-        assert f"frames/{name}: not listed in catalog.json" in result.stderr
+        code, err = _command(capsys, "catalog", "verify", str(copy), "--quiet")
+        assert code == 2 and err.count("\n") == 1, err
+        assert f"frames/{name}: not listed in catalog.json" in err
 
 
-def test_scoring_refuses_a_run_whose_first_shard_was_removed_and_re_sealed(copy):
+def test_scoring_refuses_a_run_whose_first_shard_was_removed_and_re_sealed(copy, capsys):
     manifest = load_manifest(copy)
     first = manifest.shards[0]
     for record in first.files.values():
@@ -132,8 +138,8 @@ def test_scoring_refuses_a_run_whose_first_shard_was_removed_and_re_sealed(copy)
     assert load_manifest(copy).episodes == 1  # the seal and the hash hold: only completeness can tell
     with pytest.raises(ShardError, match=r"episodes 0-1 are missing"):
         load_run(copy)
-    result = _cli("scoring", "eval", str(copy))
-    assert result.returncode != 0 and "episodes 0-1 are missing" in result.stderr and "Traceback" not in result.stderr
+    code, err = _command(capsys, "scoring", "eval", str(copy))
+    assert code != 0 and "episodes 0-1 are missing" in err and "Traceback" not in err
 
 
 def test_a_run_from_before_the_hand_body_is_scored_but_not_re_executed(copy):
