@@ -123,15 +123,17 @@ def test_a_private_seed_is_for_the_held_out_slices_only(tmp_path):
         evaluate("still", "linear-fast", tmp_path / "run", episodes=1, workers=0, test_seed=SECRET)
 
 
-def _private_run(tmp_path: Path) -> Path:
-    run = tmp_path / "run"
+@pytest.fixture(scope="module")
+def private_run(tmp_path_factory) -> Path:
+    """A run drawn from the private seed, made once for the tests that read it (none writes to it)."""
+    run = tmp_path_factory.mktemp("private") / "run"
     evaluate("predictive", "test-1k", run, episodes=4, workers=0, resolution=RESOLUTION, shard_size=2,
              progress=False, summary=False, test_seed=SECRET)
     return run
 
 
-def test_the_manifest_keeps_a_hash_and_no_seed_and_the_bytes_are_deterministic(tmp_path):
-    run = _private_run(tmp_path)
+def test_the_manifest_keeps_a_hash_and_no_seed_and_the_bytes_are_deterministic(private_run, tmp_path):
+    run = private_run
     text = (run / "catalog.json").read_text()
     manifest = json.loads(text)
     record = manifest["test_seed"]
@@ -153,8 +155,8 @@ def test_the_manifest_keeps_a_hash_and_no_seed_and_the_bytes_are_deterministic(t
     assert json.loads((other / "catalog.json").read_text())["test_seed"]["hash"] != record["hash"]
 
 
-def test_replay_and_verify_need_the_seed(tmp_path):
-    run = _private_run(tmp_path)
+def test_replay_and_verify_need_the_seed(private_run, tmp_path):
+    run = private_run
     with pytest.raises(SpecError, match="drawn from a private test seed; replaying it needs that seed"):
         replay(run)
     with pytest.raises(SpecError, match="does not match the one recorded"):
@@ -170,7 +172,18 @@ def test_replay_and_verify_need_the_seed(tmp_path):
         replay(public, test_seed=SECRET)
 
 
-def test_the_cli_takes_the_seed_from_a_file_and_says_one_line_without_it(tmp_path):
+def _main(capsys, program: str, *args: str) -> subprocess.CompletedProcess:
+    """``program`` (pipeline or catalog) run in this process, as its console script runs it."""
+    from pipeline.cli import main as pipeline_main
+    from pipeline.cli_catalog import main as catalog_main
+
+    capsys.readouterr()
+    code = (pipeline_main if program == "pipeline" else catalog_main)(list(args))
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess([program, *args], code, out, err)
+
+
+def test_the_cli_takes_the_seed_from_a_file_and_says_one_line_without_it(tmp_path, capsys):
     secret_file = tmp_path / "test-seed.txt"
     secret_file.write_text(SECRET + "\n")
     run = tmp_path / "run"  # made through the API (a CLI eval starts a Dask cluster; the flags are the same)
@@ -179,15 +192,14 @@ def test_the_cli_takes_the_seed_from_a_file_and_says_one_line_without_it(tmp_pat
     bare = subprocess.run([str(BIN / "pipeline"), "replay", str(run)], capture_output=True, text=True)
     assert bare.returncode == 2 and len(bare.stderr.strip().splitlines()) == 1
     assert "needs that seed" in bare.stderr and "Traceback" not in bare.stderr
-    wrong = subprocess.run([str(BIN / "pipeline"), "replay", str(run), "--test-seed", OTHER], capture_output=True, text=True)
+    # the refusals above and below run the console scripts; these run their mains in this process
+    wrong = _main(capsys, "pipeline", "replay", str(run), "--test-seed", OTHER)
     assert wrong.returncode == 2 and "does not match" in wrong.stderr and OTHER not in wrong.stderr
-    good = subprocess.run([str(BIN / "pipeline"), "replay", str(run), "--test-seed-file", str(secret_file), "--quiet"],
-                          capture_output=True, text=True)
+    good = _main(capsys, "pipeline", "replay", str(run), "--test-seed-file", str(secret_file), "--quiet")
     assert good.returncode == 0, good.stderr
-    info = subprocess.run([str(BIN / "catalog"), "info", str(run)], capture_output=True, text=True)
+    info = _main(capsys, "catalog", "info", str(run))
     assert info.returncode == 0 and "seed private (scrypt hash" in info.stdout and SECRET not in info.stdout
-    missing = subprocess.run([str(BIN / "catalog"), "verify", str(run), "--test-seed-file", str(tmp_path / "nope")],
-                             capture_output=True, text=True)
+    missing = _main(capsys, "catalog", "verify", str(run), "--test-seed-file", str(tmp_path / "nope"))
     assert missing.returncode == 2 and "--test-seed-file" in missing.stderr and "cannot read it" in missing.stderr
     common = ["--slice", "test-1k", "--episodes", "1", "--resolution", str(RESOLUTION), "--quiet"]
     weak = subprocess.run([str(BIN / "pipeline"), "eval", "--policy", "still", "--out", str(tmp_path / "weak"), *common,
