@@ -163,10 +163,19 @@ def _tree(root: Path) -> dict[str, bytes]:
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+def _check_progress(lines: list[str]) -> None:
+    """Progress per exported episode, the first before any shard is done, the last at the end."""
+    assert re.fullmatch(r"\[0/3 shards\] 1/5 episodes, \d+/\d+ frames, [\d.]+ frames/s, eta \?", lines[0]), lines
+    assert lines[-1].startswith("[3/3 shards] 5/5 episodes, ") and lines[-1].endswith("eta 0s"), lines
+
+
 @pytest.mark.parametrize("fmt", ["lerobot", "lerobot-v2.1"])
 def test_an_export_is_the_same_bytes_again_and_its_manifest_hashes_every_file(built, exports, tmp_path, fmt):
-    again = tmp_path / "again"
-    export(built, again, ExportSettings(fmt), workers=2)
+    """Exported again by two worker processes, showing progress (the first export was quiet,
+    in this process): the same bytes, and progress came from the workers."""
+    again, lines = tmp_path / "again", []
+    export(built, again, ExportSettings(fmt), workers=2, progress=lines.append)
+    _check_progress(lines)
     first, second = _tree(exports[fmt]), _tree(again)
     assert first == second
     meta = json.loads(second["meta/dyana.json"])
@@ -283,13 +292,16 @@ def test_the_av1_codec_is_deterministic_and_decodes(built, tmp_path):
 # --- progress --------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("workers", [
+    1, pytest.param(2, marks=pytest.mark.slow(
+        cover="tests/pipeline/test_export.py::test_an_export_is_the_same_bytes_again_and_its_manifest_hashes_every_file")),
+])
 def test_export_reports_episodes_before_their_shard_is_done(built, exports, tmp_path, workers):
-    """Progress per exported episode, from worker processes too; its bytes do not depend on it."""
+    """Progress per exported episode, from worker processes too (in the default run, the
+    same-bytes test's two-worker exports show it); its bytes do not depend on it."""
     lines: list[str] = []
     export(built, tmp_path / "shown", ExportSettings("lerobot"), workers=workers, progress=lines.append)
-    assert re.fullmatch(r"\[0/3 shards\] 1/5 episodes, \d+/\d+ frames, [\d.]+ frames/s, eta \?", lines[0]), lines
-    assert lines[-1].startswith("[3/3 shards] 5/5 episodes, ") and lines[-1].endswith("eta 0s"), lines
+    _check_progress(lines)
     shown, quiet = (json.loads((folder / "meta" / "dyana.json").read_text())
                     for folder in (tmp_path / "shown", exports["lerobot"]))
     # The videos are left out: under load, libx264 here rarely encodes a shard's MP4 with other
