@@ -198,7 +198,18 @@ def test_repeats_from_the_command_line(tmp_path):
     (("--perturb", "noise:"), "--perturb 'noise:': the strength after ':' is empty"),
     (("--perturb", "noise: "), "--perturb 'noise: ': the strength after ':' is empty"),
 ])
-def test_bad_protocol_flags_are_one_line(tmp_path, flags, message):
-    result = run("pipeline", "eval", "--policy", "still", "--episodes", "1", "--out", str(tmp_path / "x"), *flags)
+def test_bad_protocol_flags_are_one_line(tmp_path, capsys, flags, message):
+    """The first refusal from the console script (a real process's stderr), the others from
+    its main in this process: the same parser and checks, without starting Python again."""
+    argv = ("pipeline", "eval", "--policy", "still", "--episodes", "1", "--out", str(tmp_path / "x"), *flags)
+    if flags[0] == "--latency-frames":
+        result = run(*argv)
+    else:
+        from pipeline.cli import main
+
+        capsys.readouterr()
+        code = main(list(argv[1:]))
+        out, err = capsys.readouterr()
+        result = subprocess.CompletedProcess(argv, code, out, err)
     assert result.returncode == 2 and message in result.stderr and result.stderr.count("\n") == 1
     assert "Traceback" not in result.stderr
