@@ -41,34 +41,48 @@ def _secret_file(tmp_path: Path) -> Path:
     return path
 
 
-def _parent(proc: Path) -> int:
-    """The parent pid in ``proc``'s stat (after the command name, which may hold spaces), or 0."""
+def _stat(proc: Path) -> tuple[int, int]:
+    """The parent pid and the start time in ``proc``'s stat (after the command name, which may
+    hold spaces), or (0, 0)."""
     try:
-        return int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
+        fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
+        return int(fields[1]), int(fields[19])
     except (OSError, IndexError, ValueError):
-        return 0
+        return 0, 0
 
 
-def _descends_from_us(proc: Path) -> bool:
+def _descends_from_us(proc: Path, known: dict[tuple[int, int], bool]) -> bool:
     """Whether ``proc`` is a descendant of this test process (the run's workers and policy
-    processes are; another test's, in the other xdist worker, are not)."""
-    me, pid = os.getpid(), int(proc.name)
+    processes are; another test's, in the other xdist worker, are not). ``known`` keeps the
+    answer per process (pid and start time: a reused pid is another process), so each scan
+    reads one stat file per process rather than its every ancestor's."""
+    me, chain, answer = os.getpid(), [], False
+    pid = int(proc.name)
     for _ in range(64):
-        pid = _parent(Path("/proc") / str(pid))
-        if pid == me:
-            return True
-        if pid <= 1:
-            return False
-    return False
+        parent, start = _stat(Path("/proc") / str(pid))
+        if (pid, start) in known:
+            answer = known[(pid, start)]
+            break
+        chain.append((pid, start))
+        if parent == me:
+            answer = True
+            break
+        if parent <= 1:
+            break
+        pid = parent
+    for key in chain:
+        if key[1]:  # a process that was gone when read is asked about again next time
+            known[key] = answer
+    return answer
 
 
 def _holders(stop: threading.Event, seen: list[str]) -> None:
     """Every process of this run (a descendant of this test process) whose command line or
     environment holds the secret, while the run lasts."""
-    needle = SECRET.encode()
+    needle, known = SECRET.encode(), {}
     while not stop.is_set():
         for proc in Path("/proc").glob("[0-9]*"):
-            if not _descends_from_us(proc):
+            if not _descends_from_us(proc, known):
                 continue
             for name in ("cmdline", "environ"):
                 try:
@@ -198,16 +212,22 @@ def test_the_sandbox_shows_no_other_process_no_secret_writes_only_scratch_and_ca
     assert not (Path(__file__).parent / "planted.py").exists()
 
 
-def test_the_secret_can_come_from_stdin_and_then_no_command_line_names_a_file(tmp_path):
+def test_the_secret_can_come_from_stdin_and_then_no_command_line_names_a_file(tmp_path, monkeypatch, capsys):
+    import io
+
+    from pipeline.cli import main
+
     run = tmp_path / "run"
     evaluate("still", "test-1k", run, episodes=1, workers=0, resolution=RESOLUTION, progress=False, summary=False,
              test_seed=SECRET)
     piped = subprocess.run([str(BIN / "pipeline"), "replay", str(run), "--test-seed-file", "-", "--quiet"],
                            input=SECRET + "\n", capture_output=True, text=True)
     assert piped.returncode == 0, piped.stderr
-    wrong = subprocess.run([str(BIN / "pipeline"), "replay", str(run), "--test-seed-file", "-"],
-                           input="c3a9f1e07d2b4c68a5e19f30b7d64c28\n", capture_output=True, text=True)
-    assert wrong.returncode == 2 and "does not match" in wrong.stderr
+    # a wrong secret on stdin, through the CLI's main in this process (the piped one above is a real process's)
+    monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(b"c3a9f1e07d2b4c68a5e19f30b7d64c28\n")))
+    capsys.readouterr()
+    assert main(["replay", str(run), "--test-seed-file", "-"]) == 2
+    assert "does not match" in capsys.readouterr().err
     assert sandbox.seal_for("-", str(run)).files == ()  # nothing to cover: the policy never gets stdin
 
 
