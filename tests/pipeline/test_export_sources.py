@@ -75,7 +75,9 @@ def test_two_folders_become_one_dataset_renumbered_with_their_provenance(sources
 
 def test_the_object_pose_is_exported_only_when_asked_for(sources, tmp_path, capsys):
     out = tmp_path / "privileged"
-    assert catalog_main(["export", str(sources[0]), "--out", str(out), "--environment-state", "--quiet"]) == 0
+    # in this process (--workers 1): worker processes are test_export's same-bytes test's
+    assert catalog_main(["export", str(sources[0]), "--out", str(out), "--environment-state", "--workers", "1",
+                         "--quiet"]) == 0
     assert "3 episodes" in capsys.readouterr().out
     info = json.loads((out / "meta/info.json").read_text())
     assert info["features"]["observation.environment_state"]["shape"] == [7]
