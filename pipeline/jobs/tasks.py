@@ -45,6 +45,9 @@ from schemas.spec import EpisodeSpec
 MAX_WORKERS = 64
 #: Seconds a --scheduler has to answer as a Dask scheduler.
 CONNECT_TIMEOUT_S = 30.0
+#: Seconds more the driver waits for the connecting thread: Dask's own timeout does not end
+#: a handshake that a silent peer never answers, so the driver stops waiting instead.
+CONNECT_GRACE_S = 5.0
 
 #: Worker settings for CPU-bound whole-shard tasks: no statistical profiler sampling the
 #: task thread every 10 ms, no work stealing of long tasks, no spilling (results are tiny);
@@ -235,7 +238,7 @@ def connect(client_class: Callable[..., Any], scheduler: str) -> Any:
 
     thread = threading.Thread(target=attempt, name="dyana-dask-connect", daemon=True)
     thread.start()
-    thread.join(CONNECT_TIMEOUT_S + 5.0)
+    thread.join(CONNECT_TIMEOUT_S + CONNECT_GRACE_S)
     where = f"--scheduler {shorten(scheduler)!r}: cannot connect to the Dask scheduler"
     if "client" in outcome:
         return outcome["client"]

@@ -186,7 +186,8 @@ def test_a_scheduler_address_that_is_not_a_scheduler_is_one_error(monkeypatch):
 
     from schemas.errors import DyanaError
 
-    monkeypatch.setattr(task_module, "CONNECT_TIMEOUT_S", 0.2)  # then 5 s of grace (connect)
+    monkeypatch.setattr(task_module, "CONNECT_TIMEOUT_S", 0.2)
+    monkeypatch.setattr(task_module, "CONNECT_GRACE_S", 0.3)
     with socket.socket() as silent:
         silent.bind(("127.0.0.1", 0))
         silent.listen()
