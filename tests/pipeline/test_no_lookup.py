@@ -22,6 +22,7 @@ from pipeline.loop.wrappers import loop_env
 from schemas.errors import SpecError
 from scoring.io import load_run
 from scoring.report import score_run
+from tests.console import run_here
 from tests.pipeline.spy_policy import OUT_ENV, SpyPolicy
 from tests.pipeline.test_remote import start_server
 from tests.pipeline.test_sealed import needs_unshare
@@ -172,17 +173,6 @@ def test_replay_and_verify_need_the_seed(private_run, tmp_path):
         replay(public, test_seed=SECRET)
 
 
-def _main(capsys, program: str, *args: str) -> subprocess.CompletedProcess:
-    """``program`` (pipeline or catalog) run in this process, as its console script runs it."""
-    from pipeline.cli import main as pipeline_main
-    from pipeline.cli_catalog import main as catalog_main
-
-    capsys.readouterr()
-    code = (pipeline_main if program == "pipeline" else catalog_main)(list(args))
-    out, err = capsys.readouterr()
-    return subprocess.CompletedProcess([program, *args], code, out, err)
-
-
 def test_the_cli_takes_the_seed_from_a_file_and_says_one_line_without_it(tmp_path, capsys):
     secret_file = tmp_path / "test-seed.txt"
     secret_file.write_text(SECRET + "\n")
@@ -193,13 +183,13 @@ def test_the_cli_takes_the_seed_from_a_file_and_says_one_line_without_it(tmp_pat
     assert bare.returncode == 2 and len(bare.stderr.strip().splitlines()) == 1
     assert "needs that seed" in bare.stderr and "Traceback" not in bare.stderr
     # the refusals above and below run the console scripts; these run their mains in this process
-    wrong = _main(capsys, "pipeline", "replay", str(run), "--test-seed", OTHER)
+    wrong = run_here(capsys, "pipeline", "replay", str(run), "--test-seed", OTHER)
     assert wrong.returncode == 2 and "does not match" in wrong.stderr and OTHER not in wrong.stderr
-    good = _main(capsys, "pipeline", "replay", str(run), "--test-seed-file", str(secret_file), "--quiet")
+    good = run_here(capsys, "pipeline", "replay", str(run), "--test-seed-file", str(secret_file), "--quiet")
     assert good.returncode == 0, good.stderr
-    info = _main(capsys, "catalog", "info", str(run))
+    info = run_here(capsys, "catalog", "info", str(run))
     assert info.returncode == 0 and "seed private (scrypt hash" in info.stdout and SECRET not in info.stdout
-    missing = _main(capsys, "catalog", "verify", str(run), "--test-seed-file", str(tmp_path / "nope"))
+    missing = run_here(capsys, "catalog", "verify", str(run), "--test-seed-file", str(tmp_path / "nope"))
     assert missing.returncode == 2 and "--test-seed-file" in missing.stderr and "cannot read it" in missing.stderr
     common = ["--slice", "test-1k", "--episodes", "1", "--resolution", str(RESOLUTION), "--quiet"]
     weak = subprocess.run([str(BIN / "pipeline"), "eval", "--policy", "still", "--out", str(tmp_path / "weak"), *common,

@@ -16,6 +16,7 @@ from pipeline.jobs.replay import replay
 from pipeline.jobs.verify import verify
 from schemas.errors import ReplayMismatch, ShardError
 from scoring.io import load_run
+from tests.console import run_here
 
 from .tamper import copy_of, reseal, rewrite_episodes, set_column
 
@@ -35,20 +36,6 @@ def copy(run, tmp_path):
     return copy_of(run, tmp_path)
 
 
-def _command(capsys, *args: str) -> tuple[int, str]:
-    """``pipeline ...``, ``catalog ...`` or ``scoring ...`` through its entry point in this
-    process (what the console script calls; a process each cost its start, and
-    test_replay.py runs these commands' refusals as processes): its exit status and what it
-    wrote to stderr."""
-    from pipeline.cli import main as pipeline_main
-    from pipeline.cli_catalog import main as catalog_main
-    from scoring.cli import main as scoring_main
-
-    capsys.readouterr()
-    code = {"pipeline": pipeline_main, "catalog": catalog_main, "scoring": scoring_main}[args[0]](list(args[1:]))
-    return code, capsys.readouterr().err
-
-
 @pytest.mark.parametrize("key, value", [("policy", "predictive"), ("privileged", False), ("deadline_s", 30.0),
                                         ("code", {"version": "0.1.0", "commit": "f" * 40})])
 def test_a_hand_edited_manifest_key_fails_replay_and_verify_naming_it(copy, key, value, capsys):
@@ -63,7 +50,8 @@ def test_a_hand_edited_manifest_key_fails_replay_and_verify_naming_it(copy, key,
         assert str(info.value).startswith(message)
     if key == "policy":
         for command in (("pipeline", "replay", str(copy)), ("catalog", "verify", str(copy), "--quiet")):
-            code, err = _command(capsys, *command)
+            done = run_here(capsys, *command)
+            code, err = done.returncode, done.stderr
             assert code != 0 and err.count("\n") == 1 and message in err, err
 
 
@@ -122,7 +110,8 @@ def test_a_stray_file_in_a_data_folder_is_named_by_replay_and_verify(copy, name,
         with pytest.raises(ShardError, match=f"{stray}: not listed in catalog.json"):
             check(copy)
     if name == "notes.txt":
-        code, err = _command(capsys, "catalog", "verify", str(copy), "--quiet")
+        done = run_here(capsys, "catalog", "verify", str(copy), "--quiet")
+        code, err = done.returncode, done.stderr
         assert code == 2 and err.count("\n") == 1, err
         assert f"frames/{name}: not listed in catalog.json" in err
 
@@ -138,7 +127,8 @@ def test_scoring_refuses_a_run_whose_first_shard_was_removed_and_re_sealed(copy,
     assert load_manifest(copy).episodes == 1  # the seal and the hash hold: only completeness can tell
     with pytest.raises(ShardError, match=r"episodes 0-1 are missing"):
         load_run(copy)
-    code, err = _command(capsys, "scoring", "eval", str(copy))
+    done = run_here(capsys, "scoring", "eval", str(copy))
+    code, err = done.returncode, done.stderr
     assert code != 0 and "episodes 0-1 are missing" in err and "Traceback" not in err
 
 

@@ -15,6 +15,7 @@ import pytest
 from catalog.store.manifest import load_manifest
 from pipeline.jobs.build import build
 from schemas.errors import ShardError
+from tests.console import run_here
 
 BIN = Path(sys.executable).parent
 SLICE = "circular-fast"
@@ -29,19 +30,6 @@ def built(tmp_path_factory):
 
 def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, timeout=300)
-
-
-def _main(capsys, program: str, *args: str) -> subprocess.CompletedProcess:
-    """``program`` (pipeline or catalog) run in this process, as its console script runs it: its
-    exit status and what it printed. The refusals of a real process are checked too (the
-    tampered-file verify, the missing episode's view, the full disk)."""
-    from pipeline.cli import main as pipeline_main
-    from pipeline.cli_catalog import main as catalog_main
-
-    capsys.readouterr()
-    code = (pipeline_main if program == "pipeline" else catalog_main)(list(args))
-    out, err = capsys.readouterr()
-    return subprocess.CompletedProcess([program, *args], code, out, err)
 
 
 def test_view_writes_a_recording_rerun_can_read(built, tmp_path):
@@ -154,7 +142,7 @@ def test_view_refuses_a_damaged_shard_naming_it(capsys, built, tmp_path, damage)
     else:
         data = data[:-100]
     victim.write_bytes(bytes(data))
-    result = _main(capsys, "pipeline", "view", str(copy), "--episode", "2", "--out", str(tmp_path / "x.rrd"))
+    result = run_here(capsys, "pipeline", "view", str(copy), "--episode", "2", "--out", str(tmp_path / "x.rrd"))
     assert result.returncode == 2
     assert "frames/000002-000002.parquet" in result.stderr and result.stderr.count("\n") == 1
     assert ("content changed" if damage == "flip" else "truncated") in result.stderr
@@ -162,13 +150,13 @@ def test_view_refuses_a_damaged_shard_naming_it(capsys, built, tmp_path, damage)
 
 
 def test_verify_rebuilds_identical_shards(capsys, built):
-    result = _main(capsys, "catalog", "verify", str(built))
+    result = run_here(capsys, "catalog", "verify", str(built))
     assert result.returncode == 0, result.stderr
     assert "2 rebuilt byte for byte" in result.stdout
     progress = [line for line in result.stderr.splitlines() if " episodes, " in line]
     assert progress[0].startswith("[rebuilding 0-1] 1/3 episodes, ") and progress[0].endswith("eta ?"), result.stderr
     assert progress[-1].startswith("[2/2 shards rebuilt] 3/3 episodes, ") and progress[-1].endswith("eta 0s")
-    quiet = _main(capsys, "catalog", "verify", str(built), "--quiet")
+    quiet = run_here(capsys, "catalog", "verify", str(built), "--quiet")
     assert quiet.returncode == 0 and quiet.stderr == "" and "2 rebuilt byte for byte" in quiet.stdout
 
 
@@ -190,7 +178,7 @@ def test_verify_names_a_truncated_file(capsys, built, tmp_path):
     shutil.copytree(built, copy)
     victim = copy / "mcap" / "000000-000001.mcap"
     victim.write_bytes(victim.read_bytes()[:100])
-    result = _main(capsys, "catalog", "verify", str(copy))
+    result = run_here(capsys, "catalog", "verify", str(copy))
     assert result.returncode != 0
     assert "000000-000001.mcap" in result.stderr
 
@@ -222,7 +210,7 @@ def test_verify_rebuild_catches_what_hashes_cannot(capsys, built, tmp_path):
         shards.append(ShardRecord.from_dict(raw))
     write_manifest(copy, Manifest.create(manifest.slice, manifest.seed, manifest.settings, shards,
                                          code=manifest.code, extra=manifest.extra))
-    result = _main(capsys, "catalog", "verify", str(copy))
+    result = run_here(capsys, "catalog", "verify", str(copy))
     assert result.returncode == 2
     assert "episodes/000002-000002.parquet" in result.stderr
     assert "rebuilding gives different bytes" in result.stderr
@@ -258,7 +246,7 @@ def test_verify_names_settings_it_does_not_know(capsys, built, tmp_path):
     settings = dict(manifest.settings, hdr=True)
     write_manifest(copy, Manifest.create(manifest.slice, manifest.seed, settings, list(manifest.shards),
                                          code=manifest.code, extra=manifest.extra))
-    result = _main(capsys, "catalog", "verify", str(copy), "--quiet")
+    result = run_here(capsys, "catalog", "verify", str(copy), "--quiet")
     assert result.returncode == 2
     assert "unknown settings ['hdr']" in result.stderr
     assert "Traceback" not in result.stderr
@@ -276,7 +264,7 @@ def test_edited_statistics_are_caught_by_verify_and_refused_by_the_loader(capsys
     data = json.loads((copy / "stats.json").read_text())
     data["columns"]["action"]["std"] = [1.0] * 18
     (copy / "stats.json").write_text(json.dumps(data, sort_keys=True, indent=2) + "\n")
-    result = _main(capsys, "catalog", "verify", str(copy))
+    result = run_here(capsys, "catalog", "verify", str(copy))
     assert result.returncode == 2 and "stats.json" in result.stderr and "Traceback" not in result.stderr
     with pytest.raises(ShardError, match="stats.json: "):
         _ = catalog.open(copy).stats
@@ -340,7 +328,7 @@ def unwritable(tmp_path):
 
 def test_view_into_an_unwritable_folder_is_one_line_naming_it(capsys, built, unwritable):
     for out in (unwritable / "ep.rrd", unwritable / "new" / "ep.rrd"):
-        result = _main(capsys, "pipeline", "view", str(built), "--out", str(out))
+        result = run_here(capsys, "pipeline", "view", str(built), "--out", str(out))
         assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
         assert f"cannot write into the folder '{unwritable}'" in result.stderr and ".tmp-" not in result.stderr
 

@@ -18,6 +18,7 @@ from pipeline.loop.perturb import Perturbation
 from scoring.io import load_run
 from scoring.report import default_label
 from scoring.robustness import load_repeats, robustness
+from tests.console import run_here
 
 BIN = Path(sys.executable).parent
 OPTIONS = {"episodes": 3, "resolution": 48, "workers": 0, "progress": False, "summary": False}
@@ -25,17 +26,6 @@ OPTIONS = {"episodes": 3, "resolution": 48, "workers": 0, "progress": False, "su
 
 def scoring(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([str(BIN / "scoring"), "eval", *map(str, args)], capture_output=True, text=True, timeout=300)
-
-
-def scoring_here(capsys, *args: str) -> subprocess.CompletedProcess:
-    """``scoring eval`` run in this process (its main, as the console script runs it); the
-    refusal of an edited repeat runs the console script itself."""
-    from scoring.cli import main
-
-    capsys.readouterr()
-    code = main(["eval", *map(str, args)])
-    out, err = capsys.readouterr()
-    return subprocess.CompletedProcess(["scoring", "eval", *map(str, args)], code, out, err)
 
 
 @pytest.fixture(scope="module")
@@ -55,12 +45,12 @@ def test_robustness_counts_every_episode_once_and_measures_divergence(runs, caps
         assert sum(report["consistency"][event].values()) == 3
     assert report["action_divergence"] > 0.0  # noise changed what the policy saw, so what it did
     assert sum(g["episodes"] for g in report["by_motion"].values()) == 3
-    result = scoring_here(capsys, runs / "robust", "--json")
+    result = run_here(capsys, "scoring", "eval", runs / "robust", "--json")
     assert result.returncode == 0, result.stderr
     payload = json.loads(result.stdout)
     assert [r["label"] for r in payload["runs"]] == ["predictive [noise:4 r0]", "predictive [noise:4 r1]"]
     assert payload["robustness"][0]["consistency"] == report["consistency"]
-    assert "Robustness of predictive" in scoring_here(capsys, runs / "robust").stdout
+    assert "Robustness of predictive" in run_here(capsys, "scoring", "eval", runs / "robust").stdout
 
 
 def test_an_edited_repeat_is_refused(runs, tmp_path):
@@ -84,11 +74,11 @@ def test_labels_say_the_protocol(runs):
 
 def test_latency_plot_and_disturbance_times(runs, tmp_path, capsys):
     plot = tmp_path / "latency.png"
-    result = scoring_here(capsys, runs / "latency-0", runs / "latency-3", "--latency-plot", plot)
+    result = run_here(capsys, "scoring", "eval", runs / "latency-0", runs / "latency-3", "--latency-plot", plot)
     assert result.returncode == 0, result.stderr
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     rows = tmp_path / "rows.csv"
-    assert scoring_here(capsys, runs / "disturbed", "--episodes", rows).returncode == 0
+    assert run_here(capsys, "scoring", "eval", runs / "disturbed", "--episodes", rows).returncode == 0
     times = [row["disturbance_time_s"] for row in csv.DictReader(rows.open())]
     assert len(times) == 3 and all(float(t) > 0.0 for t in times if t)
     assert any(times)
