@@ -71,8 +71,8 @@ Config = dict[str, Any]
 
 
 def watchdog_s() -> float:
-    """The rollout's watchdog (:data:`pipeline.loop.rollout.WATCHDOG_S`), the default timeout."""
-    from pipeline.loop.rollout import WATCHDOG_S
+    """The rollout's watchdog (:data:`pipeline.loop.deadlines.WATCHDOG_S`), the default timeout."""
+    from pipeline.loop.deadlines import WATCHDOG_S
 
     return WATCHDOG_S
 

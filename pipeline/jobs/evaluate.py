@@ -44,8 +44,9 @@ from pipeline.jobs.spec import JobSpec, Storage, job_spec
 from pipeline.jobs.staged import Recorded, held_result, staged_episode, staged_result
 from pipeline.jobs.tasks import STAGED_EPISODES
 from pipeline.loop.conditions import EvalProtocol
+from pipeline.loop.deadlines import WATCHDOG_S
 from pipeline.loop.fault_text import split_reason
-from pipeline.loop.rollout import WATCHDOG_S, run_episode
+from pipeline.loop.rollout import run_episode
 from pipeline.loop.wrappers import settings_env
 from pipeline.policies.base import Observation, Policy, Task
 from pipeline.policy_registry import (

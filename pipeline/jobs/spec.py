@@ -26,7 +26,7 @@ from catalog.store.storage import as_location, is_url
 from pipeline.jobs.engine import refuse_export_folder
 from pipeline.jobs.tasks import Execution
 from pipeline.loop.conditions import EvalProtocol
-from pipeline.loop.rollout import check_seconds
+from pipeline.loop.deadlines import check_seconds
 from schemas.errors import PolicyError, SpecError
 from schemas.formats import ALL_FORMATS, parse_formats
 from schemas.names import shorten

@@ -25,13 +25,13 @@ over ``ws://``, where the evaluator just drops the connection.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
 
 from pipeline.loop.actions import run_chunk
+from pipeline.loop.deadlines import WATCHDOG_S, check_seconds
 from pipeline.loop.env import horizon
 from pipeline.loop.fault_text import raised
 from pipeline.loop.worker_thread import CallTimeout, WorkerThread
@@ -39,14 +39,8 @@ from pipeline.loop.wrappers import RecordEpisode, note_policy_time
 from pipeline.policies.base import Policy, Task
 from schemas.errors import PolicyError
 from schemas.frames import EpisodeFrames
-from schemas.names import shorten
 from schemas.spec import EpisodeSpec
 from schemas.versions import FPS
-
-#: Without a deadline, a call that has not returned after this long is taken for a hang
-#: (the episode fails with a "hung" reason). Generous on purpose: machine load never
-#: decides a result; only a policy that truly stops answering meets it.
-WATCHDOG_S = 300.0
 
 
 @dataclass(frozen=True)
@@ -110,13 +104,6 @@ def call_policy(
         raise
     except Exception as exc:
         raise PolicyError(raised(what, exc)) from None
-
-
-def check_seconds(name: str, value: object) -> float:
-    """A finite number of seconds > 0, or PolicyError naming it."""
-    if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise PolicyError(f"{name} must be a finite number of seconds > 0, got {shorten(repr(value))}")
-    return float(value)
 
 
 def run_episode(

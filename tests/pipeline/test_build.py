@@ -247,6 +247,16 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path):
     assert "--scheduler 'tcp://127.0.0.1:1': cannot connect" in result.stderr and "Traceback" not in result.stderr
 
 
+def test_a_build_starts_without_the_closed_loop():
+    """`pipeline build` runs no policy: its modules import neither the rollout nor gymnasium
+    (about 0.1 CPU s a process, in every build and every Dask worker)."""
+    code = ("import sys; import pipeline.cli, pipeline.jobs.build, pipeline.stages.record; "
+            "print(sorted(m for m in ('gymnasium', 'pipeline.loop.rollout', 'pipeline.loop.env') if m in sys.modules))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]", result.stdout
+
+
 def _cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([str(BIN / "pipeline"), *args], capture_output=True, text=True, timeout=300)
 
