@@ -25,6 +25,24 @@ def pin_one_core() -> str:
     return "not pinned (no sched_setaffinity)"
 
 
+#: The bare baseline's fixed work: a sum of squares in plain Python (no library, no I/O).
+PROBE_TERMS = 10_000_000
+
+
+def bare_probe(repeats: int = 3) -> float:
+    """CPU seconds this machine takes for :data:`PROBE_TERMS` of plain-Python arithmetic, the
+    fastest of ``repeats``: the bare baseline that a timing run records beside its numbers,
+    since this machine's speed moves by ~20% between runs at the same load."""
+    import time
+
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.process_time()
+        sum(i * i for i in range(PROBE_TERMS))
+        best = min(best, time.process_time() - start)
+    return round(best, 3)
+
+
 def provenance() -> dict:
     """What a result file records about where its numbers come from: the commit (and whether
     the working tree differed from it), the dataset version, the date, the cores and the load."""

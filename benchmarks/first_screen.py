@@ -3,7 +3,8 @@
 Clones the repository's HEAD into a temporary folder, runs README command 1 (make a venv,
 install, build 32 linear-fast episodes) and command 2 (``.ci/run``: install the extras,
 lint, type-check, build the docs, run the tests), timing each and each ``== phase`` of
-``.ci/run``, with the load average (``uptime``) at the start and the end. Writes
+``.ci/run``, with the load average (``uptime``) and the bare baseline (``bench_setup.bare_probe``:
+this machine's speed, which moves between runs) at the start and the end. Writes
 ``benchmarks/results/first_screen.json`` (the README's timing sentence and the benchmarks
 page are generated from it) and, with ``--update-readme``, rewrites that sentence. The
 commands run in this shell's environment less what a newcomer's lacks (:data:`NOT_A_NEWCOMERS`).
@@ -77,7 +78,8 @@ def measure(python: str) -> dict:
                     "dataset_version": where["dataset_version"],
                     "date_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
                     "cores": len(os.sched_getaffinity(0)), "pip_cache": "as found on this machine",
-                    "load_average_start": [round(x, 2) for x in os.getloadavg()], "uptime_start": _uptime()}
+                    "load_average_start": [round(x, 2) for x in os.getloadavg()], "uptime_start": _uptime(),
+                    "bare_probe_s_start": bench_setup.bare_probe(), "bare_probe_terms": bench_setup.PROBE_TERMS}
     with tempfile.TemporaryDirectory(prefix="dyana-first-screen-") as tmp:
         clone = Path(tmp) / "dyana"
         subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
@@ -90,6 +92,7 @@ def measure(python: str) -> dict:
                                "tests_summary": summaries.get("tests"), "peer_summary": summaries.get("real")}
     record["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     record["uptime_end"] = _uptime()
+    record["bare_probe_s_end"] = bench_setup.bare_probe()
     return record
 
 

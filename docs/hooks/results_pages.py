@@ -415,4 +415,12 @@ def first_screen_sentence(root: Path) -> str:
             f"{record['commit'][:7]}, {record['cores']} cores, load average {record['load_average_start'][0]} "
             f"at the start and {record['load_average_end'][0]} at the end, pip's cache "
             f"{record['pip_cache']}): command 1 took {_duration(one['seconds'])} with the install, "
-            f"command 2 {_duration(two['seconds'])}{of_which}.")
+            f"command 2 {_duration(two['seconds'])}{of_which}{_probe(record)}.")
+
+
+def _probe(record: dict) -> str:
+    """The bare baseline of a first-screen run, where it was measured (this machine's speed)."""
+    if "bare_probe_s_start" not in record:
+        return ""
+    return (f" (the bare baseline, {record['bare_probe_terms']:,} squares summed in plain Python, took "
+            f"{record['bare_probe_s_start']} CPU s at the start and {record['bare_probe_s_end']} at the end)")
