@@ -60,7 +60,9 @@ from schemas.errors import PolicyError, SpecError
 from schemas.names import shorten
 
 if TYPE_CHECKING:  # the command line reads the kinds to build its parser: the loop is imported when used
-    from pipeline.policies.base import Policy
+    import numpy as np
+
+    from pipeline.policies.base import Observation, Policy, Task
 
 #: Extra seconds a remote policy's socket waits beyond the deadline or watchdog (the
 #: rollout's fires first and names the fault).
@@ -471,3 +473,19 @@ register(PolicyKind("sb3", "sb3:", make_sb3, configure=configure_sb3, manifest_k
                     servable=True, sealed_files=sb3_files, check=check_sb3,
                     about="a saved Stable-Baselines3 model (sb3:ALGO:MODEL.zip names its algorithm)",
                     examples=("sb3:ppo_dyana.zip", "sb3:SAC:models/sac.zip")))
+
+
+class Unavailable:
+    """Stands in for a policy that could not be made: its episode records the reason."""
+
+    action_horizon = 1
+    privileged = False
+
+    def __init__(self, name: str, reason: str) -> None:
+        self.name, self.reason = name, reason
+
+    def reset(self, task: Task) -> None:
+        raise PolicyError(self.reason)
+
+    def act(self, obs: Observation) -> np.ndarray:
+        raise PolicyError(self.reason)

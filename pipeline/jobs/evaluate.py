@@ -26,8 +26,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
-
 from catalog.store.manifest import Manifest, load_manifest, manifest_path
 from catalog.store.records import ShardRecord
 from catalog.store.storage import as_location
@@ -44,17 +42,18 @@ from pipeline.jobs.spec import JobSpec, Storage, job_spec
 from pipeline.jobs.staged import Recorded, held_result, staged_episode, staged_result
 from pipeline.jobs.tasks import STAGED_EPISODES
 from pipeline.loop.conditions import EvalProtocol
-from pipeline.loop.deadlines import WATCHDOG_S
+from pipeline.loop.deadlines import call_timeout
 from pipeline.loop.fault_text import split_reason
 from pipeline.loop.rollout import run_episode
 from pipeline.loop.wrappers import settings_env
-from pipeline.policies.base import Observation, Policy, Task
+from pipeline.policies.base import Policy
 from pipeline.policy_registry import (
     Audited,
     Config,
     OpenOptions,
     PolicyKind,
     Timed,
+    Unavailable,
     close_policy,
     describe_policy,
     kind_named,
@@ -98,7 +97,7 @@ class EvalSettings:
 
     @property
     def call_timeout_s(self) -> float:
-        return WATCHDOG_S if self.deadline_s is None else self.deadline_s
+        return call_timeout(self.deadline_s)
 
     @property
     def policy_kind(self) -> PolicyKind:
@@ -112,22 +111,6 @@ class EvalSettings:
         may move port, and the same run resumes)."""
         extra: dict[str, Any] = {"policy": self.policy_name, "privileged": self.privileged, "deadline_s": self.deadline_s}
         return extra | self.policy_kind.manifest(self.config)
-
-
-class Unavailable:
-    """Stands in for a policy that could not be made: its episode records the reason."""
-
-    action_horizon = 1
-    privileged = False
-
-    def __init__(self, name: str, reason: str) -> None:
-        self.name, self.reason = name, reason
-
-    def reset(self, task: Task) -> None:
-        raise PolicyError(self.reason)
-
-    def act(self, obs: Observation) -> np.ndarray:
-        raise PolicyError(self.reason)
 
 
 def fresh_policy(settings: EvalSettings) -> Policy:
@@ -412,7 +395,7 @@ def run_eval(spec: JobSpec, report: Report | None = None, recorded: Recorded | N
                    None if storage.remote else str(storage.folder))
     # A sealed kind's configuration may load its code (an SB3 zip): made sealed too, not beside the secret.
     config = kind.configure(choice.ref, choice.config) if seal is None else configured(seal, choice.ref, choice.config)
-    options = OpenOptions(WATCHDOG_S if choice.deadline_s is None else choice.deadline_s, choice.isolate, config, seal)
+    options = OpenOptions(call_timeout(choice.deadline_s), choice.isolate, config, seal)
     name, privileged = describe_policy(choice.ref, options) if recorded is None else (recorded.name, recorded.privileged)
     if kind.check is not None and recorded is None:  # e.g. an unreachable VLM endpoint: one line now, not a failed run
         kind.check(config, build_settings.resolution)

@@ -22,3 +22,8 @@ def check_seconds(name: str, value: object) -> float:
     if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
         raise PolicyError(f"{name} must be a finite number of seconds > 0, got {shorten(repr(value))}")
     return float(value)
+
+
+def call_timeout(deadline_s: float | None) -> float:
+    """How long a policy call may take: its deadline, or the watchdog where it has none."""
+    return WATCHDOG_S if deadline_s is None else deadline_s
