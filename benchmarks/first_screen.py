@@ -53,7 +53,9 @@ def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[st
     phase, phase_start = "install", start
     tail: list[str] = []
     summaries: dict[str, str] = {}
+    log = tempfile.NamedTemporaryFile("w", prefix="dyana-first-screen-", suffix=".log", delete=False)
     for line in process.stdout:
+        log.write(line)
         tail = (tail + [line.rstrip()])[-20:]
         if re.search(r"\d+ passed", line):
             summaries[phase] = line.strip()
@@ -61,8 +63,10 @@ def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[st
             now = time.monotonic()
             phases[phase] = round(now - phase_start, 1)
             phase, phase_start = line[3:].strip().split(" ")[0], now
+    log.close()
     if process.wait() != 0:
-        sys.exit(f"{command!r} failed in {cwd}:\n" + "\n".join(tail))
+        sys.exit(f"{command!r} failed in {cwd} (its whole output: {log.name}):\n" + "\n".join(tail))
+    os.unlink(log.name)
     end = time.monotonic()
     phases[phase] = round(end - phase_start, 1)
     return round(end - start, 1), phases, "\n".join(tail), summaries
