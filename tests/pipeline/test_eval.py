@@ -7,7 +7,6 @@ import hashlib
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -248,10 +247,9 @@ def test_a_privileged_policy_is_recorded_and_labelled(runs, capsys):
     assert report["privileged"] is True and report["label"] == "oracle (privileged)"
 
 
-def _burn(seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        pass
+#: A process that keeps one core busy for 3 s: a bare interpreter (a spawned
+#: multiprocessing child would first import this test module, torch included).
+BURNER = "import time\nend = time.monotonic() + 3.0\nwhile time.monotonic() < end:\n    pass\n"
 
 
 def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
@@ -264,7 +262,6 @@ def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
     suite run the loaded run otherwise took two minutes; each burning second is a second
     of both cores taken from the rest of the suite). The idle run is this process's (a
     command's start cost more than its episodes): the loaded command must give its bytes."""
-    import multiprocessing
     import os
 
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
@@ -280,14 +277,13 @@ def test_the_same_evaluation_gives_the_same_bytes_under_load(tmp_path):
     evaluate("predictive", "test-1k", tmp_path / "idle", episodes=2, resolution=RESOLUTION, shard_size=2, workers=0,
              progress=False, summary=False)
     idle = json.loads((tmp_path / "idle" / "catalog.json").read_text())
-    burners = [multiprocessing.get_context("spawn").Process(target=_burn, args=(3.0,), daemon=True) for _ in range(2)]
-    for burner in burners:
-        burner.start()
+    burners = [subprocess.Popen([sys.executable, "-c", BURNER]) for _ in range(2)]
     try:
         loaded = run("loaded")
     finally:
         for burner in burners:
             burner.kill()
+            burner.wait()
     assert loaded["hash"] == idle["hash"]
     assert loaded["deadline_s"] is None
 
