@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -105,6 +106,9 @@ def main() -> None:
     parser.add_argument("--python", default=sys.executable, help="the python3 that makes the venvs (3.11+)")
     parser.add_argument("--update-readme", action="store_true", help="rewrite README.md's timing sentence")
     args = parser.parse_args()
+    # Its commands start as in a newcomer's terminal, with Ctrl-C's default action, even where this
+    # script was started with SIGINT ignored (`cmd &` in a script), which every process under it would keep.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     record = measure(args.python)
     out = ROOT / "benchmarks" / "results" / "first_screen.json"
     out.write_text(json.dumps(record, indent=1) + "\n")

@@ -171,6 +171,13 @@ def test_a_launched_command_that_signals_its_parent_is_stopped_and_named(tmp_pat
         launched.close()
 
 
+#: Runs the command after it as a terminal's foreground job starts: with SIGINT's default
+#: action, even where this test run was started with SIGINT ignored (a shell's background
+#: job: `cmd &`), which the command's Python would keep, taking no Ctrl-C at all.
+FOREGROUND = [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+              "os.execv(sys.argv[1], sys.argv[1:])"]
+
+
 def _eval(policies: Policies, policy: str, workers: int, episodes: int, **env: str) -> subprocess.Popen:
     """``pipeline eval`` in a process group of its own: ``--workers N`` (a local Dask cluster:
     two shards, as a job of one shard runs in the driver), or 0 for the library's run in
@@ -185,8 +192,8 @@ def _eval(policies: Policies, policy: str, workers: int, episodes: int, **env: s
                    f"'dyana_hostile:{policy}', 'test-1k', {out!r}, episodes={episodes}, workers=0, "
                    f"resolution={RESOLUTION}, shard_size={episodes}, progress=False)"]
     path = os.pathsep.join([str(policies.folder), str(ROOT), os.environ.get("PYTHONPATH", "")])
-    return subprocess.Popen(command, cwd=policies.folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, env={**os.environ, "PYTHONPATH": path, **env})
+    return subprocess.Popen([*FOREGROUND, *command], cwd=policies.folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True, env={**os.environ, "PYTHONPATH": path, **env})
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -281,7 +288,7 @@ def _interrupted_build(out: str, env: dict[str, str] | None = None) -> tuple[int
     episode: its exit code and the lines it printed other than progress."""
     command = [str(BIN / "pipeline"), "build", "--slice", "linear-fast", "--episodes", "8", "--shard-size", "2",
                "--workers", "1", "--resolution", str(RESOLUTION), "--out", out]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    proc = subprocess.Popen([*FOREGROUND, *command], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, env={**os.environ, **(env or {})})
     lines, reader = _lines(proc)
     try:
