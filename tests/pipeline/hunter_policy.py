@@ -22,7 +22,7 @@ import stat
 from collections.abc import Iterator
 from pathlib import Path
 
-from generators.heldout import check_secret, derive, private_specs
+from generators.heldout import MAX_SECRET_CHARS, MIN_SECRET_CHARS, check_secret, derive, private_specs
 from schemas.errors import SpecError
 from schemas.spec import EpisodeSpec
 from tests.pipeline.lookup_policy import SLICE, Key, LookupPolicy, task_key
@@ -49,6 +49,8 @@ def _read(path: str | Path, limit: int = MAX_BYTES) -> bytes:
 
 def _secretish(text: str) -> Iterator[str]:
     for word in re.split(r"[\s=\0]+", text):
+        if not MIN_SECRET_CHARS <= len(word) <= MAX_SECRET_CHARS:
+            continue  # check_secret refuses it too: skipped without building its refusal
         try:
             yield check_secret(word)
         except SpecError:
