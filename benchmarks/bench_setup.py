@@ -32,7 +32,7 @@ PROBE_TERMS = 10_000_000
 def bare_probe(repeats: int = 3) -> float:
     """CPU seconds this machine takes for :data:`PROBE_TERMS` of plain-Python arithmetic, the
     fastest of ``repeats``: the bare baseline that a timing run records beside its numbers,
-    since this machine's speed moves by ~20% between runs at the same load."""
+    since this machine's speed moves by 20-40% between runs at the same load."""
     import time
 
     best = float("inf")

@@ -1,7 +1,7 @@
 """How long a policy call may take: the watchdog and the check of a number of seconds.
 
 Apart from the rollout so that a job spec can check ``--deadline`` without importing the
-closed loop (gymnasium, OpenCV): ``pipeline build`` never runs a policy.
+closed loop (gymnasium, the environment): ``pipeline build`` never runs a policy.
 """
 
 from __future__ import annotations
