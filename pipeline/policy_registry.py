@@ -45,6 +45,7 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, Protocol, cast, runtime_checkable
 
 from catalog.store.hashing import sha256_file
+from pipeline.loop.deadlines import WATCHDOG_S
 from pipeline.vlm_kind import (
     VLM_FLAGS,
     VLM_PREFIX,
@@ -72,19 +73,13 @@ REMOTE_SLACK_S = 5.0
 Config = dict[str, Any]
 
 
-def watchdog_s() -> float:
-    """The rollout's watchdog (:data:`pipeline.loop.deadlines.WATCHDOG_S`), the default timeout."""
-    from pipeline.loop.deadlines import WATCHDOG_S
-
-    return WATCHDOG_S
-
-
 @dataclass(frozen=True)
 class OpenOptions:
     """How to make a policy: the per-call timeout it may wait (a socket's), whether a
     user's code runs in a child process, and the kind's configuration (None: none)."""
 
-    timeout_s: float = field(default_factory=watchdog_s)
+    #: The rollout's watchdog by default (:data:`pipeline.loop.deadlines.WATCHDOG_S`).
+    timeout_s: float = WATCHDOG_S
     isolate: bool = True
     config: Config | None = None
     #: A held-out run's seal (:class:`pipeline.remote.sandbox.Seal`): a user's code runs sealed.
