@@ -182,7 +182,8 @@ def preload_in_forkserver(task_fn: Callable[..., Any]) -> None:
     if context.get_start_method() != "forkserver":
         return
     wanted = ["distributed", *required_packages, *optional_packages, __name__, task_fn.__module__]
-    context.set_forkserver_preload(list(dict.fromkeys(wanted)))
+    # "__main__" would have the server run the driver's script again (multiprocessing's rule)
+    context.set_forkserver_preload([name for name in dict.fromkeys(wanted) if name != "__main__"])
 
 
 def dask_setup(worker: object) -> None:
