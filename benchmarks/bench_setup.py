@@ -43,6 +43,28 @@ def bare_probe(repeats: int = 3) -> float:
     return round(best, 3)
 
 
+def machine_cpu() -> dict[str, float] | None:
+    """This machine's CPU seconds since boot, all cores together, from Linux's ``/proc/stat``:
+    ``busy`` (user, nice, system, interrupts), ``idle`` (idle and I/O wait) and ``steal``
+    (time the hypervisor gave this virtual machine's cores to others: the host's load, which
+    ``uptime`` does not show). None where there is no ``/proc/stat``."""
+    try:
+        with open("/proc/stat") as stat:
+            fields = stat.readline().split()
+    except OSError:
+        return None
+    user, nice, system, idle, iowait, irq, softirq, steal = (int(v) for v in fields[1:9])
+    tick = os.sysconf("SC_CLK_TCK")
+    return {"busy": (user + nice + system + irq + softirq) / tick, "idle": (idle + iowait) / tick, "steal": steal / tick}
+
+
+def cpu_between(start: dict[str, float] | None, end: dict[str, float] | None) -> dict[str, float] | None:
+    """What the machine did between two :func:`machine_cpu` readings, in CPU seconds."""
+    if start is None or end is None:
+        return None
+    return {f"{key}_cpu_s": round(end[key] - start[key], 1) for key in ("busy", "idle", "steal")}
+
+
 def provenance() -> dict:
     """What a result file records about where its numbers come from: the commit (and whether
     the working tree differed from it), the dataset version, the date, the cores and the load."""

@@ -4,7 +4,9 @@ Clones the repository's HEAD into a temporary folder, runs README command 1 (mak
 install, build 32 linear-fast episodes) and command 2 (``.ci/run``: install the extras,
 lint, type-check, build the docs, run the tests), timing each and each ``== phase`` of
 ``.ci/run``, with the load average (``uptime``) and the bare baseline (``bench_setup.bare_probe``:
-this machine's speed, which moves between runs) at the start and the end. Writes
+this machine's speed, which moves between runs) at the start and the end, and the machine's
+CPU seconds in each phase (``bench_setup.machine_cpu``: busy, idle, and stolen by the host,
+a load ``uptime`` does not show). Writes
 ``benchmarks/results/first_screen.json`` (the README's timing sentence and the benchmarks
 page are generated from it) and, with ``--update-readme``, rewrites that sentence. The
 commands run in this shell's environment less what a newcomer's lacks (:data:`NOT_A_NEWCOMERS`).
@@ -43,10 +45,15 @@ def _uptime() -> str:
     return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
 
 
-def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[str, float], str, dict[str, str]]:
-    """Seconds, seconds per ``== phase`` line printed, the output's last lines, and each
-    phase's pytest summary line (``N passed ...``), if it printed one."""
+def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[str, float], str, dict[str, str], dict]:
+    """Seconds, seconds per ``== phase`` line printed, the output's last lines, each
+    phase's pytest summary line (``N passed ...``), if it printed one, and each phase's
+    machine CPU seconds (busy, idle, steal)."""
+    import bench_setup
+
     start = time.monotonic()
+    cpu_start = bench_setup.machine_cpu()
+    phase_cpu: dict[str, dict | None] = {}
     process = subprocess.Popen(["bash", "-euo", "pipefail", "-c", command], cwd=cwd, env=env, text=True,
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     assert process.stdout is not None
@@ -61,16 +68,18 @@ def _timed(command: str, cwd: Path, env: dict[str, str]) -> tuple[float, dict[st
         if re.search(r"\d+ passed", line):
             summaries[phase] = line.strip()
         if line.startswith("== "):
-            now = time.monotonic()
+            now, cpu_now = time.monotonic(), bench_setup.machine_cpu()
             phases[phase] = round(now - phase_start, 1)
-            phase, phase_start = line[3:].strip().split(" ")[0], now
+            phase_cpu[phase] = bench_setup.cpu_between(cpu_start, cpu_now)
+            phase, phase_start, cpu_start = line[3:].strip().split(" ")[0], now, cpu_now
     log.close()
     if process.wait() != 0:
         sys.exit(f"{command!r} failed in {cwd} (its whole output: {log.name}):\n" + "\n".join(tail))
     os.unlink(log.name)
     end = time.monotonic()
     phases[phase] = round(end - phase_start, 1)
-    return round(end - start, 1), phases, "\n".join(tail), summaries
+    phase_cpu[phase] = bench_setup.cpu_between(cpu_start, bench_setup.machine_cpu())
+    return round(end - start, 1), phases, "\n".join(tail), summaries, phase_cpu
 
 
 def measure(python: str) -> dict:
@@ -88,12 +97,12 @@ def measure(python: str) -> dict:
     with tempfile.TemporaryDirectory(prefix="dyana-first-screen-") as tmp:
         clone = Path(tmp) / "dyana"
         subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
-        seconds, _, tail, _ = _timed(COMMAND_1, clone, env)
+        seconds, _, tail, _, _ = _timed(COMMAND_1, clone, env)
         found = re.search(r"hash ([0-9a-f]{16})", tail)
         record["command_1"] = {"command": COMMAND_1, "seconds": seconds, "hash": found.group(1) if found else None}
-        seconds, phases, _, summaries = _timed(COMMAND_2, clone, env)
+        seconds, phases, _, summaries, phase_cpu = _timed(COMMAND_2, clone, env)
         # the default test run's line ("== tests"), not the peer run's that follows it
-        record["command_2"] = {"command": COMMAND_2, "seconds": seconds, "phases": phases,
+        record["command_2"] = {"command": COMMAND_2, "seconds": seconds, "phases": phases, "phases_machine_cpu": phase_cpu,
                                "tests_summary": summaries.get("tests"), "peer_summary": summaries.get("real")}
     record["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     record["uptime_end"] = _uptime()

@@ -410,12 +410,21 @@ def first_screen_sentence(root: Path) -> str:
     record = json.loads(path.read_text(encoding="utf-8"))
     one, two = record["command_1"], record["command_2"]
     tests = two.get("phases", {}).get("tests")
-    of_which = f", of which the tests {_duration(tests)}" if tests is not None else ""
+    of_which = f", of which the tests {_duration(tests)}{_stolen(two)}" if tests is not None else ""
     return (f"Timings (`benchmarks/results/first_screen.json`, {record['date_utc']}, commit "
             f"{record['commit'][:7]}, {record['cores']} cores, load average {record['load_average_start'][0]} "
             f"at the start and {record['load_average_end'][0]} at the end, pip's cache "
             f"{record['pip_cache']}): command 1 took {_duration(one['seconds'])} with the install, "
             f"command 2 {_duration(two['seconds'])}{of_which}{_probe(record)}.")
+
+
+def _stolen(command: dict) -> str:
+    """The CPU seconds the host took from this virtual machine during the tests, where measured."""
+    machine = (command.get("phases_machine_cpu") or {}).get("tests")
+    if not machine:
+        return ""
+    return (f", in which the machine was busy for {machine['busy_cpu_s']:,.0f} CPU s and its host took "
+            f"{machine['steal_cpu_s']:,.0f} CPU s from it (steal, `/proc/stat`)")
 
 
 def _probe(record: dict) -> str:
