@@ -46,8 +46,9 @@ def bare_probe(repeats: int = 3) -> float:
 def machine_cpu() -> dict[str, float] | None:
     """This machine's CPU seconds since boot, all cores together, from Linux's ``/proc/stat``:
     ``busy`` (user, nice, system, interrupts), ``idle`` (idle and I/O wait) and ``steal``
-    (time the hypervisor gave this virtual machine's cores to others: the host's load, which
-    ``uptime`` does not show). None where there is no ``/proc/stat``."""
+    (time the hypervisor gave this virtual machine's cores to others, a load of the host's
+    that ``uptime`` does not show). A host that slows the cores without taking them away
+    shows in :func:`bare_probe`, not here. None where there is no ``/proc/stat``."""
     try:
         with open("/proc/stat") as stat:
             fields = stat.readline().split()
