@@ -44,19 +44,19 @@ def bare_probe(repeats: int = 3) -> float:
 
 
 def machine_cpu() -> dict[str, float] | None:
-    """This machine's CPU seconds since boot, all cores together, from Linux's ``/proc/stat``:
-    ``busy`` (user, nice, system, interrupts), ``idle`` (idle and I/O wait) and ``steal``
-    (time the hypervisor gave this virtual machine's cores to others, a load of the host's
-    that ``uptime`` does not show). A host that slows the cores without taking them away
-    shows in :func:`bare_probe`, not here. None where there is no ``/proc/stat``."""
-    try:
-        with open("/proc/stat") as stat:
-            fields = stat.readline().split()
-    except OSError:
+    """This machine's CPU seconds since boot, all cores together (``psutil.cpu_times``, which
+    Dask requires; on Linux it reads ``/proc/stat``): ``busy`` (user, nice, system,
+    interrupts), ``idle`` (idle and I/O wait) and ``steal`` (time the hypervisor gave this
+    virtual machine's cores to others, a load of the host's that ``uptime`` does not show).
+    A host that slows the cores without taking them away shows in :func:`bare_probe`, not
+    here. None where the system reports no steal (not Linux)."""
+    import psutil
+
+    times = psutil.cpu_times()
+    if not hasattr(times, "steal"):
         return None
-    user, nice, system, idle, iowait, irq, softirq, steal = (int(v) for v in fields[1:9])
-    tick = os.sysconf("SC_CLK_TCK")
-    return {"busy": (user + nice + system + irq + softirq) / tick, "idle": (idle + iowait) / tick, "steal": steal / tick}
+    busy = times.user + times.nice + times.system + times.irq + times.softirq
+    return {"busy": busy, "idle": times.idle + times.iowait, "steal": times.steal}
 
 
 def cpu_between(start: dict[str, float] | None, end: dict[str, float] | None) -> dict[str, float] | None:
