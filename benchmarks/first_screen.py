@@ -101,9 +101,10 @@ def measure(python: str) -> dict:
         found = re.search(r"hash ([0-9a-f]{16})", tail)
         record["command_1"] = {"command": COMMAND_1, "seconds": seconds, "hash": found.group(1) if found else None}
         seconds, phases, _, summaries, phase_cpu = _timed(COMMAND_2, clone, env)
-        # the default test run's line ("== tests"), not the peer run's that follows it
+        # the default test run's line ("== tests"), the manual's pages' and the peer run's
         record["command_2"] = {"command": COMMAND_2, "seconds": seconds, "phases": phases, "phases_machine_cpu": phase_cpu,
-                               "tests_summary": summaries.get("tests"), "peer_summary": summaries.get("real")}
+                               "tests_summary": summaries.get("tests"), "manual_summary": summaries.get("manual"),
+                               "peer_summary": summaries.get("real")}
     record["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     record["uptime_end"] = _uptime()
     record["bare_probe_s_end"] = bench_setup.bare_probe()

@@ -1,7 +1,8 @@
-"""A test marked ``slow`` names the faster test of the default run that covers it.
+"""A test marked ``slow`` names the faster test, run by ``.ci/run``, that covers it.
 
 ``slow`` is for end-to-end runs that repeat at more cost what a faster test checks
-(docs/contributing.md, "Tests"): ``@pytest.mark.slow(cover="tests/x/test_y.py::test_z")``.
+(README.md, on command 2): ``@pytest.mark.slow(cover="tests/x/test_y.py::test_z")``; the cover
+runs in the default run or in another step of ``.ci/run`` (the manual's pages).
 This reads every test file's source (no import, no collection) and checks each
 ``pytest.mark.slow`` has a ``cover`` naming a test function defined in that file,
 one that is not itself marked slow.

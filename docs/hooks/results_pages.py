@@ -411,6 +411,9 @@ def first_screen_sentence(root: Path) -> str:
     one, two = record["command_1"], record["command_2"]
     tests = two.get("phases", {}).get("tests")
     of_which = f", of which the tests {_duration(tests)}{_stolen(two)}" if tests is not None else ""
+    manual = two.get("phases", {}).get("manual")
+    if tests is not None and manual is not None:
+        of_which += f", and the manual's pages (a step of their own) {_duration(manual)}"
     return (f"Timings (`benchmarks/results/first_screen.json`, {record['date_utc']}, commit "
             f"{record['commit'][:7]}, {record['cores']} cores, load average {record['load_average_start'][0]} "
             f"at the start and {record['load_average_end'][0]} at the end, pip's cache "
