@@ -4,7 +4,9 @@ How a page is run (what a page author relies on):
 
 - Pages: README.md, then docs/**/*.md; pages generated at build time (docs/hooks/) are not
   run. One test per page, each page in a fresh temporary folder, in a process of its own;
-  two pages run at a time.
+  three pages run at a time. The pages' tests are marked ``manual``: ``.ci/run`` runs them
+  in a step of their own (``python -m pytest -n 0 -m 'manual and not slow' tests/docs``),
+  not in the default run.
 - Blocks run in page order. ```bash blocks: ``bash -euo pipefail``, the venv's ``bin/``
   first on PATH (``pipeline``, ``catalog``, ``scoring``, ``python`` are Dyana's); exported
   variables and the folder a block ends in carry over to the next block. ```python blocks:
