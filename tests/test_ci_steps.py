@@ -19,11 +19,16 @@ def _markers_of(expression: str) -> set[str]:
     return set(re.findall(r"[A-Za-z_]\w*", expression)) - {"not", "and", "or"}
 
 
+def _negated(expression: str) -> set[str]:
+    """The markers a ``-m`` expression names after ``not``."""
+    return set(re.findall(r"\bnot\s+([A-Za-z_]\w*)", expression))
+
+
 def default_run_leaves_out(pyproject: Path) -> set[str]:
     """The markers the default run's ``-m 'not a and not b ...'`` deselects."""
     addopts = shlex.split(tomllib.loads(pyproject.read_text(encoding="utf-8"))["tool"]["pytest"]["ini_options"]["addopts"])
     expression = addopts[addopts.index("-m") + 1]
-    return set(re.findall(r"\bnot\s+([A-Za-z_]\w*)", expression))
+    return _negated(expression)
 
 
 def ci_selects(script: Path) -> set[str]:
@@ -36,7 +41,7 @@ def ci_selects(script: Path) -> set[str]:
         for i, word in enumerate(words[:-1]):
             if word == "-m":
                 expression = words[i + 1]
-                selected |= _markers_of(expression) - set(re.findall(r"\bnot\s+([A-Za-z_]\w*)", expression))
+                selected |= _markers_of(expression) - _negated(expression)
     return selected
 
 

@@ -3,8 +3,8 @@
 One test per page (and a second, marked slow, for a page with ``slow`` blocks): its
 blocks in page order in a fresh temporary folder, in a process of its own (runner.py);
 a failure names the page and the block's line. Marked ``manual``: not in the default run;
-``.ci/run`` runs them in a step of their own (``pytest -n 0 -m 'manual and not slow' tests/docs``: the
-page pool runs two pages at once in one test process).
+``.ci/run`` runs them in a step of their own (``pytest -n 0 -m 'manual and not slow'
+tests/docs``: the page pool runs several pages at once in one test process).
 """
 
 from __future__ import annotations
