@@ -409,9 +409,9 @@ def first_screen_sentence(root: Path) -> str:
                 "in a fresh clone and writes `benchmarks/results/first_screen.json`.")
     record = json.loads(path.read_text(encoding="utf-8"))
     one, two = record["command_1"], record["command_2"]
-    tests = two.get("phases", {}).get("tests")
+    phases = two.get("phases", {})
+    tests, manual = phases.get("tests"), phases.get("manual")
     of_which = f", of which the tests {_duration(tests)}{_stolen(two)}" if tests is not None else ""
-    manual = two.get("phases", {}).get("manual")
     if tests is not None and manual is not None:
         of_which += f", and the manual's pages (a step of their own) {_duration(manual)}"
     return (f"Timings (`benchmarks/results/first_screen.json`, {record['date_utc']}, commit "
